@@ -1,0 +1,1 @@
+//! The fantasystyle DAG runner (to be written).

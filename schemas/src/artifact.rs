@@ -1,0 +1,543 @@
+//! Writing and reading artifact directories.
+//!
+//! [`ArtifactWriter`] writes every file into a temporary sibling directory
+//! (`.NAME.partial-PID-N`), then writes the manifest last and renames the directory
+//! into place. If the stage fails or is killed, the temporary directory is left behind
+//! or removed, and the previous artifact at the target path (if any) is untouched until
+//! the final rename. [`Artifact::open`] checks format, kind, schema version, the
+//! presence of required files and every file's blake3 before anything is read.
+
+use crate::manifest::{FORMAT, canonical_json};
+use crate::npy::{NpyArray, NpyElement, decode_npy, encode_npy};
+use crate::{
+    ArtifactKind, FileEntry, InputRef, MANIFEST_FILE, Manifest, Producer, Result, SchemaError,
+};
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// blake3 of a file's bytes, as hex.
+pub fn hash_file(path: &Path) -> Result<String> {
+    let mut h = blake3::Hasher::new();
+    h.update_from_file(path)?;
+    Ok(h.finalize().to_hex().to_string())
+}
+
+trait HashFile {
+    fn update_from_file(&mut self, path: &Path) -> Result<()>;
+}
+impl HashFile for blake3::Hasher {
+    fn update_from_file(&mut self, path: &Path) -> Result<()> {
+        let mut f = fs::File::open(path).map_err(|e| SchemaError::io(path, e))?;
+        std::io::copy(&mut f, self).map_err(|e| SchemaError::io(path, e))?;
+        Ok(())
+    }
+}
+
+/// blake3 identifying an input: for an artifact directory, the hash of its manifest
+/// (which lists every file's hash); for a plain file, the hash of its bytes; for a
+/// directory without manifest, the hash over its files' relative paths and hashes.
+pub fn hash_path(path: &Path) -> Result<String> {
+    if path.is_dir() {
+        let m = path.join(MANIFEST_FILE);
+        if m.is_file() {
+            return hash_file(&m);
+        }
+        let mut entries = Vec::new();
+        collect_files(path, path, &mut entries)?;
+        entries.sort();
+        let mut h = blake3::Hasher::new();
+        for (rel, p) in entries {
+            h.update(rel.as_bytes());
+            h.update(hash_file(&p)?.as_bytes());
+        }
+        Ok(h.finalize().to_hex().to_string())
+    } else {
+        hash_file(path)
+    }
+}
+
+fn collect_files(root: &Path, dir: &Path, out: &mut Vec<(String, PathBuf)>) -> Result<()> {
+    for e in fs::read_dir(dir).map_err(|e| SchemaError::io(dir, e))? {
+        let e = e.map_err(|e| SchemaError::io(dir, e))?;
+        let p = e.path();
+        if p.is_dir() {
+            collect_files(root, &p, out)?;
+        } else {
+            let rel = p
+                .strip_prefix(root)
+                .unwrap_or(&p)
+                .to_string_lossy()
+                .replace('\\', "/");
+            out.push((rel, p));
+        }
+    }
+    Ok(())
+}
+
+/// Builds an artifact in a temporary sibling directory and renames it into place on
+/// [`ArtifactWriter::commit`]. Dropping an uncommitted writer removes the temporary
+/// directory.
+#[derive(Debug)]
+pub struct ArtifactWriter {
+    target: PathBuf,
+    tmp: PathBuf,
+    kind: ArtifactKind,
+    producer: Producer,
+    inputs: Vec<InputRef>,
+    files: Vec<FileEntry>,
+    meta: serde_json::Value,
+    committed: bool,
+}
+
+impl ArtifactWriter {
+    /// Start writing an artifact of `kind` that will live at `target`.
+    pub fn create(target: &Path, kind: ArtifactKind, producer: Producer) -> Result<Self> {
+        let parent = match target.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        fs::create_dir_all(&parent).map_err(|e| SchemaError::io(&parent, e))?;
+        if target.exists() && !target.is_dir() {
+            return Err(SchemaError::invalid(
+                target,
+                "output path exists and is not a directory",
+            ));
+        }
+        let tmp = crate::atomic::temp_sibling(target, "partial");
+        fs::create_dir(&tmp).map_err(|e| SchemaError::io(&tmp, e))?;
+        Ok(ArtifactWriter {
+            target: target.to_path_buf(),
+            tmp,
+            kind,
+            producer,
+            inputs: Vec::new(),
+            files: Vec::new(),
+            meta: serde_json::Value::Null,
+            committed: false,
+        })
+    }
+
+    /// The final path.
+    pub fn target(&self) -> &Path {
+        &self.target
+    }
+
+    /// The temporary directory files are being written into.
+    pub fn staging_dir(&self) -> &Path {
+        &self.tmp
+    }
+
+    /// Record an input (hashing it now).
+    pub fn add_input(&mut self, role: &str, path: &Path) -> Result<()> {
+        let blake3 = hash_path(path)?;
+        self.inputs.push(InputRef {
+            role: role.to_string(),
+            path: path.to_string_lossy().into_owned(),
+            blake3,
+        });
+        Ok(())
+    }
+
+    /// Record an input by a hash computed elsewhere (e.g. a generated orbit spec).
+    pub fn add_input_hash(&mut self, role: &str, path: &str, blake3: String) {
+        self.inputs.push(InputRef {
+            role: role.to_string(),
+            path: path.to_string(),
+            blake3,
+        });
+    }
+
+    /// Set kind-specific metadata.
+    pub fn set_meta(&mut self, meta: serde_json::Value) {
+        self.meta = meta;
+    }
+
+    fn check_name(&self, name: &str) -> Result<()> {
+        if name.is_empty()
+            || name.contains('/')
+            || name.contains('\\')
+            || name.starts_with('.')
+            || name == MANIFEST_FILE
+        {
+            return Err(SchemaError::invalid(
+                &self.target,
+                format!("bad file name `{name}` inside an artifact"),
+            ));
+        }
+        if self.files.iter().any(|f| f.name == name) {
+            return Err(SchemaError::invalid(
+                &self.target,
+                format!("file `{name}` written twice"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Add a tensor as `name` (should end in `.npy`).
+    pub fn write_tensor<T: NpyElement>(
+        &mut self,
+        name: &str,
+        shape: &[usize],
+        data: &[T],
+    ) -> Result<()> {
+        self.check_name(name)?;
+        if shape.iter().product::<usize>() != data.len() {
+            return Err(SchemaError::invalid(
+                self.tmp.join(name),
+                format!(
+                    "data has {} elements, shape {:?} needs {}",
+                    data.len(),
+                    shape,
+                    shape.iter().product::<usize>()
+                ),
+            ));
+        }
+        let bytes = encode_npy(shape, data);
+        let p = self.tmp.join(name);
+        fs::write(&p, &bytes).map_err(|e| SchemaError::io(&p, e))?;
+        self.files.push(FileEntry {
+            name: name.to_string(),
+            blake3: blake3::hash(&bytes).to_hex().to_string(),
+            bytes: bytes.len() as u64,
+            dtype: Some(T::DTYPE),
+            shape: Some(shape.to_vec()),
+        });
+        Ok(())
+    }
+
+    /// Add an arbitrary file.
+    pub fn write_bytes(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        self.check_name(name)?;
+        let p = self.tmp.join(name);
+        fs::write(&p, bytes).map_err(|e| SchemaError::io(&p, e))?;
+        self.files.push(FileEntry {
+            name: name.to_string(),
+            blake3: blake3::hash(bytes).to_hex().to_string(),
+            bytes: bytes.len() as u64,
+            dtype: None,
+            shape: None,
+        });
+        Ok(())
+    }
+
+    /// Add a JSON file.
+    pub fn write_json<T: serde::Serialize>(&mut self, name: &str, value: &T) -> Result<()> {
+        let mut b = serde_json::to_vec_pretty(value).map_err(|e| {
+            SchemaError::invalid(self.tmp.join(name), format!("cannot serialize: {e}"))
+        })?;
+        b.push(b'\n');
+        self.write_bytes(name, &b)
+    }
+
+    /// Add a file written by `f` into the staging path (for writers that need a path,
+    /// such as an image encoder). The file is hashed after `f` returns.
+    pub fn write_with<F>(&mut self, name: &str, f: F) -> Result<()>
+    where
+        F: FnOnce(&Path) -> std::result::Result<(), String>,
+    {
+        self.check_name(name)?;
+        let p = self.tmp.join(name);
+        f(&p).map_err(|reason| SchemaError::invalid(&p, reason))?;
+        let bytes = fs::metadata(&p).map_err(|e| SchemaError::io(&p, e))?.len();
+        self.files.push(FileEntry {
+            name: name.to_string(),
+            blake3: hash_file(&p)?,
+            bytes,
+            dtype: None,
+            shape: None,
+        });
+        Ok(())
+    }
+
+    /// Write the manifest and move the artifact into place, replacing any previous one.
+    pub fn commit(mut self) -> Result<Manifest> {
+        for req in self.kind.required_files() {
+            if !self.files.iter().any(|f| f.name == *req) {
+                return Err(SchemaError::invalid(
+                    &self.target,
+                    format!(
+                        "artifact of kind `{}` is missing required file `{req}`",
+                        self.kind
+                    ),
+                ));
+            }
+        }
+        let manifest = Manifest {
+            format: FORMAT.to_string(),
+            kind: self.kind,
+            schema_version: self.kind.current_version(),
+            producer: self.producer.clone(),
+            inputs: self.inputs.clone(),
+            files: self.files.clone(),
+            meta: self.meta.clone(),
+        };
+        let mpath = self.tmp.join(MANIFEST_FILE);
+        let mut b = serde_json::to_vec_pretty(&manifest)
+            .map_err(|e| SchemaError::invalid(&mpath, e.to_string()))?;
+        b.push(b'\n');
+        fs::write(&mpath, &b).map_err(|e| SchemaError::io(&mpath, e))?;
+        // fsync files so that a crash after the rename never exposes empty files.
+        for f in fs::read_dir(&self.tmp).map_err(|e| SchemaError::io(&self.tmp, e))? {
+            let p = f.map_err(|e| SchemaError::io(&self.tmp, e))?.path();
+            if let Ok(file) = fs::File::open(&p) {
+                let _ = file.sync_all();
+            }
+        }
+        let backup = if self.target.exists() {
+            let b = crate::atomic::temp_sibling(&self.target, "old");
+            fs::rename(&self.target, &b).map_err(|e| SchemaError::io(&self.target, e))?;
+            Some(b)
+        } else {
+            None
+        };
+        if let Err(e) = fs::rename(&self.tmp, &self.target) {
+            if let Some(b) = &backup {
+                let _ = fs::rename(b, &self.target);
+            }
+            return Err(SchemaError::io(&self.target, e));
+        }
+        self.committed = true;
+        if let Some(b) = backup {
+            let _ = fs::remove_dir_all(b);
+        }
+        Ok(manifest)
+    }
+}
+
+impl Drop for ArtifactWriter {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = fs::remove_dir_all(&self.tmp);
+        }
+    }
+}
+
+/// An artifact opened for reading; its manifest has been validated and its files'
+/// hashes checked.
+#[derive(Debug, Clone)]
+pub struct Artifact {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+}
+
+impl Artifact {
+    /// Open `dir`, requiring kind `kind`, a readable schema version, the required files
+    /// and matching hashes.
+    pub fn open(dir: &Path, kind: ArtifactKind) -> Result<Self> {
+        let a = Self::open_any(dir)?;
+        if a.manifest.kind != kind {
+            return Err(SchemaError::WrongKind {
+                path: dir.to_path_buf(),
+                expected: kind.to_string(),
+                found: a.manifest.kind.to_string(),
+            });
+        }
+        Ok(a)
+    }
+
+    /// Open an artifact of any kind (for inspection tools).
+    pub fn open_any(dir: &Path) -> Result<Self> {
+        let a = Self::open_unverified(dir)?;
+        for f in &a.manifest.files {
+            let p = dir.join(&f.name);
+            if !p.is_file() {
+                return Err(SchemaError::invalid(
+                    &p,
+                    "listed in the manifest but missing",
+                ));
+            }
+            let h = hash_file(&p)?;
+            if h != f.blake3 {
+                return Err(SchemaError::HashMismatch {
+                    path: p,
+                    expected: f.blake3.clone(),
+                    found: h,
+                });
+            }
+        }
+        Ok(a)
+    }
+
+    /// Read and validate the manifest without hashing the files.
+    pub fn open_unverified(dir: &Path) -> Result<Self> {
+        if !dir.is_dir() {
+            return Err(SchemaError::invalid(
+                dir,
+                if dir.exists() {
+                    "not a directory (an artifact is a directory)"
+                } else {
+                    "artifact directory does not exist"
+                },
+            ));
+        }
+        let mpath = dir.join(MANIFEST_FILE);
+        let text = fs::read_to_string(&mpath).map_err(|e| SchemaError::io(&mpath, e))?;
+        let manifest: Manifest =
+            serde_json::from_str(&text).map_err(|e| SchemaError::Manifest {
+                path: mpath.clone(),
+                reason: e.to_string(),
+            })?;
+        if manifest.format != FORMAT {
+            return Err(SchemaError::Manifest {
+                path: mpath,
+                reason: format!("format is `{}`, expected `{FORMAT}`", manifest.format),
+            });
+        }
+        let kind = manifest.kind;
+        if !kind.readable_versions().contains(&manifest.schema_version) {
+            return Err(SchemaError::UnsupportedVersion {
+                path: mpath,
+                kind: kind.to_string(),
+                found: manifest.schema_version,
+                supported: format!("{:?}", kind.readable_versions()),
+            });
+        }
+        for req in kind.required_files() {
+            if manifest.file(req).is_none() {
+                return Err(SchemaError::Manifest {
+                    path: mpath,
+                    reason: format!("kind `{kind}` requires file `{req}`, which is not listed"),
+                });
+            }
+        }
+        Ok(Artifact {
+            dir: dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// Path of a file inside the artifact.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// Read tensor `name`, checking its dtype and shape against the manifest.
+    pub fn read_tensor<T: NpyElement>(&self, name: &str) -> Result<NpyArray<T>> {
+        let p = self.path(name);
+        let entry = self
+            .manifest
+            .file(name)
+            .ok_or_else(|| SchemaError::invalid(&p, "not listed in the artifact's manifest"))?;
+        let bytes = fs::read(&p).map_err(|e| SchemaError::io(&p, e))?;
+        let a = decode_npy::<T>(&p, &bytes)?;
+        if let Some(shape) = entry.shape.as_ref().filter(|s| **s != a.shape) {
+            return Err(SchemaError::invalid(
+                &p,
+                format!(
+                    "shape {:?} differs from the manifest's {:?}",
+                    a.shape, shape
+                ),
+            ));
+        }
+        Ok(a)
+    }
+
+    /// Read an `f32` tensor and refuse NaN or infinity.
+    pub fn read_f32(&self, name: &str) -> Result<NpyArray<f32>> {
+        let a = self.read_tensor::<f32>(name)?;
+        if let Some(i) = a.data.iter().position(|x| !x.is_finite()) {
+            return Err(SchemaError::Npy {
+                path: self.path(name),
+                reason: format!("element {i} is {} (NaN or infinity not allowed)", a.data[i]),
+            });
+        }
+        Ok(a)
+    }
+
+    /// Read and parse a JSON file.
+    pub fn read_json<T: serde::de::DeserializeOwned>(&self, name: &str) -> Result<T> {
+        let p = self.path(name);
+        let text = fs::read_to_string(&p).map_err(|e| SchemaError::io(&p, e))?;
+        serde_json::from_str(&text)
+            .map_err(|e| SchemaError::invalid(&p, format!("invalid JSON: {e}")))
+    }
+
+    /// blake3 identifying this artifact (its manifest's hash).
+    pub fn id(&self) -> Result<String> {
+        hash_file(&self.dir.join(MANIFEST_FILE))
+    }
+
+    /// The producer's params as canonical JSON.
+    pub fn params_canonical(&self) -> String {
+        canonical_json(&self.manifest.producer.params)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn producer() -> Producer {
+        Producer::new("test", "0.1.0", serde_json::json!({"b": 1, "a": [1, 2]}))
+    }
+
+    #[test]
+    fn write_open_read() {
+        let d = tempfile::tempdir().unwrap();
+        let t = d.path().join("lat");
+        let mut w = ArtifactWriter::create(&t, ArtifactKind::Latents, producer()).unwrap();
+        w.write_tensor("latents.npy", &[1, 2, 2, 2], &[0.5f32; 8])
+            .unwrap();
+        w.set_meta(serde_json::json!({"t": 3}));
+        w.commit().unwrap();
+        let a = Artifact::open(&t, ArtifactKind::Latents).unwrap();
+        assert_eq!(a.read_f32("latents.npy").unwrap().shape, vec![1, 2, 2, 2]);
+        assert_eq!(a.manifest.meta["t"], 3);
+        // Only the artifact remains: no staging directories.
+        assert_eq!(fs::read_dir(d.path()).unwrap().count(), 1);
+        let e = Artifact::open(&t, ArtifactKind::Views)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("expected an artifact of kind `views`"), "{e}");
+    }
+
+    #[test]
+    fn tamper_is_detected() {
+        let d = tempfile::tempdir().unwrap();
+        let t = d.path().join("lat");
+        let mut w = ArtifactWriter::create(&t, ArtifactKind::Latents, producer()).unwrap();
+        w.write_tensor("latents.npy", &[2], &[1f32, 2.]).unwrap();
+        w.commit().unwrap();
+        crate::npy::write_npy(&t.join("latents.npy"), &[2], &[1f32, 3.]).unwrap();
+        let e = Artifact::open(&t, ArtifactKind::Latents)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("hash mismatch") && e.contains("latents.npy"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn dropped_writer_leaves_old_artifact_and_no_temp() {
+        let d = tempfile::tempdir().unwrap();
+        let t = d.path().join("lat");
+        let mut w = ArtifactWriter::create(&t, ArtifactKind::Latents, producer()).unwrap();
+        w.write_tensor("latents.npy", &[1], &[1f32]).unwrap();
+        w.commit().unwrap();
+        let before = fs::read(t.join(MANIFEST_FILE)).unwrap();
+        {
+            let mut w = ArtifactWriter::create(&t, ArtifactKind::Latents, producer()).unwrap();
+            w.write_tensor("latents.npy", &[1], &[9f32]).unwrap();
+            // dropped without commit (a failing stage)
+        }
+        assert_eq!(fs::read(t.join(MANIFEST_FILE)).unwrap(), before);
+        assert_eq!(fs::read_dir(d.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn missing_required_file_refused_at_commit() {
+        let d = tempfile::tempdir().unwrap();
+        let w =
+            ArtifactWriter::create(&d.path().join("v"), ArtifactKind::Views, producer()).unwrap();
+        let e = w.commit().unwrap_err().to_string();
+        assert!(e.contains("rgb.npy"), "{e}");
+    }
+
+    #[test]
+    fn params_hash_is_key_order_independent() {
+        let a = Producer::new("s", "1", serde_json::json!({"x": 1, "y": 2}));
+        let b = Producer::new("s", "1", serde_json::json!({"y": 2, "x": 1}));
+        assert_eq!(a.params_hash, b.params_hash);
+    }
+}

@@ -1,0 +1,15 @@
+//! `make-sample`: thin binary over the library; see `fantasystyle::stages`.
+use clap::Parser;
+
+/// make-sample (not yet implemented).
+#[derive(Parser, Debug)]
+#[command(version)]
+struct Args {}
+
+fn main() -> std::process::ExitCode {
+    fantasystyle::stages::run_main(Args::parse(), |_a| {
+        Err(fantasystyle::Error::Other(
+            "make-sample: not implemented yet".into(),
+        ))
+    })
+}

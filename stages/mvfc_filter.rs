@@ -1,0 +1,15 @@
+//! `mvfc-filter`: thin binary over the library; see `fantasystyle::stages`.
+use clap::Parser;
+
+/// mvfc-filter (not yet implemented).
+#[derive(Parser, Debug)]
+#[command(version)]
+struct Args {}
+
+fn main() -> std::process::ExitCode {
+    fantasystyle::stages::run_main(Args::parse(), |_a| {
+        Err(fantasystyle::Error::Other(
+            "mvfc-filter: not implemented yet".into(),
+        ))
+    })
+}

@@ -1,0 +1,2 @@
+//! The integration test binary: one binary, one harness (`harness`), one module per area.
+mod harness;
