@@ -1,1 +1,69 @@
-//! (to be written)
+//! The prior interface: everything the method asks of a 2D model.
+//!
+//! FantasyStyle (Sec. 3.3) needs, from a diffusion model: a VAE (encode renders to
+//! latents z0, decode back), and noise predictions eps(z_t, t, c) under several
+//! conditionings c, batched so that classifier-free guidance costs one call.
+//! Three kinds implement [`Prior`]:
+//!
+//! * `onnx`: real diffusion graphs (SD 1.5 / SDXL UNet, optional ControlNet and
+//!   IP-Adapter image encoder) described by a model manifest;
+//! * `gaussian`: the closed-form optimal denoiser for Gaussian-distributed latents
+//!   (exact; shipped as tiny ONNX graphs with the real I/O contract, for tests);
+//! * `stylizer`: a feed-forward 2D style-transfer network used as an x0-predictor in
+//!   pixel space (real weights, the CPU demo).
+
+use crate::Result;
+use crate::scheduler::SchedulerConfig;
+use ndarray::{Array4, ArrayView4};
+
+/// The conditioning sets of the paper's guidance terms (Sec. 3.3):
+/// Phi_tgt = beta (eps(z, t, [P, style]) - eps(z, t, content)),
+/// Phi_src = beta (eps(z, t, P) - eps(z, t, null)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Cond {
+    /// Unconditional: empty prompt, no image tokens.
+    Null,
+    /// The text prompt P alone.
+    Prompt,
+    /// The prompt plus the style image's style tokens (positive branch of the target).
+    PromptStyle,
+    /// The style image's content tokens (negative branch of the target).
+    Content,
+}
+
+/// Static facts about a prior.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PriorInfo {
+    /// Human-readable name, e.g. `sd15`, `gaussian`, `magenta-stylizer`.
+    pub name: String,
+    /// Latent channels C (4 for SD; 3 for a pixel-space prior).
+    pub latent_channels: usize,
+    /// Image pixels per latent pixel (8 for SD VAEs, 1 in pixel space).
+    pub downsample: usize,
+    /// The noise schedule the model was trained with.
+    pub scheduler: SchedulerConfig,
+}
+
+/// A 2D prior. Images are `[B, 3, H, W]` in [0, 1]; latents are `[B, C, H/f, W/f]`
+/// already multiplied by the VAE scaling factor.
+pub trait Prior: Send {
+    fn info(&self) -> &PriorInfo;
+
+    /// Encode images to latents (the VAE posterior mean times the scaling factor).
+    fn encode(&mut self, images: ArrayView4<'_, f32>) -> Result<Array4<f32>>;
+
+    /// Decode latents to images (not clamped).
+    fn decode(&mut self, latents: ArrayView4<'_, f32>) -> Result<Array4<f32>>;
+
+    /// Noise predictions for `z_t` at training timestep `t`, one array per entry of
+    /// `conds`, computed in a single batched call where the backend allows.
+    /// `control` is the ControlNet's control image `[B, 3, H, W]` (e.g. rendered depth),
+    /// ignored by priors without a ControlNet.
+    fn predict_eps(
+        &mut self,
+        z_t: ArrayView4<'_, f32>,
+        t: usize,
+        conds: &[Cond],
+        control: Option<ArrayView4<'_, f32>>,
+    ) -> Result<Vec<Array4<f32>>>;
+}
