@@ -78,6 +78,28 @@ fn ply_round_trip_binary_and_ascii_every_degree() {
     std::fs::create_dir(&dir).unwrap();
     std::fs::copy(d.path().join("b1.ply"), dir.join("scene.ply")).unwrap();
     assert_eq!(load_scene(&dir).unwrap().sh_degree, 1);
+    // A scene artifact: its manifest and hashes are checked before scene.ply is read.
+    use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+    let art = d.path().join("art");
+    let mut w = ArtifactWriter::create(
+        &art,
+        ArtifactKind::Scene,
+        Producer::new("test", "0", serde_json::json!({})),
+    )
+    .unwrap();
+    w.write_bytes("scene.ply", &ply::encode_ply(&scene(7, 2, 1)))
+        .unwrap();
+    w.commit().unwrap();
+    assert_eq!(load_scene(&art).unwrap(), scene(7, 2, 1));
+    let mut b = std::fs::read(art.join("scene.ply")).unwrap();
+    let last = b.len() - 1;
+    b[last] ^= 1;
+    std::fs::write(art.join("scene.ply"), b).unwrap();
+    let e = load_scene(&art).unwrap_err().to_string();
+    assert!(
+        e.contains("scene.ply") && e.contains("hash mismatch"),
+        "{e}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------
