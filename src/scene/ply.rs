@@ -231,6 +231,13 @@ struct Columns {
 }
 
 fn columns(path: &Path, props: &[(String, PType)]) -> Result<Columns> {
+    if props.iter().any(|(p, _)| p == "packed_position") {
+        return Err(Error::input(
+            path,
+            "a compressed (SuperSplat/PlayCanvas `packed_*`) PLY is not supported; \
+             decompress it to the INRIA layout first",
+        ));
+    }
     let find = |n: &str| -> Result<usize> {
         props.iter().position(|(p, _)| p == n).ok_or_else(|| {
             Error::input(
