@@ -424,6 +424,28 @@ fn bad_unwritable_output_path() {
 }
 
 #[test]
+fn out_must_not_be_a_non_artifact_directory() {
+    let d = tempfile::tempdir().unwrap();
+    let (sp, _) = good_inputs(d.path());
+    // d itself holds the user's files: render-views must not replace it.
+    let (code, err) = render_views(&[
+        "--scene",
+        sp.to_str().unwrap(),
+        "--cameras",
+        "orbit:1",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        d.path().to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("refusing to replace"), "{err}");
+    assert!(sp.is_file());
+}
+
+#[test]
 fn failed_run_keeps_the_previous_output() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("out");
