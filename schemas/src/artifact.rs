@@ -103,6 +103,17 @@ impl ArtifactWriter {
                 "output path exists and is not a directory",
             ));
         }
+        // Replacing a previous artifact is the normal case; replacing a user's directory
+        // that is not an artifact (say `--out data-sample`) would delete their files.
+        if target.is_dir()
+            && !target.join(MANIFEST_FILE).is_file()
+            && fs::read_dir(target).map_or(true, |mut d| d.next().is_some())
+        {
+            return Err(SchemaError::invalid(
+                target,
+                "the directory exists, is not empty and is not an artifact (no manifest.json); refusing to replace it",
+            ));
+        }
         let tmp = crate::atomic::temp_sibling(target, "partial");
         fs::create_dir(&tmp).map_err(|e| SchemaError::io(&tmp, e))?;
         Ok(ArtifactWriter {
@@ -523,6 +534,28 @@ mod tests {
         }
         assert_eq!(fs::read(t.join(MANIFEST_FILE)).unwrap(), before);
         assert_eq!(fs::read_dir(d.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn a_non_artifact_directory_is_never_replaced() {
+        let d = tempfile::tempdir().unwrap();
+        let t = d.path().join("user");
+        fs::create_dir(&t).unwrap();
+        fs::write(t.join("precious.txt"), b"x").unwrap();
+        let e = ArtifactWriter::create(&t, ArtifactKind::Latents, producer())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("refusing to replace") && e.contains("user"),
+            "{e}"
+        );
+        assert!(t.join("precious.txt").is_file());
+        // An empty directory is fine (e.g. created by a DAG runner).
+        let empty = d.path().join("empty");
+        fs::create_dir(&empty).unwrap();
+        let mut w = ArtifactWriter::create(&empty, ArtifactKind::Latents, producer()).unwrap();
+        w.write_tensor("latents.npy", &[1], &[1f32]).unwrap();
+        w.commit().unwrap();
     }
 
     #[test]
