@@ -621,9 +621,9 @@ pub fn substitute(s: &str, mut look: impl FnMut(&str) -> Option<String>) -> Resu
     while let Some(i) = rest.find('$') {
         out.push_str(&rest[..i]);
         let tail = &rest[i..];
-        if tail.starts_with("$${") {
+        if let Some(after) = tail.strip_prefix("$${") {
             out.push_str("${");
-            rest = &tail[3..];
+            rest = after;
         } else if let Some(body) = tail.strip_prefix("${") {
             let end = body
                 .find('}')

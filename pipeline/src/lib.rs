@@ -4,3 +4,9 @@
 //! It depends on the artifact schemas only, never on the numerical core or onnxruntime.
 
 pub mod dag;
+pub mod inspect;
+pub mod lock;
+pub mod run;
+pub mod show;
+pub mod state;
+pub mod tools;
