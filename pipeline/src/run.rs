@@ -164,6 +164,7 @@ fn clean_failed(dag: &Dag, outs: &[String]) {
 
 struct Outcome {
     exit: Option<i32>,
+    signal: Option<i32>,
     error: Option<String>,
     duration: f64,
 }
@@ -305,9 +306,14 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
         let s = &dag.stages[i];
         let mut error = out.error.clone();
         if error.is_none() && out.exit != Some(0) {
-            error = Some(match out.exit {
-                Some(c) => format!("exited with status {c}"),
-                None => "killed by a signal".to_string(),
+            error = Some(match (out.exit, out.signal) {
+                (Some(c), _) if c > 128 && c <= 128 + 64 => format!(
+                    "exited with status {c} (the command was killed by signal {})",
+                    c - 128
+                ),
+                (Some(c), _) => format!("exited with status {c}"),
+                (None, Some(sig)) => format!("killed by signal {sig}"),
+                (None, None) => "killed by a signal".to_string(),
             });
         }
         if error.is_none()
@@ -456,7 +462,7 @@ fn spawn_stage(
 ) {
     std::thread::spawn(move || {
         let t = Instant::now();
-        let res = (|| -> Result<Option<i32>, String> {
+        let res = (|| -> Result<std::process::ExitStatus, String> {
             let mut f =
                 std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
             writeln!(f, "# stage {name}\n# cmd: {cmd}\n# cwd: {}", dir.display())
@@ -472,17 +478,19 @@ fn spawn_stage(
                 .stderr(err)
                 .status()
                 .map_err(|e| format!("cannot start `sh -c`: {e}"))?;
-            Ok(status.code())
+            Ok(status)
         })();
         let duration = t.elapsed().as_secs_f64();
         let out = match res {
-            Ok(exit) => Outcome {
-                exit,
+            Ok(st) => Outcome {
+                exit: st.code(),
+                signal: std::os::unix::process::ExitStatusExt::signal(&st),
                 error: None,
                 duration,
             },
             Err(e) => Outcome {
                 exit: None,
+                signal: None,
                 error: Some(e),
                 duration,
             },
