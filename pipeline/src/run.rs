@@ -207,6 +207,8 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
     }
 
     let _guard = RunGuard::take(&dag.state_dir())?;
+    // Forget stages that are no longer in the DAG (e.g. after lowering `rounds`).
+    lock.stages.retain(|name, _| dag.index(name).is_some());
     let log_dir = dag.state_dir().join("logs");
     std::fs::create_dir_all(&log_dir)
         .map_err(|e| UsageError(format!("{}: {e}", log_dir.display())))?;

@@ -434,3 +434,23 @@ fn sample_dag_is_valid() {
         );
     }
 }
+
+#[test]
+fn a_second_runner_is_refused_while_the_first_is_alive() {
+    let d = project();
+    std::fs::create_dir_all(d.path().join(".pipeline")).unwrap();
+    // A live process (this test) holds the DAG.
+    std::fs::write(
+        d.path().join(".pipeline/run.pid"),
+        std::process::id().to_string(),
+    )
+    .unwrap();
+    let (rc, _, err) = run(d.path(), &[]);
+    assert_eq!(rc, 2);
+    assert!(err.contains("another pipeline run (pid"), "{err}");
+    // A dead one (a killed runner) is taken over.
+    std::fs::write(d.path().join(".pipeline/run.pid"), "4194999").unwrap();
+    let (rc, _, err) = run(d.path(), &[]);
+    assert_eq!(rc, 0, "{err}");
+    assert!(!d.path().join(".pipeline/run.pid").exists());
+}
