@@ -419,6 +419,47 @@ pub fn parse(text: &str, file: &Path, dir: &Path) -> Result<Dag, DagError> {
         return Err(fail(diags));
     }
 
+    // Outputs the runner may delete after a failure must stay inside the DAG
+    // directory and away from the DAG's own files.
+    let params_file = raw.params.as_ref().map(|p| normalize(p.get_ref()));
+    let dag_name = file
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let lock_name = format!(
+        "{}.lock",
+        file.file_stem()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    );
+    for (s, _, ol) in &stages {
+        for (o, &l) in s.outs.iter().zip(ol) {
+            let own = |f: &str| o == f || inside(f, o);
+            if o == "." || o == ".." || o.starts_with("../") || o.starts_with('/') {
+                diags.push(Diag {
+                    line: Some(l),
+                    msg: format!(
+                        "output `{o}` of stage `{}` must be a path inside the DAG's directory",
+                        s.name
+                    ),
+                });
+            } else if own(&dag_name)
+                || own(&lock_name)
+                || own(".pipeline")
+                || inside(o, ".pipeline")
+                || params_file.as_deref().is_some_and(own)
+            {
+                diags.push(Diag {
+                    line: Some(l),
+                    msg: format!(
+                        "output `{o}` of stage `{}` would overwrite the DAG, its params or its state",
+                        s.name
+                    ),
+                });
+            }
+        }
+    }
+
     // Duplicate (or nested) outputs.
     let mut outs: Vec<(&str, usize, usize)> = Vec::new(); // (path, stage, line)
     for (i, (s, _, ol)) in stages.iter().enumerate() {
@@ -964,6 +1005,32 @@ outs = ["b.out"]
         assert_eq!(dag.params["csd"]["mode"], "csd");
         let e = err("params = \"nope.toml\"\n");
         assert!(e.starts_with("dag.toml:1: cannot read params file"), "{e}");
+    }
+
+    #[test]
+    fn outputs_must_stay_inside_and_off_the_dags_files() {
+        for (o, want) in [
+            ("..", "must be a path inside the DAG's directory"),
+            ("/tmp/x", "must be a path inside the DAG's directory"),
+            ("a/../..", "must be a path inside the DAG's directory"),
+            ("./", "must be a path inside the DAG's directory"),
+            (
+                "params.toml",
+                "would overwrite the DAG, its params or its state",
+            ),
+            (
+                ".pipeline/logs",
+                "would overwrite the DAG, its params or its state",
+            ),
+        ] {
+            let e = err(&format!(
+                "params = \"params.toml\"\n[stages.a]\ncmd = \"a\"\nouts = [\"{o}\"]\n"
+            ));
+            assert!(
+                e.starts_with("dag.toml:4: output") && e.contains(want),
+                "{o}: {e}"
+            );
+        }
     }
 
     #[test]

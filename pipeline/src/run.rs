@@ -303,7 +303,23 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
         if running == 0 {
             break;
         }
-        let Ok((i, out)) = rx.recv() else { break };
+        let (i, out) = match rx.recv_timeout(Duration::from_millis(250)) {
+            Ok(x) => x,
+            Err(mpsc::RecvTimeoutError::Timeout) => {
+                // Show each running stage's latest log line beside its spinner.
+                if !mp.is_hidden() {
+                    for (k, sp) in spinners.iter().enumerate() {
+                        if let Some(sp) = sp {
+                            let log = log_dir.join(format!("{}.log", dag.stages[k].name));
+                            let line = last_line(&log);
+                            sp.set_message(format!("{}  {line}", dag.stages[k].name));
+                        }
+                    }
+                }
+                continue;
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+        };
         running -= 1;
         let s = &dag.stages[i];
         let mut error = out.error.clone();
@@ -441,6 +457,25 @@ fn join(r: &[Reason]) -> String {
         .map(|x| x.to_string())
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// The last non-empty line of a log (from its last 512 bytes), shortened.
+fn last_line(p: &Path) -> String {
+    use std::io::{Read, Seek, SeekFrom};
+    let Ok(mut f) = std::fs::File::open(p) else {
+        return String::new();
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let _ = f.seek(SeekFrom::Start(len.saturating_sub(512)));
+    let mut buf = Vec::new();
+    let _ = f.read_to_end(&mut buf);
+    let text = String::from_utf8_lossy(&buf);
+    let line = text
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("");
+    line.chars().take(80).collect()
 }
 
 fn append_log(p: &Path, line: &str) {

@@ -27,6 +27,7 @@ pub enum Reason {
     MissingDep(String),
     ChangedParam(String),
     MissingOutput(String),
+    NewOutput(String),
     ChangedOutput(String),
     /// An upstream stage will run first (used by `status` and `--dry-run`).
     Upstream(String),
@@ -44,6 +45,7 @@ impl fmt::Display for Reason {
             Reason::MissingDep(d) => write!(f, "missing dep {d}"),
             Reason::ChangedParam(k) => write!(f, "changed params {k}"),
             Reason::MissingOutput(o) => write!(f, "missing output {o}"),
+            Reason::NewOutput(o) => write!(f, "output {o} not recorded by the last run"),
             Reason::ChangedOutput(o) => write!(f, "output {o} modified since it was written"),
             Reason::Upstream(s) => write!(f, "upstream {s} is stale"),
         }
@@ -224,6 +226,8 @@ pub fn reasons(dag: &Dag, stage: &Stage, fp: &Fingerprint, entry: Option<&Entry>
         let p = dag.path(o);
         if !p.exists() {
             r.push(Reason::MissingOutput(o.clone()));
+        } else if !e.outs.contains_key(o) {
+            r.push(Reason::NewOutput(o.clone()));
         } else if e.outs.get(o) != Some(&hash_or_missing(&p)) {
             r.push(Reason::ChangedOutput(o.clone()));
         }
