@@ -454,3 +454,40 @@ fn a_second_runner_is_refused_while_the_first_is_alive() {
     assert_eq!(rc, 0, "{err}");
     assert!(!d.path().join(".pipeline/run.pid").exists());
 }
+
+/// Two independent stages that each wait for the other's marker file succeed only if
+/// they run at the same time: `--jobs 2` runs them in parallel, `--jobs 1` does not.
+/// A changed stage executable makes its stage stale.
+#[test]
+fn jobs_run_independent_stages_together_and_binaries_are_tracked() {
+    let d = tempfile::tempdir().unwrap();
+    let tool = d.path().join("tool.sh");
+    std::fs::write(&tool, "#!/bin/sh\nmkdir -p \"$1\"\ntouch \"$1/mark\"\nfor i in $(seq 100); do [ -f \"$2/mark\" ] && exit 0; sleep 0.02; done\nexit 3\n").unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&tool, std::fs::Permissions::from_mode(0o755)).unwrap();
+    std::fs::write(
+        d.path().join("dag.toml"),
+        "[stages.a]\ncmd = \"./tool.sh a b\"\nouts = [\"a\"]\n[stages.b]\ncmd = \"./tool.sh b a\"\nouts = [\"b\"]\n",
+    )
+    .unwrap();
+    let (rc, out, _) = run(d.path(), &["--jobs", "2"]);
+    assert_eq!(rc, 0, "{out}");
+    assert_eq!(ran(&out), ["a", "b"]);
+    let st = pipeline(d.path(), &["status", "--dag", "dag.toml"], &[]);
+    assert!(String::from_utf8_lossy(&st.stdout).contains("0 of 2 stages stale"));
+    std::fs::write(&tool, std::fs::read_to_string(&tool).unwrap() + "# v2\n").unwrap();
+    let st = pipeline(d.path(), &["status", "--dag", "dag.toml"], &[]);
+    let st = String::from_utf8_lossy(&st.stdout);
+    assert!(
+        st.contains("stale       a: changed binary") && st.contains("tool.sh"),
+        "{st}"
+    );
+    std::fs::remove_dir_all(d.path().join("a")).unwrap();
+    std::fs::remove_dir_all(d.path().join("b")).unwrap();
+    let (rc, out, _) = run(d.path(), &["--jobs", "1"]);
+    assert_eq!(rc, 1, "{out}");
+    assert!(
+        out.contains("FAILED      a") && out.contains("exited with status 3"),
+        "{out}"
+    );
+}
