@@ -5,7 +5,8 @@
 //! finite elements) and NaN/Inf counts. PNG: latents `[N,C,h,w]` as a grid of views
 //! (rows) by channels (columns), each channel normalised to its min..max over all
 //! views, or (`rgb` mode) the first three channels as colour, each normalised the same
-//! way; images `[N,H,W,3]` as a row (values in 0..1, or min..max when outside);
+//! way; images `[N,H,W,3]` as a row (values as 0..1, clipped; min..max when the values
+//! are clearly in another range);
 //! `[N,H,W]` (depth, alpha) as a grey row.
 
 use fantasystyle_schemas::npy::parse_header;
@@ -235,7 +236,9 @@ pub fn draw(t: &Tensor, mode: LatentMode) -> Result<RgbImage, String> {
         4 if s[3] == 3 => {
             let (n, h, w) = (s[0], s[1], s[2]);
             let (lo, hi) = finite_range(&t.data);
-            let (lo, hi) = if lo >= -0.01 && hi <= 1.01 {
+            // Colours are drawn as 0..1 (clipped); clearly other ranges (e.g. -1..1 or
+            // 0..255) are normalised to their min..max.
+            let (lo, hi) = if lo >= -0.5 && hi <= 2.0 {
                 (0.0, 1.0)
             } else {
                 (lo, hi)

@@ -79,10 +79,16 @@ pub fn plan(
             let fp = hasher.fingerprint(dag, s);
             reasons(dag, s, &fp, lock.stages.get(&s.name))
         };
-        for &u in &s.upstream {
-            if stale[u] {
-                r.push(Reason::Upstream(dag.stages[u].name.clone()));
-            }
+        let up: Vec<Reason> = s
+            .upstream
+            .iter()
+            .filter(|&&u| stale[u])
+            .map(|&u| Reason::Upstream(dag.stages[u].name.clone()))
+            .collect();
+        if !up.is_empty() {
+            // Deps an upstream stage will (re)write are not worth listing.
+            r.retain(|x| !matches!(x, Reason::MissingDep(_) | Reason::ChangedDep(_)));
+            r.extend(up);
         }
         stale[i] = !r.is_empty();
         out.push((i, r));
