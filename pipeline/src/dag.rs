@@ -223,6 +223,7 @@ pub fn load(file: &Path) -> Result<Dag, DagError> {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
+    let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
     parse(&text, file, &dir)
 }
 

@@ -32,7 +32,7 @@ enum Cmd {
         /// After a failure, keep running stages that do not depend on it.
         #[arg(long)]
         keep_going: bool,
-        /// Stages run at once (independent stages only).
+        /// Stages run at once (independent stages only; 0 = one per core).
         #[arg(long, default_value_t = 1)]
         jobs: usize,
     },

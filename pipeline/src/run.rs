@@ -228,7 +228,10 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
     );
     let say = |m: String| mp.suspend(|| println!("{m}"));
 
-    let jobs = opts.jobs.max(1);
+    let jobs = match opts.jobs {
+        0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        j => j,
+    };
     let n = dag.stages.len();
     let mut st = vec![St::Done; n];
     for &i in &selected {

@@ -395,6 +395,22 @@ fn dag_dot_report_and_inspect() {
         "{txt}"
     );
     assert!(png.is_file());
+    let o = pipeline(d.path(), &["inspect", "runs/final/part0.npy"], &[]);
+    let txt = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success() && txt.starts_with("tensor ") && txt.contains("part0.npy      [32]"),
+        "{txt}"
+    );
+    let o = pipeline(
+        d.path(),
+        &["inspect", "runs/final", "--png", "x.png", "--mode", "rgb"],
+        &[],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&o.stderr)
+            .contains("rgb mode needs at least 3 channels, the tensor has 2")
+    );
     let o = pipeline(d.path(), &["inspect", "runs/nope"], &[]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("runs/nope"));
