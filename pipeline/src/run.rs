@@ -101,24 +101,40 @@ pub fn plan(
 struct RunGuard(PathBuf);
 impl RunGuard {
     fn take(state: &Path) -> Result<RunGuard, UsageError> {
+        use std::io::ErrorKind;
         std::fs::create_dir_all(state)
             .map_err(|e| UsageError(format!("{}: {e}", state.display())))?;
         let p = state.join("run.pid");
-        if let Ok(pid) = std::fs::read_to_string(&p) {
-            let pid = pid.trim();
-            if !pid.is_empty()
-                && pid != std::process::id().to_string()
-                && Path::new("/proc").join(pid).exists()
+        for _ in 0..3 {
+            // create_new: of two runners starting at once, exactly one gets the file.
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&p)
             {
-                return Err(UsageError(format!(
-                    "another pipeline run (pid {pid}) is using this DAG ({}); wait for it or remove the file if it is stale",
-                    p.display()
-                )));
+                Ok(mut f) => {
+                    let _ = write!(f, "{}", std::process::id());
+                    return Ok(RunGuard(p));
+                }
+                Err(e) if e.kind() == ErrorKind::AlreadyExists => {
+                    let pid = std::fs::read_to_string(&p).unwrap_or_default();
+                    let pid = pid.trim();
+                    if !pid.is_empty() && Path::new("/proc").join(pid).exists() {
+                        return Err(UsageError(format!(
+                            "another pipeline run (pid {pid}) is using this DAG ({}); wait for it or remove the file if it is stale",
+                            p.display()
+                        )));
+                    }
+                    // A killed runner's file: take it over.
+                    let _ = std::fs::remove_file(&p);
+                }
+                Err(e) => return Err(UsageError(format!("{}: {e}", p.display()))),
             }
         }
-        fantasystyle_schemas::atomic_write(&p, std::process::id().to_string().as_bytes())
-            .map_err(|e| UsageError(e.to_string()))?;
-        Ok(RunGuard(p))
+        Err(UsageError(format!(
+            "{}: could not take the run lock",
+            p.display()
+        )))
     }
 }
 impl Drop for RunGuard {
