@@ -507,3 +507,67 @@ fn jobs_run_independent_stages_together_and_binaries_are_tracked() {
         "{out}"
     );
 }
+
+/// Processes running `pipeline test-stage` with working directory `dir`.
+fn stage_pids(dir: &Path) -> Vec<String> {
+    let dir = std::fs::canonicalize(dir).unwrap();
+    let mut v = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let pid = e.file_name().to_string_lossy().into_owned();
+        if !pid.chars().all(|c| c.is_ascii_digit()) {
+            continue;
+        }
+        let cmd = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
+        let is_stage = String::from_utf8_lossy(&cmd).contains("test-stage");
+        if is_stage
+            && std::fs::read_link(e.path().join("cwd")).ok().as_deref() == Some(dir.as_path())
+        {
+            v.push(pid);
+        }
+    }
+    v
+}
+
+/// SIGKILL only the running stage process (the runner survives and must notice) at
+/// many points of a run, then rerun.
+#[test]
+fn kill_one_stage_at_many_points_then_rerun_is_byte_identical() {
+    let want = reference();
+    let mut killed = 0;
+    for k in 0..12u64 {
+        let d = project();
+        let mut child = Command::new(BIN)
+            .args(["run", "--dag", "dag.toml"])
+            .current_dir(d.path())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(40 + k * 45));
+        for pid in stage_pids(d.path()) {
+            if Command::new("kill")
+                .args(["-KILL", &pid])
+                .status()
+                .unwrap()
+                .success()
+            {
+                killed += 1;
+            }
+        }
+        let out = child.wait_with_output().unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        if out.status.code() == Some(1) {
+            assert!(
+                text.contains("killed by signal 9"),
+                "kill point {k}: {text}"
+            );
+        }
+        let (rc, _, err) = run(d.path(), &[]);
+        assert_eq!(rc, 0, "kill point {k}: {err}");
+        assert_same(&tree(d.path()), &want, &format!("stage kill point {k}"));
+    }
+    assert!(
+        killed >= 8,
+        "only {killed} of 12 kill points hit a running stage"
+    );
+}
