@@ -536,7 +536,7 @@ fn kill_one_stage_at_many_points_then_rerun_is_byte_identical() {
     let mut killed = 0;
     for k in 0..12u64 {
         let d = project();
-        let mut child = Command::new(BIN)
+        let child = Command::new(BIN)
             .args(["run", "--dag", "dag.toml"])
             .current_dir(d.path())
             .stdout(Stdio::piped())
