@@ -1,5 +1,5 @@
 //! One function per stage binary, plus the plumbing every binary shares: logging set-up,
-//! error-to-exit-code mapping ([`run_main`]).
+//! error-to-exit-code mapping ([`run_main`]), phase timing for the DAG runner ([`timing`]).
 //!
 //! A stage binary is `fn main() -> ExitCode { run_main(Args::parse(), stage_fn) }`.
 
@@ -20,8 +20,12 @@ pub fn init_logging() {
 /// code (see [`crate::error`]).
 pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
     init_logging();
+    let start = std::time::Instant::now();
     match f(args) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => {
+            timing::write_if_requested(start.elapsed());
+            ExitCode::SUCCESS
+        }
         Err(e) => {
             eprintln!("error: {e}");
             let mut src = std::error::Error::source(&e);
@@ -36,6 +40,7 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
 
 pub mod make_sample;
 pub mod render_views;
+pub mod timing;
 
 use crate::{Error, Result};
 use std::path::Path;
