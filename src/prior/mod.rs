@@ -17,7 +17,11 @@
 //! manifest's family), [`preprocess`] (resizing and normalising images for encoders).
 
 pub mod gaussian;
+pub mod manifest;
+pub mod onnx;
 pub mod preprocess;
+
+pub use onnx::{OnnxPrior, PriorOptions, control_image, open};
 
 use crate::Result;
 use crate::scheduler::SchedulerConfig;
