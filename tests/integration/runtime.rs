@@ -327,3 +327,67 @@ fn encode_latents_stage_writes_latents_and_rejects_bad_input() {
     assert!(e.contains("nomodel"), "{e}");
     assert!(!out2.exists());
 }
+
+#[test]
+fn controlnet_residuals_and_sdxl_inputs_reach_the_unet() {
+    // vendor/models/gaussian-prior-controlnet (setup step 10): the test ControlNet emits
+    // down_0 = raw latents of the control image and mid = time_ids[0]/1000 +
+    // text_embeds[0]; the UNet adds down_res_0 + mid_res + text_embeds[1] to the
+    // closed-form eps. So the expected output is known exactly.
+    let Some(base) = gaussian_dir() else { return };
+    let dir = base.with_file_name("gaussian-prior-controlnet");
+    let style = rand((1, 3, 64, 64), 6, 1.0, 0.0);
+    let mut p = OnnxPrior::open(&dir, &opts(Some(style.clone()))).unwrap();
+    assert_eq!(
+        p.info().control,
+        Some(fantasystyle::prior::ControlKind::Depth)
+    );
+    let mut rust = GaussianPrior::with_default_text(Some(style.view())).unwrap();
+    let z = rand((2, 4, 3, 4), 7, 2.0, -1.0);
+    let ctrl = rand((2, 3, 24, 32), 8, 1.0, 0.0);
+    let t = 321;
+    let conds = [Cond::Null, Cond::Prompt, Cond::PromptStyle];
+    let got = p
+        .predict_eps(z.view(), t, &conds, Some(ctrl.view()))
+        .unwrap();
+    let eps = rust.predict_eps(z.view(), t, &conds, None).unwrap();
+    let raw = gaussian::vae_encode(ctrl.view()).unwrap() / gaussian::SCALING_FACTOR;
+    let scale = 0.5f32;
+    // pooled text embeddings: null [0, 0], prompt [0.1, 0.2]; image height 24.
+    for (i, te) in [[0.0f32, 0.0], [0.1, 0.2], [0.1, 0.2]].iter().enumerate() {
+        let want = &eps[i] + &(&raw * scale) + scale * (24.0 / 1000.0 + te[0]) + te[1];
+        let d = max_diff(&got[i], &want);
+        assert!(d < 1e-5, "cond {i}: {d}");
+    }
+    let e = p
+        .predict_eps(z.view(), t, &conds, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("ControlNet") && e.contains("Depth"), "{e}");
+    let small = rand((2, 3, 16, 16), 9, 1.0, 0.0);
+    let e = p
+        .predict_eps(z.view(), t, &conds, Some(small.view()))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("control image"), "{e}");
+}
+
+#[test]
+fn control_images_from_renders() {
+    use fantasystyle::prior::{ControlKind, control_image};
+    use ndarray::{Array3, Array4};
+    let depth = Array3::from_shape_fn((1, 4, 4), |(_, y, _)| 1.0 + y as f32);
+    let mut alpha = Array3::<f32>::ones((1, 4, 4));
+    alpha[[0, 3, 3]] = 0.0;
+    let rgb = Array4::from_shape_fn((1, 4, 4, 3), |(_, _, x, _)| (x >= 2) as u8 as f32);
+    let d = control_image(ControlKind::Depth, rgb.view(), depth.view(), alpha.view()).unwrap();
+    assert_eq!(d.dim(), (1, 3, 4, 4));
+    assert!((d[[0, 0, 0, 0]] - 1.0).abs() < 1e-6, "nearest row is 1");
+    assert!(d[[0, 2, 3, 0]].abs() < 1e-6, "farthest row is 0");
+    assert_eq!(d[[0, 1, 3, 3]], 0.0, "background is 0");
+    let e = control_image(ControlKind::Edges, rgb.view(), depth.view(), alpha.view()).unwrap();
+    // The vertical edge between columns 1 and 2 is the strongest response.
+    assert!((e[[0, 0, 1, 1]] - 1.0).abs() < 1e-6 && e[[0, 0, 1, 3]] < 1e-6);
+    let bad = Array3::<f32>::ones((1, 3, 4));
+    assert!(control_image(ControlKind::Depth, rgb.view(), bad.view(), alpha.view()).is_err());
+}
