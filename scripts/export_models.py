@@ -250,14 +250,12 @@ def load_tiny(torch, a):
             if name.endswith("attn1.processor"):
                 procs[name] = unet.attn_processors[name].__class__()
                 continue
-            blk = name.split(".")[1] if name.startswith("mid") else None
             if name.startswith("mid_block"):
                 hs = unet.config.block_out_channels[-1]
             elif name.startswith("up_blocks"):
                 hs = list(reversed(unet.config.block_out_channels))[int(name.split(".")[1])]
             else:
                 hs = unet.config.block_out_channels[int(name.split(".")[1])]
-            del blk
             procs[name] = IPAdapterAttnProcessor2_0(hidden_size=hs, cross_attention_dim=32,
                                                     num_tokens=(4,), scale=1.0)
         unet.set_attn_processor(procs)

@@ -391,3 +391,34 @@ fn control_images_from_renders() {
     let bad = Array3::<f32>::ones((1, 3, 4));
     assert!(control_image(ControlKind::Depth, rgb.view(), bad.view(), alpha.view()).is_err());
 }
+
+#[test]
+fn encode_latents_binary_exit_codes() {
+    let Some(dir) = gaussian_dir() else { return };
+    let t = tempfile::tempdir().unwrap();
+    let views = t.path().join("views");
+    write_views(&views, 2, 16, 16);
+    let bin = env!("CARGO_BIN_EXE_encode-latents");
+    let run = |views: &Path, model: &Path, out: &Path| {
+        std::process::Command::new(bin)
+            .args(["--views", views.to_str().unwrap()])
+            .args(["--model", model.to_str().unwrap()])
+            .args(["--out", out.to_str().unwrap(), "--threads", "1"])
+            .output()
+            .unwrap()
+    };
+    let out = t.path().join("lat");
+    let o = run(&views, &dir, &out);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("latents.npy").is_file());
+    let o = run(&t.path().join("missing"), &dir, &t.path().join("x"));
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("missing"));
+    // A corrupt graph in a copied model: non-zero exit, the file named, nothing written.
+    let m = edited(&dir, |_| {});
+    std::fs::write(m.path().join("vae_encoder.onnx"), b"junk").unwrap();
+    let o = run(&views, m.path(), &t.path().join("y"));
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("vae_encoder.onnx"));
+    assert!(!t.path().join("y").exists());
+}
