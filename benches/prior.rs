@@ -71,6 +71,17 @@ fn thread_cpu_s() -> f64 {
         * 1e-9
 }
 
+/// CPU time of the whole process (all threads), from /proc/self/stat (clock ticks).
+fn process_cpu_s() -> f64 {
+    let s = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let f: Vec<&str> = s
+        .rsplit_once(')')
+        .map(|(_, r)| r.split_whitespace().collect())
+        .unwrap_or_default();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
 struct Timer(Clock, f64, Instant);
 impl Timer {
     fn start(c: Clock) -> Self {
@@ -150,6 +161,7 @@ fn measure(dir: &Path, threads: usize, reps: usize, layers: usize, clock: Clock)
             .unwrap();
     }
     let (mut tb, mut tw, mut ts) = (Vec::new(), Vec::new(), Vec::new());
+    let (cpu0, thread0) = (process_cpu_s(), thread_cpu_s());
     for _ in 0..reps {
         let s = Timer::start(clock);
         std::hint::black_box(run_bare());
@@ -170,6 +182,9 @@ fn measure(dir: &Path, threads: usize, reps: usize, layers: usize, clock: Clock)
         std::hint::black_box(prior.predict_eps(z.view(), t, &[Cond::Null], None).unwrap());
         ts.push(s.secs());
     }
+    // Share of the process's CPU time spent on this thread (1.0: onnxruntime computed
+    // on the caller, so the thread clock sees all the work).
+    let on_thread = (thread_cpu_s() - thread0) / (process_cpu_s() - cpu0).max(1e-9);
     let (mb, mw, ms) = (median(&mut tb), median(&mut tw), median(&mut ts));
     let flop = 2.0 * 2.0 * 32.0 * 32.0 * 9.0 * (4.0 * 320.0 * 2.0 + 320.0 * 320.0 * layers as f64);
     format!(
@@ -180,7 +195,8 @@ fn measure(dir: &Path, threads: usize, reps: usize, layers: usize, clock: Clock)
          | bare ort session, batch 2 | {:.1} ms | {:.0} | 1.000 |\n\
          | `OnnxPrior::predict_eps`, 2 conds in one call | {:.1} ms | {:.0} | {:.3} (overhead {:+.1}%) |\n\
          | `OnnxPrior::predict_eps`, 2 separate calls | {:.1} ms | {:.0} | {:.3} vs batched |\n\n\
-         Wrapper output equals bare output (max abs diff {maxdiff:.1e}).\n",
+         Wrapper output equals bare output (max abs diff {maxdiff:.1e}); \
+         calling thread's share of process CPU time during the runs: {on_thread:.2}.\n",
         flop / 1e9,
         match clock {
             Clock::Wall => "wall-clock time",

@@ -288,8 +288,8 @@ def main():
         if m is not None:
             m.to(dtype).eval()
     bnd = Boundary(torch, dtype)
-    n_down = len(unet.down_blocks) * (unet.config.layers_per_block + 1)
-    n_down -= 1 if not unet.down_blocks[-1].downsamplers else 0
+    # Down residuals: conv_in, then each resnet layer and each downsampler per block.
+    n_down = 1 + sum(len(b.resnets) + (1 if b.downsamplers else 0) for b in unet.down_blocks)
     if image_proj is not None:
         real_proj = PassThroughProj.install(torch, unet)
         del real_proj
@@ -411,6 +411,49 @@ def main():
         json.dump(manifest, f, indent=2)
         f.write("\n")
     print(f"export: wrote {os.path.join(out, 'model.json')}")
+    if a.tiny:
+        write_reference(torch, os.path.join(out, "reference"), enc_m, dec_m, unet_m, cn_m,
+                        img_m, scaling, size, n_down, cn is not None, image_proj is not None,
+                        os.path.join(out, "prompt_0.npy"), os.path.join(out, "null.npy"),
+                        os.path.join(out, "ip_uncond.npy"))
+
+
+def write_reference(torch, ref, enc_m, dec_m, unet_m, cn_m, img_m, scaling, size, n_down,
+                    has_cn, has_ip, prompt_file, null_file, uncond_file):
+    """Eager-torch outputs of the exported modules on fixed inputs, for the Rust test
+    `exported_model_matches_torch_reference` (FANTASYSTYLE_EXPORTED_MODEL=DIR)."""
+    os.makedirs(ref, exist_ok=True)
+    g = torch.Generator().manual_seed(7)
+    img = torch.rand(2, 3, size, size, generator=g)
+    z = torch.randn(1, 4, size // 8, size // 8, generator=g)
+    ctrl = torch.rand(1, 3, size, size, generator=g)
+    style = torch.rand(1, 3, 224, 224, generator=g)
+    t = 321
+    with torch.no_grad():
+        lat = enc_m(img * 2 - 1) * scaling
+        dec = (dec_m(z / scaling) + 1) / 2
+        mean = torch.tensor(CLIP_MEAN).view(1, 3, 1, 1)
+        std = torch.tensor(CLIP_STD).view(1, 3, 1, 1)
+        eps = {}
+        for name, text_file, tokens in [("null", null_file, "uncond"),
+                                        ("prompt_style", prompt_file, "style")]:
+            ehs = torch.from_numpy(np.load(text_file))
+            args = [z, torch.tensor([t]), ehs]
+            if has_ip:
+                tok = (img_m((style - mean) / std)[0] if tokens == "style"
+                       else torch.from_numpy(np.load(uncond_file)))
+                args.append(tok)
+            if has_cn:
+                res = cn_m(z, torch.tensor([t]), ehs, ctrl)
+                args += list(res)
+            eps[name] = unet_m(*args)
+    for k, v in [("images", img), ("latents", lat), ("z", z), ("decoded", dec),
+                 ("control", ctrl), ("style", style), ("eps_null", eps["null"]),
+                 ("eps_prompt_style", eps["prompt_style"])]:
+        np.save(os.path.join(ref, f"{k}.npy"), v.float().numpy().astype(np.float32))
+    with open(os.path.join(ref, "t.txt"), "w") as f:
+        f.write(f"{t}\n")
+    print(f"export: wrote reference outputs to {ref}")
 
 
 if __name__ == "__main__":
