@@ -219,16 +219,21 @@ def load_real(torch, a, dtype):
 
 
 def load_tiny(torch, a):
-    """Tiny random SD-1.5-shaped model: same classes, same wiring, seconds to export."""
+    """Tiny random SD-1.5- or SDXL-shaped model (--family): same classes, same wiring,
+    seconds to export."""
     import diffusers
     from diffusers.models.embeddings import ImageProjection
     from transformers import CLIPVisionConfig, CLIPVisionModelWithProjection
     torch.manual_seed(0)
+    sdxl = a.family == "sdxl"
+    # SDXL: pooled text (32) + 6 time ids x 8 Fourier features feed the added embedding.
+    xl = dict(addition_embed_type="text_time", addition_time_embed_dim=8,
+              projection_class_embeddings_input_dim=32 + 6 * 8) if sdxl else {}
     unet = diffusers.UNet2DConditionModel(
         sample_size=8, in_channels=4, out_channels=4, layers_per_block=1,
         block_out_channels=(32, 64), down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
         up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"), cross_attention_dim=32,
-        attention_head_dim=8, norm_num_groups=8)
+        attention_head_dim=8, norm_num_groups=8, **xl)
     vae = diffusers.AutoencoderKL(
         in_channels=3, out_channels=3, latent_channels=4, block_out_channels=(8, 16, 16, 16),
         down_block_types=("DownEncoderBlock2D",) * 4, up_block_types=("UpDecoderBlock2D",) * 4,
@@ -266,7 +271,8 @@ def load_tiny(torch, a):
     def encode(text):
         seed = sum(map(ord, text)) % 1000
         g.manual_seed(seed)
-        return torch.randn(1, 77, 32, generator=g).numpy(), None
+        hidden = torch.randn(1, 77, 32, generator=g).numpy()
+        return hidden, (torch.randn(1, 32, generator=g).numpy() if sdxl else None)
 
     sched = {"num_train_timesteps": 1000, "beta_start": 0.00085, "beta_end": 0.012,
              "beta_schedule": "scaled_linear", "prediction_type": "epsilon"}
@@ -278,7 +284,7 @@ def main():
     torch = import_torch()
     dtype = torch.float16 if a.fp16 else torch.float32
     os.makedirs(a.out, exist_ok=True)
-    sdxl = a.family == "sdxl" and not a.tiny
+    sdxl = a.family == "sdxl"
     if a.tiny:
         unet, vae, cn, clip_vision, image_proj, encode, scaling, sched = load_tiny(torch, a)
     else:
@@ -415,11 +421,11 @@ def main():
         write_reference(torch, os.path.join(out, "reference"), enc_m, dec_m, unet_m, cn_m,
                         img_m, scaling, size, n_down, cn is not None, image_proj is not None,
                         os.path.join(out, "prompt_0.npy"), os.path.join(out, "null.npy"),
-                        os.path.join(out, "ip_uncond.npy"))
+                        os.path.join(out, "ip_uncond.npy"), sdxl)
 
 
 def write_reference(torch, ref, enc_m, dec_m, unet_m, cn_m, img_m, scaling, size, n_down,
-                    has_cn, has_ip, prompt_file, null_file, uncond_file):
+                    has_cn, has_ip, prompt_file, null_file, uncond_file, sdxl):
     """Eager-torch outputs of the exported modules on fixed inputs, for the Rust test
     `exported_model_matches_torch_reference` (FANTASYSTYLE_EXPORTED_MODEL=DIR)."""
     os.makedirs(ref, exist_ok=True)
@@ -439,12 +445,18 @@ def write_reference(torch, ref, enc_m, dec_m, unet_m, cn_m, img_m, scaling, size
                                         ("prompt_style", prompt_file, "style")]:
             ehs = torch.from_numpy(np.load(text_file))
             args = [z, torch.tensor([t]), ehs]
+            extra = []
+            if sdxl:
+                pooled = torch.from_numpy(np.load(text_file.replace(".npy", "_pooled.npy")))
+                extra = [pooled, torch.tensor([[size, size, 0, 0, size, size]],
+                                              dtype=torch.float32)]
+                args += extra
             if has_ip:
                 tok = (img_m((style - mean) / std)[0] if tokens == "style"
                        else torch.from_numpy(np.load(uncond_file)))
                 args.append(tok)
             if has_cn:
-                res = cn_m(z, torch.tensor([t]), ehs, ctrl)
+                res = cn_m(z, torch.tensor([t]), ehs, ctrl, *extra)
                 args += list(res)
             eps[name] = unet_m(*args)
     for k, v in [("images", img), ("latents", lat), ("z", z), ("decoded", dec),

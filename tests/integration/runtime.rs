@@ -461,6 +461,10 @@ fn exported_model_matches_torch_reference() {
         rel(&eps[0], &r("eps_null.npy")),
         rel(&eps[1], &r("eps_prompt_style.npy")),
     ];
-    eprintln!("exported model vs torch: relative max errors {errs:?}");
-    assert!(errs.iter().all(|e| *e < 1e-3), "{errs:?}");
+    // fp16 weights: both sides round to float16 (unit roundoff 4.9e-4) in different
+    // orders, so allow 1e-2 relative; fp32: 1e-3.
+    let fp16 = p.model().manifest.precision == fantasystyle::prior::manifest::Precision::Fp16;
+    let tol = if fp16 { 1e-2 } else { 1e-3 };
+    eprintln!("exported model vs torch: relative max errors {errs:?} (tolerance {tol})");
+    assert!(errs.iter().all(|e| *e < tol), "{errs:?}");
 }
