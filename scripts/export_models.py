@@ -26,11 +26,13 @@ fp16: weights are cast to float16 inside each graph; inputs and outputs stay flo
 (Cast nodes at the boundary), as fantasystyle feeds float32.
 
 IP-Adapter: diffusers' IP-Adapter (h94/IP-Adapter) projects one CLIP image embedding to
-image tokens. IP-Adapter-Instruct (style / content / composition instructions) is not
-in diffusers; without it, the style and content token sets are both that projection
-(content = the projection of the image with its per-channel mean removed is NOT a
-substitute, so we say so in model.json's name). Pass --instruct-weights to use an
-IP-Adapter-Instruct query network if you have its code on PYTHONPATH (untested here).
+image tokens; the UNet graph takes the projected tokens. IP-Adapter-Instruct (style /
+content / composition instructions) is not in diffusers, so here the style and content
+token sets are the same projection (model.json's name says so); an Instruct export
+would replace ImageEncoder.forward's second output.
+
+--tiny also writes reference/ (eager-torch outputs on fixed inputs); the Rust test
+`exported_model_matches_torch_reference` (FANTASYSTYLE_EXPORTED_MODEL=DIR) compares.
 """
 import argparse
 import json
