@@ -14,7 +14,8 @@ Writes vendor/models/gaussian-prior/:
   model.json          the model manifest (family gaussian)
 and vendor/models/gaussian-prior-controlnet/, a test-only variant (family custom) whose
 UNet also takes SDXL text_embeds/time_ids and ControlNet residuals from a test
-ControlNet (see controlnet() and unet_controlled() below).
+ControlNet, and whose VAE encoder outputs mean+logvar moments (see controlnet(),
+unet_controlled() and vae_encoder_moments() below).
 
 The maths is documented in src/prior/gaussian.rs; the constants below must equal the
 ones there (the Rust tests compare both implementations). Idempotent: skips when the
@@ -82,6 +83,18 @@ def vae_encoder():
     nodes, inits = encoder_nodes("sample", "latent", 1.0)
     return model(nodes, [f32("sample", ["B", 3, "H", "W"])],
                  [f32("latent", ["B", C, "h", "w"])], inits, "vae_encoder")
+
+
+def vae_encoder_moments():
+    """As vae_encoder, but the output is diffusers' moments [mean, logvar] (2C channels,
+    logvar = -3): fantasystyle must take the first C channels."""
+    nodes, inits = encoder_nodes("sample", "mean", 1.0)
+    nodes += [helper.make_node("Mul", ["mean", "zero"], ["z"]),
+              helper.make_node("Add", ["z", "minus3"], ["logvar"]),
+              helper.make_node("Concat", ["mean", "logvar"], ["latent"], axis=1)]
+    inits += [const("zero", np.float32(0)), const("minus3", np.float32(-3))]
+    return model(nodes, [f32("sample", ["B", 3, "H", "W"])],
+                 [f32("latent", ["B", 2 * C, "h", "w"])], inits, "vae_encoder_moments")
 
 
 def vae_decoder():
@@ -229,6 +242,7 @@ def write_controlled_dir(out):
     tmp = write_model_dir(out)
     onnx.save(unet_controlled(), os.path.join(tmp, "unet.onnx"))
     onnx.save(controlnet(), os.path.join(tmp, "controlnet.onnx"))
+    onnx.save(vae_encoder_moments(), os.path.join(tmp, "vae_encoder.onnx"))
     np.save(os.path.join(tmp, "null_pooled.npy"), NULL_POOLED)
     np.save(os.path.join(tmp, "prompt_pooled.npy"), PROMPT_POOLED)
     man = manifest()

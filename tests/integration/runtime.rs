@@ -364,6 +364,11 @@ fn controlnet_residuals_and_sdxl_inputs_reach_the_unet() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("ControlNet") && e.contains("Depth"), "{e}");
+    // This model's VAE encoder outputs [mean, logvar] (8 channels): the mean is used.
+    let img = rand((2, 3, 16, 24), 10, 1.0, 0.0);
+    let lat = p.encode(img.view()).unwrap();
+    assert_eq!(lat.dim(), (2, 4, 2, 3));
+    assert!(max_diff(&lat, &gaussian::vae_encode(img.view()).unwrap()) < 1e-5);
     let small = rand((2, 3, 16, 16), 9, 1.0, 0.0);
     let e = p
         .predict_eps(z.view(), t, &conds, Some(small.view()))
