@@ -3,6 +3,8 @@
 //!
 //! A stage binary is `fn main() -> ExitCode { run_main(Args::parse(), stage_fn) }`.
 
+pub mod encode_latents;
+
 use std::process::ExitCode;
 
 /// Initialise tracing (RUST_LOG, default `info`) to stderr.

@@ -2,3 +2,4 @@
 mod harness;
 mod render;
 mod scene;
+mod runtime;
