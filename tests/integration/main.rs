@@ -1,5 +1,5 @@
 //! The integration test binary: one binary, one harness (`harness`), one module per area.
 mod harness;
 mod render;
-mod scene;
 mod runtime;
+mod scene;
