@@ -89,3 +89,5 @@ pub trait Prior: Send {
         control: Option<ArrayView4<'_, f32>>,
     ) -> Result<Vec<Array4<f32>>>;
 }
+
+pub mod stylizer;
