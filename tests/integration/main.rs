@@ -1,3 +1,4 @@
 //! The integration test binary: one binary, one harness (`harness`), one module per area.
 mod harness;
 mod mvfc;
+mod runtime;
