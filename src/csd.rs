@@ -21,7 +21,7 @@
 //! `mvfc-filter` stage's `--no-filter`.
 //!
 //! Weighting w(t) ([`Weighting`]): `1-ab` (DreamFusion's choice, default), `uniform` (1),
-//! `sqrt-ab(1-ab)`.
+//! `sqrt-ab-1-ab` = sqrt(ab) (1 - ab).
 //!
 //! **Step-size convention.** Like SDS, the gradient is applied to the clean latents
 //! directly (the Jacobian of the denoiser is skipped): z0' = z0 - lr * w(t) * g. For an
@@ -63,8 +63,8 @@ pub enum Weighting {
     /// w = 1.
     Uniform,
     /// w = sqrt(ab) (1 - ab).
-    #[value(name = "sqrt-ab(1-ab)")]
-    #[serde(rename = "sqrt-ab(1-ab)")]
+    #[value(name = "sqrt-ab-1-ab")]
+    #[serde(rename = "sqrt-ab-1-ab")]
     SqrtAlphaBarOneMinus,
 }
 
