@@ -581,6 +581,10 @@ fn csd_step_stage_rejects_bad_input() {
     mvfc_filter(&c).unwrap();
     let stylizer_set = r#"{"t_min": 1, "t_max": 2, "count": 2}"#;
     let md = tempfile::tempdir().unwrap();
+    for f in std::fs::read_dir(&model).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, md.path().join(f.file_name().unwrap())).unwrap();
+    }
     let mut mj: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(model.join("model.json")).unwrap()).unwrap();
     // Same schedule, but a set {1, 2} that cannot contain the drawn t.
