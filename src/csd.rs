@@ -15,6 +15,9 @@
 //! | `dds` (Delta Denoising Score, Hertz et al. 2023) | e_cfg(z_tgt; PS) - e_cfg(z_src; P), both guided against Null |
 //!
 //! (PS = prompt + style tokens, P = prompt, Content = the style image's content tokens.)
+//! In `sds`, eps is the noise `mvfc-filter` drew (eps.npy); after MVFC the low frequencies
+//! of z_tgt no longer match it exactly, so SDS also sees the filter's change as signal,
+//! whereas CSD and DDS only difference predictions and are unaffected by that mismatch.
 //! So `csd` - `csd-no-neg` = beta (e(z_tgt, Null) - e(z_tgt, Content)) (the negative
 //! content guidance), and `dds` - `csd-no-neg` = e(z_tgt, Null) - e(z_src, Null) (DDS keeps
 //! the unconditional predictions that CSD's Phi terms cancel). "Without MVFC" is the
