@@ -20,6 +20,7 @@ pub mod gaussian;
 pub mod manifest;
 pub mod onnx;
 pub mod preprocess;
+pub mod stylizer;
 
 pub use onnx::{OnnxPrior, PriorOptions, control_image, open};
 

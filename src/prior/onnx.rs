@@ -64,9 +64,11 @@ pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
             Ok(Box::new(OnnxPrior::from_model_dir(md, opts)?))
         }
         // The MVFC/CSD stages' 2D-stylizer prior plugs in here.
-        Family::Stylizer => Err(
-            md.err("family `stylizer`: the stylizer prior is not built in this binary".to_string())
-        ),
+        Family::Stylizer => Ok(Box::new(super::stylizer::StylizerPrior::open(
+            &md.dir,
+            opts.style_image.as_ref().map(|a| a.view()),
+            opts.threads,
+        )?)),
     }
 }
 
