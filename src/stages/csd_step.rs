@@ -63,16 +63,10 @@ pub fn load_image(path: &Path) -> Result<Array4<f32>> {
     if !path.is_file() {
         return Err(Error::input(path, "style image not found"));
     }
-    let img = image::open(path)
-        .map_err(|e| Error::input(path, format!("cannot read image: {e}")))?
-        .to_rgb32f();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    if w == 0 || h == 0 {
-        return Err(Error::input(path, "image is empty"));
-    }
-    let raw = img.into_raw();
+    let img = crate::imageio::read_rgb(path)?;
+    let (w, h) = (img.width, img.height);
     Ok(Array4::from_shape_fn((1, 3, h, w), |(_, c, y, x)| {
-        raw[(y * w + x) * 3 + c]
+        img.data[(y * w + x) * 3 + c]
     }))
 }
 

@@ -1,6 +1,6 @@
 //! The integration test binary: one binary, one harness (`harness`), one module per area.
 mod harness;
-mod render;
 mod mvfc;
+mod render;
 mod runtime;
 mod scene;
