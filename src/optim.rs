@@ -364,66 +364,7 @@ pub fn fit_colours(
     p: &FitParams,
 ) -> Result<(Scene, FitReport)> {
     check_params(scene, cameras, targets, steps, p)?;
-    let mut out = scene.clone();
-    // Plan the views: build the caches that fit the budget; count blends per view.
-    let mut states = Vec::with_capacity(cameras.len());
-    let mut cache_bytes = 0usize;
-    let mut any_visible = false;
-    for cam in cameras {
-        let frame = project(scene, cam);
-        let cache = ViewCache::from_frame(&frame);
-        if cache.blends() == 0 {
-            tracing::warn!("camera {:?}: no Gaussian is visible", cam.name);
-        } else {
-            any_visible = true;
-        }
-        let keep = match p.cache {
-            CacheMode::On => true,
-            CacheMode::Off => false,
-            CacheMode::Budget(b) => cache_bytes + cache.bytes() <= b,
-        };
-        if keep {
-            cache_bytes += cache.bytes();
-            let alpha = if p.mask_alpha {
-                cache.alpha()
-            } else {
-                Vec::new()
-            };
-            states.push(ViewState::Cached {
-                cache: Box::new(cache),
-                alpha,
-            });
-        } else {
-            states.push(ViewState::Uncached);
-        }
-    }
-    if !any_visible {
-        return Err(Error::param(format!(
-            "no Gaussian of the scene ({} Gaussians) is visible from any of the {} cameras",
-            scene.len(),
-            cameras.len()
-        )));
-    }
-    let cached_views = states
-        .iter()
-        .filter(|s| matches!(s, ViewState::Cached { .. }))
-        .count();
-    tracing::info!(
-        "fitting colours of {} Gaussians (SH degree {}) to {} views, {} cached ({:.1} MB)",
-        scene.len(),
-        scene.sh_degree,
-        cameras.len(),
-        cached_views,
-        cache_bytes as f64 / 1e6
-    );
-    let k = scene.rest_per_channel();
-    let n = scene.len();
-    let mut dc: Vec<f32> = scene.sh_dc.iter().flatten().copied().collect();
-    let mut adam_dc = Adam::new(n * 3, p.lr_dc);
-    let mut adam_rest = Adam::new(n * k * 3, p.lr_rest);
-    let lp = LossParams {
-        ssim_weight: p.ssim_weight,
-    };
+    let mut fit = ColourFit::new(scene, cameras, targets, p)?;
     let bar = if p.progress {
         indicatif::ProgressBar::new(steps as u64)
     } else {
@@ -434,62 +375,178 @@ pub fn fit_colours(
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     bar.set_message("fit colours");
-    let mut losses = Vec::with_capacity(steps);
-    let mut grad_dc = vec![[0.0f32; 3]; n];
-    let mut grad_rest = vec![0.0f32; n * k * 3];
     for _ in 0..steps {
+        let loss = fit.step();
+        bar.set_message(format!("fit colours, loss {loss:.5}"));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(fit.finish())
+}
+
+/// The state of a colour fit: per-view caches (or not), Adam moments, the current
+/// scene. [`fit_colours`] drives it; benchmarks time [`ColourFit::step`] alone.
+pub struct ColourFit<'a> {
+    cameras: &'a [Camera],
+    targets: &'a [Vec<f32>],
+    params: FitParams,
+    states: Vec<ViewState>,
+    scene: Scene,
+    dc: Vec<f32>,
+    adam_dc: Adam,
+    adam_rest: Adam,
+    grad_dc: Vec<[f32; 3]>,
+    grad_rest: Vec<f32>,
+    losses: Vec<f32>,
+    cached_views: usize,
+    cache_bytes: usize,
+}
+
+impl<'a> ColourFit<'a> {
+    /// Validate the inputs and plan the views: build the caches that the mode allows.
+    pub fn new(
+        scene: &Scene,
+        cameras: &'a [Camera],
+        targets: &'a [Vec<f32>],
+        p: &FitParams,
+    ) -> Result<ColourFit<'a>> {
+        check_params(scene, cameras, targets, 1, p)?;
+        let mut states = Vec::with_capacity(cameras.len());
+        let mut cache_bytes = 0usize;
+        let mut any_visible = false;
+        for cam in cameras {
+            let cache = ViewCache::from_frame(&project(scene, cam));
+            if cache.blends() == 0 {
+                tracing::warn!("camera {:?}: no Gaussian is visible", cam.name);
+            } else {
+                any_visible = true;
+            }
+            let keep = match p.cache {
+                CacheMode::On => true,
+                CacheMode::Off => false,
+                CacheMode::Budget(b) => cache_bytes + cache.bytes() <= b,
+            };
+            if keep {
+                cache_bytes += cache.bytes();
+                let alpha = if p.mask_alpha {
+                    cache.alpha()
+                } else {
+                    Vec::new()
+                };
+                states.push(ViewState::Cached {
+                    cache: Box::new(cache),
+                    alpha,
+                });
+            } else {
+                states.push(ViewState::Uncached);
+            }
+        }
+        if !any_visible {
+            return Err(Error::param(format!(
+                "no Gaussian of the scene ({} Gaussians) is visible from any of the {} cameras",
+                scene.len(),
+                cameras.len()
+            )));
+        }
+        let cached_views = states
+            .iter()
+            .filter(|s| matches!(s, ViewState::Cached { .. }))
+            .count();
+        tracing::info!(
+            "fitting colours of {} Gaussians (SH degree {}) to {} views, {} cached ({:.1} MB)",
+            scene.len(),
+            scene.sh_degree,
+            cameras.len(),
+            cached_views,
+            cache_bytes as f64 / 1e6
+        );
+        let k = scene.rest_per_channel();
+        let n = scene.len();
+        Ok(ColourFit {
+            cameras,
+            targets,
+            params: p.clone(),
+            states,
+            scene: scene.clone(),
+            dc: scene.sh_dc.iter().flatten().copied().collect(),
+            adam_dc: Adam::new(n * 3, p.lr_dc),
+            adam_rest: Adam::new(n * k * 3, p.lr_rest),
+            grad_dc: vec![[0.0; 3]; n],
+            grad_rest: vec![0.0; n * k * 3],
+            losses: Vec::new(),
+            cached_views,
+            cache_bytes,
+        })
+    }
+
+    /// Views whose contributions are cached, and the bytes the caches hold.
+    pub fn cache_stats(&self) -> (usize, usize) {
+        (self.cached_views, self.cache_bytes)
+    }
+
+    /// One Adam step over all views; returns the mean loss over views before the update.
+    pub fn step(&mut self) -> f32 {
+        let p = &self.params;
+        let lp = LossParams {
+            ssim_weight: p.ssim_weight,
+        };
+        let out = &self.scene;
+        let (grad_dc, grad_rest) = (&mut self.grad_dc, &mut self.grad_rest);
         grad_dc.iter_mut().for_each(|g| *g = [0.0; 3]);
         grad_rest.iter_mut().for_each(|g| *g = 0.0);
         let mut loss_sum = 0.0f64;
-        for ((cam, target), state) in cameras.iter().zip(targets).zip(&states) {
+        for ((cam, target), state) in self.cameras.iter().zip(self.targets).zip(&self.states) {
             let (h, w) = (cam.height as usize, cam.width as usize);
             let centre = cam.center();
             match state {
                 ViewState::Cached { cache, alpha } => {
                     let ids = cache.gaussians();
-                    let raw = raw_colours(&out, ids, centre);
+                    let raw = raw_colours(out, ids, centre);
                     let rgb = cache.forward(&clamp_colours(&raw), p.background);
                     let mask = p.mask_alpha.then_some(&alpha[..]);
                     let (l, g) = loss_and_grad(&rgb, target, mask, h, w, lp);
                     loss_sum += l as f64;
                     let gc = cache.backward(&g);
-                    sh_backward(&out, ids, centre, &raw, &gc, &mut grad_dc, &mut grad_rest);
+                    sh_backward(out, ids, centre, &raw, &gc, grad_dc, grad_rest);
                 }
                 ViewState::Uncached => {
-                    let frame = project(&out, cam);
+                    let frame = project(out, cam);
                     let ids = &frame.splats.ids;
-                    let raw = raw_colours(&out, ids, centre);
+                    let raw = raw_colours(out, ids, centre);
                     let r = composite(&frame, &clamp_colours(&raw), p.background);
                     let mask = p.mask_alpha.then_some(&r.alpha[..]);
                     let (l, g) = loss_and_grad(&r.rgb, target, mask, h, w, lp);
                     loss_sum += l as f64;
                     let gc = colour_grad_uncached(&frame, &g);
-                    sh_backward(&out, ids, centre, &raw, &gc, &mut grad_dc, &mut grad_rest);
+                    sh_backward(out, ids, centre, &raw, &gc, grad_dc, grad_rest);
                 }
             }
         }
-        let nv = cameras.len() as f32;
+        let nv = self.cameras.len() as f32;
         let gdc: Vec<f32> = grad_dc.iter().flatten().map(|g| g / nv).collect();
         grad_rest.iter_mut().for_each(|g| *g /= nv);
-        adam_dc.step(&mut dc, &gdc);
-        adam_rest.step(&mut out.sh_rest, &grad_rest);
-        for (i, c) in out.sh_dc.iter_mut().enumerate() {
+        self.adam_dc.step(&mut self.dc, &gdc);
+        self.adam_rest.step(&mut self.scene.sh_rest, grad_rest);
+        let dc = &self.dc;
+        for (i, c) in self.scene.sh_dc.iter_mut().enumerate() {
             *c = [dc[i * 3], dc[i * 3 + 1], dc[i * 3 + 2]];
         }
-        let loss = (loss_sum / cameras.len() as f64) as f32;
-        losses.push(loss);
-        bar.set_message(format!("fit colours, loss {loss:.5}"));
-        bar.inc(1);
+        let loss = (loss_sum / self.cameras.len() as f64) as f32;
+        self.losses.push(loss);
+        loss
     }
-    bar.finish_and_clear();
-    Ok((
-        out,
-        FitReport {
-            losses,
-            cached_views,
-            cache_bytes,
-        },
-    ))
+
+    /// The fitted scene and the report.
+    pub fn finish(self) -> (Scene, FitReport) {
+        (
+            self.scene,
+            FitReport {
+                losses: self.losses,
+                cached_views: self.cached_views,
+                cache_bytes: self.cache_bytes,
+            },
+        )
+    }
 }
 
 #[cfg(test)]
