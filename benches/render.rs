@@ -49,7 +49,8 @@ fn synthetic(n: usize) -> Scene {
         s.positions
             .push([0.4 * p[0] as f32, 0.4 * p[1] as f32, 0.4 * p[2] as f32]);
         let ls = |rng: &mut Rng| (base + 0.5 * rng.normal()) as f32;
-        s.log_scales.push([ls(&mut rng), ls(&mut rng), ls(&mut rng)]);
+        s.log_scales
+            .push([ls(&mut rng), ls(&mut rng), ls(&mut rng)]);
         s.rotations.push([
             rng.normal() as f32,
             rng.normal() as f32,
@@ -157,6 +158,50 @@ fn case_fit(scene_name: &str, size: u32, views: usize, cache: bool) -> serde_jso
     })
 }
 
+/// Phase times of one view (min over 5 runs), for tuning.
+fn case_profile(scene_name: &str, size: u32) -> serde_json::Value {
+    use fantasystyle::render::{clamp_colours, composite, raw_colours};
+    let scene = load(scene_name);
+    let cam = &cams(&scene, 8, size)[0];
+    let time = |f: &mut dyn FnMut()| {
+        (0..5)
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64() * 1e3
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let frame = project(&scene, cam);
+    let t_project = time(&mut || {
+        std::hint::black_box(project(&scene, cam));
+    });
+    let raw = raw_colours(&scene, &frame.splats.ids, cam.center());
+    let col = clamp_colours(&raw);
+    let t_colour = time(&mut || {
+        std::hint::black_box(raw_colours(&scene, &frame.splats.ids, cam.center()));
+    });
+    let t_composite = time(&mut || {
+        std::hint::black_box(composite(&frame, &col, [0.0; 3]));
+    });
+    let pairs = frame.tile_list.len();
+    let mut row_evals = 0usize;
+    let ts = 16usize;
+    for t in 0..frame.tiles_x * frame.tiles_y {
+        let y0 = (t / frame.tiles_x) * ts;
+        for &g in &frame.tile_list[frame.tile_start[t] as usize..frame.tile_start[t + 1] as usize] {
+            let r = frame.splats.rows[g as usize];
+            let a = (r[0] as usize).max(y0);
+            let b = (r[1] as usize).min(y0 + ts);
+            row_evals += b.saturating_sub(a);
+        }
+    }
+    serde_json::json!({
+        "splats": frame.splats.ids.len(), "pairs": pairs, "pixel_evals": row_evals * 16,
+        "project_ms": t_project, "colour_ms": t_colour, "composite_ms": t_composite,
+    })
+}
+
 fn child(args: &[String]) {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(THREADS)
@@ -170,6 +215,7 @@ fn child(args: &[String]) {
             args[3].parse().unwrap(),
             args[4] == "on",
         ),
+        "profile" => case_profile(&args[1], args[2].parse().unwrap()),
         other => panic!("unknown case {other}"),
     });
     println!("RESULT {v}");
@@ -177,11 +223,7 @@ fn child(args: &[String]) {
 
 fn run_child(args: &[&str]) -> Option<serde_json::Value> {
     let exe = std::env::current_exe().ok()?;
-    let out = Command::new(exe)
-        .arg("--case")
-        .args(args)
-        .output()
-        .ok()?;
+    let out = Command::new(exe).arg("--case").args(args).output().ok()?;
     let text = String::from_utf8_lossy(&out.stdout);
     let line = text.lines().find_map(|l| l.strip_prefix("RESULT "));
     match line {
@@ -204,6 +246,11 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if let Some(i) = args.iter().position(|a| a == "--case") {
         child(&args[i + 1..]);
+        return;
+    }
+    if let Some(i) = args.iter().position(|a| a == "--profile") {
+        let v = run_child(&["profile", &args[i + 1], &args[i + 2]]);
+        println!("{v:?}");
         return;
     }
     let quick = args.iter().any(|a| a == "--quick");
