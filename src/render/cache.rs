@@ -120,7 +120,9 @@ impl ViewCache {
             .map_init(TileState::new, |st, t| {
                 let mut rec = TileRecords::default();
                 composite_tile(frame, t, st, &mut rec);
-                rec.t = st.t.iter().flatten().copied().collect();
+                rec.t = (0..TP)
+                    .map(|p| st.transmittance(p / TILE, p % TILE))
+                    .collect();
                 rec
             })
             .collect();

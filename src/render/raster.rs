@@ -62,10 +62,9 @@ fn as_half(s: &mut [f32]) -> &mut [f32; HALF] {
 
 /// Per-tile compositing state.
 pub struct TileState {
-    /// Transmittance per pixel.
-    pub t: Plane,
-    /// 1.0 while the pixel is still compositing, 0.0 once finished or outside the image.
-    live: Plane,
+    /// Transmittance per pixel, stored negated once the pixel has finished (and -1
+    /// outside the image), so that one array carries both; see [`Self::transmittance`].
+    t: Plane,
     w: Plane,
 }
 
@@ -73,9 +72,14 @@ impl TileState {
     pub fn new() -> Box<TileState> {
         Box::new(TileState {
             t: [[1.0; TILE]; TILE],
-            live: [[1.0; TILE]; TILE],
             w: [[0.0; TILE]; TILE],
         })
+    }
+
+    /// Final transmittance of tile pixel `(r, c)`.
+    #[inline]
+    pub fn transmittance(&self, r: usize, c: usize) -> f32 {
+        self.t[r][c].abs()
     }
 }
 
@@ -90,7 +94,6 @@ fn blend_half(
     conic: [f32; 3],
     op: f32,
     t: &mut [f32; HALF],
-    live: &mut [f32; HALF],
     w: &mut [f32; HALF],
 ) {
     let [ca, cb, cc] = conic;
@@ -102,12 +105,12 @@ fn blend_half(
         let alpha = (op * exp_neg(power)).min(ALPHA_MAX);
         let tc = t[c];
         let next = tc * (1.0 - alpha);
-        let ok = (power <= 0.0) & (alpha >= ALPHA_MIN) & (live[c] > 0.0);
+        let ok = (power <= 0.0) & (alpha >= ALPHA_MIN) & (tc > 0.0);
         let finish = ok & (next < T_MIN);
         let blend = ok & !finish;
         w[c] = if blend { alpha * tc } else { 0.0 };
-        t[c] = if blend { next } else { tc };
-        live[c] = if finish { 0.0 } else { live[c] };
+        let kept = if finish { -tc } else { tc };
+        t[c] = if blend { next } else { kept };
     }
 }
 
@@ -146,9 +149,8 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
     let cols = (frame.width - px0).min(TILE);
     let rows = (frame.height - py0).min(TILE);
     for r in 0..TILE {
-        st.t[r] = [1.0; TILE];
         for c in 0..TILE {
-            st.live[r][c] = if r < rows && c < cols { 1.0 } else { 0.0 };
+            st.t[r][c] = if r < rows && c < cols { 1.0 } else { -1.0 };
         }
     }
     let s = &frame.splats;
@@ -186,7 +188,6 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
                     conic,
                     op,
                     as_half(&mut st.t[r][lanes.clone()]),
-                    as_half(&mut st.live[r][lanes.clone()]),
                     as_half(&mut st.w[r][lanes]),
                 );
             }
@@ -195,7 +196,7 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
         since_check += 1;
         if since_check == 32 {
             since_check = 0;
-            if st.live.iter().flatten().all(|&l| l == 0.0) {
+            if st.t.iter().flatten().all(|&t| t <= 0.0) {
                 break;
             }
         }
