@@ -32,6 +32,7 @@ pub mod runtime;
 pub mod scene;
 pub mod scheduler;
 pub mod stages;
+pub mod vgg;
 
 pub use camera::Camera;
 pub use error::{Error, Result};
