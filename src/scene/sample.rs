@@ -1,0 +1,1 @@
+//! (sample scene generator: being written)
