@@ -21,6 +21,7 @@
 //! field of relu4_3 (92 px): a smaller image cannot fill even one deepest-layer unit, so
 //! its "style" at that layer would be the zero padding's.
 
+pub mod fit;
 pub mod gram;
 pub mod nnfm;
 
