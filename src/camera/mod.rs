@@ -248,7 +248,11 @@ pub fn load_cameras(spec: &str, scene: &Scene, width: u32, height: u32) -> Resul
     }
     if let Some(rest) = spec.strip_prefix("orbit:") {
         let o = orbit::OrbitSpec::parse(rest)?;
-        return orbit::orbit(&o, scene, width, height);
+        let cams = orbit::orbit(&o, scene, width, height)?;
+        for c in &cams {
+            c.validate(Path::new(spec))?;
+        }
+        return Ok(cams);
     }
     let path = Path::new(spec);
     let (cams, src) = load_camera_file(path)?;

@@ -445,7 +445,8 @@ fn read_ascii_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<V
         }
     }
     let v = &h.elements[vi];
-    let mut rows = Vec::with_capacity(v.count * v.props.len());
+    // The count is not trusted for allocation: a lying header must not exhaust memory.
+    let mut rows = Vec::with_capacity(v.count.saturating_mul(v.props.len()).min(text.len()));
     for i in 0..v.count {
         let line = lines.next().ok_or_else(|| {
             Error::input(
@@ -618,6 +619,44 @@ mod tests {
         }
     }
 
+    /// Fuzz-style: random truncations, byte flips and header edits never panic.
+    #[test]
+    fn corrupted_files_never_panic() {
+        let mut rng = crate::rng::Rng::new(99);
+        let s = scene(4, 2);
+        for good in [encode_ply(&s), encode_ply_ascii(&s)] {
+            for _ in 0..1500 {
+                let mut b = good.clone();
+                match rng.next_u64() % 4 {
+                    0 => b.truncate((rng.next_u64() as usize) % (b.len() + 1)),
+                    1 => {
+                        for _ in 0..1 + rng.next_u64() % 8 {
+                            let i = (rng.next_u64() as usize) % b.len();
+                            b[i] = rng.next_u64() as u8;
+                        }
+                    }
+                    2 => {
+                        let i = (rng.next_u64() as usize) % b.len();
+                        b.insert(i, b"0123456789 \n-e.x"[(rng.next_u64() % 16) as usize]);
+                    }
+                    _ => {
+                        let t = String::from_utf8_lossy(&b).replacen(
+                            "element vertex 4",
+                            &format!("element vertex {}", rng.next_u64()),
+                            1,
+                        );
+                        b = t.into_bytes();
+                    }
+                }
+                let r = std::panic::catch_unwind(|| parse_ply(Path::new("f.ply"), &b));
+                let r = r.expect("parser panicked");
+                if let Err(e) = r {
+                    assert!(e.to_string().starts_with("f.ply: "), "{e}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn f_rest_is_transposed_from_channel_major() {
         // Degree 1: f_rest_{c*3+k}. Write a file by hand with f_rest_j = j.
@@ -668,6 +707,24 @@ mod tests {
         }
         let s = parse_ply(Path::new("t.ply"), &b).unwrap();
         assert_eq!(s.positions[0], [1.5, -7.0, 200.0]);
+        // Elements before and after the vertices (fixed-size) are skipped.
+        let with_more = String::from_utf8_lossy(&b)
+            .replacen(
+                "element vertex 1",
+                "element camera 1\nproperty float a\nelement vertex 1",
+                1,
+            )
+            .replacen(
+                "end_header",
+                "element face 1\nproperty uchar k\nend_header",
+                1,
+            );
+        let hl = with_more.find("end_header\n").unwrap() + 11;
+        let mut b2 = with_more.as_bytes()[..hl].to_vec();
+        b2.extend_from_slice(&9f32.to_le_bytes());
+        b2.extend_from_slice(&b[b.len() - (8 + 4 + 7 * 4 + 8)..]);
+        b2.push(5);
+        assert_eq!(parse_ply(Path::new("t.ply"), &b2).unwrap(), s);
         assert_eq!(s.opacity_logits[0], 2.0);
         assert_eq!(s.rotations[0], [1.0, 0.0, 0.0, 0.0]);
         assert_eq!(s.sh_degree, 0);
