@@ -8,8 +8,9 @@
 //! DC and higher-order coefficients, as 3DGS does. The renderer is reached through
 //! [`ColourViews`], so the loop is independent of how views are cached.
 
-use super::{Image, Objective};
-use crate::{Error, Result, Scene};
+use super::{Image, Objective, Terms};
+use crate::render::{ViewCache, backward::sh_backward, clamp_colours, raw_colours};
+use crate::{Camera, Error, Result, Scene};
 
 /// A fixed set of views of a scene with frozen geometry: render the current colours, and
 /// the colour backward pass (image gradient to SH gradients, added into the buffers).
@@ -24,6 +25,108 @@ pub trait ColourViews: Sync {
         grad_dc: &mut [[f32; 3]],
         grad_rest: &mut [f32],
     ) -> Result<()>;
+}
+
+/// The renderer's frozen-geometry caches ([`ViewCache`]) of a set of cameras: colour
+/// forward is the cached sparse blend of `max(0, SH(d) + 0.5)`, the backward its
+/// transpose followed by the SH chain rule ([`sh_backward`]); bit-identical to
+/// [`crate::render::render`]'s RGB.
+#[derive(Debug)]
+pub struct CachedViews {
+    caches: Vec<ViewCache>,
+    centres: Vec<[f32; 3]>,
+    background: [f32; 3],
+}
+
+impl CachedViews {
+    /// Project and composite `scene` once per camera (geometry is frozen from here on).
+    pub fn build(scene: &Scene, cameras: &[Camera], background: [f32; 3]) -> Result<Self> {
+        let caches = cameras
+            .iter()
+            .map(|c| ViewCache::build(scene, c))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(CachedViews {
+            caches,
+            centres: cameras.iter().map(|c| c.center()).collect(),
+            background,
+        })
+    }
+}
+
+impl ColourViews for CachedViews {
+    fn count(&self) -> usize {
+        self.caches.len()
+    }
+    fn render(&self, scene: &Scene, view: usize) -> Result<Image> {
+        let c = &self.caches[view];
+        let raw = raw_colours(scene, c.gaussians(), self.centres[view]);
+        Ok(Image {
+            h: c.height,
+            w: c.width,
+            data: c.forward(&clamp_colours(&raw), self.background),
+        })
+    }
+    fn backward(
+        &self,
+        scene: &Scene,
+        view: usize,
+        grad_rgb: &[f32],
+        grad_dc: &mut [[f32; 3]],
+        grad_rest: &mut [f32],
+    ) -> Result<()> {
+        let c = &self.caches[view];
+        let centre = self.centres[view];
+        let raw = raw_colours(scene, c.gaussians(), centre);
+        let gc = c.backward(grad_rgb);
+        sh_backward(scene, c.gaussians(), centre, &raw, &gc, grad_dc, grad_rest);
+        Ok(())
+    }
+}
+
+/// Mean absolute error to fixed target images (the per-view stylize + refit baseline's
+/// fit; the style term is the L1 distance, content is zero).
+#[derive(Debug)]
+pub struct L1Objective {
+    pub targets: Vec<Image>,
+}
+
+impl Objective for L1Objective {
+    fn eval(&self, view: usize, img: &Image) -> Result<Terms> {
+        let t = self
+            .targets
+            .get(view)
+            .ok_or_else(|| Error::param(format!("view {view} out of range")))?;
+        if t.data.len() != img.data.len() {
+            return Err(Error::param(format!(
+                "view {view}: target is {}x{}, render is {}x{}",
+                t.w, t.h, img.w, img.h
+            )));
+        }
+        let n = img.data.len() as f64;
+        let k = (1.0 / n) as f32;
+        let mut loss = 0.0;
+        let grad = img
+            .data
+            .iter()
+            .zip(&t.data)
+            .map(|(&a, &b)| {
+                loss += (a as f64 - b as f64).abs();
+                if a > b {
+                    k
+                } else if a < b {
+                    -k
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        Ok(Terms {
+            style: loss / n,
+            content: 0.0,
+            total: loss / n,
+            grad,
+        })
+    }
 }
 
 /// Settings of the colour fit.

@@ -36,6 +36,7 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
 
 pub mod make_sample;
 pub mod render_views;
+pub mod stylize_baseline;
 
 use crate::{Error, Result};
 use std::path::Path;

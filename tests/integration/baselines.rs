@@ -77,3 +77,168 @@ fn vgg_missing_or_malformed_weights_are_clear_errors() {
         "{e}"
     );
 }
+
+mod stage {
+    use crate::harness::repo_root;
+    use fantasystyle::stages::stylize_baseline::{Args, Method, run};
+    use std::path::{Path, PathBuf};
+
+    /// Real VGG16 weights when set-up has made them, else the golden test's narrow
+    /// random-weight network (same topology), so the test always runs.
+    fn vgg_dir() -> PathBuf {
+        let real = repo_root().join("vendor/models/lpips/vgg16");
+        if real.join("conv9_weight.npy").is_file() {
+            real
+        } else {
+            eprintln!("NOTE: real VGG16 weights absent; using tests/golden/vgg");
+            repo_root().join("tests/golden/vgg")
+        }
+    }
+
+    fn args(method: Method, out: &Path, style: &Path, steps: usize) -> Args {
+        Args {
+            method,
+            scene: repo_root().join("data-sample/scene.ply"),
+            cameras: "orbit:2".into(),
+            style: style.to_path_buf(),
+            steps,
+            out: out.to_path_buf(),
+            width: 48,
+            height: 48,
+            background: [0.0; 3],
+            lr_dc: 0.03,
+            lr_rest: 0.001,
+            style_size: 128,
+            style_weight: 1.0,
+            content_weight: None,
+            monitor_every: steps,
+            vgg: vgg_dir(),
+            stylizer: repo_root().join("vendor/models/stylizer"),
+            threads: 2,
+        }
+    }
+
+    fn sample_style() -> PathBuf {
+        repo_root().join("data-sample/style.png")
+    }
+
+    /// Each baseline lowers the Gram distance to the style on the sample scene (48x48,
+    /// two orbit views, a few steps), and geometry stays bit-identical.
+    fn check_method(method: Method, steps: usize) {
+        let d = tempfile::tempdir().unwrap();
+        let out = d.path().join("out");
+        run(args(method, &out, &sample_style(), steps)).unwrap();
+        let log: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("loss.json")).unwrap()).unwrap();
+        let steps_log = log["steps"].as_array().unwrap();
+        assert_eq!(steps_log.len(), steps + 1);
+        let first = steps_log[0]["gram_distance"].as_f64().unwrap();
+        let last = steps_log[steps]["gram_distance"].as_f64().unwrap();
+        eprintln!("{method:?}: Gram distance {first} -> {last}");
+        assert!(last < first, "{method:?}: Gram distance {first} -> {last}");
+        let before =
+            fantasystyle::scene::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap();
+        let after = fantasystyle::scene::load_scene(&out.join("scene.ply")).unwrap();
+        let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&before.positions), bits(&after.positions));
+        assert_eq!(bits(&before.log_scales), bits(&after.log_scales));
+        let q = |s: &fantasystyle::Scene| {
+            s.rotations
+                .iter()
+                .flatten()
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(q(&before), q(&after));
+        let o = |s: &fantasystyle::Scene| {
+            s.opacity_logits
+                .iter()
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(o(&before), o(&after));
+        assert_ne!(before.sh_dc, after.sh_dc, "colours did not change");
+    }
+
+    #[test]
+    fn gram_lowers_gram_distance_geometry_frozen() {
+        check_method(Method::Gram, 6);
+    }
+
+    #[test]
+    fn nnfm_lowers_gram_distance_geometry_frozen() {
+        check_method(Method::Nnfm, 6);
+    }
+
+    #[test]
+    fn refit_lowers_gram_distance_geometry_frozen() {
+        if !repo_root()
+            .join("vendor/models/stylizer/model.json")
+            .is_file()
+        {
+            eprintln!("SKIPPED: vendor/models/stylizer is absent (run scripts/setup.sh)");
+            return;
+        }
+        check_method(Method::Refit, 6);
+    }
+
+    fn write_png(path: &Path, w: u32, h: u32, channels: u8) {
+        let n = (w * h) as usize;
+        let px = |i: usize| ((i * 37) % 251) as u8;
+        match channels {
+            1 => image::GrayImage::from_raw(w, h, (0..n).map(px).collect())
+                .unwrap()
+                .save(path),
+            4 => image::RgbaImage::from_raw(w, h, (0..n * 4).map(px).collect())
+                .unwrap()
+                .save(path),
+            _ => image::RgbImage::from_raw(w, h, (0..n * 3).map(px).collect())
+                .unwrap()
+                .save(path),
+        }
+        .unwrap();
+    }
+
+    /// A style image below relu4_3's receptive field (92 px) is refused with exit code 2,
+    /// naming the file; nothing is written.
+    #[test]
+    fn tiny_style_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let style = d.path().join("tiny.png");
+        write_png(&style, 91, 200, 3);
+        let out = d.path().join("out");
+        let e = run(args(Method::Gram, &out, &style, 1)).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        let msg = e.to_string();
+        assert!(msg.contains("tiny.png") && msg.contains("92"), "{msg}");
+        assert!(!out.exists());
+    }
+
+    /// Grayscale (expanded to RGB) and RGBA (alpha dropped) style images are accepted.
+    #[test]
+    fn grayscale_and_rgba_styles_are_accepted() {
+        let d = tempfile::tempdir().unwrap();
+        for ch in [1u8, 4] {
+            let style = d.path().join(format!("s{ch}.png"));
+            write_png(&style, 100, 96, ch);
+            let out = d.path().join(format!("out{ch}"));
+            run(args(Method::Gram, &out, &style, 1)).unwrap();
+            assert!(out.join("scene.ply").is_file());
+        }
+    }
+
+    /// An empty camera set is a clear error (exit code 2), nothing written.
+    #[test]
+    fn empty_view_set_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let cams = d.path().join("cameras.json");
+        std::fs::write(&cams, "[]").unwrap();
+        let out = d.path().join("out");
+        let mut a = args(Method::Nnfm, &out, &sample_style(), 1);
+        a.cameras = cams.to_string_lossy().into_owned();
+        let e = run(a).unwrap_err();
+        assert_eq!(e.exit_code(), 2, "{e}");
+        assert!(e.to_string().contains("cameras.json"), "{e}");
+        assert!(!out.exists());
+    }
+}

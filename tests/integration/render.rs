@@ -55,9 +55,15 @@ fn compare(name: &str, what: &str, got: &[f32], want: &[f32], channels: usize, s
     let max = per_pixel.iter().cloned().fold(0.0, f32::max);
     let close = per_pixel.iter().filter(|&&d| d < 1e-5 * scale).count() as f64 / npix as f64;
     eprintln!("{name} {what}: max {max:.2e}, mean {mean:.2e}, within 1e-5: {close:.4}");
-    assert!(close >= 0.995, "{name} {what}: only {close} of pixels within tolerance");
+    assert!(
+        close >= 0.995,
+        "{name} {what}: only {close} of pixels within tolerance"
+    );
     assert!(max < 0.02 * scale, "{name} {what}: max abs error {max}");
-    assert!(mean < 1e-6 * scale as f64, "{name} {what}: mean abs error {mean}");
+    assert!(
+        mean < 1e-6 * scale as f64,
+        "{name} {what}: mean abs error {mean}"
+    );
 }
 
 #[test]
