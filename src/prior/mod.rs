@@ -17,7 +17,12 @@
 //! manifest's family), [`preprocess`] (resizing and normalising images for encoders).
 
 pub mod gaussian;
+pub mod manifest;
+pub mod onnx;
 pub mod preprocess;
+pub mod stylizer;
+
+pub use onnx::{OnnxPrior, PriorOptions, control_image, open};
 
 use crate::Result;
 use crate::scheduler::SchedulerConfig;
@@ -89,5 +94,3 @@ pub trait Prior: Send {
         control: Option<ArrayView4<'_, f32>>,
     ) -> Result<Vec<Array4<f32>>>;
 }
-
-pub mod stylizer;

@@ -43,29 +43,59 @@ use ort::value::Tensor;
 use serde::Deserialize;
 use std::path::Path;
 
-/// The `model.json` of a stylizer model directory (family `stylizer`).
+/// The fields of a `model.json` the stylizer reads (the runtime's model-manifest format,
+/// `fantasystyle-model/1`, family `stylizer`; its own fields under `stylizer`).
 #[derive(Debug, Clone, Deserialize)]
-pub struct StylizerManifest {
-    pub family: String,
+struct ModelJson {
+    format: String,
+    family: String,
     #[serde(default)]
-    pub name: Option<String>,
-    pub scheduler: SchedulerConfig,
+    name: Option<String>,
+    scheduler: SchedulerConfig,
+    stylizer: StylizerManifest,
+}
+
+/// The `stylizer` section of the model manifest.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StylizerManifest {
+    /// Where the weights come from (informational).
+    #[serde(default)]
+    pub source: Option<String>,
+    /// The timestep set `mvfc-filter --timestep auto` draws from for this model.
+    #[serde(default)]
+    pub timesteps: Option<TimestepRange>,
     pub style_predict: PredictGraph,
     pub transform: TransformGraph,
     pub style_dim: usize,
 }
 
+/// `count` timesteps spaced evenly over `[t_min, t_max]`.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimestepRange {
+    pub t_min: usize,
+    pub t_max: usize,
+    pub count: usize,
+}
+
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PredictGraph {
     pub file: String,
+    #[serde(default)]
+    pub sha256: Option<String>,
     pub input: String,
     pub output: String,
     pub size: usize,
 }
 
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TransformGraph {
     pub file: String,
+    #[serde(default)]
+    pub sha256: Option<String>,
     pub content_input: String,
     pub style_input: String,
     pub output: String,
@@ -97,15 +127,20 @@ impl StylizerPrior {
     pub fn open(dir: &Path, style: Option<ArrayView4<'_, f32>>, threads: usize) -> Result<Self> {
         let mpath = dir.join("model.json");
         let text = std::fs::read_to_string(&mpath).map_err(|e| Error::io(&mpath, e))?;
-        let manifest: StylizerManifest = serde_json::from_str(&text)
+        let mj: ModelJson = serde_json::from_str(&text)
             .map_err(|e| Error::input(&mpath, format!("invalid stylizer manifest: {e}")))?;
-        if manifest.family != "stylizer" {
+        if mj.format != "fantasystyle-model/1" || mj.family != "stylizer" {
             return Err(Error::input(
                 &mpath,
-                format!("family is `{}`, expected `stylizer`", manifest.family),
+                format!(
+                    "format `{}`, family `{}`: expected fantasystyle-model/1, stylizer",
+                    mj.format, mj.family
+                ),
             ));
         }
-        let schedule = Schedule::new(manifest.scheduler.clone())?;
+        let manifest = mj.stylizer;
+        let schedule = Schedule::new(mj.scheduler.clone())
+            .map_err(|e| Error::input(&mpath, format!("scheduler: {e}")))?;
         let predict = load_checked(
             &dir.join(&manifest.style_predict.file),
             threads,
@@ -122,13 +157,10 @@ impl StylizerPrior {
             &manifest.transform.output,
         )?;
         let info = PriorInfo {
-            name: manifest
-                .name
-                .clone()
-                .unwrap_or_else(|| "magenta-stylizer".into()),
+            name: mj.name.unwrap_or_else(|| "magenta-stylizer".into()),
             latent_channels: 3,
             downsample: 1,
-            scheduler: manifest.scheduler.clone(),
+            scheduler: mj.scheduler,
             control: None,
         };
         let mut p = StylizerPrior {
@@ -248,6 +280,10 @@ impl StylizerPrior {
 
     pub fn schedule(&self) -> &Schedule {
         &self.schedule
+    }
+
+    pub fn manifest(&self) -> &StylizerManifest {
+        &self.manifest
     }
 }
 

@@ -3,6 +3,10 @@
 //!
 //! A stage binary is `fn main() -> ExitCode { run_main(Args::parse(), stage_fn) }`.
 
+pub mod csd_step;
+pub mod encode_latents;
+pub mod mvfc_filter;
+
 use std::process::ExitCode;
 
 /// Initialise tracing (RUST_LOG, default `info`) to stderr.

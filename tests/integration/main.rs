@@ -3,4 +3,5 @@ mod baselines;
 mod harness;
 mod mvfc;
 mod render;
+mod runtime;
 mod scene;
