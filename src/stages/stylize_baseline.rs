@@ -103,6 +103,9 @@ pub struct Args {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct LossLog {
     pub method: Method,
+    /// `refit` only: the Gram distance of the stylized target views (mean over views).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub targets_gram_distance: Option<f64>,
     pub steps: Vec<crate::baselines::fit::StepLog>,
 }
 
@@ -233,6 +236,7 @@ fn optimise(
         Ok(s / imgs.len() as f64)
     };
     let mut targets = Vec::new();
+    let mut targets_gram = None;
     let obj: Box<dyn Objective + '_> = match a.method {
         Method::Gram => Box::new(GramObjective::new(
             vgg,
@@ -258,6 +262,9 @@ fn optimise(
         }
         Method::Refit => {
             targets = stylize_views(&a.stylizer, style, &originals)?;
+            let d = monitor(&targets)?;
+            tracing::info!("refit targets: Gram distance to the style {d:.4}");
+            targets_gram = Some(d);
             Box::new(L1Objective {
                 targets: targets.clone(),
             })
@@ -288,6 +295,7 @@ fn optimise(
         scene,
         LossLog {
             method: a.method,
+            targets_gram_distance: targets_gram,
             steps,
         },
         targets,

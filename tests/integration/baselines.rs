@@ -134,7 +134,17 @@ mod stage {
         assert_eq!(steps_log.len(), steps + 1);
         let first = steps_log[0]["gram_distance"].as_f64().unwrap();
         let last = steps_log[steps]["gram_distance"].as_f64().unwrap();
-        eprintln!("{method:?}: Gram distance {first} -> {last}");
+        eprintln!(
+            "{method:?}: Gram distance {first} -> {last} (targets: {})",
+            log["targets_gram_distance"]
+        );
+        eprintln!(
+            "totals: {:?}",
+            steps_log
+                .iter()
+                .map(|s| s["total"].as_f64().unwrap())
+                .collect::<Vec<_>>()
+        );
         assert!(last < first, "{method:?}: Gram distance {first} -> {last}");
         let before =
             fantasystyle::scene::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap();
@@ -179,7 +189,7 @@ mod stage {
             eprintln!("SKIPPED: vendor/models/stylizer is absent (run scripts/setup.sh)");
             return;
         }
-        check_method(Method::Refit, 6);
+        check_method(Method::Refit, 150);
     }
 
     fn write_png(path: &Path, w: u32, h: u32, channels: u8) {
