@@ -200,6 +200,9 @@ impl Adam {
     }
 }
 
+/// A measure of the current renders logged beside the loss (the Gram distance).
+pub type Monitor<'a> = &'a dyn Fn(&[Image]) -> Result<f64>;
+
 /// Optimise the colours of `scene` for `obj` over `views`. `monitor` maps the current
 /// renders to a number logged as `gram_distance` (every `monitor_every` steps and at the
 /// first and last entries). `on_step` is called after each step (progress bars).
@@ -208,7 +211,7 @@ pub fn fit_objective(
     views: &dyn ColourViews,
     obj: &dyn Objective,
     opts: &FitOptions,
-    monitor: Option<&dyn Fn(&[Image]) -> Result<f64>>,
+    monitor: Option<Monitor<'_>>,
     on_step: &mut dyn FnMut(usize),
 ) -> Result<Vec<StepLog>> {
     let nv = views.count();
