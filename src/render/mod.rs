@@ -29,7 +29,7 @@ pub use cache::{CacheMode, ViewCache};
 pub use project::{Frame, project};
 
 use crate::{Camera, Error, Result, Scene};
-use raster::{Sink, TP, TileState, composite_tile};
+use raster::{Plane, Sink, TileState, composite_tile};
 use rayon::prelude::*;
 
 use project::TILE;
@@ -164,21 +164,23 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Result<Re
 struct ForwardSink<'a> {
     colours: &'a [[f32; 3]],
     depth: &'a [f32],
-    acc: [[f32; TP]; 4],
+    acc: [Plane; 4],
 }
 
 impl Sink for ForwardSink<'_> {
     #[inline]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &[f32; TP]) {
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &Plane) {
         let c = self.colours[local as usize];
         let z = self.depth[local as usize];
         let [ar, ag, ab, ad] = &mut self.acc;
-        for p in r0 * TILE..r1 * TILE {
-            let wp = w[p];
-            ar[p] += wp * c[0];
-            ag[p] += wp * c[1];
-            ab[p] += wp * c[2];
-            ad[p] += wp * z;
+        for r in r0..r1 {
+            for x in 0..TILE {
+                let wp = w[r][x];
+                ar[r][x] += wp * c[0];
+                ag[r][x] += wp * c[1];
+                ab[r][x] += wp * c[2];
+                ad[r][x] += wp * z;
+            }
         }
     }
 }
@@ -198,25 +200,22 @@ pub fn composite(frame: &Frame, colours: &[[f32; 3]], background: [f32; 3]) -> R
             let mut sink = ForwardSink {
                 colours,
                 depth: &frame.splats.depth,
-                acc: [[0.0; TP]; 4],
+                acc: [[[0.0; TILE]; TILE]; 4],
             };
             for tx in 0..frame.tiles_x {
-                for a in sink.acc.iter_mut() {
-                    a.fill(0.0);
-                }
+                sink.acc = [[[0.0; TILE]; TILE]; 4];
                 composite_tile(frame, ty * frame.tiles_x + tx, &mut st, &mut sink);
                 let x0 = tx * TILE;
                 let cols = (w - x0).min(TILE);
                 let rows = depth.len() / w;
                 for r in 0..rows {
                     for c in 0..cols {
-                        let p = r * TILE + c;
                         let o = r * w + x0 + c;
-                        let t = st.t[p];
-                        rgb[o * 3] = sink.acc[0][p] + t * background[0];
-                        rgb[o * 3 + 1] = sink.acc[1][p] + t * background[1];
-                        rgb[o * 3 + 2] = sink.acc[2][p] + t * background[2];
-                        depth[o] = sink.acc[3][p];
+                        let t = st.t[r][c];
+                        rgb[o * 3] = sink.acc[0][r][c] + t * background[0];
+                        rgb[o * 3 + 1] = sink.acc[1][r][c] + t * background[1];
+                        rgb[o * 3 + 2] = sink.acc[2][r][c] + t * background[2];
+                        depth[o] = sink.acc[3][r][c];
                         alpha[o] = 1.0 - t;
                     }
                 }

@@ -41,6 +41,7 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
 pub mod make_sample;
 pub mod render_views;
 pub mod stylize_baseline;
+pub mod update_gaussians;
 
 use crate::{Error, Result};
 use std::path::Path;
