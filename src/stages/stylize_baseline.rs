@@ -5,7 +5,7 @@
 //! * `gram`: Gram-matrix style loss over VGG16 layers and two scales + content loss;
 //! * `nnfm`: ARF's nearest-neighbour feature matching on the relu3 block + content loss;
 //! * `refit`: stylize each original view with the 2D stylizer on its own, then fit colours
-//!   to those images (L1), no MVFC, no distillation.
+//!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation.
 //!
 //! Output (schema `scene` v1): `scene.ply` (geometry bit-identical to the input, colours
 //! changed), `loss.json` (`method`, and per step the objective, its style and content
@@ -14,7 +14,7 @@
 //! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
 //! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
 
-use crate::baselines::fit::{CachedViews, ColourViews, FitOptions, L1Objective, fit_objective};
+use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
 use crate::baselines::{Image, Objective, gram_distance, prepare_style};
@@ -213,17 +213,27 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// Build the caches, the objective and the monitor, and run the fit.
+/// Render the originals, build the objective and the monitor, and run the fit.
 fn optimise(
     a: &Args,
-    mut scene: crate::Scene,
+    scene: crate::Scene,
     cams: &[crate::Camera],
     vgg: &Vgg16,
     style: &Image,
 ) -> Result<(crate::Scene, LossLog, Vec<Image>)> {
-    let views = CachedViews::build(&scene, cams, a.background)?;
-    let originals = (0..views.count())
-        .map(|v| views.render(&scene, v))
+    let ropts = crate::render::RenderOptions {
+        background: a.background,
+    };
+    let originals = cams
+        .iter()
+        .map(|c| {
+            let r = crate::render::render(&scene, c, &ropts)?;
+            Ok(Image {
+                h: r.height,
+                w: r.width,
+                data: r.rgb,
+            })
+        })
         .collect::<Result<Vec<_>>>()?;
     crate::baselines::check_views(&originals)?;
     let gram_cfg = GramConfig::default();
@@ -237,8 +247,8 @@ fn optimise(
     };
     let mut targets = Vec::new();
     let mut targets_gram = None;
-    let obj: Box<dyn Objective + '_> = match a.method {
-        Method::Gram => Box::new(GramObjective::new(
+    let obj: Option<Box<dyn Objective + '_>> = match a.method {
+        Method::Gram => Some(Box::new(GramObjective::new(
             vgg,
             GramConfig {
                 style_weight: a.style_weight,
@@ -247,10 +257,10 @@ fn optimise(
             },
             style,
             &originals,
-        )?),
+        )?)),
         Method::Nnfm => {
             let d = NnfmConfig::default();
-            Box::new(NnfmObjective::new(
+            Some(Box::new(NnfmObjective::new(
                 vgg,
                 NnfmConfig {
                     style_weight: a.style_weight,
@@ -258,22 +268,29 @@ fn optimise(
                 },
                 style,
                 &originals,
-            )?)
+            )?))
         }
         Method::Refit => {
             targets = stylize_views(&a.stylizer, style, &originals)?;
             let d = monitor(&targets)?;
             tracing::info!("refit targets: Gram distance to the style {d:.4}");
             targets_gram = Some(d);
-            Box::new(L1Objective {
-                targets: targets.clone(),
-            })
+            None
         }
+    };
+    let fit_targets: Vec<Vec<f32>> = if targets.is_empty() {
+        originals.iter().map(|i| i.data.clone()).collect()
+    } else {
+        targets.iter().map(|i| i.data.clone()).collect()
     };
     let opts = FitOptions {
         steps: a.steps,
-        lr_dc: a.lr_dc,
-        lr_rest: a.lr_rest,
+        fit: crate::optim::FitParams {
+            lr_dc: a.lr_dc,
+            lr_rest: a.lr_rest,
+            background: a.background,
+            ..crate::optim::FitParams::default()
+        },
         monitor_every: a.monitor_every,
     };
     let bar = indicatif::ProgressBar::new(a.steps as u64);
@@ -282,10 +299,11 @@ fn optimise(
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     bar.set_message("stylize-baseline");
-    let steps = fit_objective(
-        &mut scene,
-        &views,
-        obj.as_ref(),
+    let (scene, steps) = fit_objective(
+        &scene,
+        cams,
+        &fit_targets,
+        obj.as_deref(),
         &opts,
         Some(&monitor),
         &mut |s| bar.set_position(s as u64),
