@@ -85,6 +85,20 @@ fn vm_hwm_mb() -> f64 {
         .map_or(f64::NAN, |kb| kb / 1024.0)
 }
 
+/// CPU time (user + system) of this process so far, ms (10 ms resolution).
+fn cpu_ms() -> f64 {
+    let s = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name (which is in parentheses).
+    let rest = s.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<f64> = rest
+        .split_whitespace()
+        .map(|x| x.parse::<f64>().unwrap_or(f64::NAN))
+        .collect();
+    // utime and stime are fields 14 and 15 (1-based) of the whole line, i.e. 11 and 12
+    // after the command; clock ticks are 100 Hz on Linux.
+    (f.get(11).copied().unwrap_or(f64::NAN) + f.get(12).copied().unwrap_or(f64::NAN)) * 10.0
+}
+
 fn cams(scene: &Scene, n: usize, size: u32) -> Vec<Camera> {
     load_cameras(&format!("orbit:{n}"), scene, size, size).expect("orbit")
 }
@@ -104,12 +118,14 @@ fn case_forward(scene_name: &str, size: u32) -> serde_json::Value {
         std::hint::black_box(render(&scene, c, &opts).unwrap());
     }
     let t0 = Instant::now();
+    let c0 = cpu_ms();
     for _ in 0..reps {
         for c in &cams {
             std::hint::black_box(render(&scene, c, &opts).unwrap());
         }
     }
     let ms = t0.elapsed().as_secs_f64() * 1e3 / (reps * cams.len()) as f64;
+    let cpu = (cpu_ms() - c0) / (reps * cams.len()) as f64;
     // Phase split on view 0: projection + binning vs compositing.
     let t1 = Instant::now();
     let frame = project(&scene, &cams[0]);
@@ -120,7 +136,7 @@ fn case_forward(scene_name: &str, size: u32) -> serde_json::Value {
         .sum::<f64>()
         / cams.len() as f64;
     serde_json::json!({
-        "scene": scene_name, "gaussians": scene.len(), "size": size, "ms": ms,
+        "scene": scene_name, "gaussians": scene.len(), "size": size, "ms": ms, "cpu_ms": cpu,
         "project_ms_view0": proj_ms, "splats_view0": frame.splats.ids.len(),
         "blends": blends, "peak_mb": vm_hwm_mb(),
     })
@@ -146,14 +162,16 @@ fn case_fit(scene_name: &str, size: u32, views: usize, cache: bool) -> serde_jso
     fit.step();
     let steps = if views >= 32 && !cache { 1 } else { 2 };
     let t1 = Instant::now();
+    let c1 = cpu_ms();
     for _ in 0..steps {
         fit.step();
     }
     let ms = t1.elapsed().as_secs_f64() * 1e3 / steps as f64;
+    let cpu = (cpu_ms() - c1) / steps as f64;
     let (_, bytes) = fit.cache_stats();
     serde_json::json!({
         "scene": scene_name, "gaussians": scene.len(), "size": size, "views": views,
-        "cache": cache, "step_ms": ms, "setup_ms": setup_ms,
+        "cache": cache, "step_ms": ms, "step_cpu_ms": cpu, "setup_ms": setup_ms,
         "cache_mb_per_view": bytes as f64 / 1e6 / views as f64, "peak_mb": vm_hwm_mb(),
     })
 }
@@ -163,14 +181,13 @@ fn case_profile(scene_name: &str, size: u32) -> serde_json::Value {
     use fantasystyle::render::{clamp_colours, composite, raw_colours};
     let scene = load(scene_name);
     let cam = &cams(&scene, 8, size)[0];
+    // CPU ms per call over 10 calls (robust to other processes on a shared machine).
     let time = |f: &mut dyn FnMut()| {
-        (0..5)
-            .map(|_| {
-                let t = Instant::now();
-                f();
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .fold(f64::INFINITY, f64::min)
+        let c = cpu_ms();
+        for _ in 0..10 {
+            f();
+        }
+        (cpu_ms() - c) / 10.0
     };
     let frame = project(&scene, cam);
     let t_project = time(&mut || {
@@ -198,7 +215,7 @@ fn case_profile(scene_name: &str, size: u32) -> serde_json::Value {
     }
     serde_json::json!({
         "splats": frame.splats.ids.len(), "pairs": pairs, "pixel_evals": row_evals * 16,
-        "project_ms": t_project, "colour_ms": t_colour, "composite_ms": t_composite,
+        "project_cpu_ms": t_project, "colour_cpu_ms": t_colour, "composite_cpu_ms": t_composite,
     })
 }
 
@@ -263,12 +280,12 @@ fn main() {
     };
     out("### Forward, 8-view orbit, 2 threads".into());
     out(String::new());
-    out("| scene | Gaussians | size | ms / view | blends / view | M blends / s | projection + binning, view 0 (ms) | peak RSS (MB) |".into());
-    out("|---|---|---|---|---|---|---|---|".into());
+    out("| scene | Gaussians | size | ms / view (wall) | CPU ms / view | blends / view | M blends / s (wall) | projection + binning, view 0 (ms) | peak RSS (MB) |".into());
+    out("|---|---|---|---|---|---|---|---|---|".into());
     let mut forward_cases: Vec<(String, u32)> = Vec::new();
     for s in ["bob_100k.splat", "plant.splat"] {
         if !have(s) {
-            out(format!("| {s} | absent | | | | | | |"));
+            out(format!("| {s} | absent | | | | | | | |"));
             continue;
         }
         let sizes: &[u32] = if quick { &[512] } else { &[256, 512, 1024] };
@@ -287,9 +304,10 @@ fn main() {
     for (s, size) in &forward_cases {
         if let Some(v) = run_child(&["forward", s, &size.to_string()]) {
             out(format!(
-                "| {s} | {} | {size} | {:.1} | {:.0} | {:.1} | {:.1} | {:.0} |",
+                "| {s} | {} | {size} | {:.1} | {:.1} | {:.0} | {:.1} | {:.1} | {:.0} |",
                 v["gaussians"],
                 f(&v, "ms"),
+                f(&v, "cpu_ms"),
                 f(&v, "blends"),
                 f(&v, "blends") / f(&v, "ms") / 1e3,
                 f(&v, "project_ms_view0"),
@@ -300,8 +318,8 @@ fn main() {
     out(String::new());
     out("### Colour fit: one Adam step over all views (render, L1 + D-SSIM, backward, update), 2 threads".into());
     out(String::new());
-    out("| scene | Gaussians | size | views | ms / step, cache off | ms / step, cache on | off / on | cache MB / view | cache build (ms, all views) | peak RSS off / on (MB) |".into());
-    out("|---|---|---|---|---|---|---|---|---|---|".into());
+    out("| scene | Gaussians | size | views | ms / step, cache off | ms / step, cache on | off / on (wall) | CPU ms / step off / on | off / on (CPU) | cache MB / view | cache build (ms, all views) | peak RSS off / on (MB) |".into());
+    out("|---|---|---|---|---|---|---|---|---|---|---|---|".into());
     let mut fit_cases: Vec<(String, u32, usize)> = Vec::new();
     if have("plant.splat") {
         if quick {
@@ -322,11 +340,14 @@ fn main() {
         let on = run_child(&["fit", s, &a[0], &a[1], "on"]);
         if let (Some(off), Some(on)) = (off, on) {
             out(format!(
-                "| {s} | {} | {size} | {views} | {:.0} | {:.0} | {:.1}x | {:.2} | {:.0} | {:.0} / {:.0} |",
+                "| {s} | {} | {size} | {views} | {:.0} | {:.0} | {:.1}x | {:.0} / {:.0} | {:.1}x | {:.2} | {:.0} | {:.0} / {:.0} |",
                 on["gaussians"],
                 f(&off, "step_ms"),
                 f(&on, "step_ms"),
                 f(&off, "step_ms") / f(&on, "step_ms"),
+                f(&off, "step_cpu_ms"),
+                f(&on, "step_cpu_ms"),
+                f(&off, "step_cpu_ms") / f(&on, "step_cpu_ms"),
                 f(&on, "cache_mb_per_view"),
                 f(&on, "setup_ms"),
                 f(&off, "peak_mb"),

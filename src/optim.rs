@@ -43,19 +43,20 @@ fn gauss_window() -> [f32; WIN] {
 /// Separable 11-tap Gaussian blur of an `[h, w]` plane with zero padding (same size).
 /// The kernel is symmetric, so this operator is its own transpose.
 fn blur(src: &[f32], h: usize, w: usize, k: &[f32; WIN], tmp: &mut [f32], out: &mut [f32]) {
-    tmp.par_chunks_mut(w)
-        .zip(src.par_chunks(w))
-        .for_each(|(t, s)| {
-            for x in 0..w {
-                let mut acc = 0.0;
-                let lo = x.saturating_sub(HALF);
-                let hi = (x + HALF + 1).min(w);
-                for xx in lo..hi {
-                    acc += k[xx + HALF - x] * s[xx];
+    // Horizontal: each row is copied into a zero-padded buffer, then accumulated tap by
+    // tap over the whole row (a loop over x that vectorises).
+    tmp.par_chunks_mut(w).zip(src.par_chunks(w)).for_each_init(
+        || vec![0.0f32; w + 2 * HALF],
+        |pad, (t, s)| {
+            pad[HALF..HALF + w].copy_from_slice(s);
+            t.fill(0.0);
+            for (j, &kv) in k.iter().enumerate() {
+                for (a, b) in t.iter_mut().zip(&pad[j..j + w]) {
+                    *a += kv * b;
                 }
-                t[x] = acc;
             }
-        });
+        },
+    );
     out.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
         o.fill(0.0);
         let lo = y.saturating_sub(HALF);

@@ -27,11 +27,11 @@ pub(crate) struct GradSink<'a> {
 }
 
 impl Sink for GradSink<'_> {
-    #[inline]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &Plane) {
+    #[inline(always)]
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
         let mut s = [0.0f32; 3];
         for r in r0..r1 {
-            for c in 0..TILE {
+            for c in c0..c1 {
                 let wp = w[r][c];
                 s[0] += wp * self.grad[0][r][c];
                 s[1] += wp * self.grad[1][r][c];

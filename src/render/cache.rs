@@ -85,10 +85,11 @@ struct TileRecords {
 }
 
 impl Sink for TileRecords {
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &Plane) {
+    #[inline(always)]
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
         let before = self.pix.len();
         for r in r0..r1 {
-            for c in 0..TILE {
+            for c in c0..c1 {
                 if w[r][c] != 0.0 {
                     self.pix.push((r * TILE + c) as u8);
                     self.weight.push(w[r][c]);

@@ -168,13 +168,13 @@ struct ForwardSink<'a> {
 }
 
 impl Sink for ForwardSink<'_> {
-    #[inline]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &Plane) {
+    #[inline(always)]
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
         let c = self.colours[local as usize];
         let z = self.depth[local as usize];
         let [ar, ag, ab, ad] = &mut self.acc;
         for r in r0..r1 {
-            for x in 0..TILE {
+            for x in c0..c1 {
                 let wp = w[r][x];
                 ar[r][x] += wp * c[0];
                 ag[r][x] += wp * c[1];

@@ -27,9 +27,9 @@ pub type Plane = [[f32; TILE]; TILE];
 /// Receives the blending weights of each splat of a tile, in front-to-back order.
 pub trait Sink {
     /// Splat `local` (index into [`Frame::splats`]) blends with weight `w[r][c]` into
-    /// tile pixel `(r, c)` for rows `r0..r1` (tile-local); `w` is zero where it does
-    /// not blend.
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &Plane);
+    /// tile pixel `(r, c)` for rows `r0..r1` and columns `c0..c1` (tile-local); `w` is
+    /// zero where it does not blend inside that window and stale outside it.
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane);
 }
 
 /// `exp(x)` for `x <= 0`, a Cephes-style polynomial (relative error about 2e-7) built
@@ -54,6 +54,12 @@ pub fn exp_neg(x: f32) -> f32 {
     e * f32::from_bits(bits)
 }
 
+#[inline(always)]
+fn as_half(s: &mut [f32]) -> &mut [f32; HALF] {
+    // The callers pass exactly HALF elements.
+    s.try_into().expect("half row")
+}
+
 /// Per-tile compositing state.
 pub struct TileState {
     /// Transmittance per pixel.
@@ -73,21 +79,24 @@ impl TileState {
     }
 }
 
-/// One splat over one row of 16 pixels: branch-free so that it vectorises.
+/// Pixels per half row: the unit of work along x (one AVX2 register).
+pub const HALF: usize = TILE / 2;
+
+/// One splat over half a row (8 pixels): branch-free so that it vectorises.
 #[inline(always)]
-fn blend_row(
+fn blend_half(
     dx0: f32,
     dy: f32,
     conic: [f32; 3],
     op: f32,
-    t: &mut [f32; TILE],
-    live: &mut [f32; TILE],
-    w: &mut [f32; TILE],
+    t: &mut [f32; HALF],
+    live: &mut [f32; HALF],
+    w: &mut [f32; HALF],
 ) {
     let [ca, cb, cc] = conic;
     let cdy = cc * dy * dy;
     let bdy = cb * dy;
-    for c in 0..TILE {
+    for c in 0..HALF {
         let dx = dx0 - c as f32;
         let power = -0.5 * (ca * dx * dx + cdy) - bdy * dx;
         let alpha = (op * exp_neg(power)).min(ALPHA_MAX);
@@ -154,23 +163,35 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
         if r1 <= r0 {
             continue;
         }
+        let cc = s.cols[gi];
+        let c0 = (cc[0] as usize).max(px0) - px0;
+        let c1 = (cc[1] as usize).min(px0 + cols).saturating_sub(px0);
+        if c1 <= c0 {
+            continue;
+        }
+        // Whole halves only, so the kernel has a fixed width.
+        let h0 = c0 / HALF;
+        let h1 = c1.div_ceil(HALF);
         let conic = [s.conic_a[gi], s.conic_b[gi], s.conic_c[gi]];
         let op = s.opacity[gi];
         // Offsets from the mean to pixel centres.
         let dx0 = s.mean_x[gi] - (px0 as f32 + 0.5);
         let dy0 = s.mean_y[gi] - (py0 as f32 + 0.5);
         for r in r0..r1 {
-            blend_row(
-                dx0,
-                dy0 - r as f32,
-                conic,
-                op,
-                &mut st.t[r],
-                &mut st.live[r],
-                &mut st.w[r],
-            );
+            for h in h0..h1 {
+                let lanes = h * HALF..(h + 1) * HALF;
+                blend_half(
+                    dx0 - (h * HALF) as f32,
+                    dy0 - r as f32,
+                    conic,
+                    op,
+                    as_half(&mut st.t[r][lanes.clone()]),
+                    as_half(&mut st.live[r][lanes.clone()]),
+                    as_half(&mut st.w[r][lanes]),
+                );
+            }
         }
-        sink.blend(g, r0, r1, &st.w);
+        sink.blend(g, r0, r1, h0 * HALF, h1 * HALF, &st.w);
         since_check += 1;
         if since_check == 32 {
             since_check = 0;
