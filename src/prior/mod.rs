@@ -36,7 +36,8 @@ pub enum ControlKind {
     /// Rendered depth, normalised per view to [0, 1] (near = 1, as MiDaS-style depth
     /// ControlNets expect), replicated to 3 channels.
     Depth,
-    /// An edge map of the rendered RGB (e.g. Canny), 3 channels in [0, 1].
+    /// An edge map of the rendered RGB (Sobel gradient magnitude of the luminance, an
+    /// approximation of the Canny maps edge ControlNets are trained on), 3 channels.
     Edges,
 }
 

@@ -26,7 +26,7 @@
 //! the graph and the input.
 
 use super::manifest::{Family, ImageEncoderGraph, ModelDir, ModelManifest};
-use super::preprocess::{check_finite, check_images, resize_bilinear};
+use super::preprocess::{check_finite, check_images, fit_square};
 use super::{Cond, ControlKind, Prior, PriorInfo};
 use crate::runtime::{Optimization, SessionConfig, load_session_with};
 use crate::scheduler::Schedule;
@@ -596,7 +596,7 @@ impl OnnxPrior {
                     )));
                 }
                 check_images(img.view(), 1, "style image")?;
-                let mut x = resize_bilinear(img.view(), ie.size, ie.size);
+                let mut x = fit_square(img.view(), ie.size);
                 for (k, mut ch) in x.axis_iter_mut(Axis(1)).enumerate() {
                     ch.mapv_inplace(|v| (v - ie.mean[k]) / ie.std[k]);
                 }

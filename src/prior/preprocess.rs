@@ -40,6 +40,27 @@ pub fn resize_bilinear(img: ArrayView4<'_, f32>, h: usize, w: usize) -> Array4<f
     out
 }
 
+/// Resize so that the shorter side is `size`, then crop the centre `size` x `size`
+/// (CLIP's preprocessing, with bilinear instead of bicubic resampling).
+pub fn fit_square(img: ArrayView4<'_, f32>, size: usize) -> Array4<f32> {
+    let (_, _, h, w) = img.dim();
+    let (rh, rw) = if h <= w {
+        (
+            size,
+            ((w as f64 * size as f64 / h as f64).round() as usize).max(size),
+        )
+    } else {
+        (
+            ((h as f64 * size as f64 / w as f64).round() as usize).max(size),
+            size,
+        )
+    };
+    let r = resize_bilinear(img, rh, rw);
+    let (y0, x0) = ((rh - size) / 2, (rw - size) / 2);
+    r.slice(ndarray::s![.., .., y0..y0 + size, x0..x0 + size])
+        .to_owned()
+}
+
 /// Check that `images` is `[B, 3, H, W]` with H and W multiples of `downsample`,
 /// B >= 1, and every value finite. `what` names the input in the error.
 pub fn check_images(images: ArrayView4<'_, f32>, downsample: usize, what: &str) -> Result<()> {
@@ -86,6 +107,17 @@ mod tests {
         let down = resize_bilinear(img.view(), 2, 2);
         assert!((down[[0, 0, 0, 0]] - 0.5).abs() < 1e-6);
         assert!((down[[0, 0, 0, 1]] - 2.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn fit_square_crops_the_centre() {
+        let img = Array4::from_shape_fn((1, 1, 4, 8), |(_, _, _, x)| x as f32);
+        let sq = fit_square(img.view(), 4);
+        assert_eq!(sq.dim(), (1, 1, 4, 4));
+        assert_eq!(sq[[0, 0, 0, 0]], 2.0);
+        assert_eq!(sq[[0, 0, 3, 3]], 5.0);
+        let tall = Array4::<f32>::ones((1, 3, 10, 5));
+        assert_eq!(fit_square(tall.view(), 3).dim(), (1, 3, 3, 3));
     }
 
     #[test]

@@ -343,8 +343,10 @@ fn resize(img: ArrayView3<'_, f32>, h: usize, w: usize) -> Array3<f32> {
     Array3::from_shape_fn((3, h, w), |(c, y, x)| raw[(y * w + x) * 3 + c])
 }
 
-/// Separable Gaussian blur of `[C, H, W]` with pixel std `sigma`, mirrored borders.
+/// Separable Gaussian blur of `[C, H, W]` with pixel std `sigma`, mirrored borders
+/// (the mirror index tables are built once; channels in parallel).
 pub fn gaussian_blur(x: ArrayView3<'_, f32>, sigma: f32) -> Array3<f32> {
+    use rayon::prelude::*;
     if sigma < 0.1 {
         return x.to_owned();
     }
@@ -358,31 +360,45 @@ pub fn gaussian_blur(x: ArrayView3<'_, f32>, sigma: f32) -> Array3<f32> {
     let s: f32 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= s);
     let (c, h, w) = (x.shape()[0], x.shape()[1], x.shape()[2]);
-    let mut tmp = Array3::<f32>::zeros((c, h, w));
-    for ch in 0..c {
-        for y in 0..h {
-            for xx in 0..w {
-                let mut acc = 0.0;
+    // Source index of padded position p (= output position + tap - r).
+    let table = |n: usize| -> Vec<usize> {
+        (0..n + 2 * r)
+            .map(|p| mirror_signed(p as isize - r as isize, n))
+            .collect()
+    };
+    let (tx, ty) = (table(w), table(h));
+    let x = x.as_standard_layout();
+    let src = x.as_slice().expect("standard layout");
+    let mut out = vec![0.0f32; c * h * w];
+    out.par_chunks_mut(h * w)
+        .zip(src.par_chunks(h * w))
+        .for_each(|(o, img)| {
+            let mut tmp = vec![0.0f32; h * w];
+            let mut padded = vec![0.0f32; w + 2 * r];
+            for y in 0..h {
+                let row = &img[y * w..(y + 1) * w];
+                for (p, &ix) in padded.iter_mut().zip(&tx) {
+                    *p = row[ix];
+                }
+                for (xx, t) in tmp[y * w..(y + 1) * w].iter_mut().enumerate() {
+                    *t = padded[xx..xx + 2 * r + 1]
+                        .iter()
+                        .zip(&k)
+                        .map(|(a, b)| a * b)
+                        .sum();
+                }
+            }
+            for y in 0..h {
+                let orow = &mut o[y * w..(y + 1) * w];
                 for (i, kv) in k.iter().enumerate() {
-                    let sx = mirror_signed(xx as isize + i as isize - r as isize, w);
-                    acc += kv * x[[ch, y, sx]];
-                }
-                tmp[[ch, y, xx]] = acc;
-            }
-        }
-    }
-    let mut out = Array3::<f32>::zeros((c, h, w));
-    for ch in 0..c {
-        for y in 0..h {
-            for (i, kv) in k.iter().enumerate() {
-                let sy = mirror_signed(y as isize + i as isize - r as isize, h);
-                for xx in 0..w {
-                    out[[ch, y, xx]] += kv * tmp[[ch, sy, xx]];
+                    let sy = ty[y + i];
+                    for (ov, tv) in orow.iter_mut().zip(&tmp[sy * w..(sy + 1) * w]) {
+                        *ov += kv * tv;
+                    }
                 }
             }
-        }
-    }
-    out
+        });
+    Array3::from_shape_vec((c, h, w), out).expect("shape")
 }
 
 impl Prior for StylizerPrior {

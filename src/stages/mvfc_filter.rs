@@ -19,12 +19,13 @@
 //! [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]).
 
 use crate::mvfc::{MvfcFilter, MvfcParams};
+use crate::prior::manifest::ModelManifest;
+use crate::prior::stylizer::TimestepRange;
 use crate::rng::Rng;
-use crate::scheduler::{Schedule, SchedulerConfig, TimestepSet};
+use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Error, Result};
 use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array3, Array4};
-use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
 /// Which timestep to use.
@@ -64,42 +65,22 @@ pub struct MvfcFilterArgs {
     pub threads: usize,
 }
 
-/// The part of `model.json` the noising stages need.
-#[derive(Debug, Deserialize)]
-struct ScheduleJson {
-    scheduler: SchedulerConfig,
-    #[serde(default)]
-    stylizer: Option<StylizerTimesteps>,
-}
-
-#[derive(Debug, Deserialize)]
-struct StylizerTimesteps {
-    #[serde(default)]
-    timesteps: Option<crate::prior::stylizer::TimestepRange>,
-}
-
-/// The model's noise schedule and the fixed timestep set (see module docs).
+/// The model's noise schedule and the fixed timestep set (see module docs). `model`
+/// is a model directory or its `model.json`; the manifest is read and validated by
+/// [`ModelManifest::load`].
 pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
-    let mpath = if model.is_file() {
-        model.to_path_buf()
-    } else {
-        model.join("model.json")
-    };
-    let text = std::fs::read_to_string(&mpath).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            Error::input(
-                &mpath,
-                "model manifest not found (a model directory holds model.json)",
-            )
-        } else {
-            Error::io(&mpath, e)
-        }
-    })?;
-    let m: ScheduleJson = serde_json::from_str(&text)
-        .map_err(|e| Error::input(&mpath, format!("invalid model manifest: {e}")))?;
-    let bad = |e: Error| Error::input(&mpath, e.to_string());
+    let md = ModelManifest::load(model)?;
+    let m = &md.manifest;
+    let bad = |e: Error| md.err(e.to_string());
     let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
-    let set = match m.stylizer.and_then(|s| s.timesteps) {
+    let range = match m.stylizer.as_ref().and_then(|s| s.get("timesteps")) {
+        Some(v) => Some(
+            serde_json::from_value::<TimestepRange>(v.clone())
+                .map_err(|e| md.err(format!("stylizer.timesteps: {e}")))?,
+        ),
+        None => None,
+    };
+    let set = match range {
         Some(r) => TimestepSet::new(&m.scheduler, r.t_min, r.t_max, r.count),
         None => TimestepSet::default_for(&m.scheduler),
     }
