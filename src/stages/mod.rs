@@ -33,3 +33,5 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
         }
     }
 }
+
+pub mod evaluate;
