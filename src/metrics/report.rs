@@ -14,9 +14,10 @@ pub fn esc(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// Format an optional metric value.
+/// Format an optional metric value (`digits` decimals; scientific below 1e-3).
 pub fn fmt_opt(v: Option<f64>, digits: usize) -> String {
     match v {
+        Some(x) if x.is_finite() && x != 0.0 && x.abs() < 1e-3 => format!("{x:.2e}"),
         Some(x) if x.is_finite() => format!("{x:.digits$}"),
         _ => "n/a".into(),
     }
@@ -89,19 +90,33 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
     );
     for k in 0..=4 {
         let yv = y0 + (y1 - y0) * k as f64 / 4.0;
-        let xv = x0 + (x1 - x0) * k as f64 / 4.0;
         let _ = write!(
             svg,
-            r##"<text x="{}" y="{}" font-size="10" text-anchor="end" font-family="sans-serif">{}</text><line x1="{l}" y1="{}" x2="{}" y2="{}" stroke="#ddd"/><text x="{}" y="{}" font-size="10" text-anchor="middle" font-family="sans-serif">{}</text>"##,
+            r##"<text x="{}" y="{}" font-size="10" text-anchor="end" font-family="sans-serif">{}</text><line x1="{l}" y1="{}" x2="{}" y2="{}" stroke="#ddd"/>"##,
             l - 4.0,
             py(yv) + 3.0,
-            tick(yv),
+            tick(yv, y1 - y0),
             py(yv),
             w - r,
             py(yv),
+        );
+    }
+    // x ticks: every integer when the x values are a few integers (view indices).
+    let integral = pts.iter().all(|p| p.0.fract() == 0.0) && x1 - x0 <= 12.0;
+    let xticks: Vec<f64> = if integral {
+        (x0.ceil() as i64..=x1.floor() as i64)
+            .map(|v| v as f64)
+            .collect()
+    } else {
+        (0..=4).map(|k| x0 + (x1 - x0) * k as f64 / 4.0).collect()
+    };
+    for xv in xticks {
+        let _ = write!(
+            svg,
+            r#"<text x="{}" y="{}" font-size="10" text-anchor="middle" font-family="sans-serif">{}</text>"#,
             px(xv),
             h - b + 14.0,
-            tick(xv)
+            tick(xv, x1 - x0)
         );
     }
     let _ = write!(
@@ -163,27 +178,42 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
     svg
 }
 
-fn tick(v: f64) -> String {
+/// Tick label with enough decimals for a axis spanning `span`.
+fn tick(v: f64, span: f64) -> String {
     if v == 0.0 {
-        "0".into()
-    } else if v.abs() >= 100.0 {
-        format!("{v:.0}")
-    } else if v.abs() >= 1.0 {
-        format!("{v:.2}")
-    } else {
-        format!("{v:.3}")
+        return "0".into();
     }
+    if span < 1e-3 {
+        return format!("{v:.1e}");
+    }
+    let digits = (2.0 - (span / 4.0).log10().floor()).clamp(0.0, 6.0) as usize;
+    let digits = if v.fract() == 0.0 && span >= 4.0 {
+        0
+    } else {
+        digits.saturating_sub(1)
+    };
+    format!("{v:.digits$}")
 }
 
-/// An `<img>` tag with the image embedded, fitted to `max_side` pixels.
+/// An `<img>` tag with the image embedded, fitted to `max_side` pixels; small images
+/// are shown enlarged (at least 160 px wide, pixelated) so they stay readable.
 pub fn img_tag(img: &Image, max_side: usize, alt: &str) -> String {
     let small = img.fit_within(max_side);
+    let scale = (160.0 / small.width as f64)
+        .max(1.0)
+        .min(max_side as f64 / small.width.max(small.height) as f64)
+        .max(1.0);
     format!(
-        r#"<img class="shot" src="{}" width="{}" height="{}" alt="{}">"#,
+        r#"<img class="shot" src="{}" width="{}" height="{}" alt="{}"{}>"#,
         png_data_uri(&small),
-        small.width,
-        small.height,
-        esc(alt)
+        (small.width as f64 * scale).round(),
+        (small.height as f64 * scale).round(),
+        esc(alt),
+        if scale > 1.0 {
+            r#" style="image-rendering: pixelated""#
+        } else {
+            ""
+        }
     )
 }
 

@@ -380,7 +380,11 @@ fn consistency_html(
     warps: &[Warped],
     label: &str,
 ) -> String {
-    let mut s = String::new();
+    let mut s = format!(
+        "<div class=\"range\"><h3>{} (pairs i, i+{})</h3>",
+        esc(label),
+        rc.offset
+    );
     if rc.stylized.is_empty() {
         return format!(
             "<p class=\"note\">No {label} pairs (offset {} needs more views).</p>",
