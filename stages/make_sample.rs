@@ -1,15 +1,7 @@
-//! `make-sample`: thin binary over the library; see `fantasystyle::stages`.
+//! `make-sample`: thin binary over `fantasystyle::stages::make_sample`.
 use clap::Parser;
-
-/// make-sample (not yet implemented).
-#[derive(Parser, Debug)]
-#[command(version)]
-struct Args {}
+use fantasystyle::stages::{make_sample, run_main};
 
 fn main() -> std::process::ExitCode {
-    fantasystyle::stages::run_main(Args::parse(), |_a| {
-        Err(fantasystyle::Error::Other(
-            "make-sample: not implemented yet".into(),
-        ))
-    })
+    run_main(make_sample::Args::parse(), make_sample::run)
 }

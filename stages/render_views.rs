@@ -1,15 +1,7 @@
-//! `render-views`: thin binary over the library; see `fantasystyle::stages`.
+//! `render-views`: thin binary over `fantasystyle::stages::render_views`.
 use clap::Parser;
-
-/// render-views (not yet implemented).
-#[derive(Parser, Debug)]
-#[command(version)]
-struct Args {}
+use fantasystyle::stages::{render_views, run_main};
 
 fn main() -> std::process::ExitCode {
-    fantasystyle::stages::run_main(Args::parse(), |_a| {
-        Err(fantasystyle::Error::Other(
-            "render-views: not implemented yet".into(),
-        ))
-    })
+    run_main(render_views::Args::parse(), render_views::run)
 }

@@ -22,73 +22,9 @@ pub struct ViewSet {
     pub cameras: Vec<Camera>,
 }
 
-/// Read the INRIA-format `cameras.json` of a views artifact: `rotation` is
-/// camera-to-world (row-major), `position` the camera centre; optional `cx`, `cy`
-/// (default: image centre). So `R_w2c = rotation^T`, `t = -R_w2c position`.
-// TODO(merge): use the camera module's INRIA reader once the scene branch is merged.
+/// Read the INRIA-format `cameras.json` of a views artifact.
 fn read_cameras(path: &Path) -> Result<Vec<Camera>> {
-    #[derive(serde::Deserialize)]
-    struct Inria {
-        #[serde(default)]
-        img_name: Option<String>,
-        width: u32,
-        height: u32,
-        position: [f64; 3],
-        rotation: [[f64; 3]; 3],
-        fx: f64,
-        fy: f64,
-        #[serde(default)]
-        cx: Option<f64>,
-        #[serde(default)]
-        cy: Option<f64>,
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let cams: Vec<Inria> = serde_json::from_str(&text)
-        .map_err(|e| Error::input(path, format!("invalid INRIA cameras.json: {e}")))?;
-    Ok(cams
-        .into_iter()
-        .enumerate()
-        .map(|(i, c)| {
-            let mut r = [[0f32; 3]; 3];
-            for a in 0..3 {
-                for b in 0..3 {
-                    r[a][b] = c.rotation[b][a] as f32;
-                }
-            }
-            let t: [f32; 3] = std::array::from_fn(|a| {
-                -(0..3)
-                    .map(|b| c.rotation[b][a] * c.position[b])
-                    .sum::<f64>() as f32
-            });
-            Camera {
-                name: c.img_name.unwrap_or_else(|| format!("view_{i:03}")),
-                width: c.width,
-                height: c.height,
-                fx: c.fx as f32,
-                fy: c.fy as f32,
-                cx: c.cx.unwrap_or(0.5 * c.width as f64) as f32,
-                cy: c.cy.unwrap_or(0.5 * c.height as f64) as f32,
-                rotation: r,
-                translation: t,
-            }
-        })
-        .collect())
-}
-
-/// Write cameras as INRIA `cameras.json` entries (for test fixtures and tools).
-pub fn inria_json(cams: &[Camera]) -> serde_json::Value {
-    let arr: Vec<serde_json::Value> = cams
-        .iter()
-        .enumerate()
-        .map(|(i, c)| {
-            let rot: Vec<Vec<f32>> = (0..3).map(|a| (0..3).map(|b| c.rotation[b][a]).collect()).collect();
-            serde_json::json!({
-                "id": i, "img_name": c.name, "width": c.width, "height": c.height,
-                "position": c.center(), "rotation": rot, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
-            })
-        })
-        .collect();
-    serde_json::Value::Array(arr)
+    crate::camera::inria::read_inria(path)
 }
 
 impl ViewSet {

@@ -5,8 +5,20 @@
 //! so that reading and writing a `.ply` round-trips every field bit-exactly.
 //! Only colour (`sh_dc`, `sh_rest`) changes during stylization; geometry is frozen.
 //!
-//! Submodules: `ply` (INRIA binary/ascii PLY), `splat` (the 32-byte `.splat` layout),
-//! `sample` (the deterministic sample scene in `data-sample/`).
+//! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout),
+//! [`sample`] (the deterministic sample scene in `data-sample/`). [`load_scene`] picks
+//! the reader from the path; every reader ends with [`Scene::validate`].
+
+pub mod ply;
+pub mod sample;
+pub mod splat;
+
+use crate::{Error, Result};
+use std::path::Path;
+
+/// Largest accepted natural-log scale: exp(20) is about 5e8 scene units, far beyond any
+/// real scene; larger values mean a corrupt or non-log file.
+pub const MAX_LOG_SCALE: f32 = 20.0;
 
 /// The degree-0 real spherical-harmonic constant, 1 / (2 sqrt(pi)).
 pub const SH_C0: f32 = 0.282_094_8;
@@ -69,5 +81,167 @@ impl Scene {
             }
         }
         (lo, hi)
+    }
+
+    /// Check the invariants every renderer relies on; `path` names the file in errors.
+    ///
+    /// Refused: inconsistent array lengths, SH degree > 3, NaN/infinite positions,
+    /// opacities or SH coefficients, zero or non-finite quaternions, NaN or non-finite
+    /// log-scales and log-scales above [`MAX_LOG_SCALE`]. An empty scene is allowed
+    /// here (a reader may refuse it).
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let n = self.len();
+        let bad = |reason: String| Err(Error::input(path, reason));
+        if self.sh_degree > 3 {
+            return bad(format!(
+                "SH degree {} (at most 3 supported)",
+                self.sh_degree
+            ));
+        }
+        let lens = [
+            ("log_scales", self.log_scales.len()),
+            ("rotations", self.rotations.len()),
+            ("opacity_logits", self.opacity_logits.len()),
+            ("sh_dc", self.sh_dc.len()),
+        ];
+        for (name, l) in lens {
+            if l != n {
+                return bad(format!("{name} has {l} entries for {n} Gaussians"));
+            }
+        }
+        let rest = n * self.rest_per_channel() * 3;
+        if self.sh_rest.len() != rest {
+            return bad(format!(
+                "sh_rest has {} values, SH degree {} with {n} Gaussians needs {rest}",
+                self.sh_rest.len(),
+                self.sh_degree
+            ));
+        }
+        for i in 0..n {
+            let p = self.positions[i];
+            if p.iter().any(|v| !v.is_finite()) {
+                return bad(format!("Gaussian {i}: position {p:?} is not finite"));
+            }
+            let q = self.rotations[i];
+            if q.iter().any(|v| !v.is_finite()) {
+                return bad(format!(
+                    "Gaussian {i}: rotation quaternion {q:?} is not finite"
+                ));
+            }
+            let qn = q.iter().map(|v| (*v as f64) * (*v as f64)).sum::<f64>();
+            if qn < 1e-20 {
+                return bad(format!(
+                    "Gaussian {i}: rotation quaternion {q:?} is zero (no rotation can be derived)"
+                ));
+            }
+            let s = self.log_scales[i];
+            if s.iter().any(|v| !v.is_finite()) {
+                return bad(format!("Gaussian {i}: log-scale {s:?} is not finite"));
+            }
+            if s.iter().any(|v| *v > MAX_LOG_SCALE) {
+                return bad(format!(
+                    "Gaussian {i}: log-scale {s:?} is absurdly large (> {MAX_LOG_SCALE}, \
+                     scale > {:.3e}); is this a linear scale or a corrupt file?",
+                    MAX_LOG_SCALE.exp()
+                ));
+            }
+            let o = self.opacity_logits[i];
+            if !o.is_finite() {
+                return bad(format!("Gaussian {i}: opacity logit {o} is not finite"));
+            }
+            let c = self.sh_dc[i];
+            if c.iter().any(|v| !v.is_finite()) {
+                return bad(format!("Gaussian {i}: f_dc {c:?} is not finite"));
+            }
+        }
+        if let Some(j) = self.sh_rest.iter().position(|v| !v.is_finite()) {
+            let per = (self.rest_per_channel() * 3).max(1);
+            return bad(format!(
+                "Gaussian {}: f_rest coefficient {} is not finite",
+                j / per,
+                self.sh_rest[j]
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Load a scene from `path`: a `.ply` (INRIA), a `.splat`, or a directory holding a
+/// `scene.ply` (a `scene` artifact, whose manifest and hashes are checked, or a plain
+/// directory).
+pub fn load_scene(path: &Path) -> Result<Scene> {
+    if path.is_dir() {
+        if path.join(fantasystyle_schemas::MANIFEST_FILE).is_file() {
+            let a = fantasystyle_schemas::Artifact::open(
+                path,
+                fantasystyle_schemas::ArtifactKind::Scene,
+            )?;
+            return ply::read_ply(&a.path("scene.ply"));
+        }
+        let p = path.join("scene.ply");
+        if p.is_file() {
+            return ply::read_ply(&p);
+        }
+        return Err(Error::input(
+            path,
+            "directory holds neither a scene artifact (manifest.json) nor scene.ply",
+        ));
+    }
+    if !path.exists() {
+        return Err(Error::input(path, "scene file does not exist"));
+    }
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "ply" => ply::read_ply(path),
+        "splat" => splat::read_splat(path),
+        _ => Err(Error::input(
+            path,
+            "unknown scene format (expected a .ply, a .splat or a scene artifact directory)",
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn tiny(n: usize, degree: usize) -> Scene {
+        let r = sh_coeffs(degree) - 1;
+        Scene {
+            positions: (0..n).map(|i| [i as f32, 0.5, -1.0]).collect(),
+            log_scales: vec![[-2.0, -3.0, -4.0]; n],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
+            opacity_logits: vec![0.5; n],
+            sh_degree: degree,
+            sh_dc: vec![[0.1, 0.2, 0.3]; n],
+            sh_rest: (0..n * r * 3).map(|j| j as f32 * 0.01).collect(),
+        }
+    }
+
+    #[test]
+    fn validate_accepts_good_and_names_problems() {
+        let p = Path::new("x.ply");
+        tiny(3, 2).validate(p).unwrap();
+        let mut s = tiny(3, 1);
+        s.positions[1][2] = f32::NAN;
+        let e = s.validate(p).unwrap_err().to_string();
+        assert!(
+            e.contains("x.ply") && e.contains("Gaussian 1") && e.contains("position"),
+            "{e}"
+        );
+        let mut s = tiny(3, 1);
+        s.rotations[2] = [0.0; 4];
+        let e = s.validate(p).unwrap_err().to_string();
+        assert!(e.contains("quaternion") && e.contains("zero"), "{e}");
+        let mut s = tiny(3, 1);
+        s.log_scales[0][1] = 25.0;
+        let e = s.validate(p).unwrap_err().to_string();
+        assert!(e.contains("absurdly large"), "{e}");
+        let mut s = tiny(3, 1);
+        s.sh_rest.pop();
+        assert!(s.validate(p).is_err());
     }
 }

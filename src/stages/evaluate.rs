@@ -24,9 +24,9 @@ use crate::metrics::sweep::Sweep;
 use crate::metrics::views::ViewSet;
 use crate::metrics::warp::Warped;
 use crate::{Error, Result};
-use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{ArtifactKind, Producer};
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Below this many images per set, FID's covariance is rank-deficient (feature dim 2048).
 pub const FID_FULL_RANK: usize = 2048;
@@ -239,13 +239,21 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
             "--short-range and --long-range must be at least 1",
         ));
     }
-    check_out(&o.out)?;
     let orig = ViewSet::load(&o.original)?;
     let styl = ViewSet::load(&o.stylized)?;
     orig.check_same_views(&styl)?;
     let style = Image::load(&o.style)?;
     let sweep = o.sweep.as_deref().map(Sweep::load).transpose()?;
     let models = models_dir()?;
+    // Start the artifact now so an unusable --out fails before the slow part.
+    let params = serde_json::json!({
+        "lpips_net": o.lpips_net.name(), "short_range": o.short_range, "long_range": o.long_range, "seed": o.seed,
+    });
+    let mut wr = super::create_artifact(
+        &o.out,
+        ArtifactKind::Evaluation,
+        Producer::new("evaluate", crate::VERSION, params),
+    )?;
     let mut warnings = Vec::new();
     let (n, w, h) = (orig.n, orig.width, orig.height);
     tracing::info!(
@@ -348,14 +356,6 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
     pb.inc(1);
     pb.finish_and_clear();
 
-    let params = serde_json::json!({
-        "lpips_net": o.lpips_net.name(), "short_range": o.short_range, "long_range": o.long_range, "seed": o.seed,
-    });
-    let mut wr = ArtifactWriter::create(
-        &o.out,
-        ArtifactKind::Evaluation,
-        Producer::new("evaluate", crate::VERSION, params),
-    )?;
     wr.add_input("original", &o.original)?;
     wr.add_input("stylized", &o.stylized)?;
     wr.add_input("style", &o.style)?;
@@ -655,15 +655,4 @@ fn render_report(
          original scene shows up in the original-render floor.</li></ul>",
     );
     p.finish()
-}
-
-/// Check that the output path is usable before the (slow) metrics run.
-pub fn check_out(out: &Path) -> Result<()> {
-    if out.exists() && !out.is_dir() {
-        return Err(Error::input(
-            out,
-            "output path exists and is not a directory",
-        ));
-    }
-    Ok(())
 }

@@ -35,3 +35,78 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
 }
 
 pub mod evaluate;
+pub mod make_sample;
+pub mod render_views;
+
+use crate::{Error, Result};
+use std::path::Path;
+
+/// Run `f` on a rayon pool of `threads` threads (0 = all cores).
+pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Result<T> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::Other(format!("cannot start {threads} threads: {e}")))?;
+    Ok(pool.install(f))
+}
+
+/// Start an artifact at `out`, turning a failure (e.g. `--out` below a regular file, a
+/// read-only directory) into an I/O error that names `out`. An existing artifact at
+/// `out` is replaced on commit, but a non-empty directory that is not an artifact (no
+/// `manifest.json`) is refused: committing would otherwise delete the user's files.
+pub fn create_artifact(
+    out: &Path,
+    kind: fantasystyle_schemas::ArtifactKind,
+    producer: fantasystyle_schemas::Producer,
+) -> Result<fantasystyle_schemas::ArtifactWriter> {
+    if out.is_dir()
+        && !out.join(fantasystyle_schemas::MANIFEST_FILE).is_file()
+        && std::fs::read_dir(out).map_or(true, |mut d| d.next().is_some())
+    {
+        return Err(Error::param(format!(
+            "--out {}: the directory exists, is not empty and is not an artifact \
+             (no manifest.json); refusing to replace it",
+            out.display()
+        )));
+    }
+    fantasystyle_schemas::ArtifactWriter::create(out, kind, producer).map_err(|e| {
+        let kind = match &e {
+            fantasystyle_schemas::SchemaError::Io { source, .. } => source.kind(),
+            _ => std::io::ErrorKind::Other,
+        };
+        Error::io(
+            out,
+            std::io::Error::new(kind, format!("cannot create the output artifact: {e}")),
+        )
+    })
+}
+
+/// Record the `--cameras` spec as an input: a camera file or directory by its hash, a
+/// generated `orbit:` spec by the hash of its text.
+pub fn add_cameras_input(w: &mut fantasystyle_schemas::ArtifactWriter, spec: &str) -> Result<()> {
+    if spec.starts_with("orbit:") {
+        w.add_input_hash(
+            "cameras",
+            spec,
+            blake3::hash(spec.as_bytes()).to_hex().to_string(),
+        );
+    } else {
+        w.add_input("cameras", Path::new(spec))?;
+    }
+    Ok(())
+}
+
+/// Parse `R,G,B` (each in [0, 1]) for `--background`.
+pub fn parse_rgb(s: &str) -> std::result::Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| format!("`{s}` is not R,G,B"))?;
+    match v.as_slice() {
+        [r, g, b] if v.iter().all(|x| (0.0..=1.0).contains(x)) => Ok([*r, *g, *b]),
+        _ => Err(format!(
+            "`{s}`: expected three values in [0, 1], e.g. 1,1,1"
+        )),
+    }
+}

@@ -3,10 +3,11 @@
 //! binary, and the report opened in headless Chromium.
 
 use fantasystyle::Camera;
+use fantasystyle::camera::inria::to_inria;
 use fantasystyle::metrics::consistency;
 use fantasystyle::metrics::image::Image;
 use fantasystyle::metrics::nets::{LpipsModel, LpipsNet, models_dir};
-use fantasystyle::metrics::views::{ViewSet, inria_json};
+use fantasystyle::metrics::views::ViewSet;
 use fantasystyle::metrics::warp::{look_at, synthetic};
 use fantasystyle::stages::evaluate::{EvaluateOptions, run};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
@@ -57,7 +58,7 @@ fn write_views(dir: &Path, cams: &[Camera], colour: &dyn Fn(usize, Image) -> Ima
     wr.write_tensor("rgb.npy", &[n, h, w, 3], &rgb).unwrap();
     wr.write_tensor("depth.npy", &[n, h, w], &depth).unwrap();
     wr.write_tensor("alpha.npy", &[n, h, w], &alpha).unwrap();
-    wr.write_json("cameras.json", &inria_json(cams)).unwrap();
+    wr.write_json("cameras.json", &to_inria(cams)).unwrap();
     wr.commit().unwrap();
     dir.to_path_buf()
 }

@@ -8,13 +8,22 @@ pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// `../shared/data/scenes/NAME` if present; `None` (and a message) if not.
+/// The shared scene `NAME`, looked up in `$FANTASYSTYLE_SHARED/data/scenes/`, then
+/// `../shared/data/scenes/` beside the repository, then `/work/shared/data/scenes/` (for
+/// worktrees outside the main checkout); `None` (and a SKIPPED message) if absent.
 pub fn shared_scene(name: &str) -> Option<PathBuf> {
-    let p = repo_root().join("../shared/data/scenes").join(name);
-    if p.is_file() {
-        Some(p)
-    } else {
-        eprintln!("SKIPPED: shared scene {} is absent", p.display());
-        None
+    let mut roots = Vec::new();
+    if let Ok(s) = std::env::var("FANTASYSTYLE_SHARED") {
+        roots.push(PathBuf::from(s));
     }
+    roots.push(repo_root().join("../shared"));
+    roots.push(PathBuf::from("/work/shared"));
+    for r in &roots {
+        let p = r.join("data/scenes").join(name);
+        if p.is_file() {
+            return Some(p);
+        }
+    }
+    eprintln!("SKIPPED: shared scene {name} is absent (looked in {roots:?})");
+    None
 }

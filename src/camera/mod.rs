@@ -1,0 +1,413 @@
+//! Pinhole cameras in the OpenCV / COLMAP convention (x right, y down, z forward;
+//! world-to-camera rotation and translation), as the 3DGS rasterizer uses them.
+//!
+//! Sources ([`load_cameras`] picks one from the spec):
+//! * [`inria`]: the INRIA 3DGS `cameras.json` (reader and the writer used for the
+//!   `cameras.json` of views/targets artifacts);
+//! * [`colmap`]: COLMAP sparse models, text (`cameras.txt`, `images.txt`) and binary
+//!   (`cameras.bin`, `images.bin`);
+//! * [`nerfstudio`]: nerfstudio / instant-ngp `transforms.json` (OpenGL camera-to-world);
+//! * [`orbit`]: generated orbits `orbit:N[,elev=DEG][,radius=R][,fov=DEG]` around the
+//!   centre of the scene's bounds.
+//!
+//! Every camera is checked by [`Camera::validate`]: the rotation must be orthonormal
+//! with determinant +1 within [`ROTATION_TOL`], focal lengths positive and finite, the
+//! principal point and translation finite, width and height positive.
+
+pub mod colmap;
+pub mod inria;
+pub mod nerfstudio;
+pub mod orbit;
+
+use crate::{Error, Result, Scene};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Largest accepted deviation of a rotation from orthonormality, max |R R^T - I| and
+/// |det R - 1| (f32 storage of f64 file values gives about 1e-7).
+pub const ROTATION_TOL: f32 = 1e-3;
+
+/// A pinhole camera.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    /// A name (image name in the source file, or `orbit_000`).
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    /// Focal lengths and principal point, pixels.
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+    /// World-to-camera rotation, row-major (must be orthonormal, det +1).
+    pub rotation: [[f32; 3]; 3],
+    /// World-to-camera translation.
+    pub translation: [f32; 3],
+}
+
+impl Camera {
+    /// Camera centre in world coordinates: -R^T t.
+    pub fn center(&self) -> [f32; 3] {
+        let r = &self.rotation;
+        let t = &self.translation;
+        let mut c = [0.0; 3];
+        for j in 0..3 {
+            c[j] = -(r[0][j] * t[0] + r[1][j] * t[1] + r[2][j] * t[2]);
+        }
+        c
+    }
+
+    /// A world point in camera coordinates.
+    pub fn to_camera(&self, p: [f32; 3]) -> [f32; 3] {
+        let r = &self.rotation;
+        let t = &self.translation;
+        [
+            r[0][0] * p[0] + r[0][1] * p[1] + r[0][2] * p[2] + t[0],
+            r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + t[1],
+            r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + t[2],
+        ]
+    }
+
+    /// Pixel coordinates (u, v) of a world point and its depth.
+    pub fn project(&self, p: [f32; 3]) -> ([f32; 2], f32) {
+        let c = self.to_camera(p);
+        (
+            [
+                self.fx * c[0] / c[2] + self.cx,
+                self.fy * c[1] / c[2] + self.cy,
+            ],
+            c[2],
+        )
+    }
+
+    /// A camera from a world-to-camera rotation and translation in f64.
+    pub fn from_w2c(
+        name: String,
+        width: u32,
+        height: u32,
+        [fx, fy, cx, cy]: [f64; 4],
+        r: [[f64; 3]; 3],
+        t: [f64; 3],
+    ) -> Camera {
+        Camera {
+            name,
+            width,
+            height,
+            fx: fx as f32,
+            fy: fy as f32,
+            cx: cx as f32,
+            cy: cy as f32,
+            rotation: r.map(|row| row.map(|v| v as f32)),
+            translation: t.map(|v| v as f32),
+        }
+    }
+
+    /// A camera from a camera-to-world rotation (columns = camera axes in world) and the
+    /// camera centre, in f64: R = C^T, t = -R c.
+    pub fn from_c2w(
+        name: String,
+        width: u32,
+        height: u32,
+        intr: [f64; 4],
+        c2w: [[f64; 3]; 3],
+        center: [f64; 3],
+    ) -> Camera {
+        let r = transpose(c2w);
+        let t = mat_vec(r, center).map(|v| -v);
+        Camera::from_w2c(name, width, height, intr, r, t)
+    }
+
+    /// Check the camera; `path` names the source file in errors.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let bad = |r: String| Err(Error::input(path, format!("camera `{}`: {r}", self.name)));
+        if self.width == 0 || self.height == 0 {
+            return bad(format!(
+                "image size {}x{} must be positive",
+                self.width, self.height
+            ));
+        }
+        if !(self.fx.is_finite() && self.fy.is_finite() && self.fx > 0.0 && self.fy > 0.0) {
+            return bad(format!(
+                "focal lengths fx={} fy={} must be positive and finite",
+                self.fx, self.fy
+            ));
+        }
+        if !(self.cx.is_finite() && self.cy.is_finite()) {
+            return bad(format!(
+                "principal point ({}, {}) is not finite",
+                self.cx, self.cy
+            ));
+        }
+        if self.translation.iter().any(|v| !v.is_finite()) {
+            return bad(format!("translation {:?} is not finite", self.translation));
+        }
+        let r = self.rotation.map(|row| row.map(|v| v as f64));
+        if r.iter().flatten().any(|v| !v.is_finite()) {
+            return bad(format!("rotation {:?} is not finite", self.rotation));
+        }
+        let mut dev = 0.0f64;
+        for i in 0..3 {
+            for j in 0..3 {
+                let d: f64 = (0..3).map(|k| r[i][k] * r[j][k]).sum();
+                dev = dev.max((d - if i == j { 1.0 } else { 0.0 }).abs());
+            }
+        }
+        if dev > ROTATION_TOL as f64 {
+            return bad(format!(
+                "rotation is not orthonormal (max |R R^T - I| = {dev:.3e}, tolerance {ROTATION_TOL:e})"
+            ));
+        }
+        let det = det3(r);
+        if (det - 1.0).abs() > ROTATION_TOL as f64 {
+            return bad(format!(
+                "rotation has determinant {det:.4} (a reflection; must be +1)"
+            ));
+        }
+        Ok(())
+    }
+
+    /// The same camera for an image of `width` x `height`: focal lengths and principal
+    /// point scale with the image (per axis).
+    pub fn resized(&self, width: u32, height: u32) -> Camera {
+        if width == self.width && height == self.height {
+            return self.clone();
+        }
+        let sx = width as f64 / self.width as f64;
+        let sy = height as f64 / self.height as f64;
+        Camera {
+            width,
+            height,
+            fx: (self.fx as f64 * sx) as f32,
+            fy: (self.fy as f64 * sy) as f32,
+            cx: (self.cx as f64 * sx) as f32,
+            cy: (self.cy as f64 * sy) as f32,
+            ..self.clone()
+        }
+    }
+}
+
+pub(crate) fn transpose(m: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let mut t = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            t[i][j] = m[j][i];
+        }
+    }
+    t
+}
+
+pub(crate) fn mat_vec(m: [[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
+}
+
+pub(crate) fn det3(r: [[f64; 3]; 3]) -> f64 {
+    r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+        - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+        + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0])
+}
+
+/// Rotation matrix of a unit quaternion (w, x, y, z) (Hamilton convention, as COLMAP's
+/// `qvec2rotmat`). The quaternion is normalised first; `None` when it is zero or not finite.
+pub fn quat_to_mat(q: [f64; 4]) -> Option<[[f64; 3]; 3]> {
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    if !n.is_finite() || n < 1e-12 {
+        return None;
+    }
+    let [w, x, y, z] = q.map(|v| v / n);
+    Some([
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ])
+}
+
+/// Load the cameras named by `spec` for images of `width` x `height`:
+/// `orbit:...` (generated around `scene`), an INRIA `cameras.json`, a nerfstudio
+/// `transforms.json`, a COLMAP sparse model directory (`sparse/0`, or a directory holding
+/// one), or a views/targets artifact directory (its `cameras.json`). Cameras read from
+/// files keep their poses; their intrinsics are rescaled from the file's image size to
+/// `width` x `height`.
+pub fn load_cameras(spec: &str, scene: &Scene, width: u32, height: u32) -> Result<Vec<Camera>> {
+    if width == 0 || height == 0 {
+        return Err(Error::param(format!(
+            "image size {width}x{height}: width and height must be positive"
+        )));
+    }
+    if let Some(rest) = spec.strip_prefix("orbit:") {
+        let o = orbit::OrbitSpec::parse(rest)?;
+        let cams = orbit::orbit(&o, scene, width, height)?;
+        for c in &cams {
+            c.validate(Path::new(spec))?;
+        }
+        return Ok(cams);
+    }
+    let path = Path::new(spec);
+    let (cams, src) = load_camera_file(path)?;
+    for c in cams.iter().take(1) {
+        let (a, b) = (
+            c.width as f64 / c.height as f64,
+            width as f64 / height as f64,
+        );
+        if (a / b - 1.0).abs() > 0.01 {
+            tracing::warn!(
+                "{}: cameras are {}x{}, rendering at {width}x{height} changes the aspect \
+                 ratio (intrinsics are scaled per axis)",
+                src.display(),
+                c.width,
+                c.height
+            );
+        }
+    }
+    let cams: Vec<Camera> = cams.iter().map(|c| c.resized(width, height)).collect();
+    if cams.is_empty() {
+        return Err(Error::input(&src, "no cameras in the file"));
+    }
+    for c in &cams {
+        c.validate(&src)?;
+    }
+    Ok(cams)
+}
+
+/// Read cameras (at their own image sizes) from a file or directory; also returns the
+/// file they came from (for messages).
+pub fn load_camera_file(path: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)> {
+    if path.is_dir() {
+        if path.join(fantasystyle_schemas::MANIFEST_FILE).is_file() {
+            let a = fantasystyle_schemas::Artifact::open_any(path)?;
+            let p = a.path("cameras.json");
+            if !p.is_file() {
+                return Err(Error::input(
+                    path,
+                    format!(
+                        "artifact of kind `{}` holds no cameras.json",
+                        a.manifest.kind
+                    ),
+                ));
+            }
+            return Ok((inria::read_inria(&p)?, p));
+        }
+        for (name, is_colmap) in [
+            ("cameras.json", false),
+            ("transforms.json", false),
+            ("cameras.bin", true),
+            ("cameras.txt", true),
+            ("sparse/0/cameras.bin", true),
+            ("sparse/0/cameras.txt", true),
+        ] {
+            let p = path.join(name);
+            if p.is_file() {
+                if is_colmap {
+                    let dir = p.parent().unwrap_or(path);
+                    return Ok((colmap::read_colmap(dir)?, dir.to_path_buf()));
+                }
+                return load_camera_file(&p);
+            }
+        }
+        return Err(Error::input(
+            path,
+            "directory holds no cameras (expected an artifact with cameras.json, \
+             cameras.json, transforms.json or a COLMAP sparse model)",
+        ));
+    }
+    if !path.is_file() {
+        return Err(Error::input(
+            path,
+            "camera file does not exist (and the spec is not `orbit:N`)",
+        ));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Error::input(path, format!("invalid JSON: {e}")))?;
+    let cams = if v.is_array() {
+        inria::parse_inria(path, v)?
+    } else if v.get("frames").is_some() {
+        nerfstudio::parse_transforms(path, &v)?
+    } else {
+        return Err(Error::input(
+            path,
+            "unknown camera JSON (expected an INRIA cameras.json array or a \
+             transforms.json object with `frames`)",
+        ));
+    };
+    Ok((cams, path.to_path_buf()))
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A camera at `eye` looking at `target` with world -y up (OpenCV axes).
+    pub(crate) fn look_at(eye: [f64; 3], target: [f64; 3]) -> Camera {
+        let c2w = orbit::look_at_c2w(eye, target, [0.0, 1.0, 0.0]);
+        Camera::from_c2w("t".into(), 64, 48, [50.0, 50.0, 32.0, 24.0], c2w, eye)
+    }
+
+    #[test]
+    fn quaternion_matrix_is_a_rotation() {
+        let r = quat_to_mat([0.3, -0.2, 0.9, 0.1]).unwrap();
+        assert!((det3(r) - 1.0).abs() < 1e-12);
+        // 90 degrees about z: x -> y.
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        let r = quat_to_mat([h, 0.0, 0.0, h]).unwrap();
+        let v = mat_vec(r, [1.0, 0.0, 0.0]);
+        assert!((v[1] - 1.0).abs() < 1e-12 && v[0].abs() < 1e-12);
+        assert!(quat_to_mat([0.0; 4]).is_none());
+    }
+
+    #[test]
+    fn validate_names_the_problem() {
+        let p = Path::new("c.json");
+        let c = look_at([0.0, 0.0, -3.0], [0.0; 3]);
+        c.validate(p).unwrap();
+        let mut b = c.clone();
+        b.rotation[0][0] *= 1.1;
+        let e = b.validate(p).unwrap_err().to_string();
+        assert!(
+            e.contains("c.json") && e.contains("`t`") && e.contains("orthonormal"),
+            "{e}"
+        );
+        let mut b = c.clone();
+        b.rotation[2] = b.rotation[2].map(|v| -v);
+        assert!(
+            b.validate(p)
+                .unwrap_err()
+                .to_string()
+                .contains("determinant")
+        );
+        let mut b = c.clone();
+        b.fx = 0.0;
+        assert!(b.validate(p).unwrap_err().to_string().contains("focal"));
+        let mut b = c;
+        b.width = 0;
+        assert!(
+            b.validate(p)
+                .unwrap_err()
+                .to_string()
+                .contains("image size")
+        );
+    }
+
+    #[test]
+    fn look_at_projects_target_to_principal_point() {
+        let c = look_at([1.0, -2.0, -3.0], [0.2, 0.1, 0.3]);
+        let (uv, z) = c.project([0.2, 0.1, 0.3]);
+        assert!((uv[0] - 32.0).abs() < 1e-4 && (uv[1] - 24.0).abs() < 1e-4 && z > 0.0);
+        let ce = c.center();
+        assert!((ce[0] - 1.0).abs() < 1e-5 && (ce[1] + 2.0).abs() < 1e-5);
+        let r = c.resized(128, 96);
+        assert_eq!((r.fx, r.cx, r.cy), (100.0, 64.0, 48.0));
+    }
+}

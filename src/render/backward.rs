@@ -1,0 +1,143 @@
+//! Colour backward pass with frozen geometry.
+//!
+//! With positions, covariances, opacities and the depth order fixed, a pixel's colour is
+//! linear in the splat colours: `C_p = sum_i w_pi c_i + T_p bg` with constant weights
+//! `w_pi = alpha_i T_i` (Kerbl et al. 2023, Eq. 3). Hence `dL/dc_i = sum_p w_pi dL/dC_p`
+//! (the transpose product), and through the clamp `c = max(0, raw)`:
+//! `dL/draw = dL/dc` where `raw >= 0`, else 0. The SH coefficients enter linearly,
+//! `raw = sum_k Y_k(d) f_k + 0.5`, so `dL/df_k = Y_k(d) dL/draw` per channel.
+//!
+//! [`colour_grad_uncached`] recomputes the weights by compositing again (the "cache
+//! off" path); [`super::ViewCache::backward`] reads them from the cache. Both sum each
+//! splat's pixels in row-major order within a tile and the tiles in row-major order,
+//! so they give identical results.
+
+use super::Frame;
+use super::project::TILE;
+use super::raster::{Sink, TP, TileState, composite_tile};
+use super::sh;
+use crate::Scene;
+use rayon::prelude::*;
+
+/// Collects, per tile, each splat's `sum_p w_p g_p` in front-to-back order.
+pub(crate) struct GradSink<'a> {
+    /// Tile-local gradient planes dL/dC (R, G, B).
+    pub grad: [[f32; TP]; 3],
+    pub out: &'a mut Vec<(u32, [f32; 3])>,
+}
+
+impl Sink for GradSink<'_> {
+    #[inline]
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &[f32; TP]) {
+        let mut s = [0.0f32; 3];
+        for p in r0 * TILE..r1 * TILE {
+            let wp = w[p];
+            s[0] += wp * self.grad[0][p];
+            s[1] += wp * self.grad[1][p];
+            s[2] += wp * self.grad[2][p];
+        }
+        self.out.push((local, s));
+    }
+}
+
+/// Load tile `(tx, ty)` of an `[H, W, 3]` image into three planes (zero outside).
+pub(crate) fn load_tile(
+    img: &[f32],
+    width: usize,
+    height: usize,
+    tile: usize,
+    tiles_x: usize,
+) -> [[f32; TP]; 3] {
+    let mut g = [[0.0f32; TP]; 3];
+    let x0 = (tile % tiles_x) * TILE;
+    let y0 = (tile / tiles_x) * TILE;
+    for r in 0..(height - y0).min(TILE) {
+        for c in 0..(width - x0).min(TILE) {
+            let o = ((y0 + r) * width + x0 + c) * 3;
+            let p = r * TILE + c;
+            g[0][p] = img[o];
+            g[1][p] = img[o + 1];
+            g[2][p] = img[o + 2];
+        }
+    }
+    g
+}
+
+/// Add per-tile lists of `(local, grad)` into one gradient per splat, tile by tile.
+pub(crate) fn merge(per_tile: Vec<Vec<(u32, [f32; 3])>>, n: usize) -> Vec<[f32; 3]> {
+    let mut out = vec![[0.0f32; 3]; n];
+    for list in per_tile {
+        for (g, v) in list {
+            let o = &mut out[g as usize];
+            o[0] += v[0];
+            o[1] += v[1];
+            o[2] += v[2];
+        }
+    }
+    out
+}
+
+/// `dL/dc` per splat of `frame` (indexed like `frame.splats`) given `dL/dC` as an
+/// `[H, W, 3]` image, recomputing the blending weights.
+pub fn colour_grad_uncached(frame: &Frame, grad_rgb: &[f32]) -> Vec<[f32; 3]> {
+    let nt = frame.tiles_x * frame.tiles_y;
+    let per_tile: Vec<Vec<(u32, [f32; 3])>> = (0..nt)
+        .into_par_iter()
+        .map_init(TileState::new, |st, t| {
+            let mut out = Vec::new();
+            let mut sink = GradSink {
+                grad: load_tile(grad_rgb, frame.width, frame.height, t, frame.tiles_x),
+                out: &mut out,
+            };
+            composite_tile(frame, t, st, &mut sink);
+            out
+        })
+        .collect();
+    merge(per_tile, frame.splats.ids.len())
+}
+
+/// Accumulate SH-coefficient gradients of scene Gaussians `ids` seen from `centre`,
+/// given pre-clamp colours `raw` and colour gradients `grad_c` (both indexed like
+/// `ids`), into `grad_dc` (`[N][3]`) and `grad_rest` (layout of `Scene::sh_rest`).
+pub fn sh_backward(
+    scene: &Scene,
+    ids: &[u32],
+    centre: [f32; 3],
+    raw: &[[f32; 3]],
+    grad_c: &[[f32; 3]],
+    grad_dc: &mut [[f32; 3]],
+    grad_rest: &mut [f32],
+) {
+    let k = scene.rest_per_channel();
+    let deg = scene.sh_degree;
+    let mut basis = [0.0f32; 16];
+    for (j, &id) in ids.iter().enumerate() {
+        let i = id as usize;
+        let mut g = grad_c[j];
+        for ch in 0..3 {
+            if raw[j][ch] < 0.0 {
+                g[ch] = 0.0;
+            }
+        }
+        if g == [0.0; 3] {
+            continue;
+        }
+        for ch in 0..3 {
+            grad_dc[i][ch] += sh::C0 * g[ch];
+        }
+        let Some(d) = sh::unit_dir(centre, scene.positions[i]) else {
+            continue;
+        };
+        if k == 0 {
+            continue;
+        }
+        sh::sh_basis(deg, d, &mut basis);
+        let gr = &mut grad_rest[i * k * 3..(i + 1) * k * 3];
+        for kk in 0..k {
+            let b = basis[kk + 1];
+            for ch in 0..3 {
+                gr[kk * 3 + ch] += b * g[ch];
+            }
+        }
+    }
+}
