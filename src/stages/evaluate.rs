@@ -180,7 +180,9 @@ fn set_distances(
             n_a: na,
             n_b: nb,
             reliable: na.min(nb) >= 10,
-            note: "unbiased MMD² estimate, cubic polynomial kernel, all images in one set".into(),
+            note: "unbiased MMD² estimate (can be slightly negative when the sets match), cubic polynomial \
+                   kernel, all images in one set; high variance below 10 images"
+                .into(),
         },
     )
 }
@@ -505,16 +507,13 @@ fn render_report(
             "<div class=\"warn\" id=\"warnings\"><b>Warnings</b><ul>{items}</ul></div>"
         ));
     }
-    let d = |x: &SetDistance, digits| {
-        format!(
-            "{}{}",
-            fmt_opt(x.value, digits),
-            if x.reliable || x.value.is_none() {
-                ""
-            } else {
-                " (biased)"
-            }
-        )
+    let d = |x: &SetDistance, digits, flag: &str| {
+        let mark = if x.reliable || x.value.is_none() {
+            String::new()
+        } else {
+            format!(" ({flag})")
+        };
+        format!("{}{mark}", fmt_opt(x.value, digits))
     };
     let net = m.lpips_net.name();
     let rows = vec![
@@ -526,7 +525,7 @@ fn render_report(
         ],
         vec![
             "FID_style ↓".into(),
-            d(&m.fid_style, 2),
+            d(&m.fid_style, 2, "biased"),
             esc(&format!(
                 "stylized views vs style crops; {}",
                 m.fid_style.note
@@ -534,12 +533,12 @@ fn render_report(
         ],
         vec![
             "KID_style ↓".into(),
-            d(&m.kid_style, 5),
+            d(&m.kid_style, 5, "few images"),
             esc(&m.kid_style.note),
         ],
         vec![
             "FID_content ↓".into(),
-            d(&m.fid_content, 2),
+            d(&m.fid_content, 2, "biased"),
             esc(&format!(
                 "stylized vs original views; {}",
                 m.fid_content.note
@@ -547,7 +546,7 @@ fn render_report(
         ],
         vec![
             "KID_content ↓".into(),
-            d(&m.kid_content, 5),
+            d(&m.kid_content, 5, "few images"),
             esc(&m.kid_content.note),
         ],
         vec![
