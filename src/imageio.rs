@@ -157,6 +157,25 @@ mod tests {
     }
 
     #[test]
+    fn jpeg_is_read_as_rgb() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("a.jpg");
+        let img = image::RgbImage::from_pixel(16, 8, image::Rgb([200, 100, 50]));
+        img.save(&p).unwrap();
+        let back = read_rgb(&p).unwrap();
+        assert_eq!(
+            (back.width, back.height, back.data.len()),
+            (16, 8, 16 * 8 * 3)
+        );
+        // Lossy, but a flat colour survives within a few levels.
+        for px in back.data.chunks(3) {
+            for (a, b) in px.iter().zip([200.0f32, 100.0, 50.0]) {
+                assert!((a * 255.0 - b).abs() < 4.0, "{px:?}");
+            }
+        }
+    }
+
+    #[test]
     fn bad_files_name_the_file() {
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("junk.png");

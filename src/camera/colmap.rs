@@ -480,6 +480,59 @@ mod tests {
         assert!(e.contains("qz") && e.contains("`x`"), "{e}");
     }
 
+    /// Fuzz-style: corrupted binary models never panic, and errors name the file.
+    #[test]
+    fn corrupted_binary_never_panics() {
+        let mut cams = 1u64.to_le_bytes().to_vec();
+        cams.extend_from_slice(&1i32.to_le_bytes());
+        cams.extend_from_slice(&1i32.to_le_bytes());
+        cams.extend_from_slice(&64u64.to_le_bytes());
+        cams.extend_from_slice(&48u64.to_le_bytes());
+        for v in [50.0f64, 50.0, 32.0, 24.0] {
+            cams.extend_from_slice(&v.to_le_bytes());
+        }
+        let mut imgs = 1u64.to_le_bytes().to_vec();
+        imgs.extend_from_slice(&1i32.to_le_bytes());
+        for v in [1.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 3.0] {
+            imgs.extend_from_slice(&v.to_le_bytes());
+        }
+        imgs.extend_from_slice(&1i32.to_le_bytes());
+        imgs.extend_from_slice(b"a.png\0");
+        imgs.extend_from_slice(&1u64.to_le_bytes());
+        imgs.extend_from_slice(&[0u8; 24]);
+        let (pc, pi) = (Path::new("cameras.bin"), Path::new("images.bin"));
+        let c = parse_cameras_bin(pc, &cams).unwrap();
+        let i = parse_images_bin(pi, &imgs).unwrap();
+        assemble(pc, pi, &c, i).unwrap();
+        let mut rng = crate::rng::Rng::new(5);
+        for _ in 0..3000 {
+            let (mut c, mut i) = (cams.clone(), imgs.clone());
+            for b in [&mut c, &mut i] {
+                match rng.next_u64() % 3 {
+                    0 => b.truncate((rng.next_u64() as usize) % (b.len() + 1)),
+                    1 => {
+                        let k = (rng.next_u64() as usize) % b.len();
+                        b[k] = rng.next_u64() as u8;
+                    }
+                    _ => {}
+                }
+            }
+            let r = std::panic::catch_unwind(|| {
+                let c = parse_cameras_bin(pc, &c)?;
+                let i = parse_images_bin(pi, &i)?;
+                assemble(pc, pi, &c, i)
+            })
+            .expect("COLMAP reader panicked");
+            if let Err(e) = r {
+                let e = e.to_string();
+                assert!(
+                    e.starts_with("cameras.bin") || e.starts_with("images.bin"),
+                    "{e}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn binary_truncation_and_unknown_model() {
         let p = Path::new("cameras.bin");

@@ -256,6 +256,21 @@ pub fn load_cameras(spec: &str, scene: &Scene, width: u32, height: u32) -> Resul
     }
     let path = Path::new(spec);
     let (cams, src) = load_camera_file(path)?;
+    for c in cams.iter().take(1) {
+        let (a, b) = (
+            c.width as f64 / c.height as f64,
+            width as f64 / height as f64,
+        );
+        if (a / b - 1.0).abs() > 0.01 {
+            tracing::warn!(
+                "{}: cameras are {}x{}, rendering at {width}x{height} changes the aspect \
+                 ratio (intrinsics are scaled per axis)",
+                src.display(),
+                c.width,
+                c.height
+            );
+        }
+    }
     let cams: Vec<Camera> = cams.iter().map(|c| c.resized(width, height)).collect();
     if cams.is_empty() {
         return Err(Error::input(&src, "no cameras in the file"));

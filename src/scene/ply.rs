@@ -231,6 +231,13 @@ struct Columns {
 }
 
 fn columns(path: &Path, props: &[(String, PType)]) -> Result<Columns> {
+    if props.iter().any(|(p, _)| p == "packed_position") {
+        return Err(Error::input(
+            path,
+            "a compressed (SuperSplat/PlayCanvas `packed_*`) PLY is not supported; \
+             decompress it to the INRIA layout first",
+        ));
+    }
     let find = |n: &str| -> Result<usize> {
         props.iter().position(|(p, _)| p == n).ok_or_else(|| {
             Error::input(
@@ -303,41 +310,30 @@ pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<Scene> {
             "the PLY holds no Gaussians (vertex count 0)",
         ));
     }
-    let nprops = vertex.props.len();
-    // The rows as f32, row-major [n][nprops] (read once, then gathered).
-    let rows: Vec<f32> = match h.format {
-        Format::BinaryLe => read_binary_rows(path, bytes, &h, vi)?,
-        Format::Ascii => read_ascii_rows(path, bytes, &h, vi)?,
-    };
-    debug_assert_eq!(rows.len(), n * nprops);
     let r = cols.rest.len() / 3;
     let mut s = Scene {
-        positions: Vec::with_capacity(n),
-        log_scales: Vec::with_capacity(n),
-        rotations: Vec::with_capacity(n),
-        opacity_logits: Vec::with_capacity(n),
         sh_degree: cols.degree,
-        sh_dc: Vec::with_capacity(n),
-        sh_rest: vec![0.0; n * r * 3],
+        ..Scene::default()
     };
-    for (i, row) in rows.chunks_exact(nprops.max(1)).enumerate() {
+    // Rows are decoded one at a time into a small buffer and gathered into the scene
+    // (no whole-file intermediate; capacities grow as data is actually read).
+    let mut gather = |row: &[f32]| {
         let g3 = |c: [usize; 3]| [row[c[0]], row[c[1]], row[c[2]]];
         s.positions.push(g3(cols.pos));
         s.sh_dc.push(g3(cols.dc));
         s.log_scales.push(g3(cols.scale));
-        s.rotations.push([
-            row[cols.rot[0]],
-            row[cols.rot[1]],
-            row[cols.rot[2]],
-            row[cols.rot[3]],
-        ]);
+        s.rotations.push(cols.rot.map(|c| row[c]));
         s.opacity_logits.push(row[cols.opacity]);
         // PLY: f_rest_{c*r + k}; Scene: [k][c].
-        for c in 0..3 {
-            for k in 0..r {
-                s.sh_rest[(i * r + k) * 3 + c] = row[cols.rest[c * r + k]];
+        for k in 0..r {
+            for c in 0..3 {
+                s.sh_rest.push(row[cols.rest[c * r + k]]);
             }
         }
+    };
+    match h.format {
+        Format::BinaryLe => read_binary_rows(path, bytes, &h, vi, &mut gather)?,
+        Format::Ascii => read_ascii_rows(path, bytes, &h, vi, &mut gather)?,
     }
     s.validate(path)?;
     debug_assert_eq!(sh_coeffs(s.sh_degree) - 1, r);
@@ -357,7 +353,14 @@ fn elem_stride(path: &Path, e: &Element) -> Result<usize> {
     Ok(e.props.iter().map(|(_, t)| t.size()).sum())
 }
 
-fn read_binary_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<Vec<f32>> {
+/// Decode the vertex rows of a binary file, calling `sink` with each row's values.
+fn read_binary_rows(
+    path: &Path,
+    bytes: &[u8],
+    h: &Header,
+    vi: usize,
+    sink: &mut dyn FnMut(&[f32]),
+) -> Result<()> {
     let mut off = h.body;
     for e in &h.elements[..vi] {
         off = elem_stride(path, e)?
@@ -420,16 +423,24 @@ fn read_binary_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<
         offsets.push((o, *t));
         o += t.size();
     }
-    let mut rows = Vec::with_capacity(v.count * v.props.len());
+    let mut row = vec![0.0f32; offsets.len()];
     for rec in bytes[off..off + need].chunks_exact(stride.max(1)) {
-        for &(o, t) in &offsets {
-            rows.push(t.read_le(&rec[o..]));
+        for (x, &(o, t)) in row.iter_mut().zip(&offsets) {
+            *x = t.read_le(&rec[o..]);
         }
+        sink(&row);
     }
-    Ok(rows)
+    Ok(())
 }
 
-fn read_ascii_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<Vec<f32>> {
+/// Parse the vertex lines of an ASCII file, calling `sink` with each row's values.
+fn read_ascii_rows(
+    path: &Path,
+    bytes: &[u8],
+    h: &Header,
+    vi: usize,
+    sink: &mut dyn FnMut(&[f32]),
+) -> Result<()> {
     let text = std::str::from_utf8(&bytes[h.body..])
         .map_err(|_| Error::input(path, "ASCII PLY body is not valid UTF-8 text"))?;
     let mut lines = text.lines().filter(|l| !l.trim().is_empty());
@@ -445,8 +456,7 @@ fn read_ascii_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<V
         }
     }
     let v = &h.elements[vi];
-    // The count is not trusted for allocation: a lying header must not exhaust memory.
-    let mut rows = Vec::with_capacity(v.count.saturating_mul(v.props.len()).min(text.len()));
+    let mut row = Vec::with_capacity(v.props.len());
     for i in 0..v.count {
         let line = lines.next().ok_or_else(|| {
             Error::input(
@@ -468,6 +478,7 @@ fn read_ascii_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<V
                 ),
             ));
         }
+        row.clear();
         for (t, (name, ty)) in toks.iter().zip(&v.props) {
             let x = ty.parse_text(t).ok_or_else(|| {
                 Error::input(
@@ -475,8 +486,9 @@ fn read_ascii_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<V
                     format!("vertex {i}: property `{name}`: cannot parse `{t}`"),
                 )
             })?;
-            rows.push(x);
+            row.push(x);
         }
+        sink(&row);
     }
     let later: usize = h.elements[vi + 1..].iter().map(|e| e.count).sum();
     let extra = lines.count();
@@ -491,7 +503,7 @@ fn read_ascii_rows(path: &Path, bytes: &[u8], h: &Header, vi: usize) -> Result<V
             ),
         ));
     }
-    Ok(rows)
+    Ok(())
 }
 
 /// The INRIA property names, in the INRIA order, for `degree`.

@@ -38,6 +38,7 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
     }
 }
 
+pub mod evaluate;
 pub mod make_sample;
 pub mod render_views;
 pub mod stylize_baseline;
@@ -56,12 +57,24 @@ pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Re
 }
 
 /// Start an artifact at `out`, turning a failure (e.g. `--out` below a regular file, a
-/// read-only directory) into an I/O error that names `out`.
+/// read-only directory) into an I/O error that names `out`. An existing artifact at
+/// `out` is replaced on commit, but a non-empty directory that is not an artifact (no
+/// `manifest.json`) is refused: committing would otherwise delete the user's files.
 pub fn create_artifact(
     out: &Path,
     kind: fantasystyle_schemas::ArtifactKind,
     producer: fantasystyle_schemas::Producer,
 ) -> Result<fantasystyle_schemas::ArtifactWriter> {
+    if out.is_dir()
+        && !out.join(fantasystyle_schemas::MANIFEST_FILE).is_file()
+        && std::fs::read_dir(out).map_or(true, |mut d| d.next().is_some())
+    {
+        return Err(Error::param(format!(
+            "--out {}: the directory exists, is not empty and is not an artifact \
+             (no manifest.json); refusing to replace it",
+            out.display()
+        )));
+    }
     fantasystyle_schemas::ArtifactWriter::create(out, kind, producer).map_err(|e| {
         let kind = match &e {
             fantasystyle_schemas::SchemaError::Io { source, .. } => source.kind(),

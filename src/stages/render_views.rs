@@ -1,7 +1,8 @@
 //! `render-views`: render a scene from a set of cameras into a `views` artifact.
 //!
-//! Output (schema `views` v1): `rgb.npy` [N,H,W,3] f32 in [0,1] composited over the
-//! background, `depth.npy` [N,H,W] (expected depth, not divided by alpha), `alpha.npy`
+//! Output (schema `views` v1): `rgb.npy` [N,H,W,3] f32 composited over the background
+//! and clamped to [0,1] (3DGS colours `max(0, SH + 0.5)` have no upper bound; INRIA clamps
+//! the same way when it saves renders), `depth.npy` [N,H,W] (expected depth, not divided by alpha), `alpha.npy`
 //! [N,H,W], `cameras.json` (INRIA format, at W x H), and `view_000.png`.. previews.
 //! The manifest records the scene and cameras as inputs (hashes) and the parameters.
 
@@ -103,7 +104,7 @@ pub fn run(a: Args) -> Result<()> {
                 v.width, v.height
             )));
         }
-        rgb.extend_from_slice(&v.rgb);
+        rgb.extend(v.rgb.iter().map(|x| x.clamp(0.0, 1.0)));
         depth.extend_from_slice(&v.depth);
         alpha.extend_from_slice(&v.alpha);
     }

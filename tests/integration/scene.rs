@@ -78,6 +78,28 @@ fn ply_round_trip_binary_and_ascii_every_degree() {
     std::fs::create_dir(&dir).unwrap();
     std::fs::copy(d.path().join("b1.ply"), dir.join("scene.ply")).unwrap();
     assert_eq!(load_scene(&dir).unwrap().sh_degree, 1);
+    // A scene artifact: its manifest and hashes are checked before scene.ply is read.
+    use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+    let art = d.path().join("art");
+    let mut w = ArtifactWriter::create(
+        &art,
+        ArtifactKind::Scene,
+        Producer::new("test", "0", serde_json::json!({})),
+    )
+    .unwrap();
+    w.write_bytes("scene.ply", &ply::encode_ply(&scene(7, 2, 1)))
+        .unwrap();
+    w.commit().unwrap();
+    assert_eq!(load_scene(&art).unwrap(), scene(7, 2, 1));
+    let mut b = std::fs::read(art.join("scene.ply")).unwrap();
+    let last = b.len() - 1;
+    b[last] ^= 1;
+    std::fs::write(art.join("scene.ply"), b).unwrap();
+    let e = load_scene(&art).unwrap_err().to_string();
+    assert!(
+        e.contains("scene.ply") && e.contains("hash mismatch"),
+        "{e}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------
@@ -399,6 +421,28 @@ fn bad_unwritable_output_path() {
     ]);
     assert_eq!(code, 4, "{err}");
     assert!(err.contains("ro/views"), "{err}");
+}
+
+#[test]
+fn out_must_not_be_a_non_artifact_directory() {
+    let d = tempfile::tempdir().unwrap();
+    let (sp, _) = good_inputs(d.path());
+    // d itself holds the user's files: render-views must not replace it.
+    let (code, err) = render_views(&[
+        "--scene",
+        sp.to_str().unwrap(),
+        "--cameras",
+        "orbit:1",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        d.path().to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("refusing to replace"), "{err}");
+    assert!(sp.is_file());
 }
 
 #[test]
@@ -729,4 +773,141 @@ fn sample_regenerates_byte_identically() {
     assert_eq!(cams.len(), 8);
     let style = fantasystyle::imageio::read_rgb(&committed.join("style.png")).unwrap();
     assert_eq!((style.width, style.height), (256, 256));
+}
+
+// ---------------------------------------------------------------------------------------
+// End to end through the rasterizer.
+
+#[test]
+fn render_views_end_to_end_on_the_sample() {
+    use fantasystyle_schemas::{Artifact, ArtifactKind};
+    let d = tempfile::tempdir().unwrap();
+    let sample = harness::repo_root().join("data-sample");
+    let out = d.path().join("views");
+    let (code, err) = render_views(&[
+        "--scene",
+        sample.join("scene.ply").to_str().unwrap(),
+        "--cameras",
+        sample.to_str().unwrap(),
+        "--width",
+        "48",
+        "--height",
+        "40",
+        "--background",
+        "1,1,1",
+        "--threads",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let a = Artifact::open(&out, ArtifactKind::Views).unwrap();
+    let rgb = a.read_f32("rgb.npy").unwrap();
+    let alpha = a.read_f32("alpha.npy").unwrap();
+    assert_eq!(rgb.shape, vec![8, 40, 48, 3]);
+    assert_eq!(a.read_f32("depth.npy").unwrap().shape, vec![8, 40, 48]);
+    assert!(rgb.data.iter().all(|v| (0.0..=1.0).contains(v)));
+    // The scene covers a good part of every view; a white background shows elsewhere.
+    for v in 0..8 {
+        let al = &alpha.data[v * 40 * 48..(v + 1) * 40 * 48];
+        let cover = al.iter().filter(|x| **x > 0.5).count() as f64 / al.len() as f64;
+        assert!((0.2..0.9).contains(&cover), "view {v}: coverage {cover}");
+    }
+    assert_eq!(&rgb.data[..3], &[1.0, 1.0, 1.0]);
+    // cameras.json: INRIA format at the rendered size, same poses as the input.
+    let written = camera::inria::read_inria(&a.path("cameras.json")).unwrap();
+    let input = load_cameras(sample.to_str().unwrap(), &Scene::default(), 48, 40).unwrap();
+    assert_eq!(written.len(), 8);
+    for (w, i) in written.iter().zip(&input) {
+        assert_eq!(
+            (w.width, w.height, w.rotation, w.fx),
+            (48, 40, i.rotation, i.fx)
+        );
+    }
+    for i in 0..8 {
+        let png = fantasystyle::imageio::read_rgb(&a.path(&format!("view_{i:03}.png"))).unwrap();
+        assert_eq!((png.width, png.height), (48, 40));
+    }
+    let roles: Vec<&str> = a.manifest.inputs.iter().map(|r| r.role.as_str()).collect();
+    assert_eq!(roles, ["scene", "cameras"]);
+}
+
+/// The foundation issue's reference case: `plant.splat` on the default 8-view orbit at
+/// 512x512. The plant (about 1 unit tall, centred) must appear upright in every view:
+/// coverage, position and depth follow from the orbit's definition (distance 2.2, 50
+/// degree field of view), the colours from the object (green leaves over a white pot).
+#[test]
+fn plant_renders_on_an_8_view_orbit() {
+    let Some(p) = harness::shared_scene("plant.splat") else {
+        return;
+    };
+    let s = load_scene(&p).unwrap();
+    let cams = load_cameras("orbit:8", &s, 512, 512).unwrap();
+    let opts = fantasystyle::render::RenderOptions::default();
+    let (lo, hi) = s.bounds();
+    let c = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+    let mut means = Vec::new();
+    for (v, cam) in cams.iter().enumerate() {
+        let out = fantasystyle::render::render(&s, cam, &opts).unwrap();
+        let (w, h) = (512usize, 512usize);
+        let covered: Vec<usize> = (0..w * h).filter(|&i| out.alpha[i] > 0.5).collect();
+        let cover = covered.len() as f64 / (w * h) as f64;
+        // The plant is 1/2.05 of the view's height at distance 2.2: a few percent of
+        // the pixels, never most of them.
+        assert!((0.02..0.25).contains(&cover), "view {v}: coverage {cover}");
+        // Its bounding box: vertical extent about half the image, centred.
+        let ys: Vec<usize> = covered.iter().map(|i| i / w).collect();
+        let (y0, y1) = (*ys.iter().min().unwrap(), *ys.iter().max().unwrap());
+        let frac = (y1 - y0) as f64 / h as f64;
+        assert!(
+            (0.35..0.65).contains(&frac),
+            "view {v}: height fraction {frac}"
+        );
+        let (u, _) = cam.project(c);
+        let xm = covered.iter().map(|i| (i % w) as f64).sum::<f64>() / covered.len() as f64;
+        assert!(
+            (xm - u[0] as f64).abs() < 40.0,
+            "view {v}: centred at {xm} vs {}",
+            u[0]
+        );
+        // Depth of covered pixels (depth / alpha): around the orbit radius 2.2.
+        let mut z: Vec<f32> = covered
+            .iter()
+            .map(|&i| out.depth[i] / out.alpha[i])
+            .collect();
+        z.sort_by(f32::total_cmp);
+        let zm = z[z.len() / 2];
+        assert!((1.8..2.6).contains(&zm), "view {v}: median depth {zm}");
+        // Upright: green leaves in the upper part, a bright neutral pot at the bottom.
+        let mean = |rows: std::ops::Range<usize>| {
+            let mut acc = [0.0f64; 3];
+            let mut n = 0.0f64;
+            for &i in covered.iter().filter(|&&i| rows.contains(&(i / w))) {
+                for k in 0..3 {
+                    acc[k] += out.rgb[i * 3 + k] as f64;
+                }
+                n += 1.0;
+            }
+            acc.map(|a| a / n.max(1.0))
+        };
+        let span = y1 - y0;
+        let top = mean(y0..y0 + span / 2);
+        let bottom = mean(y1 - span / 6..y1 + 1);
+        assert!(
+            top[1] > top[0] + 0.02 && top[1] > top[2] + 0.1,
+            "view {v}: top {top:?}"
+        );
+        assert!(
+            bottom.iter().all(|x| *x > 0.5),
+            "view {v}: bottom {bottom:?}"
+        );
+        assert!(
+            (bottom[0] - bottom[1]).abs() < 0.1,
+            "view {v}: bottom {bottom:?}"
+        );
+        means.push(out.rgb.iter().map(|x| *x as f64).sum::<f64>());
+    }
+    // Eight different views.
+    means.sort_by(f64::total_cmp);
+    assert!(means.windows(2).all(|m| m[1] > m[0]));
 }
