@@ -251,4 +251,51 @@ mod stage {
         assert!(e.to_string().contains("cameras.json"), "{e}");
         assert!(!out.exists());
     }
+
+    /// Through the binary: `-h` documents every flag; a bad style exits 2 naming the file.
+    #[test]
+    fn binary_help_and_exit_code() {
+        let bin = env!("CARGO_BIN_EXE_stylize-baseline");
+        let out = std::process::Command::new(bin).arg("-h").output().unwrap();
+        let help = String::from_utf8_lossy(&out.stdout);
+        for f in [
+            "--method",
+            "--scene",
+            "--cameras",
+            "--style",
+            "--steps",
+            "--out",
+            "--width",
+            "--height",
+            "--background",
+            "--lr-dc",
+            "--lr-rest",
+            "--style-size",
+            "--style-weight",
+            "--content-weight",
+            "--monitor-every",
+            "--vgg",
+            "--stylizer",
+            "--threads",
+        ] {
+            assert!(help.contains(f), "help lacks {f}:\n{help}");
+        }
+        let d = tempfile::tempdir().unwrap();
+        let style = d.path().join("gray.png");
+        write_png(&style, 50, 50, 1);
+        let scene = repo_root().join("data-sample/scene.ply");
+        let out = std::process::Command::new(bin)
+            .args(["--method", "gram", "--cameras", "orbit:1", "--steps", "1"])
+            .arg("--scene")
+            .arg(&scene)
+            .arg("--style")
+            .arg(&style)
+            .arg("--out")
+            .arg(d.path().join("o"))
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("gray.png") && err.contains("92 px"), "{err}");
+    }
 }
