@@ -18,6 +18,7 @@
 //! | [`metrics`] | LPIPS, FID/KID, ArtFID, view consistency, Gram distance |
 //! | [`stages`] | one function per stage binary, shared CLI plumbing |
 
+pub mod baselines;
 pub mod camera;
 pub mod csd;
 pub mod error;
@@ -32,6 +33,7 @@ pub mod runtime;
 pub mod scene;
 pub mod scheduler;
 pub mod stages;
+pub mod vgg;
 
 pub use camera::Camera;
 pub use error::{Error, Result};

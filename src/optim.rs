@@ -385,6 +385,9 @@ pub fn fit_colours(
     Ok(fit.finish())
 }
 
+/// A per-view loss for [`ColourFit::step_with`]: `(view, rgb, alpha) -> (loss, dL/drgb)`.
+pub type ViewLoss<'a> = dyn FnMut(usize, &[f32], Option<&[f32]>) -> Result<(f64, Vec<f32>)> + 'a;
+
 /// The state of a colour fit: per-view caches (or not), Adam moments, the current
 /// scene. [`fit_colours`] drives it; benchmarks time [`ColourFit::step`] alone.
 pub struct ColourFit<'a> {
@@ -487,17 +490,33 @@ impl<'a> ColourFit<'a> {
 
     /// One Adam step over all views; returns the mean loss over views before the update.
     pub fn step(&mut self) -> f32 {
-        let p = &self.params;
         let lp = LossParams {
-            ssim_weight: p.ssim_weight,
+            ssim_weight: self.params.ssim_weight,
         };
+        let (cameras, targets) = (self.cameras, self.targets);
+        let mut loss = |v: usize, rgb: &[f32], alpha: Option<&[f32]>| -> Result<(f64, Vec<f32>)> {
+            let (h, w) = (cameras[v].height as usize, cameras[v].width as usize);
+            let (l, g) = loss_and_grad(rgb, &targets[v], alpha, h, w, lp);
+            Ok((l as f64, g))
+        };
+        self.step_with(&mut loss)
+            .expect("the L1 + D-SSIM loss cannot fail") as f32
+    }
+
+    /// The image-gradient hook (added for the VGG baselines): one Adam step over all
+    /// views like [`ColourFit::step`], with the per-view loss supplied by the caller.
+    /// `view_loss(v, rgb, alpha)` gets camera `v`'s render `[H, W, 3]` (and its alpha
+    /// when `mask_alpha` is set) and returns the loss and dL/d(rgb); the gradient is
+    /// chained through the colour backward pass. Returns the mean loss over views before
+    /// the update; the targets given to [`ColourFit::new`] are not used.
+    pub fn step_with(&mut self, view_loss: &mut ViewLoss<'_>) -> Result<f64> {
+        let p = &self.params;
         let out = &self.scene;
         let (grad_dc, grad_rest) = (&mut self.grad_dc, &mut self.grad_rest);
         grad_dc.iter_mut().for_each(|g| *g = [0.0; 3]);
         grad_rest.iter_mut().for_each(|g| *g = 0.0);
         let mut loss_sum = 0.0f64;
-        for ((cam, target), state) in self.cameras.iter().zip(self.targets).zip(&self.states) {
-            let (h, w) = (cam.height as usize, cam.width as usize);
+        for (v, (cam, state)) in self.cameras.iter().zip(&self.states).enumerate() {
             let centre = cam.center();
             match state {
                 ViewState::Cached { cache, alpha } => {
@@ -505,8 +524,8 @@ impl<'a> ColourFit<'a> {
                     let raw = raw_colours(out, ids, centre);
                     let rgb = cache.forward(&clamp_colours(&raw), p.background);
                     let mask = p.mask_alpha.then_some(&alpha[..]);
-                    let (l, g) = loss_and_grad(&rgb, target, mask, h, w, lp);
-                    loss_sum += l as f64;
+                    let (l, g) = view_loss(v, &rgb, mask)?;
+                    loss_sum += l;
                     let gc = cache.backward(&g);
                     sh_backward(out, ids, centre, &raw, &gc, grad_dc, grad_rest);
                 }
@@ -516,8 +535,8 @@ impl<'a> ColourFit<'a> {
                     let raw = raw_colours(out, ids, centre);
                     let r = composite(&frame, &clamp_colours(&raw), p.background);
                     let mask = p.mask_alpha.then_some(&r.alpha[..]);
-                    let (l, g) = loss_and_grad(&r.rgb, target, mask, h, w, lp);
-                    loss_sum += l as f64;
+                    let (l, g) = view_loss(v, &r.rgb, mask)?;
+                    loss_sum += l;
                     let gc = colour_grad_uncached(&frame, &g);
                     sh_backward(out, ids, centre, &raw, &gc, grad_dc, grad_rest);
                 }
@@ -532,9 +551,14 @@ impl<'a> ColourFit<'a> {
         for (i, c) in self.scene.sh_dc.iter_mut().enumerate() {
             *c = [dc[i * 3], dc[i * 3 + 1], dc[i * 3 + 2]];
         }
-        let loss = (loss_sum / self.cameras.len() as f64) as f32;
-        self.losses.push(loss);
-        loss
+        let loss = loss_sum / self.cameras.len() as f64;
+        self.losses.push(loss as f32);
+        Ok(loss)
+    }
+
+    /// The scene as of the last step (geometry as given, colours updated).
+    pub fn scene(&self) -> &Scene {
+        &self.scene
     }
 
     /// The fitted scene and the report.

@@ -1,1 +1,28 @@
-//! (to be written)
+//! Evaluation metrics for stylized 3DGS scenes, as reported by FantasyStyle (AAAI 2026,
+//! Sec. 4 "Experiments": ArtFID, FID, short- and long-range view consistency).
+//!
+//! | module | what |
+//! |---|---|
+//! | [`image`] | the RGB image type the metrics work on (HWC, `[0,1]`), PNG and resampling |
+//! | [`nets`] | the ONNX metric networks (LPIPS AlexNet/VGG16 backbones, FID Inception-v3) |
+//! | [`lpips`] | LPIPS distance from tapped features, optionally masked |
+//! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64) and PSD square roots |
+//! | [`fid`] | Fréchet distance, KID (polynomial-kernel unbiased MMD²), ArtFID |
+//! | [`warp`] | depth reprojection of one view into another with occlusion test |
+//! | [`consistency`] | short/long-range consistency: LPIPS and RMSE after warping |
+//! | [`gram`] | Gram-matrix style distance on VGG16 features |
+//! | [`views`] | loading and cross-checking `views` artifacts |
+//! | [`report`] | the self-contained `report.html` |
+//! | [`sweep`] | the speed-accuracy sweep table and plot |
+
+pub mod consistency;
+pub mod fid;
+pub mod gram;
+pub mod image;
+pub mod linalg;
+pub mod lpips;
+pub mod nets;
+pub mod report;
+pub mod sweep;
+pub mod views;
+pub mod warp;

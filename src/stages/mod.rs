@@ -42,8 +42,10 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
     }
 }
 
+pub mod evaluate;
 pub mod make_sample;
 pub mod render_views;
+pub mod stylize_baseline;
 pub mod timing;
 pub mod update_gaussians;
 

@@ -1,4 +1,6 @@
 //! The integration test binary: one binary, one harness (`harness`), one module per area.
+mod baselines;
+mod evaluate;
 mod harness;
 mod mvfc;
 mod render;

@@ -1,0 +1,304 @@
+//! Baselines users compare FantasyStyle against, run through the same renderer, colour
+//! fit and evaluation (issue: baselines; the paper's comparisons, Sec. 4).
+//!
+//! * [`gram`]: Gram-matrix style loss (Gatys et al. 2016) over VGG16 relu1_2, relu2_2,
+//!   relu3_3, relu4_3 at image scales 1 and 1/2, plus a content loss at relu4_3 against
+//!   the original render — the loss SGSST-style 3DGS stylization optimises.
+//! * [`nnfm`]: nearest-neighbour feature matching (ARF, Zhang et al. 2022): every
+//!   relu3-block feature of a render is pulled toward its nearest style feature by
+//!   cosine distance, plus a content loss at relu3_3.
+//! * per-view 2D stylize + refit (in the stage): each original view is stylized by the
+//!   2D stylizer on its own, then colours are fitted to those images; no MVFC, no
+//!   distillation.
+//!
+//! The VGG losses are image-space objectives ([`Objective`]): per view they return the
+//! loss and dL/d(rgb) as an `[H, W, 3]` image, which the colour fit chains through the
+//! renderer's colour backward pass into the SH coefficients. Geometry never changes.
+//!
+//! Style images: read as RGB (grayscale expanded to three channels, alpha dropped, see
+//! [`crate::imageio`]), resized so the shorter side is `style_size` (default 256), and
+//! refused if the shorter side of the file is below [`MIN_STYLE_SIDE`], the receptive
+//! field of relu4_3 (92 px): a smaller image cannot fill even one deepest-layer unit, so
+//! its "style" at that layer would be the zero padding's.
+
+pub mod fit;
+pub mod gram;
+pub mod nnfm;
+
+use crate::vgg::{Layer, Tensor3, Vgg16, receptive_field};
+use crate::{Error, Result};
+use ndarray::{Array2, ArrayView2, linalg::general_mat_mul};
+
+/// Smallest accepted style image side: the receptive field of relu4_3.
+pub const MIN_STYLE_SIDE: usize = 92;
+
+/// Smallest accepted render side for the VGG baselines: relu4_3 must have 2x2 positions
+/// at the coarsest scale (three 2x2 poolings).
+pub const MIN_VIEW_SIDE: usize = 16;
+
+/// An `[H, W, 3]` image in [0, 1].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    pub h: usize,
+    pub w: usize,
+    pub data: Vec<f32>,
+}
+
+/// Loss terms of one view and the gradient of `total` w.r.t. the view's pixels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Terms {
+    pub style: f64,
+    pub content: f64,
+    /// `style_weight * style + content_weight * content`.
+    pub total: f64,
+    /// dL_total/d(rgb), `[H, W, 3]`.
+    pub grad: Vec<f32>,
+}
+
+/// An image-space objective over a fixed set of views.
+pub trait Objective: Sync {
+    /// Loss and gradient for view `view` rendered as `img`.
+    fn eval(&self, view: usize, img: &Image) -> Result<Terms>;
+}
+
+/// Check that a style image is large enough (see module docs) and resize it so its
+/// shorter side is `style_size` (bilinear; aspect kept). `path` names it in errors.
+pub fn prepare_style(img: &Image, style_size: usize, path: &std::path::Path) -> Result<Image> {
+    debug_assert_eq!(receptive_field(Layer::Relu4_3), MIN_STYLE_SIDE);
+    let short = img.w.min(img.h);
+    if short < MIN_STYLE_SIDE {
+        return Err(Error::input(
+            path,
+            format!(
+                "style image is {}x{}; the VGG baselines need a shorter side of at least {MIN_STYLE_SIDE} px (the receptive field of relu4_3)",
+                img.w, img.h
+            ),
+        ));
+    }
+    if style_size < MIN_STYLE_SIDE {
+        return Err(Error::param(format!(
+            "--style-size {style_size} is below the VGG receptive field ({MIN_STYLE_SIDE} px)"
+        )));
+    }
+    let s = style_size as f64 / short as f64;
+    let nw = ((img.w as f64 * s).round() as usize).max(1);
+    let nh = ((img.h as f64 * s).round() as usize).max(1);
+    Ok(resize_bilinear(img, nh, nw))
+}
+
+/// Bilinear resize (pixel centres aligned; area-averaging is not needed for the
+/// moderate factors used on style images).
+pub fn resize_bilinear(img: &Image, nh: usize, nw: usize) -> Image {
+    if (nh, nw) == (img.h, img.w) {
+        return img.clone();
+    }
+    let mut out = vec![0.0; nh * nw * 3];
+    let sy = img.h as f64 / nh as f64;
+    let sx = img.w as f64 / nw as f64;
+    for y in 0..nh {
+        let fy = ((y as f64 + 0.5) * sy - 0.5).clamp(0.0, (img.h - 1) as f64);
+        let (y0, ty) = (fy.floor() as usize, fy - fy.floor());
+        let y1 = (y0 + 1).min(img.h - 1);
+        for x in 0..nw {
+            let fx = ((x as f64 + 0.5) * sx - 0.5).clamp(0.0, (img.w - 1) as f64);
+            let (x0, tx) = (fx.floor() as usize, fx - fx.floor());
+            let x1 = (x0 + 1).min(img.w - 1);
+            for c in 0..3 {
+                let at = |yy: usize, xx: usize| img.data[(yy * img.w + xx) * 3 + c] as f64;
+                let v = (1.0 - ty) * ((1.0 - tx) * at(y0, x0) + tx * at(y0, x1))
+                    + ty * ((1.0 - tx) * at(y1, x0) + tx * at(y1, x1));
+                out[(y * nw + x) * 3 + c] = v as f32;
+            }
+        }
+    }
+    Image {
+        h: nh,
+        w: nw,
+        data: out,
+    }
+}
+
+/// Box-downsample by an integer `factor` (floor: trailing rows/columns dropped).
+pub fn downsample(img: &Image, factor: usize) -> Image {
+    if factor == 1 {
+        return img.clone();
+    }
+    let (h, w) = (img.h / factor, img.w / factor);
+    let mut out = vec![0.0f32; h * w * 3];
+    let inv = 1.0 / (factor * factor) as f32;
+    for y in 0..h {
+        for x in 0..w {
+            for dy in 0..factor {
+                for dx in 0..factor {
+                    let p = ((y * factor + dy) * img.w + x * factor + dx) * 3;
+                    for c in 0..3 {
+                        out[(y * w + x) * 3 + c] += img.data[p + c] * inv;
+                    }
+                }
+            }
+        }
+    }
+    Image { h, w, data: out }
+}
+
+/// Adjoint of [`downsample`]: add the small image's gradient back onto `grad` (full size
+/// `h x w`), each small pixel spread evenly over its `factor^2` sources.
+pub fn downsample_adjoint_add(small: &[f32], factor: usize, h: usize, w: usize, grad: &mut [f32]) {
+    let (hs, ws) = (h / factor, w / factor);
+    let inv = 1.0 / (factor * factor) as f32;
+    for y in 0..hs {
+        for x in 0..ws {
+            for dy in 0..factor {
+                for dx in 0..factor {
+                    let p = ((y * factor + dy) * w + x * factor + dx) * 3;
+                    for c in 0..3 {
+                        grad[p + c] += small[(y * ws + x) * 3 + c] * inv;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Gram matrix `F F^T / (H W)` of a `[C, H, W]` map.
+pub fn gram(f: &Tensor3) -> Array2<f32> {
+    let m = f.matrix();
+    let mut g = Array2::zeros((f.c, f.c));
+    general_mat_mul(1.0 / f.hw() as f32, &m, &m.t(), 0.0, &mut g);
+    g
+}
+
+/// Mean squared difference of two Gram matrices, `||G - A||^2 / C^2` (f64), and
+/// the gradient w.r.t. the features `F` that made `G`, scaled by `scale`:
+/// `scale * 4 (G - A) F / (C^2 H W)` (G - A is symmetric).
+pub fn gram_loss_grad(f: &Tensor3, target: ArrayView2<'_, f32>, scale: f32) -> (f64, Tensor3) {
+    let g = gram(f);
+    let c2 = (f.c * f.c) as f64;
+    let diff = &g - &target;
+    let loss = diff.iter().map(|&d| d as f64 * d as f64).sum::<f64>() / c2;
+    let mut grad = Array2::zeros((f.c, f.hw()));
+    let k = scale * 4.0 / (c2 as f32 * f.hw() as f32);
+    general_mat_mul(k, &diff, &f.matrix(), 0.0, &mut grad);
+    (
+        loss,
+        Tensor3 {
+            c: f.c,
+            h: f.h,
+            w: f.w,
+            data: grad.into_raw_vec_and_offset().0,
+        },
+    )
+}
+
+/// Mean squared error between features and the original's, and its gradient scaled by
+/// `scale`: `scale * 2 (F - F0) / n`.
+pub fn content_loss_grad(f: &Tensor3, f0: &Tensor3, scale: f32) -> (f64, Tensor3) {
+    let n = f.data.len() as f64;
+    let loss = f
+        .data
+        .iter()
+        .zip(&f0.data)
+        .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+        .sum::<f64>()
+        / n;
+    let k = scale * 2.0 / n as f32;
+    let data = f
+        .data
+        .iter()
+        .zip(&f0.data)
+        .map(|(&a, &b)| k * (a - b))
+        .collect();
+    (
+        loss,
+        Tensor3 {
+            c: f.c,
+            h: f.h,
+            w: f.w,
+            data,
+        },
+    )
+}
+
+/// Check the views' sizes for the VGG baselines.
+pub fn check_views(views: &[Image]) -> Result<()> {
+    if views.is_empty() {
+        return Err(Error::param("the view set is empty: nothing to stylize"));
+    }
+    for (i, v) in views.iter().enumerate() {
+        if v.h.min(v.w) < MIN_VIEW_SIDE {
+            return Err(Error::param(format!(
+                "view {i} is {}x{}; the VGG baselines need at least {MIN_VIEW_SIDE}x{MIN_VIEW_SIDE}",
+                v.w, v.h
+            )));
+        }
+        if v.data.len() != v.h * v.w * 3 {
+            return Err(Error::param(format!(
+                "view {i} has a wrong number of values"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Gram distance of an image to a style (the evaluation measure the issue asks to fall):
+/// mean over relu1_2, relu2_2, relu3_3, relu4_3 at scale 1 of `||G - A||^2 / C^2`.
+/// Uses [`gram::GramTargets`] built once for the style.
+pub fn gram_distance(vgg: &Vgg16, targets: &gram::GramTargets, img: &Image) -> Result<f64> {
+    let f = vgg.forward(&img.data, img.h, img.w, Layer::Relu4_3)?;
+    let layers = &targets.layers;
+    let mut s = 0.0;
+    for (li, &l) in layers.iter().enumerate() {
+        s += gram_loss_grad(f.get(l), targets.grams[0][li].view(), 0.0).0;
+    }
+    Ok(s / layers.len() as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn downsample_adjoint_is_the_transpose() {
+        let mut r = crate::rng::Rng::new(3);
+        let (h, w) = (7, 9);
+        let x = Image {
+            h,
+            w,
+            data: (0..h * w * 3).map(|_| r.normal() as f32).collect(),
+        };
+        let y = downsample(&x, 2);
+        let g: Vec<f32> = (0..y.data.len()).map(|_| r.normal() as f32).collect();
+        let mut back = vec![0.0; x.data.len()];
+        downsample_adjoint_add(&g, 2, h, w, &mut back);
+        let lhs: f64 = y.data.iter().zip(&g).map(|(&a, &b)| (a * b) as f64).sum();
+        let rhs: f64 = x
+            .data
+            .iter()
+            .zip(&back)
+            .map(|(&a, &b)| (a * b) as f64)
+            .sum();
+        assert!((lhs - rhs).abs() < 1e-4, "{lhs} vs {rhs}");
+    }
+
+    #[test]
+    fn style_size_limits() {
+        let p = std::path::Path::new("style.png");
+        let small = Image {
+            w: 91,
+            h: 300,
+            data: vec![0.5; 91 * 300 * 3],
+        };
+        let e = prepare_style(&small, 256, p).unwrap_err().to_string();
+        assert!(e.contains("style.png") && e.contains("92"), "{e}");
+        let ok = Image {
+            w: 92,
+            h: 184,
+            data: vec![0.5; 92 * 184 * 3],
+        };
+        let s = prepare_style(&ok, 128, p).unwrap();
+        assert_eq!((s.w, s.h), (128, 256));
+        assert!(s.data.iter().all(|&v| (v - 0.5).abs() < 1e-6));
+        assert!(prepare_style(&ok, 64, p).is_err());
+        assert!(check_views(&[]).is_err());
+    }
+}

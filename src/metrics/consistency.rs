@@ -1,0 +1,153 @@
+//! Short- and long-range view consistency (FantasyStyle Sec. 4): for view pairs
+//! `(i, i + k)` (`k = 1` short range, `k = 5` long range by default), warp the stylized
+//! view `i + k` into view `i` with the rendered depth and the cameras ([`super::warp`]),
+//! then compare it with stylized view `i` on the pixels both see:
+//!
+//! * RMSE over valid pixels and the three channels (images in `[0, 1]`);
+//! * LPIPS with both images set to mid-grey outside the valid mask (so masked pixels
+//!   contribute no difference) and each tap's spatial mean restricted to the mask
+//!   ([`super::lpips::distance`]).
+//!
+//! The same is computed on the original renders as a floor: the warp itself is not
+//! perfect (view-dependent colour, splat blending at edges), so stylized consistency is
+//! read relative to it. Pairs with less than [`MIN_OVERLAP`] valid pixels are skipped.
+
+use super::image::Image;
+use super::lpips;
+use super::nets::LpipsModel;
+use super::views::ViewSet;
+use super::warp::{Warped, surface_depth, warp_into};
+use crate::Result;
+use serde::Serialize;
+
+/// Fewest valid pixels (fraction of the image) for a pair to be measured.
+pub const MIN_OVERLAP: f64 = 0.02;
+
+/// Pairs `(i, i + offset)`.
+pub fn pairs(n: usize, offset: usize) -> Vec<(usize, usize)> {
+    if offset == 0 {
+        return Vec::new();
+    }
+    (0..n.saturating_sub(offset))
+        .map(|i| (i, i + offset))
+        .collect()
+}
+
+/// One measured pair.
+#[derive(Debug, Clone, Serialize)]
+pub struct PairScore {
+    pub i: usize,
+    pub j: usize,
+    /// Fraction of view `i`'s pixels that view `j` sees (warp valid mask).
+    pub valid_fraction: f64,
+    /// `None` when the overlap is below [`MIN_OVERLAP`].
+    pub lpips: Option<f64>,
+    pub rmse: Option<f64>,
+}
+
+/// RMSE over masked pixels (all channels).
+pub fn masked_rmse(a: &Image, b: &Image, mask: &[f32]) -> f64 {
+    let (mut s, mut n) = (0.0f64, 0.0f64);
+    for (p, &m) in mask.iter().enumerate() {
+        if m > 0.0 {
+            for c in 0..3 {
+                let d = (a.data[p * 3 + c] - b.data[p * 3 + c]) as f64;
+                s += m as f64 * d * d;
+            }
+            n += 3.0 * m as f64;
+        }
+    }
+    if n > 0.0 { (s / n).sqrt() } else { 0.0 }
+}
+
+/// `img` with mid-grey outside `mask`.
+pub fn masked(img: &Image, mask: &[f32]) -> Image {
+    let mut out = img.clone();
+    for (p, &m) in mask.iter().enumerate() {
+        if m <= 0.0 {
+            out.data[p * 3..p * 3 + 3].copy_from_slice(&[0.5; 3]);
+        }
+    }
+    out
+}
+
+/// Warp `images[j]` into view `i` of `geom` (depths/cameras of `geom`).
+pub fn warp_pair(geom: &ViewSet, images: &[Image], i: usize, j: usize) -> Warped {
+    let (di, ai) = geom.geometry(i);
+    let (dj, aj) = geom.geometry(j);
+    warp_into(
+        &geom.cameras[i],
+        &surface_depth(di, ai),
+        &geom.cameras[j],
+        &surface_depth(dj, aj),
+        &images[j],
+    )
+}
+
+/// Score `pairs` of `images` (stylized or original) using the geometry of `geom`.
+/// Also returns the warps (for the report's illustration).
+pub fn score_pairs(
+    model: &mut LpipsModel,
+    geom: &ViewSet,
+    images: &[Image],
+    pairs: &[(usize, usize)],
+) -> Result<(Vec<PairScore>, Vec<Warped>)> {
+    let mut scores = Vec::with_capacity(pairs.len());
+    let mut warps = Vec::with_capacity(pairs.len());
+    for &(i, j) in pairs {
+        let wp = warp_pair(geom, images, i, j);
+        let frac = wp.valid_fraction();
+        let (lp, rm) = if frac < MIN_OVERLAP {
+            (None, None)
+        } else {
+            let a = masked(&images[i], &wp.mask);
+            let b = masked(&wp.image, &wp.mask);
+            let f = model.features(&[&a, &b])?;
+            let d = lpips::distance(
+                &f[0],
+                &f[1],
+                &model.lin,
+                Some((&wp.mask, geom.width, geom.height)),
+            );
+            (Some(d), Some(masked_rmse(&images[i], &wp.image, &wp.mask)))
+        };
+        scores.push(PairScore {
+            i,
+            j,
+            valid_fraction: frac,
+            lpips: lp,
+            rmse: rm,
+        });
+        warps.push(wp);
+    }
+    Ok((scores, warps))
+}
+
+/// Mean of the measured values (`None` if none were measured).
+pub fn mean_of(v: impl Iterator<Item = Option<f64>>) -> Option<f64> {
+    let xs: Vec<f64> = v.flatten().collect();
+    (!xs.is_empty()).then(|| xs.iter().sum::<f64>() / xs.len() as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pair_lists() {
+        assert_eq!(pairs(4, 1), vec![(0, 1), (1, 2), (2, 3)]);
+        assert_eq!(pairs(7, 5), vec![(0, 5), (1, 6)]);
+        assert!(pairs(5, 5).is_empty());
+        assert!(pairs(3, 0).is_empty());
+    }
+
+    #[test]
+    fn rmse_by_hand() {
+        let a = Image::filled(2, 1, [0.0; 3]);
+        let mut b = Image::filled(2, 1, [0.0; 3]);
+        b.data[3..6].copy_from_slice(&[0.3, 0.3, 0.3]);
+        assert!((masked_rmse(&a, &b, &[1.0, 1.0]) - (0.09f64 / 2.0).sqrt()).abs() < 1e-7);
+        assert!(masked_rmse(&a, &b, &[1.0, 0.0]).abs() < 1e-12);
+        assert!((masked_rmse(&a, &b, &[0.0, 1.0]) - 0.3).abs() < 1e-7);
+    }
+}

@@ -1,0 +1,321 @@
+//! `stylize-baseline`: restyle a scene's colours with one of the baselines FantasyStyle is
+//! compared against ([`crate::baselines`]), writing a `scene` artifact like
+//! `update-gaussians` does, so the same `render-views` + `evaluate` steps follow.
+//!
+//! * `gram`: Gram-matrix style loss over VGG16 layers and two scales + content loss;
+//! * `nnfm`: ARF's nearest-neighbour feature matching on the relu3 block + content loss;
+//! * `refit`: stylize each original view with the 2D stylizer on its own, then fit colours
+//!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation.
+//!
+//! Output (schema `scene` v1): `scene.ply` (geometry bit-identical to the input, colours
+//! changed), `loss.json` (`method`, and per step the objective, its style and content
+//! terms, and every `--monitor-every` steps the Gram distance to the style, mean over
+//! views: relu1_2..relu4_3, scale 1), for `refit` also `target_000.png`.. (the stylized
+//! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
+//! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
+
+use crate::baselines::fit::{FitOptions, fit_objective};
+use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
+use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
+use crate::baselines::{Image, Objective, gram_distance, prepare_style};
+use crate::camera::load_cameras;
+use crate::scene::load_scene;
+use crate::vgg::Vgg16;
+use crate::{Error, Result};
+use fantasystyle_schemas::{ArtifactKind, Producer};
+use std::path::PathBuf;
+
+/// Which baseline to run.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Gram-matrix style loss (Gatys; SGSST-like), relu1_2..relu4_3 at 1x and 0.5x.
+    Gram,
+    /// Nearest-neighbour feature matching (ARF), relu3 block, cosine distance.
+    Nnfm,
+    /// Per-view 2D stylization with the stylizer, then a colour refit to those images.
+    Refit,
+}
+
+/// Restyle a scene's colours with a baseline (VGG Gram, VGG NNFM, or per-view 2D
+/// stylize + refit); geometry stays frozen. Writes a scene artifact (scene.ply, loss.json).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "stylize-baseline", version)]
+pub struct Args {
+    /// The baseline.
+    #[arg(long, value_enum)]
+    pub method: Method,
+    /// Scene: an INRIA .ply, a .splat, or a scene artifact directory (its scene.ply).
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Cameras: `orbit:N[,...]`, an INRIA cameras.json, a COLMAP sparse/0 directory, a
+    /// nerfstudio transforms.json, or a views/targets artifact directory.
+    #[arg(long)]
+    pub cameras: String,
+    /// Style image (PNG/JPEG; grayscale expanded, alpha dropped; shorter side >= 92 px).
+    #[arg(long)]
+    pub style: PathBuf,
+    /// Optimisation steps (each: every view rendered, one Adam step).
+    #[arg(long)]
+    pub steps: usize,
+    /// Output artifact directory (written atomically).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Render width (>= 16).
+    #[arg(long, default_value_t = 128)]
+    pub width: u32,
+    /// Render height (>= 16).
+    #[arg(long, default_value_t = 128)]
+    pub height: u32,
+    /// Background colour R,G,B in [0, 1].
+    #[arg(long, default_value = "0,0,0", value_parser = super::parse_rgb)]
+    pub background: [f32; 3],
+    /// Adam learning rate of the DC colour coefficients.
+    #[arg(long, default_value_t = 0.01)]
+    pub lr_dc: f32,
+    /// Adam learning rate of the higher-order SH coefficients.
+    #[arg(long, default_value_t = 0.0005)]
+    pub lr_rest: f32,
+    /// The style image is resized so its shorter side is this many pixels (>= 92).
+    #[arg(long, default_value_t = 256)]
+    pub style_size: usize,
+    /// Weight of the style term (gram, nnfm).
+    #[arg(long, default_value_t = 1.0)]
+    pub style_weight: f64,
+    /// Weight of the content term (default: 0.05 for gram, 0.005 for nnfm).
+    #[arg(long)]
+    pub content_weight: Option<f64>,
+    /// Log the Gram distance to the style every this many steps (0: first and last only).
+    #[arg(long, default_value_t = 10)]
+    pub monitor_every: usize,
+    /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh).
+    #[arg(long, default_value = "vendor/models/lpips/vgg16")]
+    pub vgg: PathBuf,
+    /// Stylizer model directory for `refit` (model.json, made by scripts/setup.sh).
+    #[arg(long, default_value = "vendor/models/stylizer")]
+    pub stylizer: PathBuf,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+}
+
+/// What a run produced (also used by tests).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct LossLog {
+    pub method: Method,
+    /// `refit` only: the Gram distance of the stylized target views (mean over views).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub targets_gram_distance: Option<f64>,
+    pub steps: Vec<crate::baselines::fit::StepLog>,
+}
+
+fn chw(img: &Image) -> ndarray::Array3<f32> {
+    ndarray::Array3::from_shape_fn((3, img.h, img.w), |(c, y, x)| {
+        img.data[(y * img.w + x) * 3 + c]
+    })
+}
+
+fn hwc(a: &ndarray::Array3<f32>) -> Image {
+    let (h, w) = (a.shape()[1], a.shape()[2]);
+    let mut data = vec![0.0; h * w * 3];
+    for ((c, y, x), &v) in a.indexed_iter() {
+        data[(y * w + x) * 3 + c] = v.clamp(0.0, 1.0);
+    }
+    Image { h, w, data }
+}
+
+/// Stylize every view on its own with the 2D stylizer (the refit baseline's targets).
+fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Result<Vec<Image>> {
+    if !dir.join("model.json").is_file() {
+        return Err(Error::Missing(format!(
+            "{}: stylizer model is absent (run scripts/setup.sh, step 20_stylizer.py)",
+            dir.display()
+        )));
+    }
+    let mut p = crate::prior::stylizer::StylizerPrior::open(dir, None, 0)?;
+    let s = p.style_vector(chw(style).view())?;
+    views
+        .iter()
+        .map(|v| Ok(hwc(&p.stylize(chw(v).view(), &s)?)))
+        .collect()
+}
+
+/// The stage: load, optimise, write the artifact.
+pub fn run(a: Args) -> Result<()> {
+    if a.width < 16 || a.height < 16 {
+        return Err(Error::param(format!(
+            "image size {}x{}: the baselines need at least 16x16",
+            a.width, a.height
+        )));
+    }
+    let scene = load_scene(&a.scene)?;
+    let cams = load_cameras(&a.cameras, &scene, a.width, a.height)?;
+    if cams.is_empty() {
+        return Err(Error::param(format!(
+            "{}: the view set is empty: nothing to stylize",
+            a.cameras
+        )));
+    }
+    let raw_style = crate::imageio::read_rgb(&a.style)?;
+    let style = prepare_style(
+        &Image {
+            h: raw_style.height,
+            w: raw_style.width,
+            data: raw_style.data,
+        },
+        a.style_size,
+        &a.style,
+    )?;
+    let vgg = Vgg16::load(&a.vgg)?;
+    let params = serde_json::json!({
+        "method": a.method, "cameras": a.cameras, "steps": a.steps, "width": a.width,
+        "height": a.height, "background": a.background, "lr_dc": a.lr_dc,
+        "lr_rest": a.lr_rest, "style_size": a.style_size, "style_weight": a.style_weight,
+        "content_weight": a.content_weight, "monitor_every": a.monitor_every,
+    });
+    let producer = Producer::new("stylize-baseline", crate::VERSION, params);
+    let mut w = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
+    w.add_input("scene", &a.scene)?;
+    super::add_cameras_input(&mut w, &a.cameras)?;
+    w.add_input("style", &a.style)?;
+    tracing::info!(
+        "{:?} baseline: {} Gaussians, {} views at {}x{}, {} steps",
+        a.method,
+        scene.len(),
+        cams.len(),
+        a.width,
+        a.height,
+        a.steps
+    );
+    let (scene, log, targets) =
+        super::with_threads(a.threads, || optimise(&a, scene, &cams, &vgg, &style))??;
+    w.write_bytes("scene.ply", &crate::scene::ply::encode_ply(&scene))?;
+    w.write_json("loss.json", &log)?;
+    for (i, t) in targets.iter().enumerate() {
+        w.write_bytes(
+            &format!("target_{i:03}.png"),
+            &crate::imageio::encode_png_rgb(&t.data, t.w, t.h)?,
+        )?;
+    }
+    let first = log.steps.first().and_then(|s| s.gram_distance);
+    let last = log.steps.last().and_then(|s| s.gram_distance);
+    w.set_meta(serde_json::json!({
+        "method": a.method, "views": cams.len(), "gram_distance_first": first,
+        "gram_distance_last": last,
+    }));
+    w.commit()?;
+    tracing::info!(
+        "wrote {} (Gram distance {:?} -> {:?})",
+        a.out.display(),
+        first,
+        last
+    );
+    Ok(())
+}
+
+/// Render the originals, build the objective and the monitor, and run the fit.
+fn optimise(
+    a: &Args,
+    scene: crate::Scene,
+    cams: &[crate::Camera],
+    vgg: &Vgg16,
+    style: &Image,
+) -> Result<(crate::Scene, LossLog, Vec<Image>)> {
+    let ropts = crate::render::RenderOptions {
+        background: a.background,
+    };
+    let originals = cams
+        .iter()
+        .map(|c| {
+            let r = crate::render::render(&scene, c, &ropts)?;
+            Ok(Image {
+                h: r.height,
+                w: r.width,
+                data: r.rgb,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    crate::baselines::check_views(&originals)?;
+    let gram_cfg = GramConfig::default();
+    let monitor_targets = GramTargets::new(vgg, style, &gram_cfg.layers, &[1])?;
+    let monitor = |imgs: &[Image]| -> Result<f64> {
+        let mut s = 0.0;
+        for i in imgs {
+            s += gram_distance(vgg, &monitor_targets, i)?;
+        }
+        Ok(s / imgs.len() as f64)
+    };
+    let mut targets = Vec::new();
+    let mut targets_gram = None;
+    let obj: Option<Box<dyn Objective + '_>> = match a.method {
+        Method::Gram => Some(Box::new(GramObjective::new(
+            vgg,
+            GramConfig {
+                style_weight: a.style_weight,
+                content_weight: a.content_weight.unwrap_or(gram_cfg.content_weight),
+                ..gram_cfg.clone()
+            },
+            style,
+            &originals,
+        )?)),
+        Method::Nnfm => {
+            let d = NnfmConfig::default();
+            Some(Box::new(NnfmObjective::new(
+                vgg,
+                NnfmConfig {
+                    style_weight: a.style_weight,
+                    content_weight: a.content_weight.unwrap_or(d.content_weight),
+                },
+                style,
+                &originals,
+            )?))
+        }
+        Method::Refit => {
+            targets = stylize_views(&a.stylizer, style, &originals)?;
+            let d = monitor(&targets)?;
+            tracing::info!("refit targets: Gram distance to the style {d:.4}");
+            targets_gram = Some(d);
+            None
+        }
+    };
+    let fit_targets: Vec<Vec<f32>> = if targets.is_empty() {
+        originals.iter().map(|i| i.data.clone()).collect()
+    } else {
+        targets.iter().map(|i| i.data.clone()).collect()
+    };
+    let opts = FitOptions {
+        steps: a.steps,
+        fit: crate::optim::FitParams {
+            lr_dc: a.lr_dc,
+            lr_rest: a.lr_rest,
+            background: a.background,
+            ..crate::optim::FitParams::default()
+        },
+        monitor_every: a.monitor_every,
+    };
+    let bar = indicatif::ProgressBar::new(a.steps as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message("stylize-baseline");
+    let (scene, steps) = fit_objective(
+        &scene,
+        cams,
+        &fit_targets,
+        obj.as_deref(),
+        &opts,
+        Some(&monitor),
+        &mut |s| bar.set_position(s as u64),
+    )?;
+    bar.finish_and_clear();
+    Ok((
+        scene,
+        LossLog {
+            method: a.method,
+            targets_gram_distance: targets_gram,
+            steps,
+        },
+        targets,
+    ))
+}

@@ -1,0 +1,356 @@
+//! `evaluate` end to end on synthetic views artifacts (an analytically ray-cast textured
+//! ground plane with a square occluder, seen by an arc of cameras), bad input through the
+//! binary, and the report opened in headless Chromium.
+
+use fantasystyle::Camera;
+use fantasystyle::camera::inria::to_inria;
+use fantasystyle::metrics::consistency;
+use fantasystyle::metrics::image::Image;
+use fantasystyle::metrics::nets::{LpipsModel, LpipsNet, models_dir};
+use fantasystyle::metrics::views::ViewSet;
+use fantasystyle::metrics::warp::{look_at, synthetic};
+use fantasystyle::stages::evaluate::{EvaluateOptions, run};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const W: u32 = 64;
+const H: u32 = 48;
+
+fn cameras(n: usize) -> Vec<Camera> {
+    (0..n)
+        .map(|i| {
+            let a = -0.5 + 0.12 * i as f64;
+            look_at(
+                &format!("v{i}"),
+                [3.2 * a.sin(), -3.2 * a.cos(), 2.6],
+                [0.0, 0.0, 0.2],
+                W,
+                H,
+                52.0,
+            )
+        })
+        .collect()
+}
+
+/// A consistent "stylization": a fixed colour remap of every rendered pixel.
+fn restyle(p: [f32; 3]) -> [f32; 3] {
+    [1.0 - p[1], 0.3 + 0.6 * p[0] * p[2], (p[0] + p[1]) * 0.5]
+}
+
+/// Write a views artifact; `colour` maps each rendered image.
+fn write_views(dir: &Path, cams: &[Camera], colour: &dyn Fn(usize, Image) -> Image) -> PathBuf {
+    let (mut rgb, mut depth, mut alpha) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, c) in cams.iter().enumerate() {
+        let (img, d, a) = synthetic::render(c, Some((0.7, 0.35)));
+        rgb.extend(colour(i, img).data);
+        depth.extend(d);
+        alpha.extend(a);
+    }
+    let n = cams.len();
+    let (h, w) = (cams[0].height as usize, cams[0].width as usize);
+    let mut wr = ArtifactWriter::create(
+        dir,
+        ArtifactKind::Views,
+        Producer::new("test", "0", serde_json::json!({})),
+    )
+    .unwrap();
+    wr.write_tensor("rgb.npy", &[n, h, w, 3], &rgb).unwrap();
+    wr.write_tensor("depth.npy", &[n, h, w], &depth).unwrap();
+    wr.write_tensor("alpha.npy", &[n, h, w], &alpha).unwrap();
+    wr.write_json("cameras.json", &to_inria(cams)).unwrap();
+    wr.commit().unwrap();
+    dir.to_path_buf()
+}
+
+fn style_png(dir: &Path) -> PathBuf {
+    let img = Image::from_fn(96, 80, |x, y| {
+        let s = ((x / 8 + y / 8) % 2) as f32;
+        [
+            0.2 + 0.6 * s,
+            0.5 + 0.4 * ((x as f32) * 0.3).sin(),
+            0.8 - 0.5 * (y as f32 / 80.0),
+        ]
+    });
+    let p = dir.join("style.png");
+    std::fs::write(&p, img.to_png()).unwrap();
+    p
+}
+
+fn ready() -> bool {
+    if fantasystyle::runtime::library_path().is_err() || models_dir().is_err() {
+        eprintln!("SKIPPED: onnxruntime or metric networks not set up (scripts/setup.sh)");
+        return false;
+    }
+    true
+}
+
+fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> EvaluateOptions {
+    EvaluateOptions {
+        original: o.into(),
+        stylized: s.into(),
+        style: style.into(),
+        out: out.into(),
+        lpips_net: LpipsNet::Alex,
+        short_range: 1,
+        long_range: 5,
+        seed: 0,
+        threads: 2,
+        sweep: None,
+    }
+}
+
+/// Runs `evaluate` once on 7 synthetic views; checks metrics.json and the report, then
+/// opens the report in headless Chromium.
+#[test]
+fn evaluate_writes_metrics_and_a_report_that_renders() {
+    if !ready() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let cams = cameras(7);
+    let orig = write_views(&d.path().join("orig"), &cams, &|_, i| i);
+    let styl = write_views(&d.path().join("styl"), &cams, &|_, i| {
+        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
+    });
+    let style = style_png(d.path());
+    let out = d.path().join("eval");
+    let m = run(&opts(&orig, &styl, &style, &out)).unwrap();
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(json["views"], 7);
+    let lp = json["lpips_content"].as_f64().unwrap();
+    assert!(lp > 0.05, "restyled views differ from the originals: {lp}");
+    let fs = json["fid_style"]["value"].as_f64().unwrap();
+    let fc = json["fid_content"]["value"].as_f64().unwrap();
+    assert!(fs > 0.0 && fc > 0.0);
+    assert_eq!(
+        json["fid_style"]["reliable"], false,
+        "7 images cannot give an unbiased FID"
+    );
+    let art = json["artfid"].as_f64().unwrap();
+    assert!((art - (1.0 + lp) * (1.0 + fs)).abs() < 1e-9 * art);
+    assert!(json["kid_style"]["value"].is_number());
+    // A consistent (world-space) restyle is as consistent as the original renders: its
+    // short-range warp error is of the same size as the original's floor.
+    let sr = &m.short_range;
+    assert_eq!(sr.stylized.len(), 6);
+    assert_eq!(m.long_range.stylized.len(), 2);
+    let (rs, ro) = (sr.rmse_mean.unwrap(), sr.original_rmse_mean.unwrap());
+    eprintln!(
+        "short-range RMSE stylized {rs:.4} original {ro:.4}; LPIPS {:?} {:?}",
+        sr.lpips_mean, sr.original_lpips_mean
+    );
+    assert!(
+        rs < 0.03 && ro < 0.03,
+        "warp of a consistent scene: {rs} {ro}"
+    );
+    assert!(m.gram_style.unwrap() > 0.0 && m.gram_style_per_view.len() == 7);
+    assert!(m.warnings.iter().any(|w| w.contains("biased")));
+
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("ArtFID") && html.contains("standard FID Inception"));
+    assert!(html.contains("<svg") && html.contains("short range: LPIPS per view pair"));
+    // style + 7 originals + 7 stylized + 2 x 4 consistency examples + 7 crops
+    assert!(html.matches("data:image/png;base64,").count() >= 1 + 14 + 8 + 7);
+    if let Ok(keep) = std::env::var("FANTASYSTYLE_KEEP_REPORT") {
+        std::fs::copy(out.join("report.html"), keep).unwrap();
+    }
+    chromium_check(&out.join("report.html"));
+}
+
+/// Opens the report in headless Chromium with a script that counts decoded images.
+fn chromium_check(report: &Path) {
+    let Some(chrome) = ["chromium", "chromium-browser", "google-chrome"]
+        .iter()
+        .find(|c| {
+            Command::new(c)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+    else {
+        eprintln!("SKIPPED: chromium not installed (apt-get install -y chromium)");
+        return;
+    };
+    let html = std::fs::read_to_string(report).unwrap();
+    let probe = r#"<script>window.addEventListener('load', () => {
+  const imgs = Array.from(document.images);
+  const ok = imgs.filter(i => i.complete && i.naturalWidth > 0).length;
+  const pre = document.createElement('pre'); pre.id = 'imgcheck';
+  pre.textContent = 'IMG' + 'CHECK total=' + imgs.length + ' decoded=' + ok + ' svgs=' + document.querySelectorAll('svg').length;
+  document.body.appendChild(pre);
+});</script></body>"#;
+    let dir = report.parent().unwrap();
+    let probe_path = dir.join("probe.html");
+    std::fs::write(&probe_path, html.replace("</body>", probe)).unwrap();
+    let out = Command::new(chrome)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--virtual-time-budget=10000",
+            "--dump-dom",
+        ])
+        .arg(format!("file://{}", probe_path.display()))
+        .output()
+        .unwrap();
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let line = dom
+        .lines()
+        .find(|l| l.contains("IMGCHECK"))
+        .unwrap_or_else(|| {
+            panic!(
+                "no probe output; stderr: {}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    eprintln!("chromium: {line}");
+    let num = |k: &str| -> usize {
+        let s = &line[line.find(k).unwrap() + k.len()..];
+        s.split(|c: char| !c.is_ascii_digit())
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (total, decoded, svgs) = (num("total="), num("decoded="), num("svgs="));
+    assert!(total >= 30, "{line}");
+    assert_eq!(total, decoded, "every image decodes: {line}");
+    assert!(svgs >= 4, "{line}");
+}
+
+/// Consistency separates a consistent stylization from a per-view flickering one.
+#[test]
+fn consistency_penalises_per_view_flicker() {
+    if !ready() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let cams = cameras(4);
+    let good = ViewSet::load(&write_views(&d.path().join("good"), &cams, &|_, i| {
+        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
+    }))
+    .unwrap();
+    let flicker = ViewSet::load(&write_views(&d.path().join("flicker"), &cams, &|v, i| {
+        let shift = [0.15, -0.1, 0.2][v % 3];
+        Image::from_fn(i.width, i.height, |x, y| {
+            restyle(i.px(x, y)).map(|c| (c + shift).clamp(0.0, 1.0))
+        })
+    }))
+    .unwrap();
+    let mut lp = LpipsModel::load(&models_dir().unwrap(), LpipsNet::Alex, 2).unwrap();
+    let pairs = consistency::pairs(4, 1);
+    let (g, _) = consistency::score_pairs(&mut lp, &good, &good.images, &pairs).unwrap();
+    let (f, _) = consistency::score_pairs(&mut lp, &good, &flicker.images, &pairs).unwrap();
+    for (a, b) in g.iter().zip(&f) {
+        eprintln!(
+            "pair ({},{}): consistent {:?}/{:?} flicker {:?}/{:?}",
+            a.i, a.j, a.lpips, a.rmse, b.lpips, b.rmse
+        );
+        assert!(a.valid_fraction > 0.3);
+        assert!(b.rmse.unwrap() > 3.0 * a.rmse.unwrap());
+        assert!(b.lpips.unwrap() > a.lpips.unwrap());
+    }
+}
+
+fn evaluate_bin(args: &[&Path]) -> (i32, String) {
+    let names = ["--original", "--stylized", "--style", "--out"];
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_evaluate"));
+    for (n, a) in names.iter().zip(args) {
+        cmd.arg(n).arg(a);
+    }
+    let o = cmd.output().unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn bad_input_is_a_clear_error() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path();
+    let cams = cameras(3);
+    let orig = write_views(&p.join("orig"), &cams, &|_, i| i);
+    let two = write_views(&p.join("two"), &cams[..2], &|_, i| i);
+    let mut moved = cams.clone();
+    moved[1].translation[0] += 0.5;
+    let moved = write_views(&p.join("moved"), &moved, &|_, i| i);
+    let small: Vec<Camera> = cams
+        .iter()
+        .map(|c| {
+            look_at(
+                &c.name,
+                c.center().map(|v| v as f64),
+                [0.0, 0.0, 0.2],
+                32,
+                24,
+                26.0,
+            )
+        })
+        .collect();
+    let small = write_views(&p.join("small"), &small, &|_, i| i);
+    let style = style_png(p);
+    let out = p.join("eval");
+    let cases: [(&Path, &Path, &Path, &str); 5] = [
+        (&orig, &two, &style, "2 views, but"),
+        (&orig, &moved, &style, "camera 1 differs"),
+        (&orig, &small, &style, "images are 32x24"),
+        (
+            &orig,
+            &orig,
+            &p.join("missing.png"),
+            "missing.png: image file not found",
+        ),
+        (
+            &orig,
+            &p.join("nope"),
+            &style,
+            "nope: views artifact directory not found",
+        ),
+    ];
+    for (a, b, s, want) in cases {
+        let (code, err) = evaluate_bin(&[a, b, s, &out]);
+        assert_eq!(code, 2, "{want}: {err}");
+        assert!(err.contains(want), "expected `{want}` in: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(!out.exists(), "nothing written on bad input");
+    }
+    // A stylized set with NaN colours is refused by the artifact reader.
+    let nan = write_views(&p.join("nan"), &cams, &|_, mut i| {
+        i.data[5] = f32::NAN;
+        i
+    });
+    let (code, err) = evaluate_bin(&[&orig, &nan, &style, &out]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("rgb.npy"), "{err}");
+}
+
+/// One view: FID/KID cannot be computed; the run still succeeds, marks them unavailable
+/// and says why in metrics.json and in the report.
+#[test]
+fn too_few_images_for_fid_is_a_documented_warning() {
+    if !ready() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let cams = cameras(1);
+    let orig = write_views(&d.path().join("orig"), &cams, &|_, i| i);
+    let style = style_png(d.path());
+    let out = d.path().join("eval");
+    let (code, err) = evaluate_bin(&[&orig, &orig, &style, &out]);
+    assert_eq!(code, 0, "{err}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert!(json["fid_content"]["value"].is_null() && json["kid_style"]["value"].is_null());
+    assert!(json["artfid"].is_null());
+    assert_eq!(json["lpips_content"].as_f64().unwrap(), 0.0);
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        html.contains("id=\"warnings\"") && html.contains("need at least 2 images per set"),
+        "warning shown"
+    );
+    assert!(html.contains("No short range pairs"));
+}
