@@ -165,8 +165,8 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
             "meta.timestep is missing or not a non-negative integer",
         )
     })? as usize;
-    let views = read_views(&a.views)?;
-    let source = read_views(&a.source_views)?;
+    let views = super::timing::load(|| read_views(&a.views))?;
+    let source = super::timing::load(|| read_views(&a.source_views))?;
     if views.rgb.shape() != source.rgb.shape() {
         return Err(Error::input(
             source.art.path("rgb.npy"),
@@ -194,15 +194,17 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
     let style = load_image(&a.style)?;
 
     // The prior.
-    let mut prior = prior::open(
-        &a.model,
-        &PriorOptions {
-            style_image: Some(style),
-            prompt: a.prompt.clone(),
-            threads: a.threads,
-            ..Default::default()
-        },
-    )?;
+    let mut prior = super::timing::load(|| {
+        prior::open(
+            &a.model,
+            &PriorOptions {
+                style_image: Some(style),
+                prompt: a.prompt.clone(),
+                threads: a.threads,
+                ..Default::default()
+            },
+        )
+    })?;
     let info = prior.info().clone();
     let f = info.downsample.max(1);
     if z0.shape()[1] != info.latent_channels || h != z0.shape()[2] * f || w != z0.shape()[3] * f {
@@ -323,6 +325,6 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         "mode": p.mode,
         "report": report,
     }));
-    wr.commit()?;
+    super::timing::io(|| wr.commit())?;
     Ok(report)
 }

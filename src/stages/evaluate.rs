@@ -363,7 +363,7 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
     wr.add_input("style", &o.style)?;
     wr.write_json("metrics.json", &metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;
-    wr.commit()?;
+    super::timing::io(|| wr.commit())?;
     tracing::info!(
         "evaluate: LPIPS_content {} FID_style {} ArtFID {} short-range LPIPS {} -> {}",
         fmt_opt(metrics.lpips_content, 4),

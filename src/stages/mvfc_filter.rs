@@ -218,6 +218,6 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
         "seed": a.seed,
         "round": a.round,
     }));
-    w.commit()?;
+    super::timing::io(|| w.commit())?;
     Ok(t)
 }

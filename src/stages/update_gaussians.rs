@@ -68,7 +68,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.steps == 0 {
         return Err(Error::param("--steps must be at least 1"));
     }
-    let scene = load_scene(&a.scene)?;
+    let scene = super::timing::load(|| load_scene(&a.scene))?;
     let targets_art = Artifact::open_any(&a.targets)?;
     let kind = targets_art.manifest.kind;
     if kind != ArtifactKind::Targets && kind != ArtifactKind::Views {
@@ -144,7 +144,7 @@ pub fn run(a: Args) -> Result<()> {
         "gaussians": fitted.len(), "sh_degree": fitted.sh_degree,
         "final_loss": report.losses.last(),
     }));
-    out.commit()?;
+    super::timing::io(|| out.commit())?;
     tracing::info!(
         "loss {:.5} -> {:.5}; wrote {}",
         report.losses.first().unwrap_or(&f32::NAN),
