@@ -76,19 +76,64 @@ pub fn environment() -> Result<&'static Environment> {
     }
 }
 
+/// onnxruntime's graph optimisation level (applied when a session is created).
+///
+/// `Basic`: constant folding and redundant-node removal; `Extended`: adds operator
+/// fusions (e.g. Conv+Add+Relu); `All` (the default): adds layout optimisations such as
+/// NCHWc convolutions, the fastest on CPU. `Disable` runs the graph as written (useful
+/// to compare against a reference).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Optimization {
+    Disable,
+    Basic,
+    Extended,
+    #[default]
+    All,
+}
+
+/// How sessions are created.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SessionConfig {
+    /// Intra-op threads (0 = onnxruntime's default: one per physical core).
+    pub threads: usize,
+    pub optimization: Optimization,
+}
+
 /// Load an ONNX graph into a session with `threads` intra-op threads (0 = onnxruntime's
 /// default). Missing and corrupt files give an error naming the file.
 pub fn load_session(path: &Path, threads: usize) -> Result<Session> {
+    load_session_with(
+        path,
+        &SessionConfig {
+            threads,
+            ..Default::default()
+        },
+    )
+}
+
+/// Load an ONNX graph with explicit session options.
+pub fn load_session_with(path: &Path, cfg: &SessionConfig) -> Result<Session> {
+    use ort::session::builder::GraphOptimizationLevel as L;
     if !path.is_file() {
         return Err(Error::input(path, "ONNX graph not found"));
     }
     let env = environment()?;
     let mut b = Session::builder(env).map_err(|e| Error::Onnx(e.to_string()))?;
-    if threads > 0 {
+    if cfg.threads > 0 {
         b = b
-            .with_intra_threads(threads)
+            .with_intra_threads(cfg.threads)
             .map_err(|e| Error::Onnx(e.to_string()))?;
     }
+    let level = match cfg.optimization {
+        Optimization::Disable => L::Disable,
+        Optimization::Basic => L::Level1,
+        Optimization::Extended => L::Level2,
+        Optimization::All => L::All,
+    };
+    b = b
+        .with_optimization_level(level)
+        .map_err(|e| Error::Onnx(e.to_string()))?;
     b.commit_from_file(path)
         .map_err(|e| Error::input(path, format!("cannot load ONNX graph: {e}")))
 }

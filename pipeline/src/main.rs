@@ -1,5 +1,223 @@
-//! `pipeline`: the DAG runner (to be written).
-fn main() {
-    eprintln!("pipeline: not implemented yet");
-    std::process::exit(1);
+//! `pipeline`: run, explain and inspect a DAG of fantasystyle stages.
+//! Exit codes: 0 ok, 1 a stage failed, 2 a DAG or usage error.
+use clap::{Parser, Subcommand};
+use fantasystyle_pipeline::{dag, inspect, run, show, tools};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// DAG runner for fantasystyle stages: resumes what failed, says what is stale and why,
+/// and looks inside artifacts.
+#[derive(Parser, Debug)]
+#[command(version)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// Run the stale stages of a DAG (and of TARGETS' upstream only, when given).
+    Run {
+        /// The DAG file (TOML).
+        #[arg(long)]
+        dag: PathBuf,
+        /// Stage names (`csd-step@r3`) or base names (`csd-step`, every round).
+        targets: Vec<String>,
+        /// Run the selected stages even when up to date.
+        #[arg(long)]
+        force: bool,
+        /// Say what would run and why, run nothing.
+        #[arg(long)]
+        dry_run: bool,
+        /// After a failure, keep running stages that do not depend on it.
+        #[arg(long)]
+        keep_going: bool,
+        /// Stages run at once (independent stages only; 0 = one per core).
+        #[arg(long, default_value_t = 1)]
+        jobs: usize,
+    },
+    /// Say for each stage whether it is up to date, or stale and why.
+    Status {
+        #[arg(long)]
+        dag: PathBuf,
+    },
+    /// Print the graph: stages in run order, or Graphviz DOT with --dot.
+    Dag {
+        #[arg(long)]
+        dag: PathBuf,
+        #[arg(long)]
+        dot: bool,
+    },
+    /// Wall time per stage against the compute time stages reported.
+    Report {
+        #[arg(long)]
+        dag: PathBuf,
+    },
+    /// Show an artifact's manifest and tensor statistics (or a lone .npy's).
+    Inspect {
+        /// An artifact directory or a .npy file.
+        path: PathBuf,
+        /// Draw a tensor into this PNG.
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// How to draw latents [N,C,h,w].
+        #[arg(long, value_enum, default_value_t = inspect::LatentMode::Grid)]
+        mode: inspect::LatentMode,
+        /// Which tensor to draw (default: latents, z_tgt, rgb, else the first).
+        #[arg(long)]
+        tensor: Option<String>,
+    },
+    /// Put plain files into a new artifact of the given kind (written atomically).
+    Wrap {
+        /// Artifact kind: views, latents, noised-latents, targets, scene, evaluation.
+        #[arg(long)]
+        kind: String,
+        #[arg(long)]
+        out: PathBuf,
+        files: Vec<PathBuf>,
+    },
+    /// A slow deterministic fake stage for the runner's tests.
+    #[command(hide = true)]
+    TestStage {
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        input: Vec<PathBuf>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value_t = 0.0)]
+        value: f64,
+        #[arg(long, default_value_t = 3)]
+        steps: usize,
+        #[arg(long, default_value_t = 0)]
+        sleep_ms: u64,
+        #[arg(long)]
+        fail: bool,
+    },
+}
+
+fn load(p: &std::path::Path) -> Result<dag::Dag, ExitCode> {
+    dag::load(p).map_err(|e| {
+        eprintln!("{e}");
+        ExitCode::from(2)
+    })
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::SUCCESS
+            };
+        }
+    };
+    match real_main(cli) {
+        Ok(c) | Err(c) => c,
+    }
+}
+
+fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
+    eprintln!("pipeline: {msg}");
+    ExitCode::from(code)
+}
+
+fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
+    Ok(match cli.cmd {
+        Cmd::Run {
+            dag,
+            targets,
+            force,
+            dry_run,
+            keep_going,
+            jobs,
+        } => {
+            let d = load(&dag)?;
+            let opts = run::RunOptions {
+                targets,
+                force,
+                dry_run,
+                keep_going,
+                jobs,
+            };
+            match run::run(&d, &opts) {
+                Err(e) => fail(2, e),
+                Ok(s) if !s.failed.is_empty() => ExitCode::from(1),
+                Ok(_) => ExitCode::SUCCESS,
+            }
+        }
+        Cmd::Status { dag } => match show::status(&load(&dag)?) {
+            Ok(t) => {
+                print!("{t}");
+                ExitCode::SUCCESS
+            }
+            Err(e) => fail(2, e),
+        },
+        Cmd::Dag { dag, dot } => {
+            let d = load(&dag)?;
+            print!("{}", if dot { show::dot(&d) } else { show::text(&d) });
+            ExitCode::SUCCESS
+        }
+        Cmd::Report { dag } => match show::report(&load(&dag)?) {
+            Ok(t) => {
+                print!("{t}");
+                ExitCode::SUCCESS
+            }
+            Err(e) => fail(2, e),
+        },
+        Cmd::Inspect {
+            path,
+            png,
+            mode,
+            tensor,
+        } => {
+            let (text, tensors) = inspect::inspect(&path).map_err(|e| fail(2, e))?;
+            print!("{text}");
+            if let Some(out) = png {
+                let p = inspect::pick(&tensors, tensor.as_deref()).map_err(|e| fail(2, e))?;
+                let t = inspect::read_any(&p).map_err(|e| fail(2, e))?;
+                let img = inspect::draw(&t, mode)
+                    .map_err(|e| fail(2, format!("{}: {e}", p.display())))?;
+                inspect::save_png(&img, &out).map_err(|e| fail(2, e))?;
+                println!(
+                    "wrote {} ({}x{}) from {}",
+                    out.display(),
+                    img.width(),
+                    img.height(),
+                    p.display()
+                );
+            }
+            ExitCode::SUCCESS
+        }
+        Cmd::Wrap { kind, out, files } => match tools::wrap(&kind, &files, &out) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => fail(2, e),
+        },
+        Cmd::TestStage {
+            out,
+            input,
+            seed,
+            value,
+            steps,
+            sleep_ms,
+            fail: f,
+        } => {
+            let a = tools::TestStage {
+                out,
+                inputs: input,
+                seed,
+                value,
+                steps,
+                sleep_ms,
+                fail: f,
+            };
+            match tools::test_stage(&a) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => fail(1, e),
+            }
+        }
+    })
 }

@@ -11,10 +11,35 @@
 //!   (exact; shipped as tiny ONNX graphs with the real I/O contract, for tests);
 //! * `stylizer`: a feed-forward 2D style-transfer network used as an x0-predictor in
 //!   pixel space (real weights, the CPU demo).
+//!
+//! Submodules: [`gaussian`] (closed form in Rust), [`manifest`] (the model directory's
+//! `model.json`), [`onnx`] (the ONNX-backed prior and [`open`], which dispatches on the
+//! manifest's family), [`preprocess`] (resizing and normalising images for encoders).
+
+pub mod gaussian;
+pub mod manifest;
+pub mod onnx;
+pub mod preprocess;
+pub mod stylizer;
+
+pub use onnx::{OnnxPrior, PriorOptions, control_image, open};
 
 use crate::Result;
 use crate::scheduler::SchedulerConfig;
 use ndarray::{Array4, ArrayView4};
+use serde::{Deserialize, Serialize};
+
+/// Which control image a ControlNet wants; both can be made from our renders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ControlKind {
+    /// Rendered depth, normalised per view to [0, 1] (near = 1, as MiDaS-style depth
+    /// ControlNets expect), replicated to 3 channels.
+    Depth,
+    /// An edge map of the rendered RGB (Sobel gradient magnitude of the luminance, an
+    /// approximation of the Canny maps edge ControlNets are trained on), 3 channels.
+    Edges,
+}
 
 /// The conditioning sets of the paper's guidance terms (Sec. 3.3):
 /// Phi_tgt = beta (eps(z, t, [P, style]) - eps(z, t, content)),
@@ -42,6 +67,9 @@ pub struct PriorInfo {
     pub downsample: usize,
     /// The noise schedule the model was trained with.
     pub scheduler: SchedulerConfig,
+    /// The control image `predict_eps` wants (`None`: the prior has no ControlNet and
+    /// ignores `control`).
+    pub control: Option<ControlKind>,
 }
 
 /// A 2D prior. Images are `[B, 3, H, W]` in [0, 1]; latents are `[B, C, H/f, W/f]`

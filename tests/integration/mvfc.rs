@@ -1,0 +1,721 @@
+//! MVFC and CSD stages (issue 5): agreement with the numpy reference, the stages'
+//! artifacts and their bad-input errors.
+
+use crate::harness::repo_root;
+use fantasystyle::mvfc::{MvfcParams, mvfc};
+use fantasystyle_schemas::read_npy_f32;
+use ndarray::{Array3, Array4};
+
+fn golden(name: &str) -> (Array4<f32>, Array3<f32>, Array4<f32>) {
+    let dir = repo_root().join("tests/golden/mvfc");
+    let z = read_npy_f32(&dir.join(format!("{name}_z.npy"))).unwrap();
+    let e = read_npy_f32(&dir.join(format!("{name}_eps.npy"))).unwrap();
+    let o = read_npy_f32(&dir.join(format!("{name}_out.npy"))).unwrap();
+    let s4 = |s: &[usize]| [s[0], s[1], s[2], s[3]];
+    (
+        Array4::from_shape_vec(s4(&z.shape), z.data).unwrap(),
+        Array3::from_shape_vec([e.shape[0], e.shape[1], e.shape[2]], e.data).unwrap(),
+        Array4::from_shape_vec(s4(&o.shape), o.data).unwrap(),
+    )
+}
+
+/// `scripts/reference/mvfc_ref.py` (numpy.fft, float64, fftshift-ed spectra, both arrays
+/// transformed) against our f32 single-transform implementation. Tolerance 2e-5 absolute
+/// on unit-variance data (f32 FFT round-off is ~1e-6 at these sizes).
+#[test]
+fn mvfc_agrees_with_numpy_reference() {
+    let cases: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(repo_root().join("tests/golden/mvfc/cases.json")).unwrap(),
+    )
+    .unwrap();
+    let cases = cases.as_object().unwrap();
+    assert!(cases.len() >= 4);
+    for (name, p) in cases {
+        let (z, e, want) = golden(name);
+        let params = MvfcParams {
+            gamma: p["gamma"].as_f64().unwrap() as f32,
+            d_s: p["d_s"].as_f64().unwrap() as f32,
+            d_t: p["d_t"].as_f64().unwrap() as f32,
+        };
+        let got = mvfc(z.view(), e.view(), params).unwrap();
+        let err = got
+            .iter()
+            .zip(want.iter())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        // The filter must actually change something (else the comparison proves little).
+        let change = got
+            .iter()
+            .zip(z.iter())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(err < 2e-5, "{name}: max error {err}");
+        assert!(change > 1e-2, "{name}: filter changed nothing ({change})");
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// The stylizer prior (real Magenta weights from scripts/setup/20_stylizer.py).
+
+use fantasystyle::csd::{self, CsdParams, StepInputs};
+use fantasystyle::prior::Prior;
+use fantasystyle::prior::stylizer::StylizerPrior;
+use fantasystyle::rng::Rng;
+
+/// The style image: the sample's `data-sample/style.png` when present (scene engineer's
+/// generator), else a synthetic colourful swirl of the same kind.
+fn style_image(size: usize) -> Array4<f32> {
+    let p = repo_root().join("data-sample/style.png");
+    if let Ok(img) = image::open(&p) {
+        let img = img
+            .resize_exact(
+                size as u32,
+                size as u32,
+                image::imageops::FilterType::Triangle,
+            )
+            .to_rgb32f();
+        return Array4::from_shape_fn((1, 3, size, size), |(_, c, y, x)| {
+            img.get_pixel(x as u32, y as u32)[c]
+        });
+    }
+    Array4::from_shape_fn((1, 3, size, size), |(_, c, y, x)| {
+        let (u, v) = (x as f32 / size as f32, y as f32 / size as f32);
+        let a = (12.0 * u + 5.0 * (6.0 * v).sin()).sin();
+        let b = (9.0 * v + 4.0 * (7.0 * u).cos()).cos();
+        let col = [[0.95, 0.55, 0.1], [0.1, 0.3, 0.85], [0.1, 0.7, 0.6]];
+        let k = if a > 0.3 {
+            0
+        } else if b > 0.0 {
+            1
+        } else {
+            2
+        };
+        col[k][c]
+    })
+}
+
+/// Synthetic "views": a shaded grey-brown ball on a pale gradient, shifting per view.
+fn content_views(n: usize, size: usize) -> Array4<f32> {
+    Array4::from_shape_fn((n, 3, size, size), |(v, c, y, x)| {
+        let (u, w) = (x as f32 / size as f32, y as f32 / size as f32);
+        let cx = 0.4 + 0.05 * v as f32;
+        let r2 = (u - cx).powi(2) + (w - 0.55).powi(2);
+        if r2 < 0.09 {
+            let shade = 1.0 - r2 / 0.09 * 0.6;
+            [0.55, 0.45, 0.4][c] * shade
+        } else {
+            0.75 + 0.15 * w - 0.05 * c as f32
+        }
+    })
+}
+
+/// Distance of an image batch's colour statistics to the style's: per-channel mean and
+/// standard deviation (colour moments) plus the 3x3 RGB Gram matrix (mean of x x^T).
+fn style_distance(imgs: &Array4<f32>, style: &Array4<f32>) -> (f64, f64) {
+    let stats = |a: &Array4<f32>| {
+        let n = (a.len() / 3) as f64;
+        let ch = |c: usize| a.slice(ndarray::s![.., c, .., ..]).mapv(|v| v as f64);
+        let chans: Vec<_> = (0..3).map(ch).collect();
+        let mean: Vec<f64> = chans.iter().map(|x| x.sum() / n).collect();
+        let sd: Vec<f64> = chans
+            .iter()
+            .zip(&mean)
+            .map(|(x, m)| (x.mapv(|v| (v - m).powi(2)).sum() / n).sqrt())
+            .collect();
+        let mut gram = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                gram[i][j] = (&chans[i] * &chans[j]).sum() / n;
+            }
+        }
+        (mean, sd, gram)
+    };
+    let (m1, s1, g1) = stats(imgs);
+    let (m2, s2, g2) = stats(style);
+    let moments: f64 = (0..3)
+        .map(|c| (m1[c] - m2[c]).abs() + (s1[c] - s2[c]).abs())
+        .sum();
+    let gram: f64 = (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .map(|(i, j)| (g1[i][j] - g2[i][j]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    (moments, gram)
+}
+
+fn stylizer(style: &Array4<f32>) -> Option<StylizerPrior> {
+    let dir = repo_root().join("vendor/models/stylizer");
+    if !dir.join("model.json").is_file() {
+        eprintln!("SKIPPED: vendor/models/stylizer missing (run scripts/setup.sh)");
+        return None;
+    }
+    Some(StylizerPrior::open(&dir, Some(style.view()), 2).unwrap())
+}
+
+/// A few CSD rounds with the stylizer prior move the views' colour statistics toward
+/// the style image: colour-moment and RGB-Gram distances both fall by at least 20%, and
+/// the images stay finite in [0, 1].
+#[test]
+fn stylizer_csd_moves_views_toward_the_style() {
+    let style = style_image(256);
+    let Some(mut prior) = stylizer(&style) else {
+        return;
+    };
+    let sched = prior.schedule().clone();
+    let views = content_views(2, 128);
+    let (m0, g0) = style_distance(&views, &style);
+    let mut z0 = prior.encode(views.view()).unwrap();
+    let params = CsdParams::default();
+    for round in 0..3u64 {
+        let t = [300, 200, 100][round as usize];
+        let eps = Array4::from_shape_vec(
+            z0.raw_dim(),
+            Rng::derive(5, &format!("eps/{round}")).normals_f32(z0.len()),
+        )
+        .unwrap();
+        let z_tgt = sched.add_noise(z0.view(), eps.view(), t).unwrap();
+        let z_src = sched.add_noise(views.view(), eps.view(), t).unwrap();
+        let (z1, _) = csd::step(
+            &mut prior,
+            &sched,
+            StepInputs {
+                z0: z0.view(),
+                z_tgt: z_tgt.view(),
+                z_src: z_src.view(),
+                eps: eps.view(),
+                t,
+                control: None,
+            },
+            &params,
+        )
+        .unwrap();
+        z0 = z1.mapv(|v| v.clamp(0.0, 1.0));
+    }
+    let (m1, g1) = style_distance(&z0, &style);
+    eprintln!("colour moments {m0:.4} -> {m1:.4}, RGB Gram {g0:.4} -> {g1:.4}");
+    assert!(z0.iter().all(|v| v.is_finite()));
+    assert!(m1 < 0.8 * m0, "colour-moment distance {m0} -> {m1}");
+    assert!(g1 < 0.8 * g0, "Gram distance {g0} -> {g1}");
+}
+
+// ---------------------------------------------------------------------------------
+// The stages: mvfc-filter and csd-step, through their library functions.
+
+use fantasystyle::csd::{Mode, Weighting};
+use fantasystyle::prior::gaussian::{GaussianPrior, vae_decode};
+use fantasystyle::scheduler::Schedule;
+use fantasystyle::stages::csd_step::{CsdStepArgs, csd_step};
+use fantasystyle::stages::encode_latents::{EncodeLatents, encode_latents};
+use fantasystyle::stages::mvfc_filter::{MvfcFilterArgs, TimestepChoice, mvfc_filter};
+use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use std::path::{Path, PathBuf};
+
+fn model_dir(name: &str) -> Option<PathBuf> {
+    let d = repo_root().join("vendor/models").join(name);
+    if d.join("model.json").is_file() {
+        Some(d)
+    } else {
+        eprintln!("SKIPPED: {} missing (run scripts/setup.sh)", d.display());
+        None
+    }
+}
+
+fn write_latents(dir: &Path, z: &Array4<f32>) {
+    let mut w = ArtifactWriter::create(
+        dir,
+        ArtifactKind::Latents,
+        Producer::new("test", "0", serde_json::json!({})),
+    )
+    .unwrap();
+    w.write_tensor("latents.npy", z.shape(), z.as_slice().unwrap())
+        .unwrap();
+    w.commit().unwrap();
+}
+
+/// A views artifact from images [N, 3, H, W].
+fn write_views(dir: &Path, imgs: &Array4<f32>) {
+    let (n, h, w) = (imgs.shape()[0], imgs.shape()[2], imgs.shape()[3]);
+    let rgb: Vec<f32> = imgs
+        .view()
+        .permuted_axes([0, 2, 3, 1])
+        .iter()
+        .copied()
+        .collect();
+    let mut wr = ArtifactWriter::create(
+        dir,
+        ArtifactKind::Views,
+        Producer::new("test", "0", serde_json::json!({})),
+    )
+    .unwrap();
+    wr.write_tensor("rgb.npy", &[n, h, w, 3], &rgb).unwrap();
+    wr.write_tensor("depth.npy", &[n, h, w], &vec![2.0f32; n * h * w])
+        .unwrap();
+    wr.write_tensor("alpha.npy", &[n, h, w], &vec![1.0f32; n * h * w])
+        .unwrap();
+    wr.write_bytes("cameras.json", b"[{\"id\": 0, \"note\": \"test\"}]\n")
+        .unwrap();
+    wr.commit().unwrap();
+}
+
+fn read4(dir: &Path, kind: ArtifactKind, name: &str) -> Array4<f32> {
+    let a = Artifact::open(dir, kind).unwrap();
+    let t = a.read_f32(name).unwrap();
+    let s = &t.shape;
+    Array4::from_shape_vec((s[0], s[1], s[2], s[3]), t.data).unwrap()
+}
+
+fn filter_args(d: &Path, model: &Path) -> MvfcFilterArgs {
+    MvfcFilterArgs {
+        latents: d.join("lat_tgt"),
+        source_latents: d.join("lat_src"),
+        model: model.to_path_buf(),
+        timestep: TimestepChoice::Auto,
+        seed: 3,
+        round: 1,
+        out: d.join("noised"),
+        params: MvfcParams::default(),
+        no_filter: false,
+        threads: 1,
+    }
+}
+
+/// mvfc-filter: source and target share eps; z_src = add_noise exactly; z_tgt is the MVFC
+/// of add_noise(z0_tgt) with the written shared noise; `--no-filter` skips only the filter;
+/// `auto` is deterministic in (seed, round) and draws from the model's set.
+#[test]
+fn mvfc_filter_stage_noises_and_filters() {
+    let Some(model) = model_dir("gaussian-prior") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let mut rng = Rng::new(11);
+    let shape = (4, 4, 8, 6);
+    let z_t = Array4::from_shape_vec(shape, rng.normals_f32(4 * 4 * 8 * 6)).unwrap();
+    let z_s = Array4::from_shape_vec(shape, rng.normals_f32(4 * 4 * 8 * 6)).unwrap();
+    write_latents(&d.path().join("lat_tgt"), &z_t);
+    write_latents(&d.path().join("lat_src"), &z_s);
+    let args = filter_args(d.path(), &model);
+    let t = mvfc_filter(&args).unwrap();
+    let (sched, set) = fantasystyle::stages::mvfc_filter::model_timesteps(&model).unwrap();
+    assert!(set.contains(t));
+    let nd = d.path().join("noised");
+    let art = Artifact::open(&nd, ArtifactKind::NoisedLatents).unwrap();
+    assert_eq!(art.manifest.meta["timestep"].as_u64().unwrap() as usize, t);
+    let eps = read4(&nd, ArtifactKind::NoisedLatents, "eps.npy");
+    let zs = read4(&nd, ArtifactKind::NoisedLatents, "z_src.npy");
+    let zt = read4(&nd, ArtifactKind::NoisedLatents, "z_tgt.npy");
+    let es = art.read_f32("eps_shared.npy").unwrap();
+    let es = Array3::from_shape_vec((4, 8, 6), es.data).unwrap();
+    let want_s = sched.add_noise(z_s.view(), eps.view(), t).unwrap();
+    assert_eq!(zs, want_s);
+    let noisy_t = sched.add_noise(z_t.view(), eps.view(), t).unwrap();
+    let want_t = mvfc(noisy_t.view(), es.view(), MvfcParams::default()).unwrap();
+    assert_eq!(zt, want_t);
+    assert!(zt != noisy_t);
+
+    // Same (seed, round): same t and noise; --no-filter: only the filter is skipped.
+    let mut a2 = filter_args(d.path(), &model);
+    a2.no_filter = true;
+    a2.out = d.path().join("nofilter");
+    assert_eq!(mvfc_filter(&a2).unwrap(), t);
+    let n2 = d.path().join("nofilter");
+    assert_eq!(read4(&n2, ArtifactKind::NoisedLatents, "eps.npy"), eps);
+    assert_eq!(
+        read4(&n2, ArtifactKind::NoisedLatents, "z_tgt.npy"),
+        noisy_t
+    );
+    // Different rounds draw different timesteps (over a few rounds).
+    let ts: std::collections::BTreeSet<usize> =
+        (0..8).map(|r| set.sample_for_round(3, r)).collect();
+    assert!(ts.len() > 1);
+    // An explicit timestep from the set is used as given.
+    let mut a3 = filter_args(d.path(), &model);
+    a3.timestep = TimestepChoice::Fixed(set.steps()[2]);
+    a3.out = d.path().join("fixed");
+    assert_eq!(mvfc_filter(&a3).unwrap(), set.steps()[2]);
+}
+
+/// Bad input to mvfc-filter: clear errors naming the problem, nothing written.
+#[test]
+fn mvfc_filter_stage_rejects_bad_input() {
+    let Some(model) = model_dir("gaussian-prior") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let z = Array4::<f32>::zeros((2, 4, 8, 8));
+    write_latents(&d.path().join("lat_tgt"), &z);
+    write_latents(
+        &d.path().join("lat_src"),
+        &Array4::<f32>::zeros((2, 4, 8, 6)),
+    );
+    let err = |a: &MvfcFilterArgs| {
+        let e = mvfc_filter(a).unwrap_err();
+        assert_eq!(e.exit_code(), 2, "{e}");
+        assert!(!a.out.exists());
+        e.to_string()
+    };
+    let a = filter_args(d.path(), &model);
+    let e = err(&a);
+    assert!(e.contains("lat_src") && e.contains("shape"), "{e}");
+
+    let mut nan = z.clone();
+    nan[[1, 2, 3, 4]] = f32::NAN;
+    write_latents(&d.path().join("lat_src"), &nan);
+    let e = err(&a);
+    assert!(e.contains("lat_src") && e.contains("NaN"), "{e}");
+
+    write_latents(&d.path().join("lat_src"), &z);
+    let mut b = filter_args(d.path(), &model);
+    b.timestep = TimestepChoice::Fixed(3);
+    let e = err(&b);
+    assert!(e.contains("timestep 3") && e.contains("DDIM set"), "{e}");
+    b.timestep = TimestepChoice::Fixed(100_000);
+    let e = err(&b);
+    assert!(e.contains("100000"), "{e}");
+    assert!("12x".parse::<TimestepChoice>().is_err());
+
+    let mut c = filter_args(d.path(), &model);
+    c.params.gamma = 1.5;
+    let e = err(&c);
+    assert!(e.contains("gamma"), "{e}");
+    let mut m = filter_args(d.path(), &model);
+    m.model = d.path().join("no-such-model");
+    let e = err(&m);
+    assert!(e.contains("no-such-model"), "{e}");
+}
+
+/// Build views, latents and noised latents for a csd-step run in `d`.
+fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) -> PathBuf {
+    write_views(&d.join("views"), views);
+    encode_latents(&EncodeLatents {
+        views: d.join("views"),
+        model: model.to_path_buf(),
+        out: d.join("lat"),
+        threads: 1,
+        batch: 0,
+    })
+    .unwrap();
+    let (_, set) = fantasystyle::stages::mvfc_filter::model_timesteps(model).unwrap();
+    let mut a = filter_args(d, model);
+    a.latents = d.join("lat");
+    a.source_latents = d.join("lat");
+    a.timestep = TimestepChoice::Fixed(set.steps()[set.steps().len() / 2]);
+    mvfc_filter(&a).unwrap();
+    let sp = d.join("style.png");
+    let s = style.index_axis(ndarray::Axis(0), 0);
+    let (h, w) = (s.shape()[1], s.shape()[2]);
+    let bytes: Vec<u8> = s
+        .permuted_axes([1, 2, 0])
+        .iter()
+        .map(|v| (v * 255.0).round() as u8)
+        .collect();
+    image::save_buffer(&sp, &bytes, w as u32, h as u32, image::ColorType::Rgb8).unwrap();
+    sp
+}
+
+fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> CsdStepArgs {
+    CsdStepArgs {
+        noised: d.join("noised"),
+        latents: d.join("lat"),
+        views: d.join("views"),
+        source_views: d.join("views"),
+        model: model.to_path_buf(),
+        style: style.to_path_buf(),
+        prompt: None,
+        params: CsdParams {
+            mode,
+            lr: 0.05,
+            ..Default::default()
+        },
+        out: d.join("targets"),
+        threads: 1,
+    }
+}
+
+/// csd-step with the Gaussian prior's ONNX graphs: the targets equal render +
+/// decode(z0') - decode(z0) recomputed with the pure-Rust closed-form prior and decoder
+/// (max error 1e-4 where not clamped), cameras are copied, values lie in [0, 1].
+#[test]
+fn csd_step_stage_matches_closed_form_targets() {
+    let Some(model) = model_dir("gaussian-prior") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let views = content_views(2, 32);
+    let style = style_image(64);
+    let sp = csd_inputs(d.path(), &model, &views, &style);
+    let report = csd_step(&step_args(d.path(), &model, &sp, Mode::Csd)).unwrap();
+    let td = d.path().join("targets");
+    let art = Artifact::open(&td, ArtifactKind::Targets).unwrap();
+    assert_eq!(
+        std::fs::read(td.join("cameras.json")).unwrap(),
+        std::fs::read(d.path().join("views/cameras.json")).unwrap()
+    );
+    let rgb = art.read_f32("rgb.npy").unwrap();
+    assert_eq!(rgb.shape, [2, 32, 32, 3]);
+    assert!(rgb.data.iter().all(|v| (0.0..=1.0).contains(v)));
+    assert!(report.image_delta_rms > 1e-4, "{report:?}");
+
+    // Independent recomputation: Rust closed-form prior, style as re-read from the PNG.
+    let style_png = fantasystyle::stages::csd_step::load_image(&sp).unwrap();
+    let mut prior = GaussianPrior::with_default_text(Some(style_png.view())).unwrap();
+    let sched = Schedule::new(prior.info().scheduler.clone()).unwrap();
+    let nd = d.path().join("noised");
+    let z0 = read4(&d.path().join("lat"), ArtifactKind::Latents, "latents.npy");
+    let zt = read4(&nd, ArtifactKind::NoisedLatents, "z_tgt.npy");
+    let zs = read4(&nd, ArtifactKind::NoisedLatents, "z_src.npy");
+    let eps = read4(&nd, ArtifactKind::NoisedLatents, "eps.npy");
+    let t = report.timestep;
+    let par = step_args(d.path(), &model, &sp, Mode::Csd).params;
+    let (z1, _) = csd::step(
+        &mut prior,
+        &sched,
+        StepInputs {
+            z0: z0.view(),
+            z_tgt: zt.view(),
+            z_src: zs.view(),
+            eps: eps.view(),
+            t,
+            control: None,
+        },
+        &par,
+    )
+    .unwrap();
+    let delta = vae_decode(z1.view()).unwrap() - vae_decode(z0.view()).unwrap();
+    let mut worst = 0.0f32;
+    let mut compared = 0;
+    for ((i, &got), &v) in rgb
+        .data
+        .iter()
+        .enumerate()
+        .zip(views.view().permuted_axes([0, 2, 3, 1]).iter())
+    {
+        let (n, y, x, c) = (i / (32 * 32 * 3), (i / 96) % 32, (i / 3) % 32, i % 3);
+        let raw = v + delta[[n, c, y, x]];
+        if (0.001..0.999).contains(&raw) {
+            worst = worst.max((got - raw).abs());
+            compared += 1;
+        }
+    }
+    assert!(compared > 1000, "{compared}");
+    assert!(worst < 1e-4, "stage targets vs closed form: {worst}");
+
+    // Other modes run and differ from csd.
+    for (i, mode) in [Mode::Sds, Mode::Dds, Mode::CsdNoNeg]
+        .into_iter()
+        .enumerate()
+    {
+        let mut a = step_args(d.path(), &model, &sp, mode);
+        a.out = d.path().join(format!("t{i}"));
+        a.params.weighting = Weighting::Uniform;
+        csd_step(&a).unwrap();
+        let o = Artifact::open(&a.out, ArtifactKind::Targets)
+            .unwrap()
+            .read_f32("rgb.npy")
+            .unwrap();
+        assert!(o.data != rgb.data, "{mode:?}");
+    }
+}
+
+/// csd-step with the stylizer model through `prior::open`: the targets move toward the
+/// style's colour statistics.
+#[test]
+fn csd_step_stage_with_stylizer() {
+    let Some(model) = model_dir("stylizer") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let views = content_views(2, 64);
+    let style = style_image(128);
+    let sp = csd_inputs(d.path(), &model, &views, &style);
+    let mut a = step_args(d.path(), &model, &sp, Mode::Csd);
+    a.params.lr = 0.1;
+    csd_step(&a).unwrap();
+    let rgb = read4(&d.path().join("targets"), ArtifactKind::Targets, "rgb.npy");
+    let tgt = rgb.permuted_axes([0, 3, 1, 2]).to_owned();
+    let (m0, _) = style_distance(&views, &style);
+    let (m1, _) = style_distance(&tgt, &style);
+    assert!(m1 < m0, "colour moments {m0} -> {m1}");
+}
+
+/// Bad input to csd-step: missing style image, mismatched latents, a timestep outside
+/// the model's set; clear errors and no output.
+#[test]
+fn csd_step_stage_rejects_bad_input() {
+    let Some(model) = model_dir("gaussian-prior") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let views = content_views(2, 32);
+    let sp = csd_inputs(d.path(), &model, &views, &style_image(32));
+    let err = |a: &CsdStepArgs| {
+        let e = csd_step(a).unwrap_err();
+        assert!(!a.out.exists());
+        (e.exit_code(), e.to_string())
+    };
+    let mut a = step_args(d.path(), &model, &sp, Mode::Csd);
+    a.style = d.path().join("nope.png");
+    let (code, e) = err(&a);
+    assert!(
+        code == 2 && e.contains("nope.png") && e.contains("not found"),
+        "{e}"
+    );
+
+    std::fs::write(d.path().join("bad.png"), b"not a png").unwrap();
+    a.style = d.path().join("bad.png");
+    let (code, e) = err(&a);
+    assert!(code == 2 && e.contains("bad.png"), "{e}");
+
+    // Latents of another shape than the noised ones.
+    write_latents(&d.path().join("lat2"), &Array4::zeros((2, 4, 4, 2)));
+    let mut b = step_args(d.path(), &model, &sp, Mode::Csd);
+    b.latents = d.path().join("lat2");
+    let (code, e) = err(&b);
+    assert!(code == 2 && e.contains("shape"), "{e}");
+
+    // A noised artifact whose timestep is not in the model's set.
+    let mut c = filter_args(d.path(), &model);
+    c.latents = d.path().join("lat");
+    c.source_latents = d.path().join("lat");
+    c.out = d.path().join("noised");
+    mvfc_filter(&c).unwrap();
+    let stylizer_set = r#"{"t_min": 1, "t_max": 2, "count": 2}"#;
+    let md = tempfile::tempdir().unwrap();
+    for f in std::fs::read_dir(&model).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, md.path().join(f.file_name().unwrap())).unwrap();
+    }
+    let mut mj: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(model.join("model.json")).unwrap()).unwrap();
+    // Same schedule, but a set {1, 2} that cannot contain the drawn t.
+    mj["stylizer"] = serde_json::json!({ "timesteps": serde_json::from_str::<serde_json::Value>(stylizer_set).unwrap() });
+    std::fs::write(md.path().join("model.json"), mj.to_string()).unwrap();
+    let mut e2 = step_args(d.path(), md.path(), &sp, Mode::Csd);
+    e2.out = d.path().join("t-bad");
+    let (code, e) = err(&e2);
+    assert!(code == 2 && e.contains("DDIM set"), "{e}");
+}
+
+/// The binaries: every contract flag is documented in -h; bad input exits 2 with a
+/// message naming the file, without a panic.
+#[test]
+fn stage_binaries_document_flags_and_exit_cleanly() {
+    use std::process::Command;
+    let help = |bin: &str| {
+        let o = Command::new(bin).arg("-h").output().unwrap();
+        assert!(o.status.success());
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let mf = env!("CARGO_BIN_EXE_mvfc-filter");
+    let cs = env!("CARGO_BIN_EXE_csd-step");
+    let h = help(mf);
+    for f in [
+        "--latents",
+        "--source-latents",
+        "--model",
+        "--timestep",
+        "--seed",
+        "--round",
+        "--out",
+        "--gamma",
+        "--ds",
+        "--dt",
+        "--no-filter",
+        "--threads",
+    ] {
+        assert!(h.contains(f), "mvfc-filter -h lacks {f}");
+    }
+    let h = help(cs);
+    for f in [
+        "--noised",
+        "--latents",
+        "--views",
+        "--source-views",
+        "--model",
+        "--style",
+        "--prompt",
+        "--mode",
+        "--guidance",
+        "--weighting",
+        "--lr",
+        "--out",
+        "--threads",
+    ] {
+        assert!(h.contains(f), "csd-step -h lacks {f}");
+    }
+    let d = tempfile::tempdir().unwrap();
+    let o = Command::new(mf)
+        .args([
+            "--latents",
+            "missing-lat",
+            "--source-latents",
+            "missing-lat",
+        ])
+        .args(["--model", "vendor/models/stylizer", "--out"])
+        .arg(d.path().join("o"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("missing-lat") && !err.contains("panicked"),
+        "{err}"
+    );
+    let o = Command::new(mf)
+        .args(["--latents", "a", "--source-latents", "b", "--model", "m"])
+        .args(["--timestep", "soon", "--out", "x"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("soon"));
+}
+
+/// The stylizer's eps under Null inverts to its clean estimate (eps = (z - sqrt(ab) x0) /
+/// sqrt(1-ab)), Prompt equals Null (no text), and PromptStyle/Content differ from it.
+#[test]
+fn stylizer_eps_is_the_x0_parameterisation() {
+    let style = style_image(64);
+    let Some(mut prior) = stylizer(&style) else {
+        return;
+    };
+    let sched = prior.schedule().clone();
+    let x = content_views(1, 48);
+    let eps = Array4::from_shape_vec(x.raw_dim(), Rng::new(4).normals_f32(x.len())).unwrap();
+    let t = 200;
+    let z = sched.add_noise(x.view(), eps.view(), t).unwrap();
+    let conds = [
+        fantasystyle::prior::Cond::Null,
+        fantasystyle::prior::Cond::Prompt,
+        fantasystyle::prior::Cond::PromptStyle,
+        fantasystyle::prior::Cond::Content,
+    ];
+    let e = prior.predict_eps(z.view(), t, &conds, None).unwrap();
+    let x0 = sched.x0_from_eps(z.view(), e[0].view(), t).unwrap();
+    let xh = prior
+        .clean_estimate(z.index_axis(ndarray::Axis(0), 0), t)
+        .unwrap();
+    let err = x0
+        .index_axis(ndarray::Axis(0), 0)
+        .iter()
+        .zip(xh.iter())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(err < 1e-4, "{err}");
+    assert_eq!(e[0], e[1]);
+    let diff = |a: &Array4<f32>| {
+        a.iter()
+            .zip(e[0].iter())
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0f32, f32::max)
+    };
+    assert!(diff(&e[2]) > 1e-2 && diff(&e[3]) > 1e-2);
+    // The clean estimate is closer to the clean image than z / sqrt(ab) is.
+    let ab = sched.alpha_bar(t).unwrap() as f32;
+    let naive: f32 = z
+        .iter()
+        .zip(x.iter())
+        .map(|(a, b)| (a / ab.sqrt() - b).powi(2))
+        .sum();
+    let est: f32 = xh.iter().zip(x.iter()).map(|(a, b)| (a - b).powi(2)).sum();
+    assert!(est < 0.2 * naive, "{est} vs {naive}");
+}
