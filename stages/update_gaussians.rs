@@ -1,15 +1,7 @@
-//! `update-gaussians`: thin binary over the library; see `fantasystyle::stages`.
+//! `update-gaussians`: thin binary over `fantasystyle::stages::update_gaussians`.
 use clap::Parser;
-
-/// update-gaussians (not yet implemented).
-#[derive(Parser, Debug)]
-#[command(version)]
-struct Args {}
+use fantasystyle::stages::{run_main, update_gaussians};
 
 fn main() -> std::process::ExitCode {
-    fantasystyle::stages::run_main(Args::parse(), |_a| {
-        Err(fantasystyle::Error::Other(
-            "update-gaussians: not implemented yet".into(),
-        ))
-    })
+    run_main(update_gaussians::Args::parse(), update_gaussians::run)
 }

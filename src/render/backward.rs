@@ -14,7 +14,7 @@
 
 use super::Frame;
 use super::project::TILE;
-use super::raster::{Sink, TP, TileState, composite_tile};
+use super::raster::{Plane, Sink, TileState, composite_tile};
 use super::sh;
 use crate::Scene;
 use rayon::prelude::*;
@@ -22,19 +22,21 @@ use rayon::prelude::*;
 /// Collects, per tile, each splat's `sum_p w_p g_p` in front-to-back order.
 pub(crate) struct GradSink<'a> {
     /// Tile-local gradient planes dL/dC (R, G, B).
-    pub grad: [[f32; TP]; 3],
+    pub grad: [Plane; 3],
     pub out: &'a mut Vec<(u32, [f32; 3])>,
 }
 
 impl Sink for GradSink<'_> {
-    #[inline]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &[f32; TP]) {
+    #[inline(always)]
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
         let mut s = [0.0f32; 3];
-        for p in r0 * TILE..r1 * TILE {
-            let wp = w[p];
-            s[0] += wp * self.grad[0][p];
-            s[1] += wp * self.grad[1][p];
-            s[2] += wp * self.grad[2][p];
+        for r in r0..r1 {
+            for c in c0..c1 {
+                let wp = w[r][c];
+                s[0] += wp * self.grad[0][r][c];
+                s[1] += wp * self.grad[1][r][c];
+                s[2] += wp * self.grad[2][r][c];
+            }
         }
         self.out.push((local, s));
     }
@@ -47,17 +49,16 @@ pub(crate) fn load_tile(
     height: usize,
     tile: usize,
     tiles_x: usize,
-) -> [[f32; TP]; 3] {
-    let mut g = [[0.0f32; TP]; 3];
+) -> [Plane; 3] {
+    let mut g = [[[0.0f32; TILE]; TILE]; 3];
     let x0 = (tile % tiles_x) * TILE;
     let y0 = (tile / tiles_x) * TILE;
     for r in 0..(height - y0).min(TILE) {
         for c in 0..(width - x0).min(TILE) {
             let o = ((y0 + r) * width + x0 + c) * 3;
-            let p = r * TILE + c;
-            g[0][p] = img[o];
-            g[1][p] = img[o + 1];
-            g[2][p] = img[o + 2];
+            g[0][r][c] = img[o];
+            g[1][r][c] = img[o + 1];
+            g[2][r][c] = img[o + 2];
         }
     }
     g

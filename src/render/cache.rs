@@ -15,7 +15,7 @@
 
 use super::backward::{load_tile, merge};
 use super::project::TILE;
-use super::raster::{Sink, TP, TileState, composite_tile};
+use super::raster::{Plane, Sink, TP, TileState, composite_tile};
 use super::{Frame, project, validate_camera, validate_scene};
 use crate::{Camera, Error, Result, Scene};
 use rayon::prelude::*;
@@ -85,12 +85,15 @@ struct TileRecords {
 }
 
 impl Sink for TileRecords {
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &[f32; TP]) {
+    #[inline(always)]
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
         let before = self.pix.len();
-        for p in r0 * TILE..r1 * TILE {
-            if w[p] != 0.0 {
-                self.pix.push(p as u8);
-                self.weight.push(w[p]);
+        for r in r0..r1 {
+            for c in c0..c1 {
+                if w[r][c] != 0.0 {
+                    self.pix.push((r * TILE + c) as u8);
+                    self.weight.push(w[r][c]);
+                }
             }
         }
         let n = self.pix.len() - before;
@@ -117,7 +120,9 @@ impl ViewCache {
             .map_init(TileState::new, |st, t| {
                 let mut rec = TileRecords::default();
                 composite_tile(frame, t, st, &mut rec);
-                rec.t = st.t.to_vec();
+                rec.t = (0..TP)
+                    .map(|p| st.transmittance(p / TILE, p % TILE))
+                    .collect();
                 rec
             })
             .collect();
@@ -252,6 +257,11 @@ impl ViewCache {
             .into_par_iter()
             .map(|t| {
                 let g = load_tile(grad_rgb, self.width, self.height, t, self.tiles_x);
+                let g = [
+                    g[0].as_flattened(),
+                    g[1].as_flattened(),
+                    g[2].as_flattened(),
+                ];
                 let runs = self.tile_runs[t] as usize..self.tile_runs[t + 1] as usize;
                 let mut out = Vec::with_capacity(runs.len());
                 for r in runs {

@@ -29,7 +29,7 @@ pub use cache::{CacheMode, ViewCache};
 pub use project::{Frame, project};
 
 use crate::{Camera, Error, Result, Scene};
-use raster::{Sink, TP, TileState, composite_tile};
+use raster::{Plane, Sink, TileState, composite_tile};
 use rayon::prelude::*;
 
 use project::TILE;
@@ -162,25 +162,46 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Result<Re
 }
 
 struct ForwardSink<'a> {
-    colours: &'a [[f32; 3]],
-    depth: &'a [f32],
-    acc: [[f32; TP]; 4],
+    /// Colour and depth per splat.
+    cz: &'a [[f32; 4]],
+    acc: [Plane; 4],
 }
 
 impl Sink for ForwardSink<'_> {
-    #[inline]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, w: &[f32; TP]) {
-        let c = self.colours[local as usize];
-        let z = self.depth[local as usize];
+    #[inline(always)]
+    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
+        let [c0r, c1g, c2b, z] = self.cz[local as usize];
+        let c = [c0r, c1g, c2b];
         let [ar, ag, ab, ad] = &mut self.acc;
-        for p in r0 * TILE..r1 * TILE {
-            let wp = w[p];
-            ar[p] += wp * c[0];
-            ag[p] += wp * c[1];
-            ab[p] += wp * c[2];
-            ad[p] += wp * z;
+        // Whole halves of 8 lanes (c0, c1 are multiples of 8) as fixed-size arrays so
+        // that this vectorises.
+        const H: usize = raster::HALF;
+        for r in r0..r1 {
+            for h in (c0..c1).step_by(H) {
+                let wv: &[f32; H] = half(&w[r][h..h + H]);
+                let a0: &mut [f32; H] = half_mut(&mut ar[r][h..h + H]);
+                let a1: &mut [f32; H] = half_mut(&mut ag[r][h..h + H]);
+                let a2: &mut [f32; H] = half_mut(&mut ab[r][h..h + H]);
+                let a3: &mut [f32; H] = half_mut(&mut ad[r][h..h + H]);
+                for x in 0..H {
+                    a0[x] += wv[x] * c[0];
+                    a1[x] += wv[x] * c[1];
+                    a2[x] += wv[x] * c[2];
+                    a3[x] += wv[x] * z;
+                }
+            }
         }
     }
+}
+
+#[inline(always)]
+fn half(s: &[f32]) -> &[f32; raster::HALF] {
+    s.try_into().expect("half row")
+}
+
+#[inline(always)]
+fn half_mut(s: &mut [f32]) -> &mut [f32; raster::HALF] {
+    s.try_into().expect("half row")
 }
 
 /// Composite a projected frame with per-splat colours (indexed like `frame.splats`).
@@ -189,6 +210,11 @@ pub fn composite(frame: &Frame, colours: &[[f32; 3]], background: [f32; 3]) -> R
     let mut rgb = vec![0.0f32; w * h * 3];
     let mut depth = vec![0.0f32; w * h];
     let mut alpha = vec![0.0f32; w * h];
+    let cz: Vec<[f32; 4]> = colours
+        .iter()
+        .zip(&frame.splats.depth)
+        .map(|(c, &z)| [c[0], c[1], c[2], z])
+        .collect();
     rgb.par_chunks_mut(TILE * w * 3)
         .zip(depth.par_chunks_mut(TILE * w))
         .zip(alpha.par_chunks_mut(TILE * w))
@@ -196,27 +222,23 @@ pub fn composite(frame: &Frame, colours: &[[f32; 3]], background: [f32; 3]) -> R
         .for_each(|(ty, ((rgb, depth), alpha))| {
             let mut st = TileState::new();
             let mut sink = ForwardSink {
-                colours,
-                depth: &frame.splats.depth,
-                acc: [[0.0; TP]; 4],
+                cz: &cz,
+                acc: [[[0.0; TILE]; TILE]; 4],
             };
             for tx in 0..frame.tiles_x {
-                for a in sink.acc.iter_mut() {
-                    a.fill(0.0);
-                }
+                sink.acc = [[[0.0; TILE]; TILE]; 4];
                 composite_tile(frame, ty * frame.tiles_x + tx, &mut st, &mut sink);
                 let x0 = tx * TILE;
                 let cols = (w - x0).min(TILE);
                 let rows = depth.len() / w;
                 for r in 0..rows {
                     for c in 0..cols {
-                        let p = r * TILE + c;
                         let o = r * w + x0 + c;
-                        let t = st.t[p];
-                        rgb[o * 3] = sink.acc[0][p] + t * background[0];
-                        rgb[o * 3 + 1] = sink.acc[1][p] + t * background[1];
-                        rgb[o * 3 + 2] = sink.acc[2][p] + t * background[2];
-                        depth[o] = sink.acc[3][p];
+                        let t = st.transmittance(r, c);
+                        rgb[o * 3] = sink.acc[0][r][c] + t * background[0];
+                        rgb[o * 3 + 1] = sink.acc[1][r][c] + t * background[1];
+                        rgb[o * 3 + 2] = sink.acc[2][r][c] + t * background[2];
+                        depth[o] = sink.acc[3][r][c];
                         alpha[o] = 1.0 - t;
                     }
                 }

@@ -56,6 +56,8 @@ pub struct Splats {
     pub depth: Vec<f32>,
     /// Pixel rows `[y0, y1)` (image coordinates) that can receive alpha >= 1/255.
     pub rows: Vec<[u32; 2]>,
+    /// Pixel columns `[x0, x1)` that can receive alpha >= 1/255.
+    pub cols: Vec<[u32; 2]>,
     /// Tile rectangle `[tx0, ty0, tx1, ty1)`.
     pub tiles: Vec<[u32; 4]>,
 }
@@ -81,6 +83,7 @@ struct One {
     opacity: f32,
     depth: f32,
     rows: [u32; 2],
+    cols: [u32; 2],
     tiles: [u32; 4],
 }
 
@@ -217,7 +220,11 @@ fn project_one(scene: &Scene, cam: &Cam, i: usize) -> Option<One> {
         (my - ey - 0.5).ceil().max(0.0) as u32,
         ((my + ey - 0.5).floor() + 1.0).clamp(0.0, h) as u32,
     ];
-    if rows[1] <= rows[0] {
+    let cols = [
+        (mx - ex - 0.5).ceil().max(0.0) as u32,
+        ((mx + ex - 0.5).floor() + 1.0).clamp(0.0, w) as u32,
+    ];
+    if rows[1] <= rows[0] || cols[1] <= cols[0] {
         return None;
     }
     Some(One {
@@ -227,6 +234,7 @@ fn project_one(scene: &Scene, cam: &Cam, i: usize) -> Option<One> {
         opacity: opacity as f32,
         depth: z as f32,
         rows,
+        cols,
         tiles,
     })
 }
@@ -307,6 +315,7 @@ pub fn project(scene: &Scene, camera: &Camera) -> Frame {
         opacity: Vec::with_capacity(m),
         depth: Vec::with_capacity(m),
         rows: Vec::with_capacity(m),
+        cols: Vec::with_capacity(m),
         tiles: Vec::with_capacity(m),
     };
     for o in chunks.into_iter().flatten() {
@@ -319,6 +328,7 @@ pub fn project(scene: &Scene, camera: &Camera) -> Frame {
         s.opacity.push(o.opacity);
         s.depth.push(o.depth);
         s.rows.push(o.rows);
+        s.cols.push(o.cols);
         s.tiles.push(o.tiles);
     }
     bin(s, cam.width, cam.height)

@@ -167,6 +167,10 @@ fn cache_reproduces_render_and_gradients() {
             }
         }
         assert!(den > 0.0);
+        eprintln!(
+            "degree {deg}: cached vs uncached colour gradients, relative difference {:.1e}",
+            (num / den).sqrt()
+        );
         assert!(
             (num / den).sqrt() < 1e-6,
             "cached vs uncached {}",
@@ -253,7 +257,8 @@ fn loss_f64(
 
 /// Colour gradients agree with central finite differences of an f64 reference, for SH
 /// degrees 0..3, with both clamped and unclamped colours present. Relative error (L2
-/// over all coefficients whose raw colours are away from the clamp kink) < 1e-4.
+/// over all coefficients whose raw colours are away from the clamp kink) < 1e-4
+/// (measured 1.6e-7 to 2.0e-7: the f32 rounding of the analytic gradient).
 #[test]
 fn colour_gradient_matches_finite_differences() {
     for deg in 0..=3 {
@@ -338,6 +343,9 @@ fn colour_gradient_matches_finite_differences() {
             }
         }
         let rel = (num / den).sqrt();
+        eprintln!(
+            "degree {deg}: {n_clamped} clamped, {n_open} open channels, relative error {rel:.2e}"
+        );
         assert!(den > 0.0 && checked > 50);
         assert!(rel < 1e-4, "degree {deg}: relative error {rel}");
     }

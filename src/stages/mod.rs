@@ -46,6 +46,7 @@ pub mod evaluate;
 pub mod make_sample;
 pub mod render_views;
 pub mod timing;
+pub mod update_gaussians;
 
 use crate::{Error, Result};
 use std::path::Path;
