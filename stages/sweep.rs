@@ -1,6 +1,6 @@
 //! `sweep`: thin binary over [`fantasystyle::metrics::sweep::run_sweep`].
 use clap::Parser;
-use fantasystyle::metrics::sweep::{SweepSpec, run_sweep};
+use fantasystyle::metrics::sweep::{Sweep, SweepSpec, run_sweep, write_outputs};
 use std::path::PathBuf;
 
 /// The speed-accuracy sweep: run the stylization DAG at each point of a sweep spec
@@ -11,8 +11,11 @@ use std::path::PathBuf;
 #[command(version)]
 struct Args {
     /// The sweep spec (TOML), e.g. data-sample/sweep.toml.
-    #[arg(long)]
-    spec: PathBuf,
+    #[arg(long, required_unless_present = "from_json")]
+    spec: Option<PathBuf>,
+    /// Only re-render sweep.md / sweep.html from an existing sweep.json (runs nothing).
+    #[arg(long, conflicts_with = "spec")]
+    from_json: Option<PathBuf>,
     /// Output directory (one subdirectory per point).
     #[arg(long)]
     out: PathBuf,
@@ -20,8 +23,15 @@ struct Args {
 
 fn main() -> std::process::ExitCode {
     fantasystyle::stages::run_main(Args::parse(), |a| {
-        let spec = SweepSpec::load(&a.spec)?;
-        let sweep = run_sweep(&spec, &a.out)?;
+        let sweep = match (&a.spec, &a.from_json) {
+            (_, Some(j)) => {
+                let s = Sweep::load(j)?;
+                write_outputs(&s, &a.out)?;
+                s
+            }
+            (Some(spec), None) => run_sweep(&SweepSpec::load(spec)?, &a.out)?,
+            (None, None) => unreachable!("clap requires --spec or --from-json"),
+        };
         print!("{}", sweep.markdown());
         Ok(())
     })

@@ -1,7 +1,6 @@
 //! The image type the metrics work on: RGB, row-major HWC, `f32` in `[0, 1]`; loading a
-//! style image (PNG/JPEG; grey and RGBA are converted to RGB, alpha composited on
-//! white), PNG encoding for the report, bilinear resampling, crops, and the blur/noise
-//! perturbations the LPIPS sanity tests use.
+//! style image and PNG encoding (both through [`crate::imageio`]), bilinear resampling,
+//! crops, and the blur/noise perturbations the LPIPS sanity tests use.
 
 use crate::{Error, Result};
 use std::path::Path;
@@ -51,52 +50,24 @@ impl Image {
         [self.data[i], self.data[i + 1], self.data[i + 2]]
     }
 
-    /// Load a PNG or JPEG as RGB in `[0, 1]`. Grey images are replicated to RGB; an alpha
-    /// channel is composited over white. Errors name the file.
+    /// Load a PNG or JPEG as RGB in `[0, 1]` through [`crate::imageio::read_rgb`] (grey
+    /// expanded, alpha dropped). A missing file is bad input naming the file.
     pub fn load(path: &Path) -> Result<Image> {
         if !path.is_file() {
             return Err(Error::input(path, "image file not found"));
         }
-        let img = image::open(path)
-            .map_err(|e| Error::input(path, format!("cannot decode image: {e}")))?;
-        let rgba = img.to_rgba32f();
-        let (w, h) = (rgba.width() as usize, rgba.height() as usize);
-        if w == 0 || h == 0 {
-            return Err(Error::input(path, "image is empty"));
-        }
-        let mut data = Vec::with_capacity(w * h * 3);
-        for p in rgba.pixels() {
-            let a = p.0[3].clamp(0.0, 1.0);
-            for c in 0..3 {
-                let v = p.0[c].clamp(0.0, 1.0);
-                data.push(v * a + (1.0 - a));
-            }
-        }
+        let img = crate::imageio::read_rgb(path)?;
         Ok(Image {
-            width: w,
-            height: h,
-            data,
+            width: img.width,
+            height: img.height,
+            data: img.data,
         })
     }
 
     /// PNG bytes (values clamped to `[0, 1]`, rounded to 8 bits).
     pub fn to_png(&self) -> Vec<u8> {
-        let bytes: Vec<u8> = self
-            .data
-            .iter()
-            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
-            .collect();
-        let mut out = Vec::new();
-        let enc = image::codecs::png::PngEncoder::new(&mut out);
-        use image::ImageEncoder;
-        enc.write_image(
-            &bytes,
-            self.width as u32,
-            self.height as u32,
-            image::ExtendedColorType::Rgb8,
-        )
-        .expect("PNG encoding into memory cannot fail for a well-formed buffer");
-        out
+        crate::imageio::encode_png_rgb(&self.data, self.width, self.height)
+            .expect("PNG encoding of a non-empty in-memory image cannot fail")
     }
 
     /// Bilinear sample at continuous pixel coordinates (pixel centres at integers),
@@ -297,8 +268,8 @@ mod tests {
         for (a, b) in img.data.iter().zip(&back.data) {
             assert!((a - b).abs() <= 0.5 / 255.0 + 1e-6);
         }
-        // grey + alpha: composited over white
-        let ga = image::GrayAlphaImage::from_raw(2, 1, vec![0, 0, 0, 255]).unwrap();
+        // grey + alpha: grey expanded, alpha dropped (imageio's convention)
+        let ga = image::GrayAlphaImage::from_raw(2, 1, vec![255, 0, 0, 255]).unwrap();
         let p2 = d.path().join("ga.png");
         ga.save(&p2).unwrap();
         let g = Image::load(&p2).unwrap();

@@ -32,6 +32,8 @@ pub struct Series {
     pub points: Vec<(f64, Option<f64>)>,
     /// Draw markers only (a scatter plot).
     pub markers_only: bool,
+    /// Optional text beside each point (same length as `points`, or empty).
+    pub names: Vec<String>,
 }
 
 /// An SVG line/scatter plot with axes, ticks and a legend.
@@ -69,10 +71,19 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
     let (mut y0, mut y1) = pts
         .iter()
         .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
-    y0 = y0.min(0.0);
+    // Start the y axis at zero when zero is near the data; otherwise pad the range.
+    if y0 >= 0.0 && y0 < 0.5 * y1 {
+        y0 = 0.0;
+    } else {
+        y0 -= 0.05 * (y1 - y0).max(1e-12);
+    }
     if x1 - x0 < 1e-12 {
         x0 -= 0.5;
         x1 += 0.5;
+    } else if series.iter().any(|s| s.markers_only) {
+        let pad = 0.04 * (x1 - x0);
+        x0 -= pad;
+        x1 += pad;
     }
     if y1 - y0 < 1e-12 {
         y1 = y0 + 1.0;
@@ -132,7 +143,7 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
     for (si, s) in series.iter().enumerate() {
         let mut path = String::new();
         let mut pen_up = true;
-        for (x, y) in &s.points {
+        for (k, (x, y)) in s.points.iter().enumerate() {
             match y.filter(|v| v.is_finite()) {
                 Some(y) => {
                     let _ = write!(
@@ -150,6 +161,15 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
                         py(y),
                         s.colour
                     );
+                    if let Some(name) = s.names.get(k) {
+                        let _ = write!(
+                            svg,
+                            r#"<text x="{:.1}" y="{:.1}" font-size="9" font-family="sans-serif">{}</text>"#,
+                            px(*x) + 4.0,
+                            py(y) - 4.0,
+                            esc(name)
+                        );
+                    }
                 }
                 None => pen_up = true,
             }
@@ -328,6 +348,7 @@ mod tests {
                 colour: "red",
                 points: vec![(0.0, Some(1.0)), (1.0, None), (2.0, Some(3.0))],
                 markers_only: false,
+                names: vec![],
             }],
         );
         assert!(s.starts_with("<svg") && s.ends_with("</svg>"));

@@ -137,6 +137,7 @@ impl Sweep {
                     colour: "#1f77b4",
                     points: pts,
                     markers_only: true,
+                    names: self.points.iter().map(|p| p.name.clone()).collect(),
                 }],
             ));
         }
@@ -357,12 +358,19 @@ pub fn run_sweep(spec: &SweepSpec, out: &Path) -> Result<Sweep> {
         });
     }
     let sweep = Sweep { points };
-    fantasystyle_schemas::atomic_write_json(&out.join("sweep.json"), &sweep)?;
+    write_outputs(&sweep, out)?;
+    Ok(sweep)
+}
+
+/// Write `sweep.json`, `sweep.md` and `sweep.html` into `out`.
+pub fn write_outputs(sweep: &Sweep, out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    fantasystyle_schemas::atomic_write_json(&out.join("sweep.json"), sweep)?;
     fantasystyle_schemas::atomic_write(&out.join("sweep.md"), sweep.markdown().as_bytes())?;
     let mut page = Page::new("fantasystyle speed-accuracy sweep");
     page.section("Points", &sweep.html());
     fantasystyle_schemas::atomic_write(&out.join("sweep.html"), page.finish().as_bytes())?;
-    Ok(sweep)
+    Ok(())
 }
 
 fn value_text(v: &serde_json::Value) -> String {

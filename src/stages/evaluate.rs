@@ -401,6 +401,7 @@ fn consistency_html(
         colour,
         points: v.iter().map(|p| (p.i as f64, pick(p))).collect(),
         markers_only: false,
+        names: vec![],
     };
     s.push_str(&report::svg_plot(
         &format!("{label}: LPIPS per view pair (i, i+{})", rc.offset),
