@@ -171,6 +171,11 @@ fn chromium_check(report: &Path) {
                 .is_ok_and(|o| o.status.success())
         })
     else {
+        // CI installs it (scripts/setup/05_chromium.sh): there, its absence is a failure.
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "chromium is required under CI (scripts/setup/05_chromium.sh installs it)"
+        );
         eprintln!("SKIPPED: chromium not installed (apt-get install -y chromium)");
         return;
     };
@@ -190,9 +195,17 @@ fn chromium_check(report: &Path) {
             "--headless",
             "--no-sandbox",
             "--disable-gpu",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
             "--virtual-time-budget=10000",
             "--dump-dom",
         ])
+        .arg(format!(
+            "--user-data-dir={}",
+            dir.join("chrome-profile").display()
+        ))
         .arg(format!("file://{}", probe_path.display()))
         .output()
         .unwrap();
