@@ -43,6 +43,10 @@ struct Args {
     /// Skip MVFC (the paper's "w/o MVFC" ablation): z_tgt is only noised.
     #[arg(long)]
     no_filter: bool,
+    /// Views per MVFC group: the 3D FFT runs over runs of this many adjacent views
+    /// (0 = all views in one group).
+    #[arg(long, default_value_t = 0)]
+    group_size: usize,
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -64,6 +68,7 @@ fn main() -> std::process::ExitCode {
                 d_t: a.dt,
             },
             no_filter: a.no_filter,
+            group_size: a.group_size,
             threads: a.threads,
         })
         .map(|t| tracing::info!("wrote noised latents at t = {t}"))

@@ -26,7 +26,8 @@
 use crate::csd::{self, CsdParams, StepInputs};
 use crate::prior::{self, PriorOptions};
 use crate::scheduler::Schedule;
-use crate::stages::mvfc_filter::{model_timesteps, read_latents, with_threads};
+use crate::stages::mvfc_filter::{model_timesteps, read_latents};
+use crate::stages::with_threads;
 use crate::{Error, Result};
 use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array3, Array4, Axis, concatenate, s};

@@ -18,7 +18,7 @@
 //! The timestep set: the model manifest's `stylizer.timesteps` range if present, else
 //! [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]).
 
-use crate::mvfc::{MvfcFilter, MvfcParams};
+use crate::mvfc::{MvfcParams, mvfc_grouped};
 use crate::prior::manifest::ModelManifest;
 use crate::prior::stylizer::TimestepRange;
 use crate::rng::Rng;
@@ -61,6 +61,8 @@ pub struct MvfcFilterArgs {
     pub out: PathBuf,
     pub params: MvfcParams,
     pub no_filter: bool,
+    /// Views per MVFC group (0 = all views in one group); see [`crate::mvfc::mvfc_grouped`].
+    pub group_size: usize,
     /// Worker threads (0 = all cores).
     pub threads: usize,
 }
@@ -86,18 +88,6 @@ pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
     }
     .map_err(bad)?;
     Ok((schedule, set))
-}
-
-/// Run `f` on a rayon pool of `threads` workers (0 = all cores).
-pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Result<T> {
-    if threads == 0 {
-        return Ok(f());
-    }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| Error::Other(format!("thread pool: {e}")))?;
-    Ok(pool.install(f))
 }
 
 /// Read a `latents` artifact's `latents.npy` as `[N, C, h, w]` (finite, checked).
@@ -162,9 +152,8 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
     let z_tgt = if a.no_filter {
         z_noisy
     } else {
-        let filter = MvfcFilter::new(shape, a.params)?;
-        with_threads(a.threads, || {
-            filter.apply(z_noisy.view(), eps_shared.view())
+        super::with_threads(a.threads, || {
+            mvfc_grouped(z_noisy.view(), eps_shared.view(), a.params, a.group_size)
         })??
     };
     tracing::info!(
@@ -174,8 +163,8 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
             "no filter".to_string()
         } else {
             format!(
-                "gamma {} d_s {} d_t {}",
-                a.params.gamma, a.params.d_s, a.params.d_t
+                "gamma {} d_s {} d_t {}, views per group {}",
+                a.params.gamma, a.params.d_s, a.params.d_t, a.group_size
             )
         }
     );
@@ -184,7 +173,7 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
         "timestep": match a.timestep { TimestepChoice::Auto => "auto".to_string(), TimestepChoice::Fixed(t) => t.to_string() },
         "seed": a.seed, "round": a.round,
         "gamma": a.params.gamma, "d_s": a.params.d_s, "d_t": a.params.d_t,
-        "no_filter": a.no_filter,
+        "no_filter": a.no_filter, "group_size": a.group_size,
     });
     let mut w = ArtifactWriter::create(
         &a.out,

@@ -275,6 +275,7 @@ fn filter_args(d: &Path, model: &Path) -> MvfcFilterArgs {
         out: d.join("noised"),
         params: MvfcParams::default(),
         no_filter: false,
+        group_size: 0,
         threads: 1,
     }
 }
