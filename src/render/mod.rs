@@ -168,6 +168,7 @@ struct ForwardSink<'a> {
 }
 
 impl Sink for ForwardSink<'_> {
+    const SKIP_EMPTY: bool = true;
     #[inline(always)]
     fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
         let [c0r, c1g, c2b, z] = self.cz[local as usize];
