@@ -213,9 +213,8 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
         let h1 = c1.div_ceil(HALF);
         let conic = [s.conic_a[gi], s.conic_b[gi], s.conic_c[gi]];
         let op = s.opacity[gi];
-        // Below `floor`, `op exp(power) < 1/255` even with exp_neg's 2e-7 relative error
-        // (the 1e-3 margin is far larger), so a half row entirely below it blends nothing.
-        let floor = -((op / ALPHA_MIN).ln().max(0.0) + 1e-3);
+        // A half row entirely below `floor` blends nothing (see `Splats::power_floor`).
+        let floor = s.power_floor[gi];
         let mut any = false;
         // Offsets from the mean to pixel centres.
         let dx0 = s.mean_x[gi] - (px0 as f32 + 0.5);
