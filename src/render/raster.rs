@@ -34,6 +34,24 @@ pub trait Sink {
     /// tile pixel `(r, c)` for rows `r0..r1` and columns `c0..c1` (tile-local); `w` is
     /// zero where it does not blend inside that window and stale outside it.
     fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane);
+
+    /// As [`Self::blend`], with bit `2 r + c / HALF` of `computed` set for the half rows
+    /// that were evaluated; the others have zero weight and may be skipped.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn blend_halves(
+        &mut self,
+        local: u32,
+        r0: usize,
+        r1: usize,
+        c0: usize,
+        c1: usize,
+        w: &Plane,
+        computed: u32,
+    ) {
+        let _ = computed;
+        self.blend(local, r0, r1, c0, c1, w);
+    }
 }
 
 /// `exp(x)` for `x <= 0`, a Cephes-style polynomial (relative error about 2e-7) built
@@ -215,7 +233,7 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
         let op = s.opacity[gi];
         // A half row entirely below `floor` blends nothing (see `Splats::power_floor`).
         let floor = s.power_floor[gi];
-        let mut any = false;
+        let mut computed = 0u32;
         // Offsets from the mean to pixel centres.
         let dx0 = s.mean_x[gi] - (px0 as f32 + 0.5);
         let dy0 = s.mean_y[gi] - (py0 as f32 + 0.5);
@@ -228,7 +246,7 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
                     st.w[r][lanes].fill(0.0);
                     continue;
                 }
-                any = true;
+                computed |= 1 << (r * (TILE / HALF) + h);
                 let still = blend_half(
                     dxh,
                     dy,
@@ -243,8 +261,8 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
                 }
             }
         }
-        if any || !S::SKIP_EMPTY {
-            sink.blend(g, r0, r1, h0 * HALF, h1 * HALF, &st.w);
+        if computed != 0 || !S::SKIP_EMPTY {
+            sink.blend_halves(g, r0, r1, h0 * HALF, h1 * HALF, &st.w, computed);
         }
     }
 }
