@@ -85,6 +85,7 @@ struct TileRecords {
 }
 
 impl Sink for TileRecords {
+    const SKIP_EMPTY: bool = true;
     #[inline(always)]
     fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
         let before = self.pix.len();

@@ -168,8 +168,23 @@ struct ForwardSink<'a> {
 }
 
 impl Sink for ForwardSink<'_> {
+    const SKIP_EMPTY: bool = true;
     #[inline(always)]
     fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
+        self.blend_halves(local, r0, r1, c0, c1, w, u32::MAX);
+    }
+
+    #[inline(always)]
+    fn blend_halves(
+        &mut self,
+        local: u32,
+        r0: usize,
+        r1: usize,
+        c0: usize,
+        c1: usize,
+        w: &Plane,
+        computed: u32,
+    ) {
         let [c0r, c1g, c2b, z] = self.cz[local as usize];
         let c = [c0r, c1g, c2b];
         let [ar, ag, ab, ad] = &mut self.acc;
@@ -178,6 +193,9 @@ impl Sink for ForwardSink<'_> {
         const H: usize = raster::HALF;
         for r in r0..r1 {
             for h in (c0..c1).step_by(H) {
+                if computed & (1 << (r * (TILE / H) + h / H)) == 0 {
+                    continue;
+                }
                 let wv: &[f32; H] = half(&w[r][h..h + H]);
                 let a0: &mut [f32; H] = half_mut(&mut ar[r][h..h + H]);
                 let a1: &mut [f32; H] = half_mut(&mut ag[r][h..h + H]);

@@ -18,9 +18,10 @@
 //!   `opacity * exp(-power) >= 1/255` (plus a pixel of margin): pixels outside that box
 //!   can never pass the 1/255 test, so this cut changes no output, it only saves work.
 //!
-//! Binning is a counting sort by tile followed by a per-tile sort on the key
-//! `(depth bits, index)`: depths are positive floats so their bit patterns order like
-//! the values, and the index breaks ties, so the order is total and deterministic.
+//! Binning: one radix sort of all splats on the key `(depth bits, index)` (depths are
+//! positive floats so their bit patterns order like the values, and the index breaks
+//! ties, so the order is total and deterministic), then a counting sort by tile that
+//! visits splats in that order, so every tile's list comes out front to back.
 //! Projection itself is computed in f64 for robustness at extreme scales, then stored
 //! as f32 structure-of-arrays for the rasterizer.
 
@@ -52,6 +53,9 @@ pub struct Splats {
     pub conic_b: Vec<f32>,
     pub conic_c: Vec<f32>,
     pub opacity: Vec<f32>,
+    /// `power` below which `opacity * exp(power) < 1/255` with a margin of 1e-3 (far
+    /// above f32 rounding and the compositor's exp error): a pixel below it never blends.
+    pub power_floor: Vec<f32>,
     /// Camera-space z.
     pub depth: Vec<f32>,
     /// Pixel rows `[y0, y1)` (image coordinates) that can receive alpha >= 1/255.
@@ -81,17 +85,20 @@ struct One {
     mean: [f32; 2],
     conic: [f32; 3],
     opacity: f32,
+    power_floor: f32,
     depth: f32,
     rows: [u32; 2],
     cols: [u32; 2],
     tiles: [u32; 4],
 }
 
+#[inline(always)]
 fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
 
 /// Project Gaussian `i`; `None` when culled.
+#[inline(always)]
 fn project_one(scene: &Scene, cam: &Cam, i: usize) -> Option<One> {
     let p = scene.positions[i];
     let p = [p[0] as f64, p[1] as f64, p[2] as f64];
@@ -232,6 +239,7 @@ fn project_one(scene: &Scene, cam: &Cam, i: usize) -> Option<One> {
         mean: [mx as f32, my as f32],
         conic: [conic[0] as f32, conic[1] as f32, conic[2] as f32],
         opacity: opacity as f32,
+        power_floor: -(level as f32 + 1e-3),
         depth: z as f32,
         rows,
         cols,
@@ -288,6 +296,39 @@ impl Cam {
     }
 }
 
+/// Project Gaussians `lo..hi`, keeping the survivors in order.
+///
+/// On x86-64 CPUs with AVX2 and FMA this runs a copy compiled with those features (so
+/// `floor`/`ceil` become single instructions instead of libm calls). Rust never fuses
+/// `a * b + c`, so both copies give identical bits.
+fn project_range(scene: &Scene, cam: &Cam, lo: usize, hi: usize) -> Vec<One> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the function only requires AVX2 and FMA, which the CPU has (checked
+        // just above); it is otherwise ordinary safe code.
+        #[allow(unsafe_code)]
+        return unsafe { project_range_avx2(scene, cam, lo, hi) };
+    }
+    project_range_impl(scene, cam, lo, hi)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn project_range_avx2(scene: &Scene, cam: &Cam, lo: usize, hi: usize) -> Vec<One> {
+    project_range_impl(scene, cam, lo, hi)
+}
+
+#[inline(always)]
+fn project_range_impl(scene: &Scene, cam: &Cam, lo: usize, hi: usize) -> Vec<One> {
+    let mut out = Vec::with_capacity(hi - lo);
+    for i in lo..hi {
+        if let Some(o) = project_one(scene, cam, i) {
+            out.push(o);
+        }
+    }
+    out
+}
+
 /// Project every Gaussian of `scene` for `camera` (validated by the caller) and bin the
 /// survivors into tiles.
 pub fn project(scene: &Scene, camera: &Camera) -> Frame {
@@ -299,9 +340,7 @@ pub fn project(scene: &Scene, camera: &Camera) -> Frame {
         .map(|c| {
             let lo = c * 4096;
             let hi = (lo + 4096).min(n);
-            (lo..hi)
-                .filter_map(|i| project_one(scene, &cam, i))
-                .collect()
+            project_range(scene, &cam, lo, hi)
         })
         .collect();
     let m: usize = chunks.iter().map(|c| c.len()).sum();
@@ -313,6 +352,7 @@ pub fn project(scene: &Scene, camera: &Camera) -> Frame {
         conic_b: Vec::with_capacity(m),
         conic_c: Vec::with_capacity(m),
         opacity: Vec::with_capacity(m),
+        power_floor: Vec::with_capacity(m),
         depth: Vec::with_capacity(m),
         rows: Vec::with_capacity(m),
         cols: Vec::with_capacity(m),
@@ -326,6 +366,7 @@ pub fn project(scene: &Scene, camera: &Camera) -> Frame {
         s.conic_b.push(o.conic[1]);
         s.conic_c.push(o.conic[2]);
         s.opacity.push(o.opacity);
+        s.power_floor.push(o.power_floor);
         s.depth.push(o.depth);
         s.rows.push(o.rows);
         s.cols.push(o.cols);
@@ -334,7 +375,7 @@ pub fn project(scene: &Scene, camera: &Camera) -> Frame {
     bin(s, cam.width, cam.height)
 }
 
-/// Counting sort of (tile, splat) pairs by tile, then a per-tile depth sort.
+/// Counting sort of (tile, splat) pairs by tile, visiting splats front to back.
 fn bin(splats: Splats, width: usize, height: usize) -> Frame {
     let tiles_x = width.div_ceil(TILE);
     let tiles_y = height.div_ceil(TILE);
@@ -352,29 +393,20 @@ fn bin(splats: Splats, width: usize, height: usize) -> Frame {
     }
     let tile_start = count.clone();
     let total = count[nt] as usize;
-    let mut keys = vec![0u64; total];
+    let mut tile_list = vec![0u32; total];
     let mut fill = count;
-    for (i, r) in splats.tiles.iter().enumerate() {
-        let key = ((splats.depth[i].to_bits() as u64) << 32) | i as u64;
+    // Visiting splats front to back fills every tile's range already sorted.
+    for key in depth_order(&splats.depth) {
+        let i = key as u32;
+        let r = splats.tiles[i as usize];
         for ty in r[1]..r[3] {
             for tx in r[0]..r[2] {
                 let t = ty as usize * tiles_x + tx as usize;
-                keys[fill[t] as usize] = key;
+                tile_list[fill[t] as usize] = i;
                 fill[t] += 1;
             }
         }
     }
-    // Sort each tile's keys; split `keys` into disjoint per-tile slices.
-    let mut slices: Vec<&mut [u64]> = Vec::with_capacity(nt);
-    let mut rest: &mut [u64] = &mut keys;
-    for t in 0..nt {
-        let len = (tile_start[t + 1] - tile_start[t]) as usize;
-        let (a, b) = rest.split_at_mut(len);
-        slices.push(a);
-        rest = b;
-    }
-    slices.par_iter_mut().for_each(|s| s.sort_unstable());
-    let tile_list = keys.iter().map(|k| *k as u32).collect();
     Frame {
         width,
         height,
@@ -383,5 +415,50 @@ fn bin(splats: Splats, width: usize, height: usize) -> Frame {
         splats,
         tile_start,
         tile_list,
+    }
+}
+
+/// Keys `(depth bits) << 32 | index` of all splats, sorted: an LSD radix sort (four
+/// stable 8-bit passes over the depth bits) of keys that start in index order, so ties
+/// in depth keep index order and the order is total and deterministic. Depths are
+/// positive floats, whose bit patterns order like the values.
+fn depth_order(depth: &[f32]) -> Vec<u64> {
+    let mut keys: Vec<u64> = depth
+        .iter()
+        .enumerate()
+        .map(|(i, z)| ((z.to_bits() as u64) << 32) | i as u64)
+        .collect();
+    let mut tmp = vec![0u64; keys.len()];
+    for pass in 0..4 {
+        let shift = 32 + 8 * pass;
+        let mut start = [0usize; 257];
+        for k in &keys {
+            start[((k >> shift) & 255) as usize + 1] += 1;
+        }
+        for b in 0..256 {
+            start[b + 1] += start[b];
+        }
+        for &k in &keys {
+            let b = ((k >> shift) & 255) as usize;
+            tmp[start[b]] = k;
+            start[b] += 1;
+        }
+        std::mem::swap(&mut keys, &mut tmp);
+    }
+    keys
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn depth_order_sorts_keys_like_sort_unstable() {
+        let depth = [3.0f32, 0.5, 3.0, 1e6, 0.2, 7.25, 0.5, 2.0];
+        let mut want: Vec<u64> = depth
+            .iter()
+            .enumerate()
+            .map(|(i, z)| ((z.to_bits() as u64) << 32) | i as u64)
+            .collect();
+        want.sort_unstable();
+        assert_eq!(super::depth_order(&depth), want);
     }
 }

@@ -13,6 +13,8 @@
 //! compiler vectorises the pixel loop. The blending weights `w = alpha T` of each splat
 //! are handed to a [`Sink`], which turns them into colour (forward), contribution
 //! records (the frozen-geometry cache) or colour gradients (the uncached backward).
+//! Half rows whose 8 pixels have all finished, or where `power` stays below the level
+//! at which `alpha < 1/255`, are skipped (they could only receive zero weight), and the tile stops as soon as every half row has finished.
 //! Per pixel, the order of operations is the front-to-back order, independent of
 //! threads, so results are bit-identical for any thread count.
 
@@ -26,10 +28,30 @@ pub type Plane = [[f32; TILE]; TILE];
 
 /// Receives the blending weights of each splat of a tile, in front-to-back order.
 pub trait Sink {
+    /// When true, a splat whose weights are all zero in this tile is not reported.
+    const SKIP_EMPTY: bool = false;
     /// Splat `local` (index into [`Frame::splats`]) blends with weight `w[r][c]` into
     /// tile pixel `(r, c)` for rows `r0..r1` and columns `c0..c1` (tile-local); `w` is
     /// zero where it does not blend inside that window and stale outside it.
     fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane);
+
+    /// As [`Self::blend`], with bit `2 r + c / HALF` of `computed` set for the half rows
+    /// that were evaluated; the others have zero weight and may be skipped.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn blend_halves(
+        &mut self,
+        local: u32,
+        r0: usize,
+        r1: usize,
+        c0: usize,
+        c1: usize,
+        w: &Plane,
+        computed: u32,
+    ) {
+        let _ = computed;
+        self.blend(local, r0, r1, c0, c1, w);
+    }
 }
 
 /// `exp(x)` for `x <= 0`, a Cephes-style polynomial (relative error about 2e-7) built
@@ -86,6 +108,22 @@ impl TileState {
 /// Pixels per half row: the unit of work along x (one AVX2 register).
 pub const HALF: usize = TILE / 2;
 
+/// Whether any pixel of a half row can reach `power >= floor`, with `power` computed
+/// exactly as in [`blend_half`]; branch-free so that it vectorises.
+#[inline(always)]
+fn may_blend(dx0: f32, dy: f32, conic: [f32; 3], floor: f32) -> bool {
+    let [ca, cb, cc] = conic;
+    let cdy = cc * dy * dy;
+    let bdy = cb * dy;
+    let mut any = false;
+    for c in 0..HALF {
+        let dx = dx0 - c as f32;
+        let power = -0.5 * (ca * dx * dx + cdy) - bdy * dx;
+        any |= power >= floor;
+    }
+    any
+}
+
 /// One splat over half a row (8 pixels): branch-free so that it vectorises.
 #[inline(always)]
 fn blend_half(
@@ -95,7 +133,7 @@ fn blend_half(
     op: f32,
     t: &mut [f32; HALF],
     w: &mut [f32; HALF],
-) {
+) -> bool {
     let [ca, cb, cc] = conic;
     let cdy = cc * dy * dy;
     let bdy = cb * dy;
@@ -112,6 +150,12 @@ fn blend_half(
         let kept = if finish { -tc } else { tc };
         t[c] = if blend { next } else { kept };
     }
+    // Whether any pixel of the half is still open (branch-free reduction).
+    let mut open = false;
+    for v in t.iter() {
+        open |= *v > 0.0;
+    }
+    open
 }
 
 /// Composite tile `tile` of `frame`, reporting weights to `sink`. `st` is reset here.
@@ -148,16 +192,27 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
     let py0 = ty * TILE;
     let cols = (frame.width - px0).min(TILE);
     let rows = (frame.height - py0).min(TILE);
+    // `open[r][h]`: half `h` of row `r` still has a pixel with transmittance > 0. A
+    // closed half would get zero weight from every later splat, so it is skipped (its
+    // weights are zeroed for the sink); when no half is open the tile is finished.
+    let mut open = [[false; TILE / HALF]; TILE];
+    let mut n_open = 0usize;
     for r in 0..TILE {
         for c in 0..TILE {
             st.t[r][c] = if r < rows && c < cols { 1.0 } else { -1.0 };
+        }
+        for (h, o) in open[r].iter_mut().enumerate() {
+            *o = r < rows && h * HALF < cols;
+            n_open += *o as usize;
         }
     }
     let s = &frame.splats;
     let list =
         &frame.tile_list[frame.tile_start[tile] as usize..frame.tile_start[tile + 1] as usize];
-    let mut since_check = 0;
     for &g in list {
+        if n_open == 0 {
+            break;
+        }
         let gi = g as usize;
         let rr = s.rows[gi];
         let r0 = (rr[0] as usize).max(py0) - py0;
@@ -176,29 +231,38 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
         let h1 = c1.div_ceil(HALF);
         let conic = [s.conic_a[gi], s.conic_b[gi], s.conic_c[gi]];
         let op = s.opacity[gi];
+        // A half row entirely below `floor` blends nothing (see `Splats::power_floor`).
+        let floor = s.power_floor[gi];
+        let mut computed = 0u32;
         // Offsets from the mean to pixel centres.
         let dx0 = s.mean_x[gi] - (px0 as f32 + 0.5);
         let dy0 = s.mean_y[gi] - (py0 as f32 + 0.5);
         for r in r0..r1 {
             for h in h0..h1 {
                 let lanes = h * HALF..(h + 1) * HALF;
-                blend_half(
-                    dx0 - (h * HALF) as f32,
-                    dy0 - r as f32,
+                let dxh = dx0 - (h * HALF) as f32;
+                let dy = dy0 - r as f32;
+                if !(open[r][h] && may_blend(dxh, dy, conic, floor)) {
+                    st.w[r][lanes].fill(0.0);
+                    continue;
+                }
+                computed |= 1 << (r * (TILE / HALF) + h);
+                let still = blend_half(
+                    dxh,
+                    dy,
                     conic,
                     op,
                     as_half(&mut st.t[r][lanes.clone()]),
                     as_half(&mut st.w[r][lanes]),
                 );
+                if !still {
+                    open[r][h] = false;
+                    n_open -= 1;
+                }
             }
         }
-        sink.blend(g, r0, r1, h0 * HALF, h1 * HALF, &st.w);
-        since_check += 1;
-        if since_check == 32 {
-            since_check = 0;
-            if st.t.iter().flatten().all(|&t| t <= 0.0) {
-                break;
-            }
+        if computed != 0 || !S::SKIP_EMPTY {
+            sink.blend_halves(g, r0, r1, h0 * HALF, h1 * HALF, &st.w, computed);
         }
     }
 }
