@@ -119,30 +119,7 @@ fn project_one(scene: &Scene, cam: &Cam, i: usize) -> Option<One> {
         return None;
     }
     // Rotation from the normalised quaternion (w, x, y, z).
-    let q = scene.rotations[i];
-    let q = [q[0] as f64, q[1] as f64, q[2] as f64, q[3] as f64];
-    let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    if !(qn > 0.0 && qn.is_finite()) {
-        return None;
-    }
-    let (qw, qx, qy, qz) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
-    let rq = [
-        [
-            1.0 - 2.0 * (qy * qy + qz * qz),
-            2.0 * (qx * qy - qw * qz),
-            2.0 * (qx * qz + qw * qy),
-        ],
-        [
-            2.0 * (qx * qy + qw * qz),
-            1.0 - 2.0 * (qx * qx + qz * qz),
-            2.0 * (qy * qz - qw * qx),
-        ],
-        [
-            2.0 * (qx * qz - qw * qy),
-            2.0 * (qy * qz + qw * qx),
-            1.0 - 2.0 * (qx * qx + qy * qy),
-        ],
-    ];
+    let rq = crate::camera::quat_to_mat(scene.rotations[i].map(f64::from))?;
     let ls = scene.log_scales[i];
     let s = [
         (ls[0] as f64).exp(),
