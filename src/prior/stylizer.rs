@@ -107,9 +107,59 @@ pub struct StylizerPrior {
     info: PriorInfo,
     schedule: Schedule,
     manifest: StylizerManifest,
-    predict: Session,
-    transform: Session,
+    predict: LazySession,
+    transform: LazySession,
     style: Option<Vec<f32>>,
+}
+
+/// An onnxruntime session loaded (and checked against the manifest) on first use: the
+/// pixel-space VAE is the identity, so `encode-latents` never pays for the two Magenta
+/// graphs, and a stage that only stylizes with a known style vector loads one of them.
+struct LazySession {
+    path: std::path::PathBuf,
+    threads: usize,
+    inputs: Vec<String>,
+    output: String,
+    session: Option<Session>,
+}
+
+impl LazySession {
+    fn new(
+        path: std::path::PathBuf,
+        threads: usize,
+        inputs: &[&str],
+        output: &str,
+    ) -> Result<Self> {
+        if !path.is_file() {
+            return Err(Error::input(
+                &path,
+                "ONNX graph named by the stylizer manifest not found",
+            ));
+        }
+        // The environment (and the onnxruntime library) must exist before any tensor is
+        // made, sessions or not: ort would otherwise look for a library by default name.
+        crate::runtime::environment()?;
+        Ok(LazySession {
+            path,
+            threads,
+            inputs: inputs.iter().map(|s| s.to_string()).collect(),
+            output: output.to_string(),
+            session: None,
+        })
+    }
+
+    fn get(&mut self) -> Result<&mut Session> {
+        if self.session.is_none() {
+            let inputs: Vec<&str> = self.inputs.iter().map(String::as_str).collect();
+            self.session = Some(load_checked(
+                &self.path,
+                self.threads,
+                &inputs,
+                &self.output,
+            )?);
+        }
+        Ok(self.session.as_mut().expect("loaded above"))
+    }
 }
 
 impl std::fmt::Debug for StylizerPrior {
@@ -141,14 +191,14 @@ impl StylizerPrior {
         let manifest = mj.stylizer;
         let schedule = Schedule::new(mj.scheduler.clone())
             .map_err(|e| Error::input(&mpath, format!("scheduler: {e}")))?;
-        let predict = load_checked(
-            &dir.join(&manifest.style_predict.file),
+        let predict = LazySession::new(
+            dir.join(&manifest.style_predict.file),
             threads,
             &[&manifest.style_predict.input],
             &manifest.style_predict.output,
         )?;
-        let transform = load_checked(
-            &dir.join(&manifest.transform.file),
+        let transform = LazySession::new(
+            dir.join(&manifest.transform.file),
             threads,
             &[
                 &manifest.transform.content_input,
@@ -197,6 +247,7 @@ impl StylizerPrior {
         let g = &self.manifest.style_predict;
         let out = self
             .predict
+            .get()?
             .run(ort::inputs![g.input.as_str() => t])
             .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
         let v = out
@@ -243,6 +294,7 @@ impl StylizerPrior {
             .map_err(|e| Error::Onnx(e.to_string()))?;
         let out = self
             .transform
+            .get()?
             .run(ort::inputs![g.content_input.as_str() => content, g.style_input.as_str() => style])
             .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
         let (_, data) = out

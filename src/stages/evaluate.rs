@@ -241,8 +241,8 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
             "--short-range and --long-range must be at least 1",
         ));
     }
-    let orig = ViewSet::load(&o.original)?;
-    let styl = ViewSet::load(&o.stylized)?;
+    let orig = super::timing::load(|| ViewSet::load(&o.original))?;
+    let styl = super::timing::load(|| ViewSet::load(&o.stylized))?;
     orig.check_same_views(&styl)?;
     let style = Image::load(&o.style)?;
     let sweep = o.sweep.as_deref().map(Sweep::load).transpose()?;
@@ -265,7 +265,7 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
     let pb = progress(6, "evaluate");
 
     // LPIPS content.
-    let mut lp = LpipsModel::load(&models, o.lpips_net, o.threads)?;
+    let mut lp = super::timing::load(|| LpipsModel::load(&models, o.lpips_net, o.threads))?;
     let oi: Vec<&Image> = orig.images.iter().collect();
     let si: Vec<&Image> = styl.images.iter().collect();
     let lpips_per_view = lpips::pairwise(&mut lp, &oi, &si)?;
@@ -283,7 +283,7 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
     let mut vgg = if o.lpips_net == LpipsNet::Vgg16 {
         lp
     } else {
-        LpipsModel::load(&models, LpipsNet::Vgg16, o.threads)?
+        super::timing::load(|| LpipsModel::load(&models, LpipsNet::Vgg16, o.threads))?
     };
     let style_small = style.fit_within(GRAM_MAX_SIDE);
     let gs = gram::grams(&vgg.features(&[&style_small])?[0]);
@@ -301,7 +301,7 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
     // FID / KID.
     let k = n.max(fid::MIN_IMAGES);
     let crops = style_crops(&style, k, w, h, o.seed);
-    let mut inc = Inception::load(&models, o.threads)?;
+    let mut inc = super::timing::load(|| Inception::load(&models, o.threads))?;
     let fs = inc.pool3(&si)?;
     let fo = inc.pool3(&oi)?;
     let fc = inc.pool3(&crops.iter().collect::<Vec<_>>())?;
