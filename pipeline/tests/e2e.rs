@@ -228,11 +228,22 @@ fn failed_stage_blocks_downstream_keeps_no_partial_output_and_resumes() {
     assert_same(&tree(d.path()), &reference(), "after fixing the failure");
 }
 
+/// Wall time of one uninterrupted run on this machine: kill points are spread over it
+/// so that they land inside a run however fast or loaded the machine is.
+fn uninterrupted_run_time() -> Duration {
+    let d = project();
+    let start = std::time::Instant::now();
+    let (rc, _, err) = run(d.path(), &["--jobs", "1"]);
+    assert_eq!(rc, 0, "{err}");
+    start.elapsed()
+}
+
 /// Kill the whole runner (process group: runner, shells, stages) at many points of a
 /// run, then rerun: the outputs equal an uninterrupted run's, byte for byte.
 #[test]
 fn kill_runner_at_many_points_then_rerun_is_byte_identical() {
     let want = reference();
+    let window = uninterrupted_run_time().mul_f64(0.8);
     let mut interrupted = 0;
     for k in 0..24u64 {
         let d = project();
@@ -245,8 +256,7 @@ fn kill_runner_at_many_points_then_rerun_is_byte_identical() {
             .process_group(0)
             .spawn()
             .unwrap();
-        // Spread the kill points over the run (about 0.6 s uninterrupted).
-        std::thread::sleep(Duration::from_millis(5 + k * 27));
+        std::thread::sleep(window.mul_f64((k as f64 + 0.5) / 24.0));
         let pg = format!("-{}", child.id());
         let _ = Command::new("kill").args(["-KILL", "--", &pg]).status();
         let st = child.wait().unwrap();
@@ -533,6 +543,7 @@ fn stage_pids(dir: &Path) -> Vec<String> {
 #[test]
 fn kill_one_stage_at_many_points_then_rerun_is_byte_identical() {
     let want = reference();
+    let window = uninterrupted_run_time().mul_f64(0.8);
     let mut killed = 0;
     for k in 0..12u64 {
         let d = project();
@@ -543,7 +554,7 @@ fn kill_one_stage_at_many_points_then_rerun_is_byte_identical() {
             .stderr(Stdio::null())
             .spawn()
             .unwrap();
-        std::thread::sleep(Duration::from_millis(40 + k * 45));
+        std::thread::sleep(window.mul_f64((k as f64 + 0.5) / 12.0));
         for pid in stage_pids(d.path()) {
             if Command::new("kill")
                 .args(["-KILL", &pid])
