@@ -10,7 +10,7 @@ use fantasystyle::metrics::nets::{LpipsModel, LpipsNet, models_dir};
 use fantasystyle::metrics::views::ViewSet;
 use fantasystyle::metrics::warp::{look_at, synthetic};
 use fantasystyle::stages::evaluate::{EvaluateOptions, run};
-use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -49,17 +49,9 @@ fn write_views(dir: &Path, cams: &[Camera], colour: &dyn Fn(usize, Image) -> Ima
     }
     let n = cams.len();
     let (h, w) = (cams[0].height as usize, cams[0].width as usize);
-    let mut wr = ArtifactWriter::create(
-        dir,
-        ArtifactKind::Views,
-        Producer::new("test", "0", serde_json::json!({})),
-    )
-    .unwrap();
-    wr.write_tensor("rgb.npy", &[n, h, w, 3], &rgb).unwrap();
-    wr.write_tensor("depth.npy", &[n, h, w], &depth).unwrap();
-    wr.write_tensor("alpha.npy", &[n, h, w], &alpha).unwrap();
-    wr.write_json("cameras.json", &to_inria(cams)).unwrap();
-    wr.commit().unwrap();
+    let mut json = serde_json::to_vec_pretty(&to_inria(cams)).unwrap();
+    json.push(b'\n');
+    crate::harness::write_views(dir, [n, h, w], &rgb, &depth, &alpha, &json);
     dir.to_path_buf()
 }
 

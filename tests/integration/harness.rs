@@ -27,3 +27,27 @@ pub fn shared_scene(name: &str) -> Option<PathBuf> {
     eprintln!("SKIPPED: shared scene {name} is absent (looked in {roots:?})");
     None
 }
+
+/// Write a `views` artifact at `dir` from `[n, h, w, 3]` RGB, `[n, h, w]` depth and
+/// alpha, and the bytes of its `cameras.json`.
+pub fn write_views(
+    dir: &std::path::Path,
+    [n, h, w]: [usize; 3],
+    rgb: &[f32],
+    depth: &[f32],
+    alpha: &[f32],
+    cameras_json: &[u8],
+) {
+    use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+    let mut wr = ArtifactWriter::create(
+        dir,
+        ArtifactKind::Views,
+        Producer::new("test", "0", serde_json::json!({})),
+    )
+    .unwrap();
+    wr.write_tensor("rgb.npy", &[n, h, w, 3], rgb).unwrap();
+    wr.write_tensor("depth.npy", &[n, h, w], depth).unwrap();
+    wr.write_tensor("alpha.npy", &[n, h, w], alpha).unwrap();
+    wr.write_bytes("cameras.json", cameras_json).unwrap();
+    wr.commit().unwrap();
+}

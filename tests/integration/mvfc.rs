@@ -241,20 +241,14 @@ fn write_views(dir: &Path, imgs: &Array4<f32>) {
         .iter()
         .copied()
         .collect();
-    let mut wr = ArtifactWriter::create(
+    crate::harness::write_views(
         dir,
-        ArtifactKind::Views,
-        Producer::new("test", "0", serde_json::json!({})),
-    )
-    .unwrap();
-    wr.write_tensor("rgb.npy", &[n, h, w, 3], &rgb).unwrap();
-    wr.write_tensor("depth.npy", &[n, h, w], &vec![2.0f32; n * h * w])
-        .unwrap();
-    wr.write_tensor("alpha.npy", &[n, h, w], &vec![1.0f32; n * h * w])
-        .unwrap();
-    wr.write_bytes("cameras.json", b"[{\"id\": 0, \"note\": \"test\"}]\n")
-        .unwrap();
-    wr.commit().unwrap();
+        [n, h, w],
+        &rgb,
+        &vec![2.0f32; n * h * w],
+        &vec![1.0f32; n * h * w],
+        b"[{\"id\": 0, \"note\": \"test\"}]\n",
+    );
 }
 
 fn read4(dir: &Path, kind: ArtifactKind, name: &str) -> Array4<f32> {

@@ -5,7 +5,7 @@ use crate::harness::repo_root;
 use fantasystyle::prior::gaussian::{self, GaussianPrior};
 use fantasystyle::prior::{Cond, OnnxPrior, Prior, PriorOptions};
 use fantasystyle::rng::Rng;
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{Artifact, ArtifactKind};
 use ndarray::Array4;
 use std::path::{Path, PathBuf};
 
@@ -243,21 +243,10 @@ fn manifest_mismatches_name_the_graph_and_input() {
 }
 
 fn write_views(dir: &Path, n: usize, h: usize, w: usize) {
-    let mut wr = ArtifactWriter::create(
-        dir,
-        ArtifactKind::Views,
-        Producer::new("test", "0", serde_json::json!({})),
-    )
-    .unwrap();
     let mut r = Rng::new(11);
     let rgb: Vec<f32> = (0..n * h * w * 3).map(|_| r.uniform() as f32).collect();
-    wr.write_tensor("rgb.npy", &[n, h, w, 3], &rgb).unwrap();
-    wr.write_tensor("depth.npy", &[n, h, w], &vec![1f32; n * h * w])
-        .unwrap();
-    wr.write_tensor("alpha.npy", &[n, h, w], &vec![1f32; n * h * w])
-        .unwrap();
-    wr.write_bytes("cameras.json", b"[]").unwrap();
-    wr.commit().unwrap();
+    let ones = vec![1f32; n * h * w];
+    crate::harness::write_views(dir, [n, h, w], &rgb, &ones, &ones, b"[]");
 }
 
 #[test]
