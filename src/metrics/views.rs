@@ -5,6 +5,7 @@
 use super::image::Image;
 use crate::{Camera, Error, Result};
 use fantasystyle_schemas::{Artifact, ArtifactKind};
+use ndarray::{Array3, Array4, Axis};
 use std::path::{Path, PathBuf};
 
 /// One views artifact in memory.
@@ -22,6 +23,50 @@ pub struct ViewSet {
     pub cameras: Vec<Camera>,
 }
 
+/// The tensors of a views artifact, shape-checked against each other: `rgb`
+/// [N, H, W, 3], `depth` and `alpha` [N, H, W].
+#[derive(Debug)]
+pub struct ViewTensors {
+    pub art: Artifact,
+    pub rgb: Array4<f32>,
+    pub depth: Array3<f32>,
+    pub alpha: Array3<f32>,
+}
+
+/// Open a views artifact and read its tensors (finite, consistent shapes).
+pub fn read_view_tensors(dir: &Path) -> Result<ViewTensors> {
+    let art = Artifact::open(dir, ArtifactKind::Views)?;
+    let rgb = art.read_f32("rgb.npy")?;
+    let [n, h, w, 3] = rgb.shape[..] else {
+        return Err(Error::input(
+            art.path("rgb.npy"),
+            format!("expected shape [N, H, W, 3], got {:?}", rgb.shape),
+        ));
+    };
+    let rgb = Array4::from_shape_vec((n, h, w, 3), rgb.data).expect("shape checked");
+    let plane = |name: &str| -> Result<Array3<f32>> {
+        let t = art.read_f32(name)?;
+        if t.shape != [n, h, w] {
+            return Err(Error::input(
+                art.path(name),
+                format!(
+                    "expected shape [{n}, {h}, {w}] to match rgb.npy, got {:?}",
+                    t.shape
+                ),
+            ));
+        }
+        Ok(Array3::from_shape_vec((n, h, w), t.data).expect("shape checked"))
+    };
+    let depth = plane("depth.npy")?;
+    let alpha = plane("alpha.npy")?;
+    Ok(ViewTensors {
+        art,
+        rgb,
+        depth,
+        alpha,
+    })
+}
+
 /// Read the INRIA-format `cameras.json` of a views artifact.
 fn read_cameras(path: &Path) -> Result<Vec<Camera>> {
     crate::camera::inria::read_inria(path)
@@ -33,33 +78,18 @@ impl ViewSet {
         if !dir.is_dir() {
             return Err(Error::input(dir, "views artifact directory not found"));
         }
-        let art = Artifact::open(dir, ArtifactKind::Views)?;
-        let rgb = art.read_f32("rgb.npy")?;
-        let depth = art.read_f32("depth.npy")?;
-        let alpha = art.read_f32("alpha.npy")?;
+        let ViewTensors {
+            rgb, depth, alpha, ..
+        } = read_view_tensors(dir)?;
+        let (n, h, w) = (rgb.shape()[0], rgb.shape()[1], rgb.shape()[2]);
         let bad = |f: &str, r: String| Err(Error::input(dir.join(f), r));
-        if rgb.shape.len() != 4 || rgb.shape[3] != 3 {
+        if n == 0 || h == 0 || w == 0 {
             return bad(
                 "rgb.npy",
-                format!("expected shape [N,H,W,3], got {:?}", rgb.shape),
+                format!("empty view set, shape {:?}", rgb.shape()),
             );
         }
-        let (n, h, w) = (rgb.shape[0], rgb.shape[1], rgb.shape[2]);
-        if n == 0 || h == 0 || w == 0 {
-            return bad("rgb.npy", format!("empty view set, shape {:?}", rgb.shape));
-        }
-        for (f, a) in [("depth.npy", &depth), ("alpha.npy", &alpha)] {
-            if a.shape != [n, h, w] {
-                return bad(
-                    f,
-                    format!(
-                        "expected shape [{n},{h},{w}] to match rgb.npy, got {:?}",
-                        a.shape
-                    ),
-                );
-            }
-        }
-        if alpha.data.iter().any(|a| !(-1e-4..=1.0 + 1e-4).contains(a)) {
+        if alpha.iter().any(|a| !(-1e-4..=1.0 + 1e-4).contains(a)) {
             return bad("alpha.npy", "values outside [0, 1]".into());
         }
         let cameras = read_cameras(&dir.join("cameras.json"))?;
@@ -84,7 +114,7 @@ impl ViewSet {
             .map(|i| Image {
                 width: w,
                 height: h,
-                data: rgb.data[i * h * w * 3..(i + 1) * h * w * 3].to_vec(),
+                data: rgb.index_axis(Axis(0), i).iter().copied().collect(),
             })
             .collect();
         Ok(ViewSet {
@@ -93,8 +123,8 @@ impl ViewSet {
             width: w,
             height: h,
             images,
-            depth: depth.data,
-            alpha: alpha.data,
+            depth: depth.into_raw_vec_and_offset().0,
+            alpha: alpha.into_raw_vec_and_offset().0,
             cameras,
         })
     }

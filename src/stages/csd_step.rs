@@ -24,13 +24,14 @@
 //! records t, the mode and the step's statistics.
 
 use crate::csd::{self, CsdParams, StepInputs};
+use crate::metrics::views::read_view_tensors;
 use crate::prior::{self, PriorOptions};
 use crate::scheduler::Schedule;
 use crate::stages::mvfc_filter::{model_timesteps, read_latents};
 use crate::stages::with_threads;
 use crate::{Error, Result};
 use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
-use ndarray::{Array3, Array4, Axis, concatenate, s};
+use ndarray::{Array4, Axis, concatenate, s};
 use std::path::{Path, PathBuf};
 
 /// Parameters of `csd-step`.
@@ -69,44 +70,6 @@ pub fn load_image(path: &Path) -> Result<Array4<f32>> {
     Ok(Array4::from_shape_fn((1, 3, h, w), |(_, c, y, x)| {
         img.data[(y * w + x) * 3 + c]
     }))
-}
-
-/// A views artifact's tensors: rgb [N, H, W, 3], depth and alpha [N, H, W].
-struct Views {
-    art: Artifact,
-    rgb: Array4<f32>,
-    depth: Array3<f32>,
-    alpha: Array3<f32>,
-}
-
-fn read_views(dir: &Path) -> Result<Views> {
-    let art = Artifact::open(dir, ArtifactKind::Views)?;
-    let rgb = art.read_f32("rgb.npy")?;
-    let [n, h, w, 3] = rgb.shape[..] else {
-        return Err(Error::input(
-            art.path("rgb.npy"),
-            format!("expected shape [N, H, W, 3], found {:?}", rgb.shape),
-        ));
-    };
-    let rgb = Array4::from_shape_vec((n, h, w, 3), rgb.data).expect("shape checked");
-    let plane = |name: &str| -> Result<Array3<f32>> {
-        let t = art.read_f32(name)?;
-        if t.shape != [n, h, w] {
-            return Err(Error::input(
-                art.path(name),
-                format!("expected shape [{n}, {h}, {w}], found {:?}", t.shape),
-            ));
-        }
-        Ok(Array3::from_shape_vec((n, h, w), t.data).expect("shape checked"))
-    };
-    let depth = plane("depth.npy")?;
-    let alpha = plane("alpha.npy")?;
-    Ok(Views {
-        art,
-        rgb,
-        depth,
-        alpha,
-    })
 }
 
 fn rms(a: impl Iterator<Item = f32>) -> f64 {
@@ -166,8 +129,8 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
             "meta.timestep is missing or not a non-negative integer",
         )
     })? as usize;
-    let views = super::timing::load(|| read_views(&a.views))?;
-    let source = super::timing::load(|| read_views(&a.source_views))?;
+    let views = super::timing::load(|| read_view_tensors(&a.views))?;
+    let source = super::timing::load(|| read_view_tensors(&a.source_views))?;
     if views.rgb.shape() != source.rgb.shape() {
         return Err(Error::input(
             source.art.path("rgb.npy"),
