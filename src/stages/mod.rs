@@ -3,10 +3,6 @@
 //!
 //! A stage binary is `fn main() -> ExitCode { run_main(Args::parse(), stage_fn) }`.
 
-pub mod csd_step;
-pub mod encode_latents;
-pub mod mvfc_filter;
-
 use std::process::ExitCode;
 
 /// Initialise tracing (RUST_LOG, default `info`) to stderr.
@@ -42,8 +38,11 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
     }
 }
 
+pub mod csd_step;
+pub mod encode_latents;
 pub mod evaluate;
 pub mod make_sample;
+pub mod mvfc_filter;
 pub mod render_views;
 pub mod stylize_baseline;
 pub mod timing;
