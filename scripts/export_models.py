@@ -119,9 +119,17 @@ def parse():
     p.add_argument("--opset", type=int, default=17)
     p.add_argument("--external-data-threshold", type=int, default=1 << 30,
                    help="graphs with more weight bytes than this use ONNX external data")
-    p.add_argument("--tiny", action="store_true",
-                   help="random tiny model of --family's shape (no downloads) + reference/")
+    p.add_argument("--random", choices=["tiny", "full"],
+                   help="random weights, no downloads, + reference/: `tiny` = --family's "
+                   "shape at a few hundred kB; `full` = SD 1.5's real sizes (860M-parameter "
+                   "UNet, ControlNet, VAE, ViT-L text encoder; tiny image encoder), for "
+                   "timings and the >2 GB path")
+    p.add_argument("--tiny", action="store_const", dest="random", const="tiny",
+                   help="same as --random tiny")
     a = p.parse_args()
+    a.tiny = a.random is not None
+    if a.random == "full" and a.family != "sd15":
+        p.error("--random full is SD 1.5-sized only")
     if a.ip_adapter == "vit-h" and a.family != "sdxl":
         p.error("--ip-adapter vit-h is the SDXL adapter for the ViT-H encoder; SD 1.5's "
                 "adapter already uses ViT-H")
@@ -208,8 +216,8 @@ def tiny_ip_adapter_state(torch, unet, image_embed_dim, g):
         else:
             hs = unet.config.block_out_channels[int(name.split(".")[1])]
         # Large enough that the image branch visibly moves eps in the tests.
-        ip[f"{key}.to_k_ip.weight"] = torch.randn(hs, cross, generator=g) * 0.5
-        ip[f"{key}.to_v_ip.weight"] = torch.randn(hs, cross, generator=g) * 0.5
+        ip[f"{key}.to_k_ip.weight"] = torch.randn(hs, cross, generator=g) * 2 / cross ** 0.5
+        ip[f"{key}.to_v_ip.weight"] = torch.randn(hs, cross, generator=g) * 2 / cross ** 0.5
         key += 2
     return {"image_proj": proj, "ip_adapter": ip}
 
@@ -226,6 +234,7 @@ def load_tiny(torch, a):
     torch.manual_seed(0)
     g = torch.Generator().manual_seed(1)
     sdxl = a.family == "sdxl"
+    full = a.random == "full"
     tok, vocab, _ = tiny_tokenizer(torch, "<|endoftext|>")
     ids = dict(bos_token_id=vocab["<|startoftext|>"], eos_token_id=vocab["<|endoftext|>"],
                pad_token_id=vocab["<|endoftext|>"])
@@ -251,6 +260,15 @@ def load_tiny(torch, a):
             attention_head_dim=2, norm_num_groups=4, addition_embed_type="text_time",
             addition_time_embed_dim=8, projection_class_embeddings_input_dim=16 + 6 * 8)
         scaling, force_upcast = 0.13025, True
+    elif full:
+        # SD 1.5's sizes: CLIP ViT-L/14 text encoder (its 49,408-token embedding table;
+        # the tiny tokenizer uses the first ids), the 860M-parameter UNet.
+        te = CLIPTextModel(CLIPTextConfig(
+            vocab_size=49408, hidden_size=768, intermediate_size=3072, num_hidden_layers=12,
+            num_attention_heads=12, max_position_embeddings=77, hidden_act="quick_gelu",
+            projection_dim=768, **ids))
+        unet = diffusers.UNet2DConditionModel(sample_size=64, cross_attention_dim=768)
+        scaling, force_upcast = 0.18215, True
     else:
         te = CLIPTextModel(text_cfg(16))
         unet = diffusers.UNet2DConditionModel(
@@ -261,12 +279,14 @@ def load_tiny(torch, a):
             cross_attention_dim=16, attention_head_dim=2, norm_num_groups=4)
         scaling, force_upcast = 0.18215, True
     vae = diffusers.AutoencoderKL(
-        in_channels=3, out_channels=3, latent_channels=4, block_out_channels=(4, 8, 8, 8),
+        in_channels=3, out_channels=3, latent_channels=4,
+        block_out_channels=(128, 256, 512, 512) if full else (4, 8, 8, 8),
         down_block_types=("DownEncoderBlock2D",) * 4, up_block_types=("UpDecoderBlock2D",) * 4,
-        layers_per_block=1, norm_num_groups=4, scaling_factor=scaling,
-        force_upcast=force_upcast)
+        layers_per_block=2 if full else 1, norm_num_groups=32 if full else 4,
+        scaling_factor=scaling, force_upcast=force_upcast)
+    cond_ch = (16, 32, 96, 256) if full else (4, 8, 8, 16)
     controlnet = diffusers.ControlNetModel.from_unet(
-        unet, conditioning_embedding_out_channels=(4, 8, 8, 16)) if a.controlnet else None
+        unet, conditioning_embedding_out_channels=cond_ch) if a.controlnet else None
     sched = diffusers.DDIMScheduler(beta_start=0.00085, beta_end=0.012,
                                     beta_schedule="scaled_linear", clip_sample=False,
                                     set_alpha_to_one=False)
@@ -535,7 +555,7 @@ def export(torch, module, args, names_in, names_out, dynamic, path, a):
                           output_names=names_out, dynamic_axes=dynamic,
                           opset_version=a.opset, dynamo=False)
         model = onnx.load(t)  # also reads any external data the exporter wrote
-        if a.tiny:
+        if a.random == "tiny":
             compact_names(model)
         data = os.path.basename(path) + ".data"
         if os.path.exists(os.path.join(d, data)):
@@ -630,6 +650,8 @@ def main():
     h = size // 8
     prompts = a.prompt or [DEFAULT_PROMPT]
     null_e, null_p, null_zeros = null_text(torch, pipe, sdxl)
+    if null_zeros:
+        print("export: the unconditional text is zeros (force_zeros_for_empty_prompt)")
     if a.tiny:
         write_reference(torch, pipe, os.path.join(out, "reference"), sdxl, size, routing,
                         dtypes, null_e, null_p)
@@ -696,8 +718,7 @@ def main():
                 entry["pooled"] = f"prompt_{k}_pooled.npy"
             text["prompts"].append(entry)
         text["encoder"] = {"file": "text_encoder.onnx", "tokenizers": tokenizer_cfg,
-                           "hidden_output": "hidden_states",
-                           "empty_prompt_is_zeros": null_zeros}
+                           "hidden_output": "hidden_states"}
         if sdxl:
             text["encoder"]["pooled_output"] = "pooled"
 
@@ -772,7 +793,7 @@ def main():
         ex(Unet(), unet_in, unet_names, ["out_sample"], dyn, "unet.onnx")
 
     sched = pipe.scheduler.config
-    name = ("tiny-random-" + a.family) if a.tiny else (a.model_id or a.family)
+    name = (f"{a.random}-random-{a.family}") if a.tiny else (a.model_id or a.family)
     manifest = {
         "format": "fantasystyle-model/1", "family": "custom" if a.tiny else a.family,
         "name": name, "latent_channels": 4,
