@@ -24,6 +24,7 @@ pub mod csd;
 pub mod error;
 pub mod imageio;
 pub mod metrics;
+pub mod models;
 pub mod mvfc;
 pub mod optim;
 pub mod prior;

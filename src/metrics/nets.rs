@@ -19,35 +19,6 @@ use std::path::{Path, PathBuf};
 /// Images per onnxruntime call (bounds memory: VGG tap 0 is 64 x H x W floats per image).
 const BATCH: usize = 4;
 
-/// The models directory: `$FANTASYSTYLE_MODELS`, else `vendor/models` of the workspace the
-/// executable runs from, else of the source tree this was built from.
-pub fn models_dir() -> Result<PathBuf> {
-    if let Ok(p) = std::env::var("FANTASYSTYLE_MODELS") {
-        return Ok(PathBuf::from(p));
-    }
-    let mut candidates = Vec::new();
-    if let Ok(exe) = std::env::current_exe() {
-        for anc in exe.ancestors().skip(1).take(5) {
-            candidates.push(anc.join("vendor/models"));
-        }
-    }
-    candidates.push(Path::new(env!("CARGO_MANIFEST_DIR")).join("vendor/models"));
-    candidates
-        .iter()
-        .find(|p| p.join("metrics").is_dir())
-        .cloned()
-        .ok_or_else(|| {
-            Error::Missing(format!(
-                "metric networks not found (looked for vendor/models/metrics near the executable \
-                 and at {}); run `scripts/setup.sh`",
-                candidates
-                    .last()
-                    .map(|p| p.display().to_string())
-                    .unwrap_or_default()
-            ))
-        })
-}
-
 /// Which LPIPS backbone.
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
@@ -249,7 +220,7 @@ pub(crate) mod tests {
             eprintln!("SKIPPED: onnxruntime not installed (scripts/setup.sh)");
             return None;
         }
-        match models_dir() {
+        match crate::models::models_dir() {
             Ok(m) if m.join("metrics/ref/ref.json").is_file() => Some(m),
             _ => {
                 eprintln!("SKIPPED: metric networks/reference not set up (scripts/setup.sh)");

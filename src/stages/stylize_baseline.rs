@@ -88,12 +88,15 @@ pub struct Args {
     /// Log the Gram distance to the style every this many steps (0: first and last only).
     #[arg(long, default_value_t = 10)]
     pub monitor_every: usize,
-    /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh).
-    #[arg(long, default_value = "vendor/models/lpips/vgg16")]
-    pub vgg: PathBuf,
-    /// Stylizer model directory for `refit` (model.json, made by scripts/setup.sh).
-    #[arg(long, default_value = "vendor/models/stylizer")]
-    pub stylizer: PathBuf,
+    /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh); default:
+    /// lpips/vgg16 in the models directory ($FANTASYSTYLE_MODELS, else the nearest
+    /// vendor/models above the executable or the current directory).
+    #[arg(long)]
+    pub vgg: Option<PathBuf>,
+    /// Stylizer model directory for `refit` (model.json, made by scripts/setup.sh);
+    /// default: stylizer in the models directory (see --vgg).
+    #[arg(long)]
+    pub stylizer: Option<PathBuf>,
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -166,7 +169,11 @@ pub fn run(a: Args) -> Result<()> {
         a.style_size,
         &a.style,
     )?;
-    let vgg = Vgg16::load(&a.vgg)?;
+    let vgg_dir = match &a.vgg {
+        Some(p) => p.clone(),
+        None => crate::models::model_path("lpips/vgg16")?,
+    };
+    let vgg = Vgg16::load(&vgg_dir)?;
     let params = serde_json::json!({
         "method": a.method, "cameras": a.cameras, "steps": a.steps, "width": a.width,
         "height": a.height, "background": a.background, "lr_dc": a.lr_dc,
@@ -271,7 +278,11 @@ fn optimise(
             )?))
         }
         Method::Refit => {
-            targets = stylize_views(&a.stylizer, style, &originals)?;
+            let dir = match &a.stylizer {
+                Some(p) => p.clone(),
+                None => crate::models::model_path("stylizer")?,
+            };
+            targets = stylize_views(&dir, style, &originals)?;
             let d = monitor(&targets)?;
             tracing::info!("refit targets: Gram distance to the style {d:.4}");
             targets_gram = Some(d);
