@@ -100,7 +100,7 @@ fn cpu_ms() -> f64 {
 }
 
 fn cams(scene: &Scene, n: usize, size: u32) -> Vec<Camera> {
-    load_cameras(&format!("orbit:{n}"), scene, size, size).expect("orbit")
+    load_cameras(&format!("orbit:{n}"), &scene.bounds(), size, size).expect("orbit")
 }
 
 /// Forward: mean ms per view over `reps` passes of an 8-view orbit (after one warm-up

@@ -96,7 +96,9 @@ mod tests {
         assert_eq!(resolve(Some("".into()), &c).unwrap(), b);
         // Set: used as given, even where nothing exists.
         assert_eq!(resolve(Some(a.clone().into()), &c).unwrap(), a);
-        let e = resolve(None, std::slice::from_ref(&a)).unwrap_err().to_string();
+        let e = resolve(None, std::slice::from_ref(&a))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains(MODELS_ENV) && e.contains(&a.display().to_string()),
             "{e}"

@@ -73,7 +73,7 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let cams = load_cameras(&a.cameras, &scene, a.width, a.height)?;
+    let cams = load_cameras(&a.cameras, &scene.bounds(), a.width, a.height)?;
     let params = serde_json::json!({
         "cameras": a.cameras, "width": a.width, "height": a.height,
         "background": a.background,

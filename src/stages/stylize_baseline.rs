@@ -152,7 +152,7 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let cams = load_cameras(&a.cameras, &scene, a.width, a.height)?;
+    let cams = load_cameras(&a.cameras, &scene.bounds(), a.width, a.height)?;
     if cams.is_empty() {
         return Err(Error::param(format!(
             "{}: the view set is empty: nothing to stylize",

@@ -91,7 +91,7 @@ pub fn run(a: Args) -> Result<()> {
             format!("empty shape {:?}", rgb.shape),
         ));
     }
-    let cams = load_cameras(&a.cameras, &scene, w as u32, h as u32)?;
+    let cams = load_cameras(&a.cameras, &scene.bounds(), w as u32, h as u32)?;
     if cams.len() != n {
         return Err(Error::input(
             &rgb_path,

@@ -103,7 +103,7 @@ fn sample_scene() -> Scene {
 fn recovery_of_randomised_sample_colours() {
     use fantasystyle::optim::{FitParams, fit_colours, psnr};
     let truth = sample_scene();
-    let cams = fantasystyle::camera::load_cameras("orbit:16", &truth, 64, 64).unwrap();
+    let cams = fantasystyle::camera::load_cameras("orbit:16", &truth.bounds(), 64, 64).unwrap();
     let opts = RenderOptions::default();
     let renders: Vec<Vec<f32>> = cams
         .iter()
