@@ -9,7 +9,8 @@
 //! `(2x - 1 - shift) / scale`; Inception: TF-legacy bilinear resize to 299x299, then
 //! `x * 255/128 - 1` clamped to `[-1, 0.9921875]`).
 
-use super::image::Image;
+use crate::imageio::Image;
+use crate::vgg::Tensor3;
 use crate::{Error, Result};
 use fantasystyle_schemas::read_npy_f32;
 use ort::session::Session;
@@ -38,17 +39,8 @@ impl LpipsNet {
     }
 }
 
-/// One tapped feature map of one image: `c x h x w`, row-major.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Tap {
-    pub c: usize,
-    pub h: usize,
-    pub w: usize,
-    pub data: Vec<f32>,
-}
-
 /// The five tapped feature maps of one image.
-pub type Features = Vec<Tap>;
+pub type Features = Vec<Tensor3>;
 
 fn onnx_err(path: &Path) -> impl Fn(ort::Error) -> Error + '_ {
     move |e| Error::Onnx(format!("{}: {e}", path.display()))
@@ -156,7 +148,7 @@ impl LpipsModel {
                         ),
                     ));
                 }
-                f.push(Tap {
+                f.push(Tensor3 {
                     c: s[0],
                     h: s[1],
                     w: s[2],

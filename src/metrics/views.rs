@@ -2,7 +2,7 @@
 //! [N,H,W], `cameras.json`) for evaluation, and checking that an original and a stylized
 //! set show the same views: same count, same image size, same cameras.
 
-use super::image::Image;
+use crate::imageio::Image;
 use crate::{Camera, Error, Result};
 use fantasystyle_schemas::{Artifact, ArtifactKind};
 use ndarray::{Array3, Array4, Axis};

@@ -16,8 +16,8 @@
 //! behind something nearer in `s` fails it. Valid pixels take the bilinear sample of the
 //! source image; invalid ones are masked out of every consistency measure.
 
-use super::image::Image;
 use crate::Camera;
+use crate::imageio::Image;
 
 /// Pixels with accumulated alpha at or below this have no surface depth.
 pub const ALPHA_MIN: f32 = 0.5;

@@ -35,6 +35,7 @@
 //! negative content branch; the source term Phi_src is exactly zero for this prior.
 
 use super::{Cond, Prior, PriorInfo};
+use crate::imageio::{Filter, Image};
 use crate::scheduler::{Schedule, SchedulerConfig};
 use crate::{Error, Result};
 use ndarray::{Array3, Array4, ArrayView3, ArrayView4, Axis};
@@ -379,20 +380,12 @@ fn to_nhwc(x: ArrayView3<'_, f32>) -> Vec<f32> {
     x.permuted_axes([1, 2, 0]).iter().copied().collect()
 }
 
-/// Resize `[3, H, W]` with a triangle filter (area-aware when shrinking).
+/// Resize `[3, H, W]` with the triangle filter ([`Filter::Triangle`], area-aware when
+/// shrinking).
 fn resize(img: ArrayView3<'_, f32>, h: usize, w: usize) -> Array3<f32> {
-    let (ih, iw) = (img.shape()[1], img.shape()[2]);
-    let buf: image::ImageBuffer<image::Rgb<f32>, Vec<f32>> =
-        image::ImageBuffer::from_raw(iw as u32, ih as u32, to_nhwc(img))
-            .expect("buffer size matches");
-    let r = image::imageops::resize(
-        &buf,
-        w as u32,
-        h as u32,
-        image::imageops::FilterType::Triangle,
-    );
-    let raw = r.into_raw();
-    Array3::from_shape_fn((3, h, w), |(c, y, x)| raw[(y * w + x) * 3 + c])
+    Image::from_chw(img)
+        .resized(w, h, Filter::Triangle)
+        .to_chw()
 }
 
 /// Separable Gaussian blur of `[C, H, W]` with pixel std `sigma`, mirrored borders

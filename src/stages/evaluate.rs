@@ -13,10 +13,10 @@
 //! positions drawn uniformly with the seeded [`crate::rng::Rng`], each resized to the
 //! view resolution so both sets go through the same Inception resize.
 
+use crate::imageio::{Filter, Image};
 use crate::metrics::consistency::{self, PairScore};
 use crate::metrics::fid::{self, FeatureSet};
 use crate::metrics::gram;
-use crate::metrics::image::Image;
 use crate::metrics::lpips;
 use crate::metrics::nets::{Inception, LpipsModel, LpipsNet};
 use crate::metrics::report::{self, Page, Series, esc, fmt_opt};
@@ -125,7 +125,7 @@ pub fn style_crops(style: &Image, k: usize, width: usize, height: usize, seed: u
             let y0 = (rng.uniform() * (style.height - ch + 1) as f64) as usize;
             style
                 .crop(x0.min(style.width - cw), y0.min(style.height - ch), cw, ch)
-                .resized(width, height)
+                .resized(width, height, Filter::Bilinear)
         })
         .collect()
 }

@@ -17,8 +17,9 @@
 use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
-use crate::baselines::{Image, Objective, gram_distance, prepare_style};
+use crate::baselines::{Objective, gram_distance, prepare_style};
 use crate::camera::load_cameras;
+use crate::imageio::Image;
 use crate::scene::load_scene;
 use crate::vgg::Vgg16;
 use crate::{Error, Result};
@@ -112,21 +113,6 @@ pub struct LossLog {
     pub steps: Vec<crate::baselines::fit::StepLog>,
 }
 
-fn chw(img: &Image) -> ndarray::Array3<f32> {
-    ndarray::Array3::from_shape_fn((3, img.h, img.w), |(c, y, x)| {
-        img.data[(y * img.w + x) * 3 + c]
-    })
-}
-
-fn hwc(a: &ndarray::Array3<f32>) -> Image {
-    let (h, w) = (a.shape()[1], a.shape()[2]);
-    let mut data = vec![0.0; h * w * 3];
-    for ((c, y, x), &v) in a.indexed_iter() {
-        data[(y * w + x) * 3 + c] = v.clamp(0.0, 1.0);
-    }
-    Image { h, w, data }
-}
-
 /// Stylize every view on its own with the 2D stylizer (the refit baseline's targets).
 fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Result<Vec<Image>> {
     if !dir.join("model.json").is_file() {
@@ -136,10 +122,14 @@ fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Resul
         )));
     }
     let mut p = crate::prior::stylizer::StylizerPrior::open(dir, None, 0)?;
-    let s = p.style_vector(chw(style).view())?;
+    let s = p.style_vector(style.to_chw().view())?;
     views
         .iter()
-        .map(|v| Ok(hwc(&p.stylize(chw(v).view(), &s)?)))
+        .map(|v| {
+            let mut out = Image::from_chw(p.stylize(v.to_chw().view(), &s)?.view());
+            out.data.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
+            Ok(out)
+        })
         .collect()
 }
 
@@ -160,15 +150,7 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let raw_style = crate::imageio::read_rgb(&a.style)?;
-    let style = prepare_style(
-        &Image {
-            h: raw_style.height,
-            w: raw_style.width,
-            data: raw_style.data,
-        },
-        a.style_size,
-        &a.style,
-    )?;
+    let style = prepare_style(&raw_style, a.style_size, &a.style)?;
     let vgg_dir = match &a.vgg {
         Some(p) => p.clone(),
         None => crate::models::model_path("lpips/vgg16")?,
@@ -201,7 +183,7 @@ pub fn run(a: Args) -> Result<()> {
     for (i, t) in targets.iter().enumerate() {
         w.write_bytes(
             &format!("target_{i:03}.png"),
-            &crate::imageio::encode_png_rgb(&t.data, t.w, t.h)?,
+            &crate::imageio::encode_png_rgb(&t.data, t.width, t.height)?,
         )?;
     }
     let first = log.steps.first().and_then(|s| s.gram_distance);
@@ -236,8 +218,8 @@ fn optimise(
         .map(|c| {
             let r = crate::render::render(&scene, c, &ropts)?;
             Ok(Image {
-                h: r.height,
-                w: r.width,
+                width: r.width,
+                height: r.height,
                 data: r.rgb,
             })
         })

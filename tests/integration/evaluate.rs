@@ -4,8 +4,8 @@
 
 use fantasystyle::Camera;
 use fantasystyle::camera::inria::to_inria;
+use fantasystyle::imageio::Image;
 use fantasystyle::metrics::consistency;
-use fantasystyle::metrics::image::Image;
 use fantasystyle::metrics::nets::{LpipsModel, LpipsNet};
 use fantasystyle::metrics::views::ViewSet;
 use fantasystyle::metrics::warp::{look_at, synthetic};
