@@ -1,6 +1,8 @@
 //! Image preprocessing shared by the priors: the image encoder's square crop (resized with
-//! the crate's one resizer, [`crate::imageio::Image::resized`]) and shape checks.
+//! the crate's one resizer, [`crate::imageio::Image::resized`]), the ControlNet control
+//! images made from renders ([`control_image`]), and shape checks.
 
+use super::ControlKind;
 use crate::imageio::{Filter, Image};
 use crate::{Error, Result};
 use ndarray::{Array4, ArrayView4, Axis};
@@ -57,6 +59,74 @@ pub fn check_finite(a: ArrayView4<'_, f32>, what: &str) -> Result<()> {
         )));
     }
     Ok(())
+}
+
+/// The control image a ControlNet of `kind` wants, `[B, 3, H, W]` in [0, 1], from a
+/// views artifact's `rgb` `[B, H, W, 3]`, `depth` `[B, H, W]` and `alpha` `[B, H, W]`.
+/// * Depth: inverse depth normalised per view over covered pixels (alpha > 0.5) to
+///   [0, 1], near = 1, background 0 (the MiDaS convention depth ControlNets use).
+/// * Edges: Sobel gradient magnitude of the luminance, normalised per view to [0, 1].
+///
+/// Both are replicated to 3 channels.
+pub fn control_image(
+    kind: ControlKind,
+    rgb: ndarray::ArrayView4<'_, f32>,
+    depth: ndarray::ArrayView3<'_, f32>,
+    alpha: ndarray::ArrayView3<'_, f32>,
+) -> Result<Array4<f32>> {
+    let (b, h, w) = depth.dim();
+    if alpha.dim() != (b, h, w) || rgb.dim() != (b, h, w, 3) {
+        return Err(Error::param(format!(
+            "control image: rgb {:?}, depth {:?} and alpha {:?} do not agree",
+            rgb.shape(),
+            depth.shape(),
+            alpha.shape()
+        )));
+    }
+    let mut out = Array4::<f32>::zeros((b, 3, h, w));
+    for bi in 0..b {
+        let vals: Vec<Option<f32>> = match kind {
+            ControlKind::Depth => depth
+                .index_axis(Axis(0), bi)
+                .iter()
+                .zip(alpha.index_axis(Axis(0), bi).iter())
+                .map(|(&d, &a)| (a > 0.5 && d > 0.0 && d.is_finite()).then(|| 1.0 / d))
+                .collect(),
+            ControlKind::Edges => {
+                let lum = |y: usize, x: usize| {
+                    let p = rgb.slice(ndarray::s![bi, y.min(h - 1), x.min(w - 1), ..]);
+                    0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]
+                };
+                (0..h * w)
+                    .map(|i| {
+                        let (y, x) = (i / w, i % w);
+                        let (ym, xm) = (y.saturating_sub(1), x.saturating_sub(1));
+                        let gx = lum(ym, x + 1) + 2.0 * lum(y, x + 1) + lum(y + 1, x + 1)
+                            - lum(ym, xm)
+                            - 2.0 * lum(y, xm)
+                            - lum(y + 1, xm);
+                        let gy = lum(y + 1, xm) + 2.0 * lum(y + 1, x) + lum(y + 1, x + 1)
+                            - lum(ym, xm)
+                            - 2.0 * lum(ym, x)
+                            - lum(ym, x + 1);
+                        Some((gx * gx + gy * gy).sqrt())
+                    })
+                    .collect()
+            }
+        };
+        let (lo, hi) = vals
+            .iter()
+            .flatten()
+            .fold((f32::MAX, f32::MIN), |(l, u), &v| (l.min(v), u.max(v)));
+        let span = (hi - lo).max(1e-12);
+        for (i, v) in vals.iter().enumerate() {
+            let x = v.map(|v| (v - lo) / span).unwrap_or(0.0);
+            for ch in 0..3 {
+                out[[bi, ch, i / w, i % w]] = x;
+            }
+        }
+    }
+    Ok(out)
 }
 
 #[cfg(test)]

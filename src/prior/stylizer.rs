@@ -34,12 +34,13 @@
 //! the network's own reconstruction bias (what it does to any image) cancelled by the
 //! negative content branch; the source term Phi_src is exactly zero for this prior.
 
+use super::session::{Kind, LazyGraph};
 use super::{Cond, Prior, PriorInfo};
 use crate::imageio::{Filter, Image};
+use crate::runtime::SessionConfig;
 use crate::scheduler::{Schedule, SchedulerConfig};
 use crate::{Error, Result};
 use ndarray::{Array3, Array4, ArrayView3, ArrayView4, Axis};
-use ort::session::Session;
 use ort::value::Tensor;
 use serde::Deserialize;
 use std::path::Path;
@@ -108,59 +109,9 @@ pub struct StylizerPrior {
     info: PriorInfo,
     schedule: Schedule,
     manifest: StylizerManifest,
-    predict: LazySession,
-    transform: LazySession,
+    predict: LazyGraph,
+    transform: LazyGraph,
     style: Option<Vec<f32>>,
-}
-
-/// An onnxruntime session loaded (and checked against the manifest) on first use: the
-/// pixel-space VAE is the identity, so `encode-latents` never pays for the two Magenta
-/// graphs, and a stage that only stylizes with a known style vector loads one of them.
-struct LazySession {
-    path: std::path::PathBuf,
-    threads: usize,
-    inputs: Vec<String>,
-    output: String,
-    session: Option<Session>,
-}
-
-impl LazySession {
-    fn new(
-        path: std::path::PathBuf,
-        threads: usize,
-        inputs: &[&str],
-        output: &str,
-    ) -> Result<Self> {
-        if !path.is_file() {
-            return Err(Error::input(
-                &path,
-                "ONNX graph named by the stylizer manifest not found",
-            ));
-        }
-        // The environment (and the onnxruntime library) must exist before any tensor is
-        // made, sessions or not: ort would otherwise look for a library by default name.
-        crate::runtime::environment()?;
-        Ok(LazySession {
-            path,
-            threads,
-            inputs: inputs.iter().map(|s| s.to_string()).collect(),
-            output: output.to_string(),
-            session: None,
-        })
-    }
-
-    fn get(&mut self) -> Result<&mut Session> {
-        if self.session.is_none() {
-            let inputs: Vec<&str> = self.inputs.iter().map(String::as_str).collect();
-            self.session = Some(load_checked(
-                &self.path,
-                self.threads,
-                &inputs,
-                &self.output,
-            )?);
-        }
-        Ok(self.session.as_mut().expect("loaded above"))
-    }
 }
 
 impl std::fmt::Debug for StylizerPrior {
@@ -192,21 +143,23 @@ impl StylizerPrior {
         let manifest = mj.stylizer;
         let schedule = Schedule::new(mj.scheduler.clone())
             .map_err(|e| Error::input(&mpath, format!("scheduler: {e}")))?;
-        let predict = LazySession::new(
-            dir.join(&manifest.style_predict.file),
+        let cfg = SessionConfig {
             threads,
-            &[&manifest.style_predict.input],
-            &manifest.style_predict.output,
-        )?;
-        let transform = LazySession::new(
-            dir.join(&manifest.transform.file),
-            threads,
-            &[
-                &manifest.transform.content_input,
-                &manifest.transform.style_input,
-            ],
-            &manifest.transform.output,
-        )?;
+            ..Default::default()
+        };
+        let (sp, tr, dim) = (
+            &manifest.style_predict,
+            &manifest.transform,
+            manifest.style_dim,
+        );
+        let image = |size: usize| [(1, size), (2, size), (3, 3)];
+        let predict = LazyGraph::new(dir.join(&sp.file), "style_predict", cfg)?
+            .expect(false, &sp.input, Kind::F32(&[4]), &image(sp.size))
+            .expect(true, &sp.output, Kind::F32(&[4]), &[(3, dim)]);
+        let transform = LazyGraph::new(dir.join(&tr.file), "transform", cfg)?
+            .expect(false, &tr.content_input, Kind::F32(&[4]), &image(tr.size))
+            .expect(false, &tr.style_input, Kind::F32(&[4]), &[(3, dim)])
+            .expect(true, &tr.output, Kind::F32(&[4]), &image(tr.size));
         let info = PriorInfo {
             name: mj.name.unwrap_or_else(|| "magenta-stylizer".into()),
             latent_channels: 3,
@@ -249,6 +202,7 @@ impl StylizerPrior {
         let out = self
             .predict
             .get()?
+            .session
             .run(ort::inputs![g.input.as_str() => t])
             .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
         let v = out
@@ -296,6 +250,7 @@ impl StylizerPrior {
         let out = self
             .transform
             .get()?
+            .session
             .run(ort::inputs![g.content_input.as_str() => content, g.style_input.as_str() => style])
             .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
         let (_, data) = out
@@ -338,28 +293,6 @@ impl StylizerPrior {
     pub fn manifest(&self) -> &StylizerManifest {
         &self.manifest
     }
-}
-
-fn load_checked(path: &Path, threads: usize, inputs: &[&str], output: &str) -> Result<Session> {
-    let s = crate::runtime::load_session(path, threads)?;
-    for name in inputs {
-        if !s.inputs().iter().any(|o| o.name() == *name) {
-            return Err(Error::input(
-                path,
-                format!(
-                    "graph has no input `{name}` (it has {:?})",
-                    s.inputs().iter().map(|o| o.name()).collect::<Vec<_>>()
-                ),
-            ));
-        }
-    }
-    if !s.outputs().iter().any(|o| o.name() == output) {
-        return Err(Error::input(
-            path,
-            format!("graph has no output `{output}`"),
-        ));
-    }
-    Ok(s)
 }
 
 /// Mirror index (reflect without repeating the edge, periodic for any overshoot).
