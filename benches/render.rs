@@ -9,11 +9,12 @@
 //! Cameras: the default orbit of `../shared/TARGETS.md` (`orbit:N`: radius 2.2 x the
 //! largest extent, 15 degrees elevation, 50 degrees fov), black background.
 
+use fantasystyle::artifacts::load_scene;
 use fantasystyle::camera::load_cameras;
 use fantasystyle::optim::{ColourFit, FitParams};
 use fantasystyle::render::{CacheMode, RenderOptions, ViewCache, project, render};
 use fantasystyle::rng::Rng;
-use fantasystyle::scene::{load_scene, sh_coeffs};
+use fantasystyle::scene::sh_coeffs;
 use fantasystyle::{Camera, Scene};
 use std::path::PathBuf;
 use std::process::Command;

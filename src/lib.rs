@@ -18,6 +18,7 @@
 //! | [`metrics`] | LPIPS, FID/KID, ArtFID, view consistency, Gram distance |
 //! | [`stages`] | one function per stage binary, shared CLI plumbing |
 
+pub mod artifacts;
 pub mod baselines;
 pub mod camera;
 pub mod csd;

@@ -188,17 +188,14 @@ impl Camera {
 }
 
 /// Load the cameras named by `spec` for images of `width` x `height`:
-/// `orbit:...` (generated around `bounds`, e.g. [`crate::Scene::bounds`]), an INRIA `cameras.json`, a nerfstudio
-/// `transforms.json`, a COLMAP sparse model directory (`sparse/0`, or a directory holding
-/// one), or a views/targets artifact directory (its `cameras.json`). Cameras read from
-/// files keep their poses; their intrinsics are rescaled from the file's image size to
-/// `width` x `height`.
+/// `orbit:...` (generated around `bounds`, e.g. [`crate::Scene::bounds`]), an INRIA
+/// `cameras.json`, a nerfstudio `transforms.json`, or a COLMAP sparse model directory
+/// (`sparse/0`, or a directory holding one). Cameras read from files keep their poses;
+/// their intrinsics are rescaled from the file's image size to `width` x `height`
+/// ([`fit_cameras`]). Stages read their `--cameras` through
+/// [`crate::artifacts::load_cameras`], which also takes artifact directories.
 pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Result<Vec<Camera>> {
-    if width == 0 || height == 0 {
-        return Err(Error::param(format!(
-            "image size {width}x{height}: width and height must be positive"
-        )));
-    }
+    check_size(width, height)?;
     if let Some(rest) = spec.strip_prefix("orbit:") {
         let o = orbit::OrbitSpec::parse(rest)?;
         let cams = orbit::orbit(&o, bounds, width, height)?;
@@ -207,8 +204,24 @@ pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Res
         }
         return Ok(cams);
     }
-    let path = Path::new(spec);
-    let (cams, src) = load_camera_file(path)?;
+    let (cams, src) = load_camera_file(Path::new(spec))?;
+    fit_cameras(cams, &src, width, height)
+}
+
+/// Error unless `width` and `height` are positive.
+pub fn check_size(width: u32, height: u32) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::param(format!(
+            "image size {width}x{height}: width and height must be positive"
+        )));
+    }
+    Ok(())
+}
+
+/// Cameras read from `src` (at their own image size) for images of `width` x `height`:
+/// intrinsics rescaled per axis (a warning if that changes the aspect ratio), each
+/// validated; an empty list is an error naming `src`.
+pub fn fit_cameras(cams: Vec<Camera>, src: &Path, width: u32, height: u32) -> Result<Vec<Camera>> {
     for c in cams.iter().take(1) {
         let (a, b) = (
             c.width as f64 / c.height as f64,
@@ -226,10 +239,10 @@ pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Res
     }
     let cams: Vec<Camera> = cams.iter().map(|c| c.resized(width, height)).collect();
     if cams.is_empty() {
-        return Err(Error::input(&src, "no cameras in the file"));
+        return Err(Error::input(src, "no cameras in the file"));
     }
     for c in &cams {
-        c.validate(&src)?;
+        c.validate(src)?;
     }
     Ok(cams)
 }
@@ -238,20 +251,6 @@ pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Res
 /// file they came from (for messages).
 pub fn load_camera_file(path: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)> {
     if path.is_dir() {
-        if path.join(fantasystyle_schemas::MANIFEST_FILE).is_file() {
-            let a = fantasystyle_schemas::Artifact::open_any(path)?;
-            let p = a.path("cameras.json");
-            if !p.is_file() {
-                return Err(Error::input(
-                    path,
-                    format!(
-                        "artifact of kind `{}` holds no cameras.json",
-                        a.manifest.kind
-                    ),
-                ));
-            }
-            return Ok((inria::read_inria(&p)?, p));
-        }
         for (name, is_colmap) in [
             ("cameras.json", false),
             ("transforms.json", false),
@@ -271,8 +270,8 @@ pub fn load_camera_file(path: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)
         }
         return Err(Error::input(
             path,
-            "directory holds no cameras (expected an artifact with cameras.json, \
-             cameras.json, transforms.json or a COLMAP sparse model)",
+            "directory holds no cameras (expected cameras.json, transforms.json or a \
+             COLMAP sparse model; stages also take an artifact with cameras.json)",
         ));
     }
     if !path.is_file() {

@@ -25,6 +25,7 @@ pub mod preprocess;
 pub mod session;
 pub mod stylizer;
 
+pub use manifest::model_timesteps;
 pub use onnx::OnnxPrior;
 pub use preprocess::control_image;
 

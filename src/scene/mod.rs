@@ -6,7 +6,8 @@
 //! Only colour (`sh_dc`, `sh_rest`) changes during stylization; geometry is frozen.
 //!
 //! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout).
-//! [`load_scene`] picks the reader from the path; every reader ends with
+//! [`read_scene_file`] picks the reader from the path (stages read their `--scene`
+//! through [`crate::artifacts::load_scene`], which also takes scene artifacts); every reader ends with
 //! [`Scene::validate`]. Scenes know nothing of cameras: [`Scene::bounds`] is what a
 //! generated orbit needs ([`crate::camera::orbit`]).
 
@@ -159,18 +160,10 @@ impl Scene {
     }
 }
 
-/// Load a scene from `path`: a `.ply` (INRIA), a `.splat`, or a directory holding a
-/// `scene.ply` (a `scene` artifact, whose manifest and hashes are checked, or a plain
-/// directory).
-pub fn load_scene(path: &Path) -> Result<Scene> {
+/// Load a scene from `path`: a `.ply` (INRIA), a `.splat`, or a plain directory holding
+/// a `scene.ply`.
+pub fn read_scene_file(path: &Path) -> Result<Scene> {
     if path.is_dir() {
-        if path.join(fantasystyle_schemas::MANIFEST_FILE).is_file() {
-            let a = fantasystyle_schemas::Artifact::open(
-                path,
-                fantasystyle_schemas::ArtifactKind::Scene,
-            )?;
-            return ply::read_ply(&a.path("scene.ply"));
-        }
         let p = path.join("scene.ply");
         if p.is_file() {
             return ply::read_ply(&p);

@@ -6,9 +6,9 @@
 //! [N,H,W], `cameras.json` (INRIA format, at W x H), and `view_000.png`.. previews.
 //! The manifest records the scene and cameras as inputs (hashes) and the parameters.
 
-use crate::camera::{inria, load_cameras};
+use crate::artifacts::{load_cameras, load_scene};
+use crate::camera::inria;
 use crate::render::{RenderOptions, RenderOutput, render};
-use crate::scene::load_scene;
 use crate::{Camera, Error, Result, Scene};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;

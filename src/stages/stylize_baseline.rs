@@ -14,13 +14,12 @@
 //! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
 //! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
 
+use crate::artifacts::{load_cameras, load_scene};
 use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
 use crate::baselines::{Objective, gram_distance, prepare_style};
-use crate::camera::load_cameras;
 use crate::imageio::Image;
-use crate::scene::load_scene;
 use crate::vgg::Vgg16;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};

@@ -147,8 +147,9 @@ mod stage {
         );
         assert!(last < first, "{method:?}: Gram distance {first} -> {last}");
         let before =
-            fantasystyle::scene::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap();
-        let after = fantasystyle::scene::load_scene(&out.join("scene.ply")).unwrap();
+            fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
+                .unwrap();
+        let after = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
         let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&before.positions), bits(&after.positions));
         assert_eq!(bits(&before.log_scales), bits(&after.log_scales));

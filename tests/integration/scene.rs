@@ -5,8 +5,9 @@
 
 use crate::harness;
 use fantasystyle::Scene;
-use fantasystyle::camera::{self, Camera, load_cameras};
-use fantasystyle::scene::{load_scene, ply, sh_coeffs};
+use fantasystyle::artifacts::{load_cameras, load_scene};
+use fantasystyle::camera::{self, Camera};
+use fantasystyle::scene::{ply, sh_coeffs};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -781,7 +782,6 @@ fn sample_regenerates_byte_identically() {
 
 #[test]
 fn render_views_end_to_end_on_the_sample() {
-    use fantasystyle_schemas::{Artifact, ArtifactKind};
     let d = tempfile::tempdir().unwrap();
     let sample = harness::repo_root().join("data-sample");
     let out = d.path().join("views");
@@ -802,21 +802,23 @@ fn render_views_end_to_end_on_the_sample() {
         out.to_str().unwrap(),
     ]);
     assert_eq!(code, 0, "{err}");
-    let a = Artifact::open(&out, ArtifactKind::Views).unwrap();
-    let rgb = a.read_f32("rgb.npy").unwrap();
-    let alpha = a.read_f32("alpha.npy").unwrap();
-    assert_eq!(rgb.shape, vec![8, 40, 48, 3]);
-    assert_eq!(a.read_f32("depth.npy").unwrap().shape, vec![8, 40, 48]);
-    assert!(rgb.data.iter().all(|v| (0.0..=1.0).contains(v)));
+    let views = fantasystyle::artifacts::read_views(&out).unwrap();
+    let (rgb, alpha) = (
+        views.rgb.as_slice().unwrap(),
+        views.alpha.as_slice().unwrap(),
+    );
+    assert_eq!(views.rgb.shape(), [8, 40, 48, 3]);
+    assert_eq!(views.depth.shape(), [8, 40, 48]);
+    assert!(rgb.iter().all(|v| (0.0..=1.0).contains(v)));
     // The scene covers a good part of every view; a white background shows elsewhere.
     for v in 0..8 {
-        let al = &alpha.data[v * 40 * 48..(v + 1) * 40 * 48];
+        let al = &alpha[v * 40 * 48..(v + 1) * 40 * 48];
         let cover = al.iter().filter(|x| **x > 0.5).count() as f64 / al.len() as f64;
         assert!((0.2..0.9).contains(&cover), "view {v}: coverage {cover}");
     }
-    assert_eq!(&rgb.data[..3], &[1.0, 1.0, 1.0]);
+    assert_eq!(&rgb[..3], &[1.0, 1.0, 1.0]);
     // cameras.json: INRIA format at the rendered size, same poses as the input.
-    let written = camera::inria::read_inria(&a.path("cameras.json")).unwrap();
+    let written = views.cameras().unwrap();
     let input = load_cameras(
         sample.to_str().unwrap(),
         &fantasystyle::geometry::Bounds::EMPTY,
@@ -832,10 +834,17 @@ fn render_views_end_to_end_on_the_sample() {
         );
     }
     for i in 0..8 {
-        let png = fantasystyle::imageio::read_rgb(&a.path(&format!("view_{i:03}.png"))).unwrap();
+        let png =
+            fantasystyle::imageio::read_rgb(&views.art.path(&format!("view_{i:03}.png"))).unwrap();
         assert_eq!((png.width, png.height), (48, 40));
     }
-    let roles: Vec<&str> = a.manifest.inputs.iter().map(|r| r.role.as_str()).collect();
+    let roles: Vec<&str> = views
+        .art
+        .manifest
+        .inputs
+        .iter()
+        .map(|r| r.role.as_str())
+        .collect();
     assert_eq!(roles, ["scene", "cameras"]);
 }
 
