@@ -37,6 +37,8 @@ pub mod sample;
 pub mod scene;
 pub mod scheduler;
 pub mod stages;
+pub mod sweep;
+pub mod timing;
 pub mod vgg;
 
 pub use camera::Camera;

@@ -1,6 +1,6 @@
-//! `sweep`: thin binary over [`fantasystyle::metrics::sweep::run_sweep`].
+//! `sweep`: thin binary over [`fantasystyle::sweep::run_sweep`].
 use clap::Parser;
-use fantasystyle::metrics::sweep::{Sweep, SweepSpec, run_sweep, write_outputs};
+use fantasystyle::sweep::{Sweep, SweepSpec, run_sweep, write_outputs};
 use std::path::PathBuf;
 
 /// The speed-accuracy sweep: run the stylization DAG at each point of a sweep spec

@@ -93,8 +93,8 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         ));
     }
     let (z_src, z_tgt, eps, t) = (&noised.z_src, &noised.z_tgt, &noised.eps, noised.timestep);
-    let views = super::timing::load(|| read_views(&a.views))?;
-    let source = super::timing::load(|| read_views(&a.source_views))?;
+    let views = crate::timing::load(|| read_views(&a.views))?;
+    let source = crate::timing::load(|| read_views(&a.source_views))?;
     if views.rgb.shape() != source.rgb.shape() {
         return Err(Error::input(
             source.art.path("rgb.npy"),
@@ -129,7 +129,7 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
     let style = Image::load(&a.style)?.to_chw().insert_axis(Axis(0));
 
     // The prior.
-    let mut prior = super::timing::load(|| {
+    let mut prior = crate::timing::load(|| {
         prior::open(
             &a.model,
             &PriorOptions {
@@ -260,6 +260,6 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         "mode": p.mode,
         "report": report,
     }));
-    super::timing::io(|| wr.commit())?;
+    crate::timing::io(|| wr.commit())?;
     Ok(report)
 }

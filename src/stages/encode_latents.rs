@@ -57,7 +57,7 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
         optimization: Optimization::All,
         ..Default::default()
     };
-    let mut prior = super::timing::load(|| prior::open(&md.dir, &opts))?;
+    let mut prior = crate::timing::load(|| prior::open(&md.dir, &opts))?;
     let batch = if p.batch == 0 { n } else { p.batch };
     let bar = ProgressBar::new(n as u64).with_style(
         ProgressStyle::with_template("encode-latents {bar:30} {pos}/{len} views {elapsed}")
@@ -103,7 +103,7 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
         "vae_scaling_factor": md.manifest.vae_scaling_factor,
         "image_size": [h, w],
     }));
-    super::timing::io(|| wr.commit())?;
+    crate::timing::io(|| wr.commit())?;
     tracing::info!("encode-latents: {n} views -> latents {shape:?}");
     Ok(shape)
 }

@@ -1,5 +1,6 @@
 //! One function per stage binary, plus the plumbing every binary shares: logging set-up,
-//! error-to-exit-code mapping ([`run_main`]), phase timing for the DAG runner ([`timing`]).
+//! error-to-exit-code mapping ([`run_main`]), phase timing for the DAG runner
+//! ([`crate::timing`]).
 //!
 //! A stage binary is `fn main() -> ExitCode { run_main(Args::parse(), stage_fn) }`.
 
@@ -23,7 +24,7 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
     let start = std::time::Instant::now();
     match f(args) {
         Ok(()) => {
-            timing::write_if_requested(start.elapsed());
+            crate::timing::write_if_requested(start.elapsed());
             ExitCode::SUCCESS
         }
         Err(e) => {
@@ -45,7 +46,6 @@ pub mod make_sample;
 pub mod mvfc_filter;
 pub mod render_views;
 pub mod stylize_baseline;
-pub mod timing;
 pub mod update_gaussians;
 
 use crate::{Error, Result};

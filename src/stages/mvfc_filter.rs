@@ -163,6 +163,6 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
         "seed": a.seed,
         "round": a.round,
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
     Ok(t)
 }

@@ -72,7 +72,7 @@ pub fn run(a: Args) -> Result<()> {
             a.width, a.height
         )));
     }
-    let scene = super::timing::load(|| load_scene(&a.scene))?;
+    let scene = crate::timing::load(|| load_scene(&a.scene))?;
     let cams = load_cameras(&a.cameras, &scene.bounds(), a.width, a.height)?;
     let params = serde_json::json!({
         "cameras": a.cameras, "width": a.width, "height": a.height,
@@ -120,7 +120,7 @@ pub fn run(a: Args) -> Result<()> {
         "views": n, "width": wd, "height": h, "background": a.background,
         "camera_names": cams.iter().map(|c| c.name.clone()).collect::<Vec<_>>(),
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
     tracing::info!("wrote {}", a.out.display());
     Ok(())
 }

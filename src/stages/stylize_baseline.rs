@@ -140,7 +140,7 @@ pub fn run(a: Args) -> Result<()> {
             a.width, a.height
         )));
     }
-    let scene = super::timing::load(|| load_scene(&a.scene))?;
+    let scene = crate::timing::load(|| load_scene(&a.scene))?;
     let cams = load_cameras(&a.cameras, &scene.bounds(), a.width, a.height)?;
     if cams.is_empty() {
         return Err(Error::param(format!(
@@ -191,7 +191,7 @@ pub fn run(a: Args) -> Result<()> {
         "method": a.method, "views": cams.len(), "gram_distance_first": first,
         "gram_distance_last": last,
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
     tracing::info!(
         "wrote {} (Gram distance {:?} -> {:?})",
         a.out.display(),

@@ -68,7 +68,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.steps == 0 {
         return Err(Error::param("--steps must be at least 1"));
     }
-    let scene = super::timing::load(|| load_scene(&a.scene))?;
+    let scene = crate::timing::load(|| load_scene(&a.scene))?;
     let targets = read_targets(&a.targets)?;
     let rgb_path = targets.art.path("rgb.npy");
     let (n, h, w, _) = targets.rgb.dim();
@@ -126,7 +126,7 @@ pub fn run(a: Args) -> Result<()> {
         "gaussians": fitted.len(), "sh_degree": fitted.sh_degree,
         "final_loss": report.losses.last(),
     }));
-    super::timing::io(|| out.commit())?;
+    crate::timing::io(|| out.commit())?;
     tracing::info!(
         "loss {:.5} -> {:.5}; wrote {}",
         report.losses.first().unwrap_or(&f32::NAN),
