@@ -1,7 +1,4 @@
-//! `evaluate`: thin binary over [`fantasystyle::stages::evaluate`].
-use clap::Parser;
-use fantasystyle::stages::{evaluate, run_main};
-
+//! `evaluate`: the stage binary; everything is in [`fantasystyle::stages::evaluate`].
 fn main() -> std::process::ExitCode {
-    run_main(evaluate::Args::parse(), |a| evaluate::run(a).map(|_| ()))
+    fantasystyle::stages::run_main(fantasystyle::stages::evaluate::run)
 }

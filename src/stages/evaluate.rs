@@ -6,6 +6,7 @@
 //! [`crate::metrics::report::evaluation_report`]; the metric networks come from the
 //! models directory ([`crate::models`]).
 
+use super::Threads;
 use crate::imageio::Image;
 use crate::metrics::evaluate::{EvalParams, Metrics, evaluate};
 use crate::metrics::nets::LpipsNet;
@@ -46,9 +47,8 @@ pub struct Args {
     /// Seed of the style-image crops used by FID_style.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// onnxruntime threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
+    #[command(flatten)]
+    pub threads: Threads,
     /// A sweep.json (from the `sweep` stage) to include as the speed-accuracy section.
     #[arg(long)]
     pub sweep: Option<PathBuf>,
@@ -61,7 +61,7 @@ pub fn run(a: Args) -> Result<Metrics> {
         short_range: a.short_range,
         long_range: a.long_range,
         seed: a.seed,
-        threads: a.threads,
+        threads: a.threads.n,
     };
     p.validate()?;
     let orig = crate::timing::load(|| ViewSet::load(&a.original))?;

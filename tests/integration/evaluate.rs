@@ -90,7 +90,7 @@ fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         short_range: 1,
         long_range: 5,
         seed: 0,
-        threads: 2,
+        threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
     }
 }
