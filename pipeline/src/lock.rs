@@ -10,6 +10,7 @@
 //! (`ok` or `failed`), wall time and the log file. `last_run` records the wall time of
 //! the most recent `pipeline run` as a whole, for `pipeline report`.
 
+use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -80,7 +81,7 @@ pub struct RunRecord {
 
 impl Lock {
     /// Read a lock file; a missing file is an empty lock.
-    pub fn read(path: &Path) -> Result<Lock, String> {
+    pub fn read(path: &Path) -> Result<Lock> {
         let text = match std::fs::read_to_string(path) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -89,27 +90,27 @@ impl Lock {
                     ..Lock::default()
                 });
             }
-            Err(e) => return Err(format!("{}: {e}", path.display())),
+            Err(e) => return Err(Error::io(path, e)),
         };
-        let lock: Lock = serde_json::from_str(&text).map_err(|e| {
-            format!(
-                "{}: not a valid lock file ({e}); delete it to rebuild everything",
-                path.display()
-            )
+        let lock: Lock = serde_json::from_str(&text).map_err(|e| Error::Lock {
+            path: path.to_path_buf(),
+            reason: format!("not a valid lock file ({e})"),
         })?;
         if lock.version != LOCK_VERSION {
-            return Err(format!(
-                "{}: lock file version {} (this build reads {LOCK_VERSION}); delete it to rebuild everything",
-                path.display(),
-                lock.version
-            ));
+            return Err(Error::Lock {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "lock file version {} (this build reads {LOCK_VERSION})",
+                    lock.version
+                ),
+            });
         }
         Ok(lock)
     }
 
     /// Write atomically.
-    pub fn write(&self, path: &Path) -> Result<(), String> {
-        fantasystyle_schemas::atomic_write_json(path, self).map_err(|e| e.to_string())
+    pub fn write(&self, path: &Path) -> Result<()> {
+        Ok(fantasystyle_schemas::atomic_write_json(path, self)?)
     }
 }
 
@@ -153,7 +154,7 @@ mod tests {
         l.write(&p).unwrap();
         assert_eq!(Lock::read(&p).unwrap().stages["a"], l.stages["a"]);
         std::fs::write(&p, "{\"version\": 1, \"stages\": {}, \"extra\": 1}").unwrap();
-        let e = Lock::read(&p).unwrap_err();
+        let e = Lock::read(&p).unwrap_err().to_string();
         assert!(
             e.contains("not a valid lock file") && e.contains("extra"),
             "{e}"

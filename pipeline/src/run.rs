@@ -25,6 +25,7 @@
 //!   for a done one.
 
 use crate::dag::Dag;
+use crate::error::{Error, Result};
 use crate::lock::{Entry, Lock, RunRecord, Status, now_unix};
 use crate::state::{Fingerprint, Hasher, Reason, reasons, stage_path_env};
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -54,11 +55,6 @@ pub struct Summary {
     /// Not run because an upstream stage failed (or the run stopped).
     pub blocked: Vec<String>,
 }
-
-/// A DAG-level problem (exit code 2), as opposed to a stage failure.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct UsageError(pub String);
 
 /// For each selected stage (topological order), the reasons it is stale, with
 /// [`Reason::Upstream`] added where an upstream stage is stale.
@@ -100,10 +96,9 @@ pub fn plan(
 /// is gone (a killed runner).
 struct RunGuard(PathBuf);
 impl RunGuard {
-    fn take(state: &Path) -> Result<RunGuard, UsageError> {
+    fn take(state: &Path) -> Result<RunGuard> {
         use std::io::ErrorKind;
-        std::fs::create_dir_all(state)
-            .map_err(|e| UsageError(format!("{}: {e}", state.display())))?;
+        std::fs::create_dir_all(state).map_err(|e| Error::io(state, e))?;
         let p = state.join("run.pid");
         for _ in 0..3 {
             // create_new: of two runners starting at once, exactly one gets the file.
@@ -120,21 +115,21 @@ impl RunGuard {
                     let pid = std::fs::read_to_string(&p).unwrap_or_default();
                     let pid = pid.trim();
                     if !pid.is_empty() && Path::new("/proc").join(pid).exists() {
-                        return Err(UsageError(format!(
-                            "another pipeline run (pid {pid}) is using this DAG ({}); wait for it or remove the file if it is stale",
-                            p.display()
-                        )));
+                        return Err(Error::Busy {
+                            pid: pid.to_string(),
+                            path: p,
+                        });
                     }
                     // A killed runner's file: take it over.
                     let _ = std::fs::remove_file(&p);
                 }
-                Err(e) => return Err(UsageError(format!("{}: {e}", p.display()))),
+                Err(e) => return Err(Error::io(p, e)),
             }
         }
-        Err(UsageError(format!(
-            "{}: could not take the run lock",
-            p.display()
-        )))
+        Err(Error::io(
+            p,
+            std::io::Error::other("could not take the run lock"),
+        ))
     }
 }
 impl Drop for RunGuard {
@@ -202,11 +197,11 @@ enum St {
 
 /// Run the DAG. Stage failures are reported in the summary; DAG-level problems are
 /// errors.
-pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
+pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
-    let selected = dag.select(&opts.targets).map_err(UsageError)?;
+    let selected = dag.select(&opts.targets)?;
     let lock_path = dag.lock_path();
-    let mut lock = Lock::read(&lock_path).map_err(UsageError)?;
+    let mut lock = Lock::read(&lock_path)?;
     let path_env = stage_path_env();
     let mut hasher = Hasher::new(path_env.clone());
     let mut summary = Summary::default();
@@ -232,8 +227,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
     // Forget stages that are no longer in the DAG (e.g. after lowering `rounds`).
     lock.stages.retain(|name, _| dag.index(name).is_some());
     let log_dir = dag.state_dir().join("logs");
-    std::fs::create_dir_all(&log_dir)
-        .map_err(|e| UsageError(format!("{}: {e}", log_dir.display())))?;
+    std::fs::create_dir_all(&log_dir).map_err(|e| Error::io(&log_dir, e))?;
 
     let mp = MultiProgress::with_draw_target(ProgressDrawTarget::stderr());
     let overall = mp.add(ProgressBar::new(selected.len() as u64));
@@ -402,7 +396,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
                 },
             },
         );
-        lock.write(&lock_path).map_err(UsageError)?;
+        lock.write(&lock_path)?;
         if let Some(sp) = spinners[i].take() {
             sp.finish_and_clear();
         }
@@ -437,7 +431,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
         jobs,
         finished_unix: now_unix(),
     });
-    lock.write(&lock_path).map_err(UsageError)?;
+    lock.write(&lock_path)?;
     if summary.ran.is_empty() && summary.failed.is_empty() && summary.blocked.is_empty() {
         println!("nothing to run: all {} stages up to date", selected.len());
     } else {
@@ -524,12 +518,11 @@ fn spawn_stage(
 ) {
     std::thread::spawn(move || {
         let t = Instant::now();
-        let res = (|| -> Result<std::process::ExitStatus, String> {
-            let mut f =
-                std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
+        let res = (|| -> Result<std::process::ExitStatus> {
+            let mut f = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
             writeln!(f, "# stage {name}\n# cmd: {cmd}\n# cwd: {}", dir.display())
-                .map_err(|e| format!("{}: {e}", log.display()))?;
-            let err = f.try_clone().map_err(|e| e.to_string())?;
+                .map_err(|e| Error::io(&log, e))?;
+            let err = f.try_clone().map_err(|e| Error::io(&log, e))?;
             let status = Command::new("sh")
                 .arg("-c")
                 .arg(&cmd)
@@ -539,7 +532,7 @@ fn spawn_stage(
                 .stdout(f)
                 .stderr(err)
                 .status()
-                .map_err(|e| format!("cannot start `sh -c`: {e}"))?;
+                .map_err(|e| Error::io("sh", e))?;
             Ok(status)
         })();
         let duration = t.elapsed().as_secs_f64();
@@ -553,7 +546,7 @@ fn spawn_stage(
             Err(e) => Outcome {
                 exit: None,
                 signal: None,
-                error: Some(e),
+                error: Some(e.to_string()),
                 duration,
             },
         };

@@ -1,0 +1,494 @@
+//! The DAG file: parsing, variable substitution, `foreach` expansion, validation and
+//! the graph, one phase per module: `parse` (TOML, params file, `[vars]`) ->
+//! `expand` (`foreach`, `${...}`) -> `validate` (outputs, producers) -> `graph`
+//! (cycles, topological order). `load` runs them in that order.
+//!
+//! Format (TOML, close to DVC's `dvc.yaml` with Snakemake-style wildcards):
+//!
+//! ```toml
+//! params = "params.toml"        # optional: a TOML file of tunable values
+//! [vars]                        # strings or numbers, substituted as ${name}
+//! model = "../vendor/models/stylizer"
+//! [stages.render]
+//! desc = "render the views"     # optional
+//! cmd = "render-views --scene ${scene} --width ${render.width} --out runs/views"
+//! deps = ["scene.ply"]          # files or directories read (another stage's outs or existing paths)
+//! outs = ["runs/views"]         # files or directories written
+//! params = ["render"]           # params-file keys (dotted; a table name tracks the whole table)
+//! [stages.step]
+//! foreach = { from = 1, to = "${rounds}", prefix = "r" }   # or a list: ["a", "b"]
+//! cmd = "step --in runs/r${prev} --out runs/r${item}"
+//! ```
+//!
+//! Substitution: `${name}` in `cmd`, `deps` and `outs` is replaced by a `[vars]` value,
+//! a params-file value (dotted key, e.g. `${csd.guidance}`; such a reference also adds
+//! the key to the stage's tracked params), or, inside a `foreach` stage, `${item}`
+//! and `${prev}`. `$${` writes a literal `${`. Anything else after `${` is an error.
+//!
+//! `foreach` expands a stage into one stage per item, named `NAME@ITEM`:
+//! * a list of strings or integers: `${item}` is the item, `${prev}` the previous item
+//!   (undefined for the first one);
+//! * a range `{ from = A, to = B, prefix = "r" }` (inclusive, `to` may be a `${var}`):
+//!   items are the integers A..=B, instances are named `NAME@{prefix}{n}`, `${item}` is
+//!   `n` and `${prev}` is `n-1` (so the first round can read a round-0 output).
+//!
+//! Validation runs before anything else and reports every problem with its line:
+//! unknown keys, undefined variables, bad `foreach`, two stages writing one output
+//! (or one inside the other), a dep that no stage produces and that does not exist,
+//! and cycles (named stage by stage).
+
+mod expand;
+mod graph;
+mod parse;
+mod validate;
+
+pub use expand::{ForeachError, SubstError, substitute};
+
+use crate::error::{Error, Result};
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// One problem found in a DAG file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diag {
+    /// 1-based line in the DAG file, when known.
+    pub line: Option<usize>,
+    pub msg: String,
+}
+
+/// Every problem found in a DAG file (or in its params file).
+#[derive(Debug)]
+pub struct DagError {
+    pub file: PathBuf,
+    pub diags: Vec<Diag>,
+}
+
+impl fmt::Display for DagError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, d) in self.diags.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            match d.line {
+                Some(l) => write!(f, "{}:{l}: {}", self.file.display(), d.msg)?,
+                None => write!(f, "{}: {}", self.file.display(), d.msg)?,
+            }
+        }
+        Ok(())
+    }
+}
+impl std::error::Error for DagError {}
+
+/// A stage after `foreach` expansion and substitution.
+#[derive(Debug, Clone)]
+pub struct Stage {
+    /// `NAME` or `NAME@ITEM`.
+    pub name: String,
+    /// The `[stages.NAME]` key.
+    pub base: String,
+    pub desc: Option<String>,
+    pub cmd: String,
+    /// Normalised paths relative to the DAG directory (or absolute).
+    pub deps: Vec<String>,
+    pub outs: Vec<String>,
+    /// Tracked params-file keys (listed or referenced in `${...}`), sorted.
+    pub params: Vec<String>,
+    /// Line of the stage's definition.
+    pub line: usize,
+    /// Indices of the stages producing this stage's deps.
+    pub upstream: Vec<usize>,
+}
+
+/// A loaded and validated DAG.
+#[derive(Debug, Clone)]
+pub struct Dag {
+    /// The DAG file.
+    pub file: PathBuf,
+    /// Its directory: commands run here, relative paths resolve here.
+    pub dir: PathBuf,
+    /// Stages in a topological order (ties broken by file order).
+    pub stages: Vec<Stage>,
+    /// The params file's values, flattened to dotted keys (tables included).
+    pub params: BTreeMap<String, serde_json::Value>,
+}
+
+impl Dag {
+    /// Index of stage `name`.
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.stages.iter().position(|s| s.name == name)
+    }
+
+    /// Absolute-or-DAG-relative path of a dep or out.
+    pub fn path(&self, p: &str) -> PathBuf {
+        self.dir.join(p)
+    }
+
+    /// Lock file path: `<dir>/<stem>.lock`.
+    pub fn lock_path(&self) -> PathBuf {
+        let stem = self
+            .file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "dag".into());
+        self.dir.join(format!("{stem}.lock"))
+    }
+
+    /// The `.pipeline` state directory next to the DAG.
+    pub fn state_dir(&self) -> PathBuf {
+        self.dir.join(".pipeline")
+    }
+
+    /// The stages selected by `targets` (stage names, or base names selecting every
+    /// instance) plus everything upstream of them; all stages when `targets` is empty.
+    /// Returned in topological order.
+    pub fn select(&self, targets: &[String]) -> Result<Vec<usize>> {
+        if targets.is_empty() {
+            return Ok((0..self.stages.len()).collect());
+        }
+        let mut want = vec![false; self.stages.len()];
+        let mut stack = Vec::new();
+        for t in targets {
+            let hits: Vec<usize> = (0..self.stages.len())
+                .filter(|&i| self.stages[i].name == *t || self.stages[i].base == *t)
+                .collect();
+            if hits.is_empty() {
+                return Err(Error::NoSuchStage {
+                    name: t.clone(),
+                    file: self.file.clone(),
+                });
+            }
+            stack.extend(hits);
+        }
+        while let Some(i) = stack.pop() {
+            if !want[i] {
+                want[i] = true;
+                stack.extend(self.stages[i].upstream.iter().copied());
+            }
+        }
+        Ok((0..self.stages.len()).filter(|&i| want[i]).collect())
+    }
+
+    /// Indices of every stage downstream of `i` (not including `i`).
+    pub fn downstream(&self, i: usize) -> Vec<usize> {
+        let mut hit = vec![false; self.stages.len()];
+        hit[i] = true;
+        // Topological order: one forward sweep suffices.
+        for j in i + 1..self.stages.len() {
+            if self.stages[j].upstream.iter().any(|&u| hit[u]) {
+                hit[j] = true;
+            }
+        }
+        hit[i] = false;
+        (0..self.stages.len()).filter(|&j| hit[j]).collect()
+    }
+}
+
+/// Load, expand and validate a DAG file.
+pub fn load(file: &Path) -> Result<Dag, DagError> {
+    let text = std::fs::read_to_string(file).map_err(|e| DagError {
+        file: file.to_path_buf(),
+        diags: vec![Diag {
+            line: None,
+            msg: format!("cannot read: {e}"),
+        }],
+    })?;
+    let dir = match file.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
+    parse(&text, file, &dir)
+}
+
+/// Parse DAG text; `file` names it in messages, `dir` is where relative paths resolve.
+pub fn parse(text: &str, file: &Path, dir: &Path) -> Result<Dag, DagError> {
+    let fail = |diags: Vec<Diag>| DagError {
+        file: file.to_path_buf(),
+        diags,
+    };
+    let mut diags = Vec::new();
+    let parsed = parse::parse(text, dir, &mut diags).map_err(|d| fail(vec![d]))?;
+    let stages = expand::expand(text, &parsed, &mut diags);
+    if !diags.is_empty() {
+        return Err(fail(diags));
+    }
+    let cx = validate::Context {
+        file,
+        dir,
+        params_file: parsed.raw.params.as_ref().map(|p| p.get_ref().as_str()),
+    };
+    let upstream = validate::validate(&cx, &stages).map_err(fail)?;
+    let stages = graph::order(stages, &upstream).map_err(|d| fail(vec![d]))?;
+    Ok(Dag {
+        file: file.to_path_buf(),
+        dir: dir.to_path_buf(),
+        stages,
+        params: parsed.params,
+    })
+}
+
+/// Lexically normalise a relative path: drop `.`, fold `a/..`, drop trailing `/`.
+pub fn normalize(p: &str) -> String {
+    let abs = p.starts_with('/');
+    let mut parts: Vec<&str> = Vec::new();
+    for c in p.split('/') {
+        match c {
+            "" | "." => {}
+            ".." if parts.last().is_some_and(|l| *l != "..") => {
+                parts.pop();
+            }
+            c => parts.push(c),
+        }
+    }
+    let j = parts.join("/");
+    if abs {
+        format!("/{j}")
+    } else if j.is_empty() {
+        ".".into()
+    } else {
+        j
+    }
+}
+
+/// Whether `p` lies strictly inside directory `dir`.
+pub fn inside(p: &str, dir: &str) -> bool {
+    p.len() > dir.len() && p.starts_with(dir) && p.as_bytes()[dir.len()] == b'/'
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn try_parse(text: &str) -> Result<Dag, DagError> {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join("in.txt"), "x").unwrap();
+        std::fs::write(
+            d.path().join("params.toml"),
+            "seed = 3\n[csd]\nguidance = 7.5\nmode = \"csd\"\n",
+        )
+        .unwrap();
+        parse(text, Path::new("dag.toml"), d.path())
+    }
+
+    fn err(text: &str) -> String {
+        try_parse(text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn expands_foreach_range_with_prev_and_orders_topologically() {
+        let dag = try_parse(
+            r#"
+params = "params.toml"
+[vars]
+rounds = 3
+[stages.step]
+foreach = { from = 1, to = "${rounds}", prefix = "r" }
+cmd = "step --in runs/r${prev} --out runs/r${item} --g ${csd.guidance}"
+deps = ["runs/r${prev}"]
+outs = ["runs/r${item}"]
+[stages.init]
+cmd = "init --seed ${seed}"
+deps = ["./in.txt"]
+outs = ["runs/r0/"]
+"#,
+        )
+        .unwrap();
+        let names: Vec<_> = dag.stages.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["init", "step@r1", "step@r2", "step@r3"]);
+        assert_eq!(dag.stages[2].cmd, "step --in runs/r1 --out runs/r2 --g 7.5");
+        assert_eq!(dag.stages[2].params, ["csd.guidance"]);
+        assert_eq!(dag.stages[0].params, ["seed"]);
+        assert_eq!(dag.stages[0].deps, ["in.txt"]);
+        assert_eq!(dag.stages[0].outs, ["runs/r0"]);
+        assert_eq!(dag.stages[3].upstream, [2]);
+        assert_eq!(dag.downstream(1), [2, 3]);
+        assert_eq!(dag.select(&["step@r2".into()]).unwrap(), [0, 1, 2]);
+        assert!(dag.select(&["nope".into()]).is_err());
+    }
+
+    #[test]
+    fn foreach_list_and_literal_dollar() {
+        let dag = try_parse(
+            r#"
+[stages.a]
+foreach = ["x", "y"]
+cmd = "echo $${HOME} $$ ${item} ${prev}"
+outs = ["o/${item}"]
+"#,
+        );
+        let e = dag.unwrap_err().to_string();
+        assert!(
+            e.contains("dag.toml:4: stage `a@x`: cmd: undefined variable `${prev}`")
+                && e.contains("no previous item"),
+            "{e}"
+        );
+        let dag = try_parse(
+            "[stages.a]\nforeach = [\"x\", \"y\"]\ncmd = \"echo $${HOME} $$ ${item}\"\nouts = [\"o/${item}\"]\n",
+        )
+        .unwrap();
+        assert_eq!(dag.stages[1].name, "a@y");
+        assert_eq!(dag.stages[1].cmd, "echo ${HOME} $$ y");
+    }
+
+    #[test]
+    fn cycle_is_named_with_its_line() {
+        let e = err(r#"
+[stages.a]
+cmd = "a"
+deps = ["b.out"]
+outs = ["a.out"]
+
+[stages.b]
+cmd = "b"
+deps = ["a.out"]
+outs = ["b.out"]
+"#);
+        assert!(
+            e.contains("dependency cycle:") && e.contains("a -> b -> a")
+                || e.contains("b -> a -> b"),
+            "{e}"
+        );
+        assert!(
+            e.starts_with("dag.toml:2: ") || e.starts_with("dag.toml:7: "),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn self_cycle_through_nested_output() {
+        let e = err("[stages.a]\ncmd = \"a\"\ndeps = [\"o/x\"]\nouts = [\"o\"]\n");
+        assert_eq!(e, "dag.toml:1: dependency cycle: a -> a");
+    }
+
+    #[test]
+    fn missing_producer_reports_the_dep_line() {
+        let e = err(
+            "[stages.a]\ncmd = \"a\"\ndeps = [\n  \"in.txt\",\n  \"nowhere.npy\",\n]\nouts = [\"o\"]\n",
+        );
+        assert_eq!(
+            e,
+            "dag.toml:5: dep `nowhere.npy` of stage `a` does not exist and no stage produces it (missing producer)"
+        );
+    }
+
+    #[test]
+    fn duplicate_output_names_both_stages() {
+        let e = err(
+            "[stages.a]\ncmd = \"a\"\nouts = [\"o\"]\n[stages.b]\ncmd = \"b\"\nouts = [\"./o\"]\n",
+        );
+        assert_eq!(
+            e,
+            "dag.toml:6: output `o` of stage `b` is also written by stage `a` (`o`, line 3)"
+        );
+        let e = err(
+            "[stages.a]\ncmd = \"a\"\nouts = [\"o\"]\n[stages.b]\ncmd = \"b\"\nouts = [\"o/x\"]\n",
+        );
+        assert!(e.contains("overlappingly written by stage `a`"), "{e}");
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected_with_line() {
+        let e = err("[stages.a]\ncmd = \"a\"\noutz = [\"o\"]\n");
+        assert!(e.starts_with("dag.toml:3: unknown field `outz`"), "{e}");
+        let e = err("stagez = 1\n");
+        assert!(e.starts_with("dag.toml:1: unknown field `stagez`"), "{e}");
+        let e = err("[stages.a]\noutz = 1\n");
+        assert!(e.contains("unknown field `outz`"), "{e}");
+    }
+
+    #[test]
+    fn undefined_variable_reports_line() {
+        let e = err("[vars]\nx = 1\n[stages.a]\ncmd = \"a ${x}\"\nouts = [\"o/${y}\"]\n");
+        assert_eq!(e, "dag.toml:5: stage `a`: outs: undefined variable `${y}`");
+        let e = err("[stages.a]\ncmd = \"a ${x\"\n");
+        assert!(
+            e.contains("dag.toml:2: stage `a`: cmd: unterminated"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn bad_foreach_cases() {
+        let cases = [
+            ("foreach = []", "the list is empty"),
+            (
+                "foreach = [1.5]",
+                "items must be strings or integers, found float",
+            ),
+            ("foreach = [\"a\", \"a\"]", "item `a` appears twice"),
+            ("foreach = [\"a b\"]", "may only use letters"),
+            (
+                "foreach = { from = 3, to = 1 }",
+                "range is empty (from = 3, to = 1)",
+            ),
+            ("foreach = { from = 1, upto = 2 }", "unknown key `upto`"),
+            ("foreach = { from = 1 }", "a range needs `to`"),
+            (
+                "foreach = { from = 1, to = \"${nope}\" }",
+                "undefined variable `${nope}`",
+            ),
+            ("foreach = 3", "expected a list of items or a range table"),
+        ];
+        for (f, want) in cases {
+            let e = err(&format!(
+                "[stages.a]\ncmd = \"a\"\n{f}\nouts = [\"o${{item}}\"]\n"
+            ));
+            assert!(
+                e.starts_with("dag.toml:3: stage `a`: bad foreach: ") && e.contains(want),
+                "{f}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn params_keys_must_exist() {
+        let e = err("params = \"params.toml\"\n[stages.a]\ncmd = \"a\"\nparams = [\"csd.nope\"]\n");
+        assert_eq!(
+            e,
+            "dag.toml:4: stage `a`: params key `csd.nope` is not in the params file"
+        );
+        let dag =
+            try_parse("params = \"params.toml\"\n[stages.a]\ncmd = \"a\"\nparams = [\"csd\"]\n")
+                .unwrap();
+        assert_eq!(dag.stages[0].params, ["csd"]);
+        assert_eq!(dag.params["csd"]["mode"], "csd");
+        let e = err("params = \"nope.toml\"\n");
+        assert!(e.starts_with("dag.toml:1: cannot read params file"), "{e}");
+    }
+
+    #[test]
+    fn outputs_must_stay_inside_and_off_the_dags_files() {
+        for (o, want) in [
+            ("..", "must be a path inside the DAG's directory"),
+            ("/tmp/x", "must be a path inside the DAG's directory"),
+            ("a/../..", "must be a path inside the DAG's directory"),
+            ("./", "must be a path inside the DAG's directory"),
+            (
+                "params.toml",
+                "would overwrite the DAG, its params or its state",
+            ),
+            (
+                ".pipeline/logs",
+                "would overwrite the DAG, its params or its state",
+            ),
+        ] {
+            let e = err(&format!(
+                "params = \"params.toml\"\n[stages.a]\ncmd = \"a\"\nouts = [\"{o}\"]\n"
+            ));
+            assert!(
+                e.starts_with("dag.toml:4: output") && e.contains(want),
+                "{o}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn normalize_paths() {
+        assert_eq!(normalize("./a//b/"), "a/b");
+        assert_eq!(normalize("a/../b"), "b");
+        assert_eq!(normalize("../x"), "../x");
+        assert_eq!(normalize("/abs/./p"), "/abs/p");
+        assert!(inside("a/b", "a") && !inside("ab", "a") && !inside("a", "a"));
+    }
+}
