@@ -7,7 +7,10 @@
 //! first word and the blake3 of that executable); every dep's hash (an artifact
 //! directory hashes as its manifest, see `fantasystyle_schemas::hash_path`); every
 //! tracked param's hash (blake3 of its canonical JSON); every output's hash; `status`
-//! (`ok` or `failed`), wall time and the log file. `last_run` records the wall time of
+//! (`ok` or `failed`), wall time and the log file; and, per artifact output, the size
+//! and modification time of each file its manifest lists (see [`FileStamp`]), so that
+//! a file changed, truncated or deleted behind the runner's back is noticed cheaply.
+//! `last_run` records the wall time of
 //! the most recent `pipeline run` as a whole, for `pipeline report`.
 
 use crate::error::{Error, Result};
@@ -66,6 +69,37 @@ pub struct Entry {
     /// e.g. `load_s`, `compute_s`, `io_s`); empty when it reported none.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub timing: BTreeMap<String, f64>,
+    /// Per artifact output, its manifest's files as they were when the stage finished
+    /// (absent for plain-file outputs and for locks written before this field).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub files: BTreeMap<String, BTreeMap<String, FileStamp>>,
+}
+
+/// A file of an artifact output as the runner last saw it: size and modification
+/// time (nanoseconds since the Unix epoch). When both still match, the file is taken
+/// as unchanged without hashing it (the manifest holds its blake3); when either
+/// differs, it is hashed and compared with the manifest (as DVC does with its cache).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileStamp {
+    pub bytes: u64,
+    pub mtime_ns: u64,
+}
+
+impl FileStamp {
+    /// The stamp of `p` now, if it is a readable file.
+    pub fn of(p: &Path) -> Option<FileStamp> {
+        let m = std::fs::metadata(p).ok().filter(|m| m.is_file())?;
+        let mtime_ns = m
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map_or(0, |d| d.as_nanos() as u64);
+        Some(FileStamp {
+            bytes: m.len(),
+            mtime_ns,
+        })
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -149,6 +183,7 @@ mod tests {
                 finished_unix: 1,
                 log: ".pipeline/logs/a.log".into(),
                 timing: BTreeMap::new(),
+                files: BTreeMap::new(),
             },
         );
         l.write(&p).unwrap();

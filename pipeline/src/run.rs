@@ -1,8 +1,10 @@
 //! Running a DAG: stale stages in topological order, independent ones in parallel.
 //!
-//! Each stage runs as `sh -c CMD` in the DAG's directory, with the `pipeline`
-//! executable's own directory first on PATH (so sibling stage binaries are found), its
-//! stdout and stderr going to `.pipeline/logs/NAME.log` next to the DAG.
+//! Each stage runs as `sh -c CMD` in the work directory (`--workdir`, default the
+//! DAG's directory), with the `pipeline` executable's own directory first on PATH (so
+//! sibling stage binaries are found), its stdout and stderr going to
+//! `.pipeline/logs/NAME.log` in the work directory. At the end of a successful run the
+//! DAG's `[result]` paths are printed.
 //!
 //! Resume semantics (what makes an interrupted run safe to restart):
 //! * A stage counts as done only when the lock records it `ok`, which the runner writes
@@ -223,6 +225,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
         return Ok(summary);
     }
 
+    std::fs::create_dir_all(&dag.workdir).map_err(|e| Error::io(&dag.workdir, e))?;
     let _guard = RunGuard::take(&dag.state_dir())?;
     // Forget stages that are no longer in the DAG (e.g. after lowering `rounds`).
     lock.stages.retain(|name, _| dag.index(name).is_some());
@@ -310,7 +313,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
                 i,
                 s.name.clone(),
                 s.cmd.clone(),
-                dag.dir.clone(),
+                dag.workdir.clone(),
                 env,
                 log,
                 tx.clone(),
@@ -361,7 +364,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
         let log_rel = format!(".pipeline/logs/{}.log", s.name);
         if let Some(e) = &error {
             append_log(
-                &dag.dir.join(&log_rel),
+                &dag.workdir.join(&log_rel),
                 &format!("pipeline: stage failed: {e}"),
             );
             clean_failed(dag, &s.outs);
@@ -372,6 +375,15 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
             s.outs
                 .iter()
                 .map(|o| (o.clone(), crate::state::hash_or_missing(&dag.path(o))))
+                .collect()
+        } else {
+            BTreeMap::new()
+        };
+        let files: BTreeMap<_, _> = if ok {
+            s.outs
+                .iter()
+                .map(|o| (o.clone(), crate::state::stamp_files(&dag.path(o))))
+                .filter(|(_, f)| !f.is_empty())
                 .collect()
         } else {
             BTreeMap::new()
@@ -394,6 +406,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
                 } else {
                     BTreeMap::new()
                 },
+                files,
             },
         );
         lock.write(&lock_path)?;
@@ -408,7 +421,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
                 "FAILED      {} ({:.1}s): {e}; log: {}",
                 s.name,
                 out.duration,
-                dag.dir.join(&log_rel).display()
+                dag.workdir.join(&log_rel).display()
             ));
             if !opts.keep_going {
                 stop = true;
@@ -444,7 +457,25 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
             t0.elapsed().as_secs_f64()
         );
     }
+    if summary.failed.is_empty() && summary.blocked.is_empty() {
+        print!("{}", result_lines(dag));
+    }
     Ok(summary)
+}
+
+/// The DAG's `[result]` paths that exist, one `result  NAME  PATH` line each, with
+/// paths as seen from the current directory.
+pub fn result_lines(dag: &Dag) -> String {
+    let cwd = crate::dag::absolute(Path::new("."));
+    let mut out = String::new();
+    for (name, p) in &dag.result {
+        let full = dag.path(p);
+        if full.exists() {
+            let shown = crate::dag::relative(&crate::dag::lexical(&full), &cwd);
+            out.push_str(&format!("result  {name:<8} {shown}\n"));
+        }
+    }
+    out
 }
 
 /// Environment variable naming the file where a stage may report its timing.

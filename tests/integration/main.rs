@@ -3,6 +3,7 @@ mod baselines;
 mod evaluate;
 mod harness;
 mod mvfc;
+mod own_scene;
 mod render;
 mod runtime;
 mod scene;

@@ -3,6 +3,7 @@
 //! `cmd`, `deps` and `outs` substituted and its tracked params collected; problems go
 //! into the diagnostics with their lines.
 
+use super::locate::is_value_dep;
 use super::parse::{Lines, Parsed};
 use super::{Diag, Stage, normalize};
 use std::collections::{BTreeSet, HashMap};
@@ -60,6 +61,28 @@ pub(super) struct Expanded {
     pub stage: Stage,
     pub dep_lines: Vec<usize>,
     pub out_lines: Vec<usize>,
+    /// Per dep: written without `${...}` (a literal path in the DAG file).
+    pub dep_literal: Vec<bool>,
+}
+
+/// A `[result]` entry after substitution: (name, path, line).
+pub(super) type ResultEntry = (String, String, usize);
+
+/// Substitute the `[result]` table (vars and params only).
+pub(super) fn expand_result(p: &Parsed, diags: &mut Vec<Diag>) -> Vec<ResultEntry> {
+    let mut out = Vec::new();
+    for (name, v) in &p.raw.result {
+        let line = p.lines.line(v.span().start);
+        let look = |n: &str| p.vars.get(n).or_else(|| p.params_text.get(n)).cloned();
+        match substitute(v.get_ref(), look) {
+            Ok(s) => out.push((name.clone(), normalize(&s), line)),
+            Err(e) => diags.push(Diag {
+                line: Some(line),
+                msg: format!("result `{name}`: {e}"),
+            }),
+        }
+    }
+    out
 }
 
 /// Expand every raw stage, in file order.
@@ -168,7 +191,16 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                     base: base.clone(),
                     desc: st.desc.clone(),
                     cmd,
-                    deps: deps.iter().map(|d| normalize(d)).collect(),
+                    deps: deps
+                        .iter()
+                        .map(|d| {
+                            if is_value_dep(d) {
+                                d.clone()
+                            } else {
+                                normalize(d)
+                            }
+                        })
+                        .collect(),
                     outs: outs.iter().map(|d| normalize(d)).collect(),
                     params: tracked.into_iter().collect(),
                     line,
@@ -176,6 +208,11 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                 },
                 dep_lines: st.deps.iter().map(|d| lines.line(d.span().start)).collect(),
                 out_lines: st.outs.iter().map(|d| lines.line(d.span().start)).collect(),
+                dep_literal: st
+                    .deps
+                    .iter()
+                    .map(|d| !d.get_ref().contains("${"))
+                    .collect(),
             });
         }
     }

@@ -32,6 +32,17 @@
 //!   items are the integers A..=B, instances are named `NAME@{prefix}{n}`, `${item}` is
 //!   `n` and `${prev}` is `n-1` (so the first round can read a round-0 output).
 //!
+//! `[result]` (optional) names what a successful run leaves for the user, e.g.
+//! `scene = "runs/final/scene.ply"`; `pipeline run` prints these paths at its end.
+//!
+//! Deps are paths (files or directories), or values written `scheme:rest` such as
+//! `orbit:16` (a generated camera spec), which are hashed by their text.
+//!
+//! The work directory (`--workdir`, default the DAG's directory) holds every output,
+//! the lock and `.pipeline/`; commands run there. `--set NAME=VALUE` overrides a
+//! `[vars]` value or a params value (dotted key). How paths from the DAG file and from
+//! `--set` are resolved is described in `locate`.
+//!
 //! Validation runs before anything else and reports every problem with its line:
 //! unknown keys, undefined variables, bad `foreach`, two stages writing one output
 //! (or one inside the other), a dep that no stage produces and that does not exist,
@@ -39,8 +50,11 @@
 
 mod expand;
 mod graph;
+mod locate;
 mod parse;
 mod validate;
+
+pub use locate::{Places, absolute, is_value_dep, lexical, relative};
 
 pub use expand::{ForeachError, SubstError, substitute};
 
@@ -89,7 +103,8 @@ pub struct Stage {
     pub base: String,
     pub desc: Option<String>,
     pub cmd: String,
-    /// Normalised paths relative to the DAG directory (or absolute).
+    /// Normalised paths relative to the work directory (or absolute), or values
+    /// (`orbit:16`, see [`is_value_dep`]).
     pub deps: Vec<String>,
     pub outs: Vec<String>,
     /// Tracked params-file keys (listed or referenced in `${...}`), sorted.
@@ -105,12 +120,57 @@ pub struct Stage {
 pub struct Dag {
     /// The DAG file.
     pub file: PathBuf,
-    /// Its directory: commands run here, relative paths resolve here.
+    /// Its directory (absolute): the params file and the DAG's own relative paths
+    /// are found here.
     pub dir: PathBuf,
+    /// The work directory (absolute): commands run here; outputs, the lock and
+    /// `.pipeline/` go here. The DAG's directory unless `--workdir` says otherwise.
+    pub workdir: PathBuf,
     /// Stages in a topological order (ties broken by file order).
     pub stages: Vec<Stage>,
-    /// The params file's values, flattened to dotted keys (tables included).
+    /// The params file's values (`--set` applied), flattened to dotted keys (tables
+    /// included).
     pub params: BTreeMap<String, serde_json::Value>,
+    /// The `[result]` table: (name, path relative to the work directory).
+    pub result: Vec<(String, String)>,
+    /// The `--set` overrides it was loaded with.
+    pub sets: Vec<Set>,
+}
+
+/// A `--set NAME=VALUE` override.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Set {
+    pub name: String,
+    pub value: String,
+}
+
+impl std::str::FromStr for Set {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Set> {
+        match s.split_once('=') {
+            Some((n, v)) if !n.trim().is_empty() => Ok(Set {
+                name: n.trim().to_string(),
+                value: v.to_string(),
+            }),
+            _ => Err(Error::Usage(format!(
+                "--set `{s}`: expected NAME=VALUE (a [vars] name or a dotted params key, e.g. --set scene=captures/cat.splat)"
+            ))),
+        }
+    }
+}
+
+impl fmt::Display for Set {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}={}", self.name, self.value)
+    }
+}
+
+/// How to load a DAG: the work directory and `--set` overrides.
+#[derive(Debug, Clone, Default)]
+pub struct LoadOptions {
+    /// `--workdir` (relative to the current directory); `None`: the DAG's directory.
+    pub workdir: Option<PathBuf>,
+    pub sets: Vec<Set>,
 }
 
 impl Dag {
@@ -119,24 +179,24 @@ impl Dag {
         self.stages.iter().position(|s| s.name == name)
     }
 
-    /// Absolute-or-DAG-relative path of a dep or out.
+    /// Path of a dep or out (relative ones are in the work directory).
     pub fn path(&self, p: &str) -> PathBuf {
-        self.dir.join(p)
+        lexical(&self.workdir.join(p))
     }
 
-    /// Lock file path: `<dir>/<stem>.lock`.
+    /// Lock file path: `<workdir>/<stem>.lock`.
     pub fn lock_path(&self) -> PathBuf {
         let stem = self
             .file
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "dag".into());
-        self.dir.join(format!("{stem}.lock"))
+        self.workdir.join(format!("{stem}.lock"))
     }
 
-    /// The `.pipeline` state directory next to the DAG.
+    /// The `.pipeline` state directory (logs, timing, run.pid) in the work directory.
     pub fn state_dir(&self) -> PathBuf {
-        self.dir.join(".pipeline")
+        self.workdir.join(".pipeline")
     }
 
     /// The stages selected by `targets` (stage names, or base names selecting every
@@ -184,8 +244,13 @@ impl Dag {
     }
 }
 
-/// Load, expand and validate a DAG file.
-pub fn load(file: &Path) -> Result<Dag, DagError> {
+/// Load, expand and validate a DAG file (work directory: the DAG's, no overrides).
+pub fn load(file: &Path) -> Result<Dag> {
+    load_with(file, &LoadOptions::default())
+}
+
+/// Load, expand and validate a DAG file with a work directory and `--set` overrides.
+pub fn load_with(file: &Path, opts: &LoadOptions) -> Result<Dag> {
     let text = std::fs::read_to_string(file).map_err(|e| DagError {
         file: file.to_path_buf(),
         diags: vec![Diag {
@@ -197,34 +262,86 @@ pub fn load(file: &Path) -> Result<Dag, DagError> {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
-    parse(&text, file, &dir)
+    let dir = absolute(&dir);
+    let places = Places {
+        workdir: opts
+            .workdir
+            .as_deref()
+            .map_or_else(|| dir.clone(), absolute),
+        cwd: absolute(Path::new(".")),
+        dir,
+    };
+    parse_with(&text, file, &places, &opts.sets)
 }
 
-/// Parse DAG text; `file` names it in messages, `dir` is where relative paths resolve.
-pub fn parse(text: &str, file: &Path, dir: &Path) -> Result<Dag, DagError> {
+/// Parse DAG text; `file` names it in messages, `dir` is where relative paths resolve
+/// (and the work directory).
+pub fn parse(text: &str, file: &Path, dir: &Path) -> Result<Dag> {
+    let places = Places {
+        dir: dir.to_path_buf(),
+        workdir: dir.to_path_buf(),
+        cwd: absolute(Path::new(".")),
+    };
+    parse_with(text, file, &places, &[])
+}
+
+/// Parse DAG text with the given directories and overrides: parse, apply `--set`,
+/// expand, relocate the DAG's own paths for the work directory, validate, order.
+pub fn parse_with(text: &str, file: &Path, places: &Places, sets: &[Set]) -> Result<Dag> {
     let fail = |diags: Vec<Diag>| DagError {
         file: file.to_path_buf(),
         diags,
     };
     let mut diags = Vec::new();
-    let parsed = parse::parse(text, dir, &mut diags).map_err(|d| fail(vec![d]))?;
-    let stages = expand::expand(text, &parsed, &mut diags);
+    let mut parsed = parse::parse(text, &places.dir, &mut diags).map_err(|d| fail(vec![d]))?;
+    let set_vars = parse::apply_sets(&mut parsed, sets, places, file)?;
+    let mut stages = expand::expand(text, &parsed, &mut diags);
     if !diags.is_empty() {
-        return Err(fail(diags));
+        return Err(fail(diags).into());
     }
+    if places.moved() {
+        // [vars] values naming the DAG's own files, as seen from the work directory;
+        // then expand again with them.
+        let mut moved = false;
+        for (k, v) in parsed.vars.iter_mut() {
+            if set_vars.contains(k) || locate::produced(&normalize(v), &stages) {
+                continue;
+            }
+            if let Some(r) = places.from_dag(v) {
+                *v = r;
+                moved = true;
+            }
+        }
+        if moved {
+            stages = expand::expand(text, &parsed, &mut diags);
+        }
+        locate::relocate_literals(&mut stages, places);
+    }
+    let result = expand::expand_result(&parsed, &mut diags);
+    diags.extend(validate::check_result(&result, &stages));
+    if !diags.is_empty() {
+        return Err(fail(diags).into());
+    }
+    let set_values: Vec<(String, String)> = set_vars
+        .iter()
+        .filter_map(|k| parsed.vars.get(k).map(|v| (k.clone(), v.clone())))
+        .collect();
     let cx = validate::Context {
         file,
-        dir,
+        places,
         params_file: parsed.raw.params.as_ref().map(|p| p.get_ref().as_str()),
+        set_values: &set_values,
     };
     let upstream = validate::validate(&cx, &stages).map_err(fail)?;
     let stages = graph::order(stages, &upstream).map_err(|d| fail(vec![d]))?;
     Ok(Dag {
         file: file.to_path_buf(),
-        dir: dir.to_path_buf(),
+        dir: places.dir.clone(),
+        workdir: places.workdir.clone(),
         stages,
         params: parsed.params,
+        result: result.into_iter().map(|(n, p, _)| (n, p)).collect(),
+        sets: sets.to_vec(),
     })
 }
 
@@ -260,7 +377,7 @@ pub fn inside(p: &str, dir: &str) -> bool {
 mod tests {
     use super::*;
 
-    fn try_parse(text: &str) -> Result<Dag, DagError> {
+    fn try_parse(text: &str) -> Result<Dag> {
         let d = tempfile::tempdir().unwrap();
         std::fs::write(d.path().join("in.txt"), "x").unwrap();
         std::fs::write(

@@ -1,8 +1,12 @@
 //! Phase 1 of loading a DAG: the TOML text into raw stages (unknown keys rejected,
 //! spans kept for line numbers), the params file into dotted keys, and `[vars]` into
-//! strings. Nothing is substituted or expanded here.
+//! strings; then `--set NAME=VALUE` overrides replace `[vars]` and params values.
+//! Nothing is substituted or expanded here.
 
 use super::Diag;
+use super::Set;
+use super::locate::Places;
+use crate::error::{Error, Result};
 use serde::Deserialize;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
@@ -17,6 +21,9 @@ pub(super) struct RawDag {
     pub vars: BTreeMap<String, Spanned<toml::Value>>,
     #[serde(default)]
     pub stages: BTreeMap<String, Spanned<RawStage>>,
+    /// What a successful run leaves for the user, by name (`scene = "runs/final/scene.ply"`).
+    #[serde(default)]
+    pub result: BTreeMap<String, Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -52,6 +59,8 @@ impl Lines {
 pub(super) struct Parsed {
     pub raw: RawDag,
     pub lines: Lines,
+    /// The params file as read (before flattening), `--set` overrides applied.
+    pub params_table: toml::Table,
     /// The params file's values, flattened to dotted keys (tables included).
     pub params: BTreeMap<String, serde_json::Value>,
     /// `[vars]` as strings.
@@ -71,6 +80,7 @@ pub(super) fn parse(text: &str, dir: &Path, diags: &mut Vec<Diag>) -> Result<Par
     })?;
 
     let mut params = BTreeMap::new();
+    let mut params_table = toml::Table::new();
     if let Some(p) = &raw.params {
         let line = Some(lines.line(p.span().start));
         let path = dir.join(p.get_ref());
@@ -88,7 +98,10 @@ pub(super) fn parse(text: &str, dir: &Path, diags: &mut Vec<Diag>) -> Result<Par
                         e.to_string().replace('\n', " ")
                     ),
                 }),
-                Ok(table) => flatten("", &toml::Value::Table(table), &mut params),
+                Ok(table) => {
+                    flatten("", &toml::Value::Table(table.clone()), &mut params);
+                    params_table = table;
+                }
             },
         }
     }
@@ -118,17 +131,119 @@ pub(super) fn parse(text: &str, dir: &Path, diags: &mut Vec<Diag>) -> Result<Par
             }
         }
     }
-    let params_text = params
-        .iter()
-        .filter_map(|(k, v)| json_scalar(v).map(|s| (k.clone(), s)))
-        .collect();
+    let params_text = params_text(&params);
     Ok(Parsed {
         raw,
         lines,
+        params_table,
         params,
         vars,
         params_text,
     })
+}
+
+fn params_text(params: &BTreeMap<String, serde_json::Value>) -> HashMap<String, String> {
+    params
+        .iter()
+        .filter_map(|(k, v)| json_scalar(v).map(|s| (k.clone(), s)))
+        .collect()
+}
+
+/// Apply `--set NAME=VALUE` overrides: a `[vars]` name takes the value; a params key
+/// (dotted) takes the value converted to the type it has in the params file. A value
+/// naming an existing path relative to the current directory is rewritten as seen
+/// from the work directory. Returns the names of the `[vars]` that were set.
+pub(super) fn apply_sets(
+    p: &mut Parsed,
+    sets: &[Set],
+    places: &Places,
+    file: &Path,
+) -> Result<Vec<String>> {
+    let mut set_vars = Vec::new();
+    for s in sets {
+        let value = places.from_cwd(&s.value).unwrap_or_else(|| s.value.clone());
+        if p.raw.vars.contains_key(&s.name) {
+            p.vars.insert(s.name.clone(), value);
+            set_vars.push(s.name.clone());
+            continue;
+        }
+        let Some(old) = p.params.get(&s.name) else {
+            let mut vars: Vec<&str> = p.raw.vars.keys().map(String::as_str).collect();
+            vars.sort();
+            let keys: Vec<&str> = p
+                .params
+                .iter()
+                .filter(|(_, v)| !v.is_object())
+                .map(|(k, _)| k.as_str())
+                .collect();
+            return Err(Error::Usage(format!(
+                "--set {s}: `{}` is neither a [vars] name nor a params key of {} (vars: {}; params keys: {})",
+                s.name,
+                file.display(),
+                if vars.is_empty() {
+                    "none".into()
+                } else {
+                    vars.join(", ")
+                },
+                if keys.is_empty() {
+                    "none".into()
+                } else {
+                    keys.join(", ")
+                },
+            )));
+        };
+        let bad = |what: &str| {
+            Error::Usage(format!(
+                "--set {s}: params key `{}` is {what}, and `{}` is not one",
+                s.name, s.value
+            ))
+        };
+        let new = match old {
+            serde_json::Value::Object(_) | serde_json::Value::Array(_) => {
+                return Err(Error::Usage(format!(
+                    "--set {s}: params key `{}` is a {}; set one of its values by its dotted key",
+                    s.name,
+                    if old.is_object() { "table" } else { "list" }
+                )));
+            }
+            serde_json::Value::Bool(_) => {
+                toml::Value::Boolean(s.value.parse().map_err(|_| bad("a boolean"))?)
+            }
+            serde_json::Value::Number(n) if n.is_i64() || n.is_u64() => {
+                toml::Value::Integer(s.value.parse().map_err(|_| bad("an integer"))?)
+            }
+            serde_json::Value::Number(_) => {
+                let f: f64 = s.value.parse().map_err(|_| bad("a number"))?;
+                if !f.is_finite() {
+                    return Err(bad("a finite number"));
+                }
+                toml::Value::Float(f)
+            }
+            _ => toml::Value::String(value),
+        };
+        set_in_table(&mut p.params_table, &s.name, new);
+        p.params.clear();
+        flatten(
+            "",
+            &toml::Value::Table(p.params_table.clone()),
+            &mut p.params,
+        );
+    }
+    p.params_text = params_text(&p.params);
+    Ok(set_vars)
+}
+
+fn set_in_table(t: &mut toml::Table, dotted: &str, v: toml::Value) {
+    match dotted.split_once('.') {
+        Some((head, rest)) if t.get(head).is_some_and(|x| x.is_table()) => {
+            if let Some(toml::Value::Table(inner)) = t.get_mut(head) {
+                set_in_table(inner, rest, v);
+            }
+        }
+        _ => {
+            t.insert(dotted.to_string(), v);
+        }
+    }
 }
 
 fn scalar(v: &toml::Value) -> Option<String> {

@@ -1,10 +1,12 @@
 //! Phase 3 of loading a DAG: checks on the expanded stages, each problem with its
-//! line: outputs must stay inside the DAG's directory and off its own files (the
+//! line: outputs must stay inside the work directory and off the DAG's own files (the
 //! runner deletes outputs after a failure), no two stages may write one output (or one
-//! inside the other), and every dep must be another stage's output or an existing
-//! path. The producers found here are the graph's edges.
+//! inside the other), every dep must be another stage's output, an existing path or a
+//! value (`orbit:16`), and every `[result]` entry must lie in some stage's output. The
+//! producers found here are the graph's edges.
 
-use super::expand::Expanded;
+use super::expand::{Expanded, ResultEntry};
+use super::locate::{Places, is_value_dep, lexical, relative};
 use super::{Diag, inside, normalize};
 use std::path::Path;
 
@@ -12,10 +14,12 @@ use std::path::Path;
 pub(super) struct Context<'a> {
     /// The DAG file (its name and lock name are protected).
     pub file: &'a Path,
-    /// Where relative deps are looked up.
-    pub dir: &'a Path,
+    /// The directories: relative deps and outputs are looked up in the work directory.
+    pub places: &'a Places,
     /// The params file as written in the DAG, if any.
     pub params_file: Option<&'a str>,
+    /// `--set` values (as substituted) by the name they set, to explain missing deps.
+    pub set_values: &'a [(String, String)],
 }
 
 /// Validate and return, per stage, the indices of the stages producing its deps.
@@ -55,14 +59,19 @@ pub(super) fn validate(cx: &Context, stages: &[Expanded]) -> Result<Vec<Vec<usiz
                 .map(|&(_, j, _)| j)
                 .collect();
             if producers.is_empty() {
-                if !cx.dir.join(d).exists() {
-                    diags.push(Diag {
-                        line: Some(l),
-                        msg: format!(
+                if !is_value_dep(d) && !lexical(&cx.places.workdir.join(d)).exists() {
+                    let from_set = cx.set_values.iter().find(|(_, v)| normalize(v) == *d);
+                    let msg = match from_set {
+                        Some((name, v)) => format!(
+                            "dep `{v}` of stage `{}` (from --set {name}={v}) does not exist (a relative --set path is taken from the current directory)",
+                            s.name
+                        ),
+                        None => format!(
                             "dep `{d}` of stage `{}` does not exist and no stage produces it (missing producer)",
                             s.name
                         ),
-                    });
+                    };
+                    diags.push(Diag { line: Some(l), msg });
                 }
             } else {
                 for j in producers {
@@ -80,15 +89,45 @@ pub(super) fn validate(cx: &Context, stages: &[Expanded]) -> Result<Vec<Vec<usiz
     }
 }
 
-/// Outputs the runner may delete after a failure must stay inside the DAG directory
+/// Each `[result]` entry must lie in (or be) some stage's output.
+pub(super) fn check_result(result: &[ResultEntry], stages: &[Expanded]) -> Vec<Diag> {
+    result
+        .iter()
+        .filter(|(_, p, _)| {
+            !stages
+                .iter()
+                .any(|e| e.stage.outs.iter().any(|o| o == p || inside(p, o)))
+        })
+        .map(|(name, p, line)| Diag {
+            line: Some(*line),
+            msg: format!("result `{name}` = `{p}` is not inside any stage's output"),
+        })
+        .collect()
+}
+
+/// Outputs the runner may delete after a failure must stay inside the work directory
 /// and away from the DAG's own files.
 fn check_output_locations(cx: &Context, stages: &[Expanded], diags: &mut Vec<Diag>) {
-    let params_file = cx.params_file.map(normalize);
+    let places = cx.places;
+    // The DAG's own files as seen from the work directory.
+    let seen = |name: &str| {
+        if places.moved() {
+            relative(&lexical(&places.dir.join(name)), &places.workdir)
+        } else {
+            normalize(name)
+        }
+    };
+    let params_file = cx.params_file.map(seen);
     let dag_name = cx
         .file
         .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
+        .map(|n| seen(&n.to_string_lossy()))
         .unwrap_or_default();
+    let where_ = if places.moved() {
+        "the work directory (--workdir)"
+    } else {
+        "the DAG's directory"
+    };
     let lock_name = format!(
         "{}.lock",
         cx.file
@@ -104,7 +143,7 @@ fn check_output_locations(cx: &Context, stages: &[Expanded], diags: &mut Vec<Dia
                 diags.push(Diag {
                     line: Some(l),
                     msg: format!(
-                        "output `{o}` of stage `{}` must be a path inside the DAG's directory",
+                        "output `{o}` of stage `{}` must be a path inside {where_}",
                         s.name
                     ),
                 });
