@@ -39,6 +39,9 @@ pub enum Error {
     /// An artifact (or `.npy`) that cannot be read or written.
     #[error(transparent)]
     Schema(#[from] fantasystyle_schemas::SchemaError),
+    /// A DAG that cannot be exported as asked (to Snakemake), with the reason.
+    #[error("{0}")]
+    Export(String),
     /// A tensor that `inspect` cannot show as asked.
     #[error("{0}")]
     Inspect(String),

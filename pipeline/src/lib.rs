@@ -6,6 +6,7 @@
 
 pub mod dag;
 pub mod error;
+pub mod export;
 pub mod inspect;
 pub mod lock;
 pub mod run;

@@ -63,6 +63,18 @@ enum Cmd {
         #[arg(long)]
         dot: bool,
     },
+    /// Write the DAG as a Snakefile (one rule per stage, the same commands), to run it
+    /// with Snakemake and its cluster or cloud executors.
+    Export {
+        #[command(flatten)]
+        dag: DagArgs,
+        /// Export for Snakemake (the one format so far).
+        #[arg(long, required = true)]
+        snakemake: bool,
+        /// Where to write the Snakefile (written atomically).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Wall time per stage against the compute time stages reported.
     Report {
         #[command(flatten)]
@@ -191,6 +203,27 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
         Cmd::Dag { dag, dot } => {
             let d = load(&dag)?;
             print!("{}", if dot { show::dot(&d) } else { show::text(&d) });
+            ExitCode::SUCCESS
+        }
+        Cmd::Export {
+            dag,
+            snakemake: _,
+            out,
+        } => {
+            let d = load(&dag)?;
+            let bin_dir = std::env::current_exe()
+                .ok()
+                .and_then(|e| e.parent().map(|p| p.to_path_buf()))
+                .unwrap_or_else(|| PathBuf::from("."));
+            let text =
+                fantasystyle_pipeline::export::snakefile(&d, &bin_dir).map_err(|e| fail(2, e))?;
+            fantasystyle_schemas::atomic_write(&out, text.as_bytes()).map_err(|e| fail(2, e))?;
+            println!(
+                "wrote {} ({} rules); run: snakemake -s {} --cores 2",
+                out.display(),
+                d.stages.len() + 1,
+                out.display()
+            );
             ExitCode::SUCCESS
         }
         Cmd::Report { dag } => match show::report(&load(&dag)?) {

@@ -7,3 +7,4 @@ mod own_scene;
 mod render;
 mod runtime;
 mod scene;
+mod snakemake_sample;

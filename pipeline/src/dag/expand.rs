@@ -31,6 +31,10 @@ pub enum ForeachError {
     Twice(String),
     #[error("unknown key `{0}` in a range (expected `from`, `to`, `prefix`)")]
     RangeKey(String),
+    #[error(
+        "a matrix is a table of lists, e.g. {{ matrix = {{ scene = [\"a\", \"b\"], style = [\"x\"] }} }}; `{0}` is not a non-empty list"
+    )]
+    Matrix(String),
     #[error("a range needs `{0}`")]
     MissingBound(&'static str),
     #[error(transparent)]
@@ -133,6 +137,13 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                         if n == "prev" {
                             return it.prev.clone();
                         }
+                        if let Some(f) = n.strip_prefix("item.") {
+                            return it
+                                .fields
+                                .iter()
+                                .find(|(k, _)| k == f)
+                                .map(|(_, v)| v.clone());
+                        }
                     }
                     if let Some(v) = p.vars.get(n) {
                         return Some(v.clone());
@@ -234,6 +245,69 @@ struct Item {
     label: String,
     value: String,
     prev: Option<String>,
+    /// A matrix item's values by axis (`${item.scene}`); empty otherwise.
+    fields: Vec<(String, String)>,
+}
+
+/// `{ matrix = { axis = [labels], ... } }`: one item per combination, axes in key
+/// order, labelled `a.b` (the values joined by `.`), `${item.axis}` each value.
+fn matrix_items(m: &toml::Value) -> Result<Vec<Item>, ForeachError> {
+    let toml::Value::Table(t) = m else {
+        return Err(ForeachError::Matrix("matrix".into()));
+    };
+    if t.is_empty() {
+        return Err(ForeachError::Matrix("matrix".into()));
+    }
+    let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
+    for (axis, v) in t {
+        let toml::Value::Array(a) = v else {
+            return Err(ForeachError::Matrix(axis.clone()));
+        };
+        if a.is_empty() {
+            return Err(ForeachError::Matrix(axis.clone()));
+        }
+        let mut labels: Vec<String> = Vec::new();
+        for x in a {
+            let s = match x {
+                toml::Value::String(s) => s.clone(),
+                toml::Value::Integer(i) => i.to_string(),
+                other => return Err(ForeachError::ItemType(other.type_str())),
+            };
+            if !ok_label(&s) {
+                return Err(ForeachError::Label(s));
+            }
+            if labels.contains(&s) {
+                return Err(ForeachError::Twice(s));
+            }
+            labels.push(s);
+        }
+        combos = combos
+            .into_iter()
+            .flat_map(|c| {
+                labels.iter().map(move |l| {
+                    let mut c = c.clone();
+                    c.push((axis.clone(), l.clone()));
+                    c
+                })
+            })
+            .collect();
+    }
+    Ok(combos
+        .into_iter()
+        .map(|fields| {
+            let label = fields
+                .iter()
+                .map(|(_, v)| v.as_str())
+                .collect::<Vec<_>>()
+                .join(".");
+            Item {
+                label: label.clone(),
+                value: label,
+                prev: None,
+                fields,
+            }
+        })
+        .collect())
 }
 
 fn ok_label(s: &str) -> bool {
@@ -270,9 +344,16 @@ fn foreach_items(
                     label: s.clone(),
                     value: s,
                     prev,
+                    fields: Vec::new(),
                 });
             }
             Ok(items)
+        }
+        toml::Value::Table(t) if t.contains_key("matrix") => {
+            if let Some(k) = t.keys().find(|k| *k != "matrix") {
+                return Err(ForeachError::RangeKey(k.clone()));
+            }
+            matrix_items(&t["matrix"])
         }
         toml::Value::Table(t) => {
             for k in t.keys() {
@@ -317,6 +398,7 @@ fn foreach_items(
                     label: format!("{prefix}{n}"),
                     value: n.to_string(),
                     prev: Some((n - 1).to_string()),
+                    fields: Vec::new(),
                 })
                 .collect())
         }

@@ -30,7 +30,11 @@
 //!   (undefined for the first one);
 //! * a range `{ from = A, to = B, prefix = "r" }` (inclusive, `to` may be a `${var}`):
 //!   items are the integers A..=B, instances are named `NAME@{prefix}{n}`, `${item}` is
-//!   `n` and `${prev}` is `n-1` (so the first round can read a round-0 output).
+//!   `n` and `${prev}` is `n-1` (so the first round can read a round-0 output);
+//! * a matrix `{ matrix = { scene = ["bob", "fish"], style = ["wave", "ink"] } }`: one
+//!   instance per combination (axes in key order), named `NAME@bob.wave`, with
+//!   `${item.scene}` and `${item.style}` the values (`${item}` is `bob.wave`; no
+//!   `${prev}`). Every scene in every style, in one file.
 //!
 //! `[result]` (optional) names what a successful run leaves for the user, e.g.
 //! `scene = "runs/final/scene.ply"`; `pipeline run` prints these paths at its end.
@@ -449,6 +453,42 @@ outs = ["o/${item}"]
     }
 
     #[test]
+    fn foreach_matrix_is_every_combination() {
+        let dag = try_parse(
+            r#"
+[stages.src]
+foreach = ["bob", "fish"]
+cmd = "src ${item}"
+outs = ["runs/${item}/src"]
+[stages.sty]
+foreach = { matrix = { style = ["wave", "ink"], scene = ["bob", "fish"] } }
+cmd = "sty --in runs/${item.scene}/src --style ${item.style} --out runs/${item.scene}/${item.style}"
+deps = ["runs/${item.scene}/src"]
+outs = ["runs/${item.scene}/${item.style}"]
+"#,
+        )
+        .unwrap();
+        let names: Vec<_> = dag.stages.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "src@bob",
+                "src@fish",
+                "sty@bob.wave",
+                "sty@bob.ink",
+                "sty@fish.wave",
+                "sty@fish.ink"
+            ]
+        );
+        let s = &dag.stages[dag.index("sty@fish.ink").unwrap()];
+        assert_eq!(
+            s.cmd,
+            "sty --in runs/fish/src --style ink --out runs/fish/ink"
+        );
+        assert_eq!(s.upstream, [1]);
+    }
+
+    #[test]
     fn cycle_is_named_with_its_line() {
         let e = err(r#"
 [stages.a]
@@ -546,6 +586,14 @@ outs = ["b.out"]
                 "undefined variable `${nope}`",
             ),
             ("foreach = 3", "expected a list of items or a range table"),
+            (
+                "foreach = { matrix = { s = [] } }",
+                "`s` is not a non-empty list",
+            ),
+            (
+                "foreach = { matrix = { s = [\"a\"] }, x = 1 }",
+                "unknown key `x`",
+            ),
         ];
         for (f, want) in cases {
             let e = err(&format!(
