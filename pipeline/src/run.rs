@@ -283,6 +283,9 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
                 r.push(Reason::Forced);
             }
             if r.is_empty() {
+                if let Some(e) = lock.stages.get_mut(&s.name) {
+                    refresh_stamps(dag, s, e);
+                }
                 st[i] = St::Done;
                 summary.up_to_date.push(s.name.clone());
                 say(format!("up to date  {}", s.name));
@@ -476,6 +479,28 @@ pub fn result_lines(dag: &Dag) -> String {
         }
     }
     out
+}
+
+/// For an up-to-date stage: bring the lock's file stamps of its artifact outputs up to
+/// date, so that a file whose mtime moved but whose bytes did not is hashed once, not
+/// at every check (as DVC refreshes its cache state). Files with a moved mtime were
+/// just hashed and found equal to the manifest by `reasons`; outputs with no stamps at
+/// all (a lock from before stamps existed) are verified by hashing every file first.
+fn refresh_stamps(dag: &Dag, s: &crate::dag::Stage, e: &mut Entry) {
+    for o in &s.outs {
+        let p = dag.path(o);
+        let now = crate::state::stamp_files(&p);
+        if now.is_empty() {
+            continue;
+        }
+        let ok = match e.files.get(o) {
+            Some(old) => *old != now,
+            None => fantasystyle_schemas::Artifact::open_any(&p).is_ok(),
+        };
+        if ok {
+            e.files.insert(o.clone(), now);
+        }
+    }
 }
 
 /// Environment variable naming the file where a stage may report its timing.

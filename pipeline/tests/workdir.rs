@@ -280,6 +280,33 @@ fn broken_output_files_make_their_stage_stale_naming_the_file() {
         .unwrap();
     drop(f);
     assert!(status().contains("0 of 5 stages stale"), "{}", status());
+    // A run that finds it up to date records the new mtime (hashed once, not at every
+    // check); a lock without stamps gets them, after a full verification.
+    let stamp = || -> serde_json::Value {
+        let l: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(root.join("out/dag.lock")).unwrap())
+                .unwrap();
+        l["stages"]["mid"]["files"]["runs/mid"]["part1.npy"].clone()
+    };
+    let before = stamp();
+    assert!(run(&[]).1.contains("nothing to run"));
+    let mtime = std::fs::metadata(&part)
+        .unwrap()
+        .modified()
+        .unwrap()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    assert_eq!(stamp()["mtime_ns"], mtime);
+    assert_ne!(stamp(), before);
+    let lock_path = root.join("out/dag.lock");
+    let mut l: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&lock_path).unwrap()).unwrap();
+    l["stages"]["mid"].as_object_mut().unwrap().remove("files");
+    std::fs::write(&lock_path, l.to_string()).unwrap();
+    assert!(stamp().is_null());
+    assert!(run(&[]).1.contains("nothing to run"));
+    assert_eq!(stamp()["mtime_ns"], mtime);
 
     type Case<'a> = (&'a str, Box<dyn Fn() + 'a>, String);
     let cases: [Case; 4] = [
