@@ -154,11 +154,16 @@ pub fn gradient(
     let w = p.weighting.weight(ab) as f32;
     let beta = p.guidance;
     let (ct, cs) = conds(p.mode);
-    let et = prior.predict_eps(x.z_tgt, x.t, &ct, x.control)?;
-    let es = if cs.is_empty() {
-        Vec::new()
+    let (et, es) = if prior.unconditional_is_identity() {
+        oracle_predictions(prior, schedule, &x, &ct, &cs)?
     } else {
-        prior.predict_eps(x.z_src, x.t, &cs, x.control)?
+        let et = prior.predict_eps(x.z_tgt, x.t, &ct, x.control)?;
+        let es = if cs.is_empty() {
+            Vec::new()
+        } else {
+            prior.predict_eps(x.z_src, x.t, &cs, x.control)?
+        };
+        (et, es)
     };
     for e in et.iter().chain(&es) {
         if e.shape() != shape {
@@ -197,6 +202,55 @@ pub fn gradient(
         )));
     }
     Ok(g)
+}
+
+/// Predictions for a prior whose unconditional branch is the identity
+/// ([`Prior::unconditional_is_identity`]): `Null` and `Content` are not asked of the
+/// prior but given exactly, as the noise that takes the clean latents to the noisy ones
+/// (target: `(z_tgt - sqrt(ab) z0) / sqrt(1 - ab)`, which includes MVFC's change of
+/// z_tgt; source: `eps`, with which `z_src` was made). The other conditionings go to
+/// the prior in one call per branch.
+fn oracle_predictions(
+    prior: &mut dyn Prior,
+    schedule: &Schedule,
+    x: &StepInputs<'_>,
+    ct: &[Cond],
+    cs: &[Cond],
+) -> Result<(Vec<Array4<f32>>, Vec<Array4<f32>>)> {
+    let (sa, sb) = schedule.coefficients(x.t)?;
+    let (sa, sb) = (sa as f32, sb as f32);
+    let oracle = |c: Cond| matches!(c, Cond::Null | Cond::Content);
+    let branch = |prior: &mut dyn Prior,
+                  z: ArrayView4<'_, f32>,
+                  conds: &[Cond],
+                  exact: &dyn Fn() -> Array4<f32>|
+     -> Result<Vec<Array4<f32>>> {
+        let ask: Vec<Cond> = conds.iter().copied().filter(|c| !oracle(*c)).collect();
+        let mut got = if ask.is_empty() {
+            Vec::new()
+        } else {
+            prior.predict_eps(z, x.t, &ask, x.control)?
+        }
+        .into_iter();
+        conds
+            .iter()
+            .map(|c| {
+                if oracle(*c) {
+                    Ok(exact())
+                } else {
+                    got.next()
+                        .ok_or_else(|| Error::Other("prior returned too few predictions".into()))
+                }
+            })
+            .collect()
+    };
+    let et = branch(prior, x.z_tgt, ct, &|| {
+        Zip::from(x.z_tgt)
+            .and(x.z0)
+            .map_collect(|&z, &z0| (z - sa * z0) / sb)
+    })?;
+    let es = branch(prior, x.z_src, cs, &|| x.eps.to_owned())?;
+    Ok((et, es))
 }
 
 /// One step: z0' = z0 - lr * w(t) g. Returns (z0', w g).

@@ -21,6 +21,7 @@
 pub mod baselines;
 pub mod camera;
 pub mod csd;
+pub mod distill;
 pub mod error;
 pub mod imageio;
 pub mod metrics;

@@ -94,4 +94,12 @@ pub trait Prior: Send {
         conds: &[Cond],
         control: Option<ArrayView4<'_, f32>>,
     ) -> Result<Vec<Array4<f32>>>;
+
+    /// True when the prior has no generative model of unstyled images, so its `Null` and
+    /// `Content` predictions are the identity on the clean image (a feed-forward
+    /// stylizer): CSD then uses the exact noise for those branches instead of asking the
+    /// prior (see [`crate::csd`]).
+    fn unconditional_is_identity(&self) -> bool {
+        false
+    }
 }
