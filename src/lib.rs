@@ -18,19 +18,23 @@
 //! | [`metrics`] | LPIPS, FID/KID, ArtFID, view consistency, Gram distance |
 //! | [`stages`] | one function per stage binary, shared CLI plumbing |
 
+pub mod artifacts;
 pub mod baselines;
 pub mod camera;
 pub mod csd;
 pub mod distill;
 pub mod error;
+pub mod geometry;
 pub mod imageio;
 pub mod metrics;
+pub mod models;
 pub mod mvfc;
 pub mod optim;
 pub mod prior;
 pub mod render;
 pub mod rng;
 pub mod runtime;
+pub mod sample;
 pub mod scene;
 pub mod scheduler;
 pub mod stages;

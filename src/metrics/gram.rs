@@ -5,19 +5,53 @@
 //! `F` (`C x HW`), `G = F F^T / (H W)`, so images of different sizes are comparable; the
 //! distance is `sum_k mean_{c,c'} (G_k(x) - G_k(s))^2`.
 
-use super::nets::{Features, Tap};
+use super::nets::Features;
+use crate::vgg::Tensor3;
+use rayon::prelude::*;
 
-/// `C x C` Gram matrix of one tap, normalised by the number of positions.
-pub fn gram(t: &Tap) -> Vec<f64> {
-    let hw = t.h * t.w;
-    let mut g = vec![0.0; t.c * t.c];
-    for a in 0..t.c {
-        let fa = &t.data[a * hw..(a + 1) * hw];
-        for b in a..t.c {
-            let fb = &t.data[b * hw..(b + 1) * hw];
-            let s: f64 = fa.iter().zip(fb).map(|(x, y)| *x as f64 * *y as f64).sum();
-            g[a * t.c + b] = s / hw as f64;
-            g[b * t.c + a] = s / hw as f64;
+/// The `C x C` Gram matrix `G = F F^T / (H W)` of a `[C, H, W]` feature map, row-major,
+/// in f64. The one Gram of the crate: the metric below and the VGG baselines' style loss
+/// ([`crate::baselines::gram_loss_grad`]) both use it.
+///
+/// Each entry is the sum over positions, in position order, of `f_a f_b` (products in
+/// f64), divided by `H W`; rows run in parallel and four entries of a row accumulate
+/// side by side, which changes no entry's summation order.
+pub fn gram(t: &Tensor3) -> Vec<f64> {
+    let (c, hw) = (t.c, t.h * t.w);
+    let ch = |a: usize| &t.data[a * hw..(a + 1) * hw];
+    // Upper triangle: row a holds entries b = a..c.
+    let upper: Vec<Vec<f64>> = (0..c)
+        .into_par_iter()
+        .map(|a| {
+            let fa = ch(a);
+            let mut row = Vec::with_capacity(c - a);
+            let mut b = a;
+            while b + 4 <= c {
+                let (f0, f1, f2, f3) = (ch(b), ch(b + 1), ch(b + 2), ch(b + 3));
+                let mut s = [-0.0f64; 4];
+                for p in 0..hw {
+                    let x = fa[p] as f64;
+                    s[0] += x * f0[p] as f64;
+                    s[1] += x * f1[p] as f64;
+                    s[2] += x * f2[p] as f64;
+                    s[3] += x * f3[p] as f64;
+                }
+                row.extend(s);
+                b += 4;
+            }
+            for b in b..c {
+                let fb = ch(b);
+                row.push(fa.iter().zip(fb).map(|(x, y)| *x as f64 * *y as f64).sum());
+            }
+            row
+        })
+        .collect();
+    let mut g = vec![0.0; c * c];
+    for (a, row) in upper.iter().enumerate() {
+        for (k, s) in row.iter().enumerate() {
+            let b = a + k;
+            g[a * c + b] = s / hw as f64;
+            g[b * c + a] = s / hw as f64;
         }
     }
     g
@@ -46,10 +80,38 @@ pub fn gram_distance(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 mod tests {
     use super::*;
 
+    /// The blocked, parallel loop gives, bit for bit, the plain per-entry sum in position
+    /// order (C = 11: blocks of four and a remainder).
+    #[test]
+    fn gram_equals_the_plain_sum_bitwise() {
+        let mut r = crate::rng::Rng::new(5);
+        let (c, h, w) = (11, 7, 9);
+        let t = Tensor3 {
+            c,
+            h,
+            w,
+            data: (0..c * h * w).map(|_| r.normal() as f32).collect(),
+        };
+        let g = gram(&t);
+        let hw = h * w;
+        for a in 0..c {
+            for b in 0..c {
+                let s: f64 = (0..hw)
+                    .map(|p| t.data[a * hw + p] as f64 * t.data[b * hw + p] as f64)
+                    .sum();
+                assert_eq!(
+                    g[a * c + b].to_bits(),
+                    (s / hw as f64).to_bits(),
+                    "({a}, {b})"
+                );
+            }
+        }
+    }
+
     #[test]
     fn gram_by_hand_and_size_invariance() {
         // c = 2, positions: (1, 2), (3, 4) -> G = [[10, 14], [14, 20]] / 2
-        let t = Tap {
+        let t = Tensor3 {
             c: 2,
             h: 1,
             w: 2,
@@ -57,7 +119,7 @@ mod tests {
         };
         assert_eq!(gram(&t), vec![5.0, 7.0, 7.0, 10.0]);
         // the same statistics over twice the positions give the same Gram matrix
-        let t2 = Tap {
+        let t2 = Tensor3 {
             c: 2,
             h: 2,
             w: 2,
@@ -66,7 +128,7 @@ mod tests {
         assert_eq!(gram(&t2), gram(&t));
         let g = grams(&vec![t.clone()]);
         assert_eq!(gram_distance(&g, &g), 0.0);
-        let other = grams(&vec![Tap {
+        let other = grams(&vec![Tensor3 {
             c: 2,
             h: 1,
             w: 2,

@@ -3,7 +3,6 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`image`] | the RGB image type the metrics work on (HWC, `[0,1]`), PNG and resampling |
 //! | [`nets`] | the ONNX metric networks (LPIPS AlexNet/VGG16 backbones, FID Inception-v3) |
 //! | [`lpips`] | LPIPS distance from tapped features, optionally masked |
 //! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64) and PSD square roots |
@@ -18,7 +17,6 @@
 pub mod consistency;
 pub mod fid;
 pub mod gram;
-pub mod image;
 pub mod linalg;
 pub mod lpips;
 pub mod nets;

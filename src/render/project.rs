@@ -119,7 +119,9 @@ fn project_one(scene: &Scene, cam: &Cam, i: usize) -> Option<One> {
         return None;
     }
     // Rotation from the normalised quaternion (w, x, y, z).
-    let rq = crate::camera::quat_to_mat(scene.rotations[i].map(f64::from))?;
+    let rq = crate::geometry::rows(crate::geometry::quat_to_mat(
+        scene.rotations[i].map(f64::from),
+    )?);
     let ls = scene.log_scales[i];
     let s = [
         (ls[0] as f64).exp(),

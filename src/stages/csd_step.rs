@@ -23,16 +23,16 @@
 //! `delta.npy` [N, H, W, 3] (target - render, for inspection) and PNG previews; `meta`
 //! records t, the mode and the step's statistics.
 
+use crate::artifacts::{read_latents, read_noised_latents, read_views};
 use crate::csd::{self, CsdParams, StepInputs};
-use crate::metrics::views::read_view_tensors;
-use crate::prior::{self, PriorOptions};
+use crate::imageio::Image;
+use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
-use crate::stages::mvfc_filter::{model_timesteps, read_latents};
 use crate::stages::with_threads;
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array4, Axis, concatenate, s};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Parameters of `csd-step`.
 #[derive(Debug, Clone)]
@@ -60,18 +60,6 @@ pub struct StepReport {
     pub clamped_fraction: f64,
 }
 
-/// Load an image file as `[1, 3, H, W]` in [0, 1].
-pub fn load_image(path: &Path) -> Result<Array4<f32>> {
-    if !path.is_file() {
-        return Err(Error::input(path, "style image not found"));
-    }
-    let img = crate::imageio::read_rgb(path)?;
-    let (w, h) = (img.width, img.height);
-    Ok(Array4::from_shape_fn((1, 3, h, w), |(_, c, y, x)| {
-        img.data[(y * w + x) * 3 + c]
-    }))
-}
-
 fn rms(a: impl Iterator<Item = f32>) -> f64 {
     let (mut s, mut n) = (0.0f64, 0usize);
     for v in a {
@@ -91,46 +79,22 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         )));
     }
     // Inputs, checked against each other before the (slow) prior is loaded.
-    let noised = Artifact::open(&a.noised, ArtifactKind::NoisedLatents)?;
-    let read4 = |name: &str| -> Result<Array4<f32>> {
-        let t = noised.read_f32(name)?;
-        let [n, c, h, w] = t.shape[..] else {
-            return Err(Error::input(
-                noised.path(name),
-                format!("expected shape [N, C, h, w], found {:?}", t.shape),
-            ));
-        };
-        Ok(Array4::from_shape_vec((n, c, h, w), t.data).expect("shape checked"))
-    };
-    let z_src = read4("z_src.npy")?;
-    let z_tgt = read4("z_tgt.npy")?;
-    let eps = read4("eps.npy")?;
+    let noised = read_noised_latents(&a.noised)?;
     let z0 = read_latents(&a.latents)?;
-    for (name, x) in [
-        ("z_src.npy", &z_src),
-        ("z_tgt.npy", &z_tgt),
-        ("eps.npy", &eps),
-    ] {
-        if x.shape() != z0.shape() {
-            return Err(Error::input(
-                noised.path(name),
-                format!(
-                    "shape {:?} differs from the latents' {:?} ({})",
-                    x.shape(),
-                    z0.shape(),
-                    a.latents.join("latents.npy").display()
-                ),
-            ));
-        }
+    if noised.z_src.shape() != z0.shape() {
+        return Err(Error::input(
+            noised.art.path("z_src.npy"),
+            format!(
+                "shape {:?} differs from the latents' {:?} ({})",
+                noised.z_src.shape(),
+                z0.shape(),
+                a.latents.join("latents.npy").display()
+            ),
+        ));
     }
-    let t = noised.manifest.meta["timestep"].as_u64().ok_or_else(|| {
-        Error::input(
-            noised.path("manifest.json"),
-            "meta.timestep is missing or not a non-negative integer",
-        )
-    })? as usize;
-    let views = super::timing::load(|| read_view_tensors(&a.views))?;
-    let source = super::timing::load(|| read_view_tensors(&a.source_views))?;
+    let (z_src, z_tgt, eps, t) = (&noised.z_src, &noised.z_tgt, &noised.eps, noised.timestep);
+    let views = super::timing::load(|| read_views(&a.views))?;
+    let source = super::timing::load(|| read_views(&a.source_views))?;
     if views.rgb.shape() != source.rgb.shape() {
         return Err(Error::input(
             source.art.path("rgb.npy"),
@@ -153,9 +117,16 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         ));
     }
     let (_, set) = model_timesteps(&a.model)?;
-    set.check(t)
-        .map_err(|e| Error::input(noised.path("manifest.json"), format!("meta.timestep: {e}")))?;
-    let style = load_image(&a.style)?;
+    set.check(t).map_err(|e| {
+        Error::input(
+            noised.art.path("manifest.json"),
+            format!("meta.timestep: {e}"),
+        )
+    })?;
+    if !a.style.is_file() {
+        return Err(Error::input(&a.style, "style image not found"));
+    }
+    let style = Image::load(&a.style)?.to_chw().insert_axis(Axis(0));
 
     // The prior.
     let mut prior = super::timing::load(|| {

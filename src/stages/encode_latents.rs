@@ -7,13 +7,14 @@
 //! artifact: `latents.npy` `[N, C, H/f, W/f]` f32 plus the views' `cameras.json`. The
 //! inputs recorded are the views artifact and the model's `model.json`.
 
+use crate::artifacts::read_views;
 use crate::prior::manifest::ModelManifest;
 use crate::prior::{self, PriorOptions};
 use crate::runtime::Optimization;
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use indicatif::{ProgressBar, ProgressStyle};
-use ndarray::{Array4, Axis, concatenate};
+use ndarray::{Axis, concatenate};
 use std::path::PathBuf;
 
 /// Parameters of `encode-latents`.
@@ -30,21 +31,9 @@ pub struct EncodeLatents {
 
 /// Run the stage; returns the latents' shape.
 pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
-    let views = Artifact::open(&p.views, ArtifactKind::Views)?;
-    let rgb = views.read_f32("rgb.npy")?;
-    let rgb_path = views.path("rgb.npy");
-    let [n, h, w, c] = rgb.shape[..] else {
-        return Err(Error::input(
-            &rgb_path,
-            format!("expected shape [N, H, W, 3], found {:?}", rgb.shape),
-        ));
-    };
-    if c != 3 || n == 0 || h == 0 || w == 0 {
-        return Err(Error::input(
-            &rgb_path,
-            format!("expected shape [N>=1, H, W, 3], found {:?}", rgb.shape),
-        ));
-    }
+    let views = read_views(&p.views)?;
+    let rgb_path = views.art.path("rgb.npy");
+    let (n, h, w) = views.dim();
     let md = ModelManifest::load(&p.model)?;
     let f = md.manifest.downsample.max(1);
     if h % f != 0 || w % f != 0 {
@@ -57,8 +46,9 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
             ),
         ));
     }
-    let images = Array4::from_shape_vec((n, h, w, 3), rgb.data)
-        .map_err(|e| Error::input(&rgb_path, e.to_string()))?
+    let images = views
+        .rgb
+        .view()
         .permuted_axes([0, 3, 1, 2])
         .as_standard_layout()
         .to_owned();
@@ -102,7 +92,7 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
         &shape,
         data.as_slice().expect("standard layout"),
     )?;
-    let cams = views.path("cameras.json");
+    let cams = views.art.path("cameras.json");
     let bytes = std::fs::read(&cams).map_err(|e| Error::io(&cams, e))?;
     wr.write_bytes("cameras.json", &bytes)?;
     wr.set_meta(serde_json::json!({

@@ -13,12 +13,12 @@
 //! positions drawn uniformly with the seeded [`crate::rng::Rng`], each resized to the
 //! view resolution so both sets go through the same Inception resize.
 
+use crate::imageio::{Filter, Image};
 use crate::metrics::consistency::{self, PairScore};
 use crate::metrics::fid::{self, FeatureSet};
 use crate::metrics::gram;
-use crate::metrics::image::Image;
 use crate::metrics::lpips;
-use crate::metrics::nets::{Inception, LpipsModel, LpipsNet, models_dir};
+use crate::metrics::nets::{Inception, LpipsModel, LpipsNet};
 use crate::metrics::report::{self, Page, Series, esc, fmt_opt};
 use crate::metrics::sweep::Sweep;
 use crate::metrics::views::ViewSet;
@@ -125,7 +125,7 @@ pub fn style_crops(style: &Image, k: usize, width: usize, height: usize, seed: u
             let y0 = (rng.uniform() * (style.height - ch + 1) as f64) as usize;
             style
                 .crop(x0.min(style.width - cw), y0.min(style.height - ch), cw, ch)
-                .resized(width, height)
+                .resized(width, height, Filter::Bilinear)
         })
         .collect()
 }
@@ -246,7 +246,15 @@ pub fn run(o: &EvaluateOptions) -> Result<Metrics> {
     orig.check_same_views(&styl)?;
     let style = Image::load(&o.style)?;
     let sweep = o.sweep.as_deref().map(Sweep::load).transpose()?;
-    let models = models_dir()?;
+    let models = crate::models::models_dir()?;
+    if !models.join("metrics").is_dir() {
+        return Err(Error::Missing(format!(
+            "the metric networks are not installed in {} (run scripts/setup.sh, or set {} \
+             to a models directory that has metrics/)",
+            models.display(),
+            crate::models::MODELS_ENV
+        )));
+    }
     // Start the artifact now so an unusable --out fails before the slow part.
     let params = serde_json::json!({
         "lpips_net": o.lpips_net.name(), "short_range": o.short_range, "long_range": o.long_range, "seed": o.seed,

@@ -6,7 +6,7 @@
 //! same shape `[N, C, h, w]`) and the model's `model.json` (its noise schedule and
 //! timestep set). Draws, from `--seed` and `--round`:
 //! * t: given explicitly (must be in the set) or `auto`: uniform over the set,
-//!   deterministic in (seed, round) ([`TimestepSet::sample_for_round`]);
+//!   deterministic in (seed, round) ([`crate::scheduler::TimestepSet::sample_for_round`]);
 //! * eps `[N, C, h, w]` (stream `mvfc/eps/<round>`), shared by source and target;
 //! * eps' `[C, h, w]` (stream `mvfc/shared/<round>`), the MVFC noise shared by all views.
 //!
@@ -15,18 +15,17 @@
 //! the paper's "w/o MVFC" ablation), `eps.npy`, `eps_shared.npy`; `meta.timestep` and
 //! the filter parameters.
 //!
-//! The timestep set: the model manifest's `stylizer.timesteps` range if present, else
-//! [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]).
+//! The timestep set: [`crate::prior::model_timesteps`] (the model manifest's
+//! `stylizer.timesteps` range if present, else 50 steps over [0.02 T, 0.98 T]).
 
+use crate::artifacts::read_latents;
 use crate::mvfc::{MvfcParams, mvfc_grouped};
-use crate::prior::manifest::ModelManifest;
-use crate::prior::stylizer::TimestepRange;
+use crate::prior::model_timesteps;
 use crate::rng::Rng;
-use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array3, Array4};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Which timestep to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -65,49 +64,6 @@ pub struct MvfcFilterArgs {
     pub group_size: usize,
     /// Worker threads (0 = all cores).
     pub threads: usize,
-}
-
-/// The model's noise schedule and the fixed timestep set (see module docs). `model`
-/// is a model directory or its `model.json`; the manifest is read and validated by
-/// [`ModelManifest::load`].
-pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
-    let md = ModelManifest::load(model)?;
-    let m = &md.manifest;
-    let bad = |e: Error| md.err(e.to_string());
-    let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
-    let range = match m.stylizer.as_ref().and_then(|s| s.get("timesteps")) {
-        Some(v) => Some(
-            serde_json::from_value::<TimestepRange>(v.clone())
-                .map_err(|e| md.err(format!("stylizer.timesteps: {e}")))?,
-        ),
-        None => None,
-    };
-    let set = match range {
-        Some(r) => TimestepSet::new(&m.scheduler, r.t_min, r.t_max, r.count),
-        None => TimestepSet::default_for(&m.scheduler),
-    }
-    .map_err(bad)?;
-    Ok((schedule, set))
-}
-
-/// Read a `latents` artifact's `latents.npy` as `[N, C, h, w]` (finite, checked).
-pub fn read_latents(dir: &Path) -> Result<Array4<f32>> {
-    let a = Artifact::open(dir, ArtifactKind::Latents)?;
-    let t = a.read_f32("latents.npy")?;
-    let [n, c, h, w] = t.shape[..] else {
-        return Err(Error::input(
-            a.path("latents.npy"),
-            format!("expected shape [N, C, h, w], found {:?}", t.shape),
-        ));
-    };
-    if n * c * h * w == 0 {
-        return Err(Error::input(
-            a.path("latents.npy"),
-            format!("empty latents {:?}", t.shape),
-        ));
-    }
-    Array4::from_shape_vec((n, c, h, w), t.data)
-        .map_err(|e| Error::input(a.path("latents.npy"), e.to_string()))
 }
 
 /// Run the stage; returns the timestep used.

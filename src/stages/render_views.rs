@@ -6,9 +6,9 @@
 //! [N,H,W], `cameras.json` (INRIA format, at W x H), and `view_000.png`.. previews.
 //! The manifest records the scene and cameras as inputs (hashes) and the parameters.
 
-use crate::camera::{inria, load_cameras};
+use crate::artifacts::{load_cameras, load_scene};
+use crate::camera::inria;
 use crate::render::{RenderOptions, RenderOutput, render};
-use crate::scene::load_scene;
 use crate::{Camera, Error, Result, Scene};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;
@@ -73,7 +73,7 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let cams = load_cameras(&a.cameras, &scene, a.width, a.height)?;
+    let cams = load_cameras(&a.cameras, &scene.bounds(), a.width, a.height)?;
     let params = serde_json::json!({
         "cameras": a.cameras, "width": a.width, "height": a.height,
         "background": a.background,

@@ -14,12 +14,12 @@
 //! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
 //! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
 
+use crate::artifacts::{load_cameras, load_scene};
 use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
-use crate::baselines::{Image, Objective, gram_distance, prepare_style};
-use crate::camera::load_cameras;
-use crate::scene::load_scene;
+use crate::baselines::{Objective, gram_distance, prepare_style};
+use crate::imageio::Image;
 use crate::vgg::Vgg16;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
@@ -88,12 +88,15 @@ pub struct Args {
     /// Log the Gram distance to the style every this many steps (0: first and last only).
     #[arg(long, default_value_t = 10)]
     pub monitor_every: usize,
-    /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh).
-    #[arg(long, default_value = "vendor/models/lpips/vgg16")]
-    pub vgg: PathBuf,
-    /// Stylizer model directory for `refit` (model.json, made by scripts/setup.sh).
-    #[arg(long, default_value = "vendor/models/stylizer")]
-    pub stylizer: PathBuf,
+    /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh); default:
+    /// lpips/vgg16 in the models directory ($FANTASYSTYLE_MODELS, else the nearest
+    /// vendor/models above the executable or the current directory).
+    #[arg(long)]
+    pub vgg: Option<PathBuf>,
+    /// Stylizer model directory for `refit` (model.json, made by scripts/setup.sh);
+    /// default: stylizer in the models directory (see --vgg).
+    #[arg(long)]
+    pub stylizer: Option<PathBuf>,
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -109,21 +112,6 @@ pub struct LossLog {
     pub steps: Vec<crate::baselines::fit::StepLog>,
 }
 
-fn chw(img: &Image) -> ndarray::Array3<f32> {
-    ndarray::Array3::from_shape_fn((3, img.h, img.w), |(c, y, x)| {
-        img.data[(y * img.w + x) * 3 + c]
-    })
-}
-
-fn hwc(a: &ndarray::Array3<f32>) -> Image {
-    let (h, w) = (a.shape()[1], a.shape()[2]);
-    let mut data = vec![0.0; h * w * 3];
-    for ((c, y, x), &v) in a.indexed_iter() {
-        data[(y * w + x) * 3 + c] = v.clamp(0.0, 1.0);
-    }
-    Image { h, w, data }
-}
-
 /// Stylize every view on its own with the 2D stylizer (the refit baseline's targets).
 fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Result<Vec<Image>> {
     if !dir.join("model.json").is_file() {
@@ -133,10 +121,14 @@ fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Resul
         )));
     }
     let mut p = crate::prior::stylizer::StylizerPrior::open(dir, None, 0)?;
-    let s = p.style_vector(chw(style).view())?;
+    let s = p.style_vector(style.to_chw().view())?;
     views
         .iter()
-        .map(|v| Ok(hwc(&p.stylize(chw(v).view(), &s)?)))
+        .map(|v| {
+            let mut out = Image::from_chw(p.stylize(v.to_chw().view(), &s)?.view());
+            out.data.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
+            Ok(out)
+        })
         .collect()
 }
 
@@ -149,7 +141,7 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let cams = load_cameras(&a.cameras, &scene, a.width, a.height)?;
+    let cams = load_cameras(&a.cameras, &scene.bounds(), a.width, a.height)?;
     if cams.is_empty() {
         return Err(Error::param(format!(
             "{}: the view set is empty: nothing to stylize",
@@ -157,16 +149,12 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let raw_style = crate::imageio::read_rgb(&a.style)?;
-    let style = prepare_style(
-        &Image {
-            h: raw_style.height,
-            w: raw_style.width,
-            data: raw_style.data,
-        },
-        a.style_size,
-        &a.style,
-    )?;
-    let vgg = Vgg16::load(&a.vgg)?;
+    let style = prepare_style(&raw_style, a.style_size, &a.style)?;
+    let vgg_dir = match &a.vgg {
+        Some(p) => p.clone(),
+        None => crate::models::model_path("lpips/vgg16")?,
+    };
+    let vgg = Vgg16::load(&vgg_dir)?;
     let params = serde_json::json!({
         "method": a.method, "cameras": a.cameras, "steps": a.steps, "width": a.width,
         "height": a.height, "background": a.background, "lr_dc": a.lr_dc,
@@ -194,7 +182,7 @@ pub fn run(a: Args) -> Result<()> {
     for (i, t) in targets.iter().enumerate() {
         w.write_bytes(
             &format!("target_{i:03}.png"),
-            &crate::imageio::encode_png_rgb(&t.data, t.w, t.h)?,
+            &crate::imageio::encode_png_rgb(&t.data, t.width, t.height)?,
         )?;
     }
     let first = log.steps.first().and_then(|s| s.gram_distance);
@@ -229,8 +217,8 @@ fn optimise(
         .map(|c| {
             let r = crate::render::render(&scene, c, &ropts)?;
             Ok(Image {
-                h: r.height,
-                w: r.width,
+                width: r.width,
+                height: r.height,
                 data: r.rgb,
             })
         })
@@ -271,7 +259,11 @@ fn optimise(
             )?))
         }
         Method::Refit => {
-            targets = stylize_views(&a.stylizer, style, &originals)?;
+            let dir = match &a.stylizer {
+                Some(p) => p.clone(),
+                None => crate::models::model_path("stylizer")?,
+            };
+            targets = stylize_views(&dir, style, &originals)?;
             let d = monitor(&targets)?;
             tracing::info!("refit targets: Gram distance to the style {d:.4}");
             targets_gram = Some(d);

@@ -7,12 +7,12 @@
 //! (every non-colour field bit-identical to the input) and `loss.json` (the mean loss
 //! over views per step, plus cache statistics).
 
-use crate::camera::load_cameras;
+use crate::artifacts::{load_cameras, load_scene, read_targets};
 use crate::optim::{FitParams, fit_colours};
 use crate::render::CacheMode;
-use crate::scene::{load_scene, ply};
+use crate::scene::ply;
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, Producer};
+use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;
 
 /// Fit the SH colours of a splat scene to target images (geometry frozen) and write
@@ -69,29 +69,10 @@ pub fn run(a: Args) -> Result<()> {
         return Err(Error::param("--steps must be at least 1"));
     }
     let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let targets_art = Artifact::open_any(&a.targets)?;
-    let kind = targets_art.manifest.kind;
-    if kind != ArtifactKind::Targets && kind != ArtifactKind::Views {
-        return Err(Error::input(
-            &a.targets,
-            format!("expected a `targets` or `views` artifact, found `{kind}`"),
-        ));
-    }
-    let rgb = targets_art.read_f32("rgb.npy")?;
-    let rgb_path = targets_art.path("rgb.npy");
-    let [n, h, w, 3] = rgb.shape[..] else {
-        return Err(Error::input(
-            &rgb_path,
-            format!("shape {:?}, expected [N, H, W, 3]", rgb.shape),
-        ));
-    };
-    if n == 0 || h == 0 || w == 0 {
-        return Err(Error::input(
-            &rgb_path,
-            format!("empty shape {:?}", rgb.shape),
-        ));
-    }
-    let cams = load_cameras(&a.cameras, &scene, w as u32, h as u32)?;
+    let targets = read_targets(&a.targets)?;
+    let rgb_path = targets.art.path("rgb.npy");
+    let (n, h, w, _) = targets.rgb.dim();
+    let cams = load_cameras(&a.cameras, &scene.bounds(), w as u32, h as u32)?;
     if cams.len() != n {
         return Err(Error::input(
             &rgb_path,
@@ -103,7 +84,8 @@ pub fn run(a: Args) -> Result<()> {
         ));
     }
     let per = h * w * 3;
-    let targets: Vec<Vec<f32>> = rgb.data.chunks(per).map(|c| c.to_vec()).collect();
+    let rgb = targets.rgb.as_slice().expect("standard layout");
+    let targets: Vec<Vec<f32>> = rgb.chunks(per).map(|c| c.to_vec()).collect();
     let params = FitParams {
         lr_dc: a.lr_dc,
         lr_rest: a.lr_rest.unwrap_or(a.lr_dc / 20.0),

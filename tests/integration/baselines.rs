@@ -112,8 +112,8 @@ mod stage {
             style_weight: 1.0,
             content_weight: None,
             monitor_every: steps,
-            vgg: vgg_dir(),
-            stylizer: repo_root().join("vendor/models/stylizer"),
+            vgg: Some(vgg_dir()),
+            stylizer: Some(repo_root().join("vendor/models/stylizer")),
             threads: 2,
         }
     }
@@ -147,8 +147,9 @@ mod stage {
         );
         assert!(last < first, "{method:?}: Gram distance {first} -> {last}");
         let before =
-            fantasystyle::scene::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap();
-        let after = fantasystyle::scene::load_scene(&out.join("scene.ply")).unwrap();
+            fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
+                .unwrap();
+        let after = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
         let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&before.positions), bits(&after.positions));
         assert_eq!(bits(&before.log_scales), bits(&after.log_scales));
@@ -250,6 +251,51 @@ mod stage {
         assert_eq!(e.exit_code(), 2, "{e}");
         assert!(e.to_string().contains("cameras.json"), "{e}");
         assert!(!out.exists());
+    }
+
+    /// One rule for the models (`fantasystyle::models`): started from another directory,
+    /// the binary finds `vendor/models` above itself (the `--vgg` default no longer
+    /// depends on the current directory); `FANTASYSTYLE_MODELS` overrides the search.
+    #[test]
+    fn models_are_found_from_any_directory_and_the_env_var_wins() {
+        if !repo_root()
+            .join("vendor/models/lpips/vgg16/conv9_weight.npy")
+            .is_file()
+        {
+            eprintln!("SKIPPED: vendor/models/lpips/vgg16 is absent (run scripts/setup.sh)");
+            return;
+        }
+        let bin = env!("CARGO_BIN_EXE_stylize-baseline");
+        let d = tempfile::tempdir().unwrap();
+        let run = |models: Option<&Path>, out: &str| {
+            let mut c = std::process::Command::new(bin);
+            c.current_dir(d.path())
+                .env_remove("FANTASYSTYLE_MODELS")
+                .args(["--method", "gram", "--cameras", "orbit:1", "--steps", "1"])
+                .args(["--width", "16", "--height", "16", "--style-size", "92"])
+                .arg("--scene")
+                .arg(repo_root().join("data-sample/scene.ply"))
+                .arg("--style")
+                .arg(sample_style())
+                .args(["--out", out, "--threads", "1"]);
+            if let Some(m) = models {
+                c.env("FANTASYSTYLE_MODELS", m);
+            }
+            c.output().unwrap()
+        };
+        let ok = run(None, "o1");
+        assert!(
+            ok.status.success(),
+            "{}",
+            String::from_utf8_lossy(&ok.stderr)
+        );
+        assert!(d.path().join("o1/scene.ply").is_file());
+        let elsewhere = d.path().join("no-models-here");
+        let bad = run(Some(&elsewhere), "o2");
+        assert_eq!(bad.status.code(), Some(3));
+        let err = String::from_utf8_lossy(&bad.stderr);
+        assert!(err.contains("no-models-here/lpips/vgg16"), "{err}");
+        assert!(!d.path().join("o2").exists());
     }
 
     /// Through the binary: `-h` documents every flag; a bad style exits 2 naming the file.

@@ -4,11 +4,12 @@
 
 use fantasystyle::Camera;
 use fantasystyle::camera::inria::to_inria;
+use fantasystyle::imageio::Image;
 use fantasystyle::metrics::consistency;
-use fantasystyle::metrics::image::Image;
-use fantasystyle::metrics::nets::{LpipsModel, LpipsNet, models_dir};
+use fantasystyle::metrics::nets::{LpipsModel, LpipsNet};
 use fantasystyle::metrics::views::ViewSet;
 use fantasystyle::metrics::warp::{look_at, synthetic};
+use fantasystyle::models::models_dir;
 use fantasystyle::stages::evaluate::{EvaluateOptions, run};
 
 use std::path::{Path, PathBuf};
@@ -70,7 +71,9 @@ fn style_png(dir: &Path) -> PathBuf {
 }
 
 fn ready() -> bool {
-    if fantasystyle::runtime::library_path().is_err() || models_dir().is_err() {
+    if fantasystyle::runtime::library_path().is_err()
+        || !models_dir().is_ok_and(|m| m.join("metrics").is_dir())
+    {
         eprintln!("SKIPPED: onnxruntime or metric networks not set up (scripts/setup.sh)");
         return false;
     }
