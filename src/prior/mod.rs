@@ -52,6 +52,10 @@ pub struct PriorOptions {
     pub optimization: Optimization,
     /// Largest VAE batch per call (0 = the whole batch at once).
     pub vae_batch: usize,
+    /// Style strength in [0, 1] (`None` = 1): how far the style conditioning moves from
+    /// the content's own style. The stylizer interpolates style vectors
+    /// (`(1 - strength) s(content) + strength s(style)`).
+    pub strength: Option<f32>,
 }
 
 /// Open the prior in `model_dir` (a directory with `model.json`), dispatching on the
@@ -67,7 +71,8 @@ pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
             &md.dir,
             opts.style_image.as_ref().map(|a| a.view()),
             opts.threads,
-        )?)),
+        )?
+        .with_strength(opts.strength.unwrap_or(1.0))?)),
     }
 }
 

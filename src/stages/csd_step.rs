@@ -123,10 +123,9 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
             format!("meta.timestep: {e}"),
         )
     })?;
-    if !a.style.is_file() {
-        return Err(Error::input(&a.style, "style image not found"));
-    }
-    let style = Image::load(&a.style)?.to_chw().insert_axis(Axis(0));
+    let style = crate::imageio::load_style(&a.style, crate::imageio::MIN_STYLE_SIDE)?
+        .to_chw()
+        .insert_axis(Axis(0));
 
     // The prior.
     let mut prior = super::timing::load(|| {
