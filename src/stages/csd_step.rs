@@ -25,7 +25,6 @@
 
 use crate::artifacts::{read_latents, read_noised_latents, read_views};
 use crate::csd::{self, CsdParams, StepInputs};
-use crate::imageio::Image;
 use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
 use crate::stages::with_threads;

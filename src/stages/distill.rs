@@ -79,10 +79,10 @@ pub struct Args {
     #[arg(long, default_value_t = 1.0)]
     pub strength: f32,
     /// Keep the scene's own colours (chroma); change luminance (texture, contrast) only.
-    #[arg(long)]
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub preserve_color: bool,
     /// Let view-dependent colour (f_rest) change too (default: only f_dc).
-    #[arg(long)]
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub fit_rest: bool,
     /// Distillation gradient: csd (paper), sds, dds, or csd-no-neg.
     #[arg(long, value_enum, default_value = "csd")]
@@ -100,7 +100,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0.01)]
     pub lr_dc: f32,
     /// Skip MVFC (the paper's "w/o MVFC" ablation).
-    #[arg(long)]
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub no_mvfc: bool,
     /// MVFC: share of z_t's own low frequencies kept (paper: 0.9).
     #[arg(long, default_value_t = 0.9)]
@@ -110,7 +110,7 @@ pub struct Args {
     pub timesteps: Option<String>,
     /// Give the prior the raw render (object over the background) instead of the object
     /// over a fill of its own colours.
-    #[arg(long)]
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub no_fill: bool,
     /// Seed of every draw (views, timesteps, noise).
     #[arg(long, default_value_t = 0)]

@@ -39,6 +39,7 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
 }
 
 pub mod csd_step;
+pub mod distill;
 pub mod encode_latents;
 pub mod evaluate;
 pub mod make_sample;
