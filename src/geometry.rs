@@ -7,7 +7,7 @@
 //! elsewhere as row-major `[[f64; 3]; 3]` convert with [`mat3`] and [`rows`].
 //!
 //! glam's own `normalize` multiplies by the reciprocal length and its quaternion-to-matrix
-//! conversion orders the products differently; [`unit`] divides and [`quat_to_mat`] keeps
+//! conversion orders the products differently; [`unit()`] divides and [`quat_to_mat`] keeps
 //! COLMAP's `qvec2rotmat` formula, so poses, renders and files stay bit-identical to the
 //! values these functions have always produced.
 

@@ -1,7 +1,4 @@
-//! `distill`: thin binary over `fantasystyle::stages::distill`.
-use clap::Parser;
-use fantasystyle::stages::{distill, run_main};
-
+//! `distill`: the stage binary; everything is in [`fantasystyle::stages::distill`].
 fn main() -> std::process::ExitCode {
-    run_main(distill::Args::parse(), distill::run)
+    fantasystyle::stages::run_main(fantasystyle::stages::distill::run)
 }

@@ -23,30 +23,51 @@
 //! `delta.npy` [N, H, W, 3] (target - render, for inspection) and PNG previews; `meta`
 //! records t, the mode and the step's statistics.
 
+use super::Threads;
 use crate::artifacts::{read_latents, read_noised_latents, read_views};
 use crate::csd::{self, CsdParams, StepInputs};
 use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
-use crate::stages::with_threads;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array4, Axis, concatenate, s};
 use std::path::PathBuf;
 
-/// Parameters of `csd-step`.
-#[derive(Debug, Clone)]
-pub struct CsdStepArgs {
+/// One controllable stylized distillation (CSD) step: from noised latents (mvfc-filter),
+/// the clean target latents and the renders, compute z0' = z0 - lr w(t) grad and write
+/// target images render + decode(z0') - decode(z0) as a targets artifact
+/// (rgb.npy [N,H,W,3], cameras.json, delta.npy, PNG previews).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "csd-step", version)]
+pub struct Args {
+    /// Noised-latents artifact from mvfc-filter (z_src, z_tgt, eps; meta.timestep).
+    #[arg(long)]
     pub noised: PathBuf,
+    /// Latents artifact of the current renders (the clean target latents z0).
+    #[arg(long)]
     pub latents: PathBuf,
+    /// Views artifact of the current renders (the targets are built on them; cameras copied).
+    #[arg(long)]
     pub views: PathBuf,
+    /// Views artifact of the original renders (control image for ControlNet priors).
+    #[arg(long)]
     pub source_views: PathBuf,
+    /// Model directory with model.json (e.g. vendor/models/stylizer, vendor/models/gaussian-prior).
+    #[arg(long)]
     pub model: PathBuf,
+    /// Style image (PNG or JPEG).
+    #[arg(long)]
     pub style: PathBuf,
+    /// Text of one of the model's exported prompts (default: its first); ignored by the stylizer.
+    #[arg(long)]
     pub prompt: Option<String>,
+    #[command(flatten)]
     pub params: CsdParams,
+    /// Output targets artifact directory (written atomically).
+    #[arg(long)]
     pub out: PathBuf,
-    /// Threads (0 = all cores).
-    pub threads: usize,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
 /// Statistics of one step (also written to the artifact's meta).
@@ -68,8 +89,8 @@ fn rms(a: impl Iterator<Item = f32>) -> f64 {
     (s / n.max(1) as f64).sqrt()
 }
 
-/// Run the stage.
-pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
+/// The stage: read the inputs, step, write the targets artifact.
+pub fn run(a: Args) -> Result<StepReport> {
     let p = a.params;
     if !(p.guidance.is_finite() && p.lr.is_finite() && p.lr >= 0.0) {
         return Err(Error::param(format!(
@@ -92,8 +113,8 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         ));
     }
     let (z_src, z_tgt, eps, t) = (&noised.z_src, &noised.z_tgt, &noised.eps, noised.timestep);
-    let views = super::timing::load(|| read_views(&a.views))?;
-    let source = super::timing::load(|| read_views(&a.source_views))?;
+    let views = crate::timing::load(|| read_views(&a.views))?;
+    let source = crate::timing::load(|| read_views(&a.source_views))?;
     if views.rgb.shape() != source.rgb.shape() {
         return Err(Error::input(
             source.art.path("rgb.npy"),
@@ -127,13 +148,13 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         .insert_axis(Axis(0));
 
     // The prior.
-    let mut prior = super::timing::load(|| {
+    let mut prior = crate::timing::load(|| {
         prior::open(
             &a.model,
             &PriorOptions {
                 style_image: Some(style),
                 prompt: a.prompt.clone(),
-                threads: a.threads,
+                threads: a.threads.n,
                 ..Default::default()
             },
         )
@@ -163,7 +184,7 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
     };
 
     // The step.
-    let (z1, g) = with_threads(a.threads, || {
+    let (z1, g) = a.threads.install(|| {
         csd::step(
             prior.as_mut(),
             &schedule,
@@ -258,6 +279,6 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         "mode": p.mode,
         "report": report,
     }));
-    super::timing::io(|| wr.commit())?;
+    crate::timing::io(|| wr.commit())?;
     Ok(report)
 }

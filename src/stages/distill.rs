@@ -22,7 +22,7 @@ use crate::artifacts::{
     CHECKPOINT_ADAM_DC, CHECKPOINT_ADAM_REST, CHECKPOINT_HISTORY, CHECKPOINT_STATE,
     load_scene, read_checkpoint, read_views,
 };
-use crate::csd::{CsdParams, Mode, Weighting};
+use crate::csd::CsdParams;
 use crate::distill::{DistillParams, Distiller, SourceViews};
 use crate::imageio::{MIN_STYLE_SIDE, load_style};
 use crate::mvfc::MvfcParams;
@@ -84,27 +84,16 @@ pub struct Args {
     /// Let view-dependent colour (f_rest) change too (default: only f_dc).
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub fit_rest: bool,
-    /// Distillation gradient: csd (paper), sds, dds, or csd-no-neg.
-    #[arg(long, value_enum, default_value = "csd")]
-    pub mode: Mode,
-    /// Classifier-free guidance scale beta.
-    #[arg(long, default_value_t = 7.5)]
-    pub guidance: f32,
-    /// Timestep weighting w(t).
-    #[arg(long, value_enum, default_value = "1-ab")]
-    pub weighting: Weighting,
-    /// Step on the clean latents: z0' = z0 - z_lr w(t) grad.
-    #[arg(long, default_value_t = 0.1)]
-    pub z_lr: f32,
+    #[command(flatten)]
+    pub csd: CsdParams,
     /// Adam learning rate of the SH DC colours (f_rest: / 20).
     #[arg(long, default_value_t = 0.01)]
     pub lr_dc: f32,
     /// Skip MVFC (the paper's "w/o MVFC" ablation).
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub no_mvfc: bool,
-    /// MVFC: share of z_t's own low frequencies kept (paper: 0.9).
-    #[arg(long, default_value_t = 0.9)]
-    pub gamma: f32,
+    #[command(flatten)]
+    pub mvfc: MvfcParams,
     /// Timestep set MIN:MAX:COUNT (default: the model's own set).
     #[arg(long)]
     pub timesteps: Option<String>,
@@ -121,9 +110,8 @@ pub struct Args {
     /// Output checkpoint directory (written atomically).
     #[arg(long)]
     pub out: PathBuf,
-    /// Threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
+    #[command(flatten)]
+    pub threads: super::Threads,
 }
 
 fn parse_timesteps(spec: &str, model: &crate::scheduler::SchedulerConfig) -> Result<TimestepSet> {
@@ -141,16 +129,8 @@ fn parse_timesteps(spec: &str, model: &crate::scheduler::SchedulerConfig) -> Res
 fn params(a: &Args) -> DistillParams {
     DistillParams {
         views_per_iter: a.views_per_iter,
-        csd: CsdParams {
-            mode: a.mode,
-            guidance: a.guidance,
-            weighting: a.weighting,
-            lr: a.z_lr,
-        },
-        mvfc: (!a.no_mvfc).then_some(MvfcParams {
-            gamma: a.gamma,
-            ..MvfcParams::default()
-        }),
+        csd: a.csd,
+        mvfc: (!a.no_mvfc).then_some(a.mvfc),
         preserve_color: a.preserve_color,
         fit_rest: a.fit_rest,
         lr_dc: a.lr_dc,
@@ -168,22 +148,26 @@ pub fn run(a: Args) -> Result<()> {
             a.strength
         )));
     }
-    if !(a.z_lr.is_finite() && a.z_lr >= 0.0 && a.lr_dc.is_finite() && a.lr_dc >= 0.0) {
-        return Err(Error::param("--z-lr and --lr-dc must be finite and >= 0"));
+    if !(a.csd.lr.is_finite() && a.csd.lr >= 0.0 && a.lr_dc.is_finite() && a.lr_dc >= 0.0) {
+        return Err(Error::param("--lr and --lr-dc must be finite and >= 0"));
     }
+    if !a.csd.guidance.is_finite() {
+        return Err(Error::param("--guidance must be finite"));
+    }
+    a.mvfc.validate()?;
     if a.views_per_iter == 0 {
         return Err(Error::param("--views-per-iter must be at least 1"));
     }
     // Inputs, all checked before the prior is loaded.
     let (scene, start, state, history, resumed_from) = match (&a.scene, &a.resume) {
         (_, Some(dir)) => {
-            let c = super::timing::load(|| read_checkpoint(dir))?;
+            let c = crate::timing::load(|| read_checkpoint(dir))?;
             (c.scene, c.iteration, Some(c.state), c.history, Some(dir.clone()))
         }
-        (Some(p), None) => (super::timing::load(|| load_scene(p))?, 0, None, Vec::new(), None),
+        (Some(p), None) => (crate::timing::load(|| load_scene(p))?, 0, None, Vec::new(), None),
         (None, None) => return Err(Error::param("give --scene or --resume")),
     };
-    let views = super::timing::load(|| read_views(&a.source_views))?;
+    let views = crate::timing::load(|| read_views(&a.source_views))?;
     let cameras = views.cameras()?;
     let (n, h, w) = views.dim();
     if cameras.len() != n {
@@ -217,13 +201,13 @@ pub fn run(a: Args) -> Result<()> {
         let st = state.clone().unwrap_or_else(|| fresh_state(&scene, k));
         (scene.clone(), st, Vec::new(), None)
     } else {
-        let mut prior = super::timing::load(|| {
+        let mut prior = crate::timing::load(|| {
             prior::open(
                 &a.model,
                 &PriorOptions {
                     style_image: Some(style.to_chw().insert_axis(Axis(0))),
                     prompt: a.prompt.clone(),
-                    threads: a.threads,
+                    threads: a.threads.n,
                     strength: Some(a.strength),
                     ..Default::default()
                 },
@@ -233,7 +217,7 @@ pub fn run(a: Args) -> Result<()> {
             Some(spec) => parse_timesteps(spec, &prior.info().scheduler)?,
             None => model_set,
         };
-        super::with_threads(a.threads, || -> Result<_> {
+        super::with_threads(a.threads.n, || -> Result<_> {
             let mut d = Distiller::new(
                 &scene,
                 &cameras,
@@ -289,8 +273,8 @@ pub fn run(a: Args) -> Result<()> {
         serde_json::json!({
             "iters": a.iters, "start": start, "views_per_iter": a.views_per_iter,
             "strength": a.strength, "preserve_color": a.preserve_color, "fit_rest": a.fit_rest,
-            "mode": a.mode, "guidance": a.guidance, "weighting": a.weighting, "z_lr": a.z_lr,
-            "lr_dc": a.lr_dc, "mvfc": !a.no_mvfc, "gamma": a.gamma, "timesteps": a.timesteps,
+            "csd": a.csd, "lr_dc": a.lr_dc, "mvfc": !a.no_mvfc, "gamma": a.mvfc.gamma,
+            "d_s": a.mvfc.d_s, "d_t": a.mvfc.d_t, "timesteps": a.timesteps,
             "fill": !a.no_fill, "seed": a.seed, "prompt": a.prompt, "format": a.format,
         }),
     );
@@ -341,7 +325,7 @@ pub fn run(a: Args) -> Result<()> {
         "sh_degree": out_scene.sh_degree,
         "last": last.as_ref().map(|l| &l.report),
     }));
-    super::timing::io(|| out.commit())?;
+    crate::timing::io(|| out.commit())?;
     tracing::info!("wrote {} (iteration {iteration})", a.out.display());
     Ok(())
 }

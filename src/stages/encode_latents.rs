@@ -7,6 +7,7 @@
 //! artifact: `latents.npy` `[N, C, H/f, W/f]` f32 plus the views' `cameras.json`. The
 //! inputs recorded are the views artifact and the model's `model.json`.
 
+use super::Threads;
 use crate::artifacts::read_views;
 use crate::prior::manifest::ModelManifest;
 use crate::prior::{self, PriorOptions};
@@ -17,20 +18,28 @@ use indicatif::{ProgressBar, ProgressStyle};
 use ndarray::{Axis, concatenate};
 use std::path::PathBuf;
 
-/// Parameters of `encode-latents`.
-#[derive(Debug, Clone)]
-pub struct EncodeLatents {
+/// VAE-encode a views artifact's renders into a latents artifact (latents.npy [N,C,h,w]).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "encode-latents", version)]
+pub struct Args {
+    /// Views artifact directory (rgb.npy [N,H,W,3] in [0,1]).
+    #[arg(long)]
     pub views: PathBuf,
+    /// Model directory holding model.json (e.g. vendor/models/gaussian-prior).
+    #[arg(long)]
     pub model: PathBuf,
+    /// Output latents artifact directory (written atomically).
+    #[arg(long)]
     pub out: PathBuf,
-    /// Intra-op threads (0 = all cores).
-    pub threads: usize,
-    /// Views per VAE call (0 = all at once).
+    #[command(flatten)]
+    pub threads: Threads,
+    /// Views per VAE call (0 = all at once; lower it to bound memory with real VAEs).
+    #[arg(long, default_value_t = 4)]
     pub batch: usize,
 }
 
-/// Run the stage; returns the latents' shape.
-pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
+/// The stage; returns the latents' shape.
+pub fn run(p: Args) -> Result<[usize; 4]> {
     let views = read_views(&p.views)?;
     let rgb_path = views.art.path("rgb.npy");
     let (n, h, w) = views.dim();
@@ -53,11 +62,11 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
         .as_standard_layout()
         .to_owned();
     let opts = PriorOptions {
-        threads: p.threads,
+        threads: p.threads.n,
         optimization: Optimization::All,
         ..Default::default()
     };
-    let mut prior = super::timing::load(|| prior::open(&md.dir, &opts))?;
+    let mut prior = crate::timing::load(|| prior::open(&md.dir, &opts))?;
     let batch = if p.batch == 0 { n } else { p.batch };
     let bar = ProgressBar::new(n as u64).with_style(
         ProgressStyle::with_template("encode-latents {bar:30} {pos}/{len} views {elapsed}")
@@ -103,7 +112,7 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
         "vae_scaling_factor": md.manifest.vae_scaling_factor,
         "image_size": [h, w],
     }));
-    super::timing::io(|| wr.commit())?;
+    crate::timing::io(|| wr.commit())?;
     tracing::info!("encode-latents: {n} views -> latents {shape:?}");
     Ok(shape)
 }

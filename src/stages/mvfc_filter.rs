@@ -18,6 +18,7 @@
 //! The timestep set: [`crate::prior::model_timesteps`] (the model manifest's
 //! `stylizer.timesteps` range if present, else 50 steps over [0.02 T, 0.98 T]).
 
+use super::Threads;
 use crate::artifacts::read_latents;
 use crate::mvfc::{MvfcParams, mvfc_grouped};
 use crate::prior::model_timesteps;
@@ -48,26 +49,48 @@ impl std::str::FromStr for TimestepChoice {
     }
 }
 
-/// Parameters of `mvfc-filter`.
-#[derive(Debug, Clone)]
-pub struct MvfcFilterArgs {
+/// Noise target and source latents with one shared eps at a DDIM timestep and apply
+/// multi-view frequency consistency (MVFC) to the noisy target latents. Writes a
+/// noised-latents artifact (z_src.npy, z_tgt.npy, eps.npy, eps_shared.npy; meta.timestep).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "mvfc-filter", version)]
+pub struct Args {
+    /// Target latents artifact (latents of the current renders).
+    #[arg(long)]
     pub latents: PathBuf,
+    /// Source latents artifact (latents of the original renders), same shape.
+    #[arg(long)]
     pub source_latents: PathBuf,
+    /// Model directory with model.json (its noise schedule and timestep set).
+    #[arg(long)]
     pub model: PathBuf,
+    /// Timestep: an integer from the model's DDIM set, or `auto` to draw one with (seed, round).
+    #[arg(long, default_value = "auto")]
     pub timestep: TimestepChoice,
+    /// Seed for t (auto), eps and the shared MVFC noise.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Iteration index: with the seed, selects t and the noise of this round.
+    #[arg(long, default_value_t = 0)]
     pub round: u64,
+    /// Output noised-latents artifact directory (written atomically).
+    #[arg(long)]
     pub out: PathBuf,
+    #[command(flatten)]
     pub params: MvfcParams,
+    /// Skip MVFC (the paper's "w/o MVFC" ablation): z_tgt is only noised.
+    #[arg(long)]
     pub no_filter: bool,
-    /// Views per MVFC group (0 = all views in one group); see [`crate::mvfc::mvfc_grouped`].
+    /// Views per MVFC group: the 3D FFT runs over runs of this many adjacent views
+    /// (0 = all views in one group).
+    #[arg(long, default_value_t = 0)]
     pub group_size: usize,
-    /// Worker threads (0 = all cores).
-    pub threads: usize,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
-/// Run the stage; returns the timestep used.
-pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
+/// The stage; returns the timestep used.
+pub fn run(a: Args) -> Result<usize> {
     a.params.validate()?;
     let z0_tgt = read_latents(&a.latents)?;
     let z0_src = read_latents(&a.source_latents)?;
@@ -108,9 +131,8 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
     let z_tgt = if a.no_filter {
         z_noisy
     } else {
-        super::with_threads(a.threads, || {
-            mvfc_grouped(z_noisy.view(), eps_shared.view(), a.params, a.group_size)
-        })??
+        a.threads
+            .install(|| mvfc_grouped(z_noisy.view(), eps_shared.view(), a.params, a.group_size))??
     };
     tracing::info!(
         "mvfc-filter: t = {t} (ab = {:.4}), latents {shape:?}, {}",
@@ -163,6 +185,7 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
         "seed": a.seed,
         "round": a.round,
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
+    tracing::info!("wrote noised latents at t = {t}");
     Ok(t)
 }

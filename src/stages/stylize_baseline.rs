@@ -14,7 +14,7 @@
 //! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
 //! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
 
-use crate::artifacts::{load_cameras, load_scene};
+use super::{Background, SceneInput, Threads};
 use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
@@ -45,13 +45,8 @@ pub struct Args {
     /// The baseline.
     #[arg(long, value_enum)]
     pub method: Method,
-    /// Scene: an INRIA .ply, a .splat, or a scene artifact directory (its scene.ply).
-    #[arg(long)]
-    pub scene: PathBuf,
-    /// Cameras: `orbit:N[,...]`, an INRIA cameras.json, a COLMAP sparse/0 directory, a
-    /// nerfstudio transforms.json, or a views/targets artifact directory.
-    #[arg(long)]
-    pub cameras: String,
+    #[command(flatten)]
+    pub input: SceneInput,
     /// Style image (PNG/JPEG; grayscale expanded, alpha dropped; shorter side >= 92 px).
     #[arg(long)]
     pub style: PathBuf,
@@ -67,9 +62,8 @@ pub struct Args {
     /// Render height (>= 16).
     #[arg(long, default_value_t = 128)]
     pub height: u32,
-    /// Background colour R,G,B in [0, 1].
-    #[arg(long, default_value = "0,0,0", value_parser = super::parse_rgb)]
-    pub background: [f32; 3],
+    #[command(flatten)]
+    pub background: Background,
     /// Adam learning rate of the DC colour coefficients.
     #[arg(long, default_value_t = 0.01)]
     pub lr_dc: f32,
@@ -97,9 +91,8 @@ pub struct Args {
     /// default: stylizer in the models directory (see --vgg).
     #[arg(long)]
     pub stylizer: Option<PathBuf>,
-    /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
 /// What a run produced (also used by tests).
@@ -140,12 +133,12 @@ pub fn run(a: Args) -> Result<()> {
             a.width, a.height
         )));
     }
-    let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let cams = load_cameras(&a.cameras, &scene.bounds(), a.width, a.height)?;
+    let scene = a.input.load_scene()?;
+    let cams = a.input.load_cameras(&scene, a.width, a.height)?;
     if cams.is_empty() {
         return Err(Error::param(format!(
             "{}: the view set is empty: nothing to stylize",
-            a.cameras
+            a.input.cameras
         )));
     }
     let raw_style = crate::imageio::read_rgb(&a.style)?;
@@ -156,15 +149,14 @@ pub fn run(a: Args) -> Result<()> {
     };
     let vgg = Vgg16::load(&vgg_dir)?;
     let params = serde_json::json!({
-        "method": a.method, "cameras": a.cameras, "steps": a.steps, "width": a.width,
-        "height": a.height, "background": a.background, "lr_dc": a.lr_dc,
+        "method": a.method, "cameras": a.input.cameras, "steps": a.steps, "width": a.width,
+        "height": a.height, "background": a.background.rgb, "lr_dc": a.lr_dc,
         "lr_rest": a.lr_rest, "style_size": a.style_size, "style_weight": a.style_weight,
         "content_weight": a.content_weight, "monitor_every": a.monitor_every,
     });
     let producer = Producer::new("stylize-baseline", crate::VERSION, params);
     let mut w = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
-    w.add_input("scene", &a.scene)?;
-    super::add_cameras_input(&mut w, &a.cameras)?;
+    a.input.add_inputs(&mut w)?;
     w.add_input("style", &a.style)?;
     tracing::info!(
         "{:?} baseline: {} Gaussians, {} views at {}x{}, {} steps",
@@ -175,8 +167,9 @@ pub fn run(a: Args) -> Result<()> {
         a.height,
         a.steps
     );
-    let (scene, log, targets) =
-        super::with_threads(a.threads, || optimise(&a, scene, &cams, &vgg, &style))??;
+    let (scene, log, targets) = a
+        .threads
+        .install(|| optimise(&a, scene, &cams, &vgg, &style))??;
     w.write_bytes("scene.ply", &crate::scene::ply::encode_ply(&scene))?;
     w.write_json("loss.json", &log)?;
     for (i, t) in targets.iter().enumerate() {
@@ -191,7 +184,7 @@ pub fn run(a: Args) -> Result<()> {
         "method": a.method, "views": cams.len(), "gram_distance_first": first,
         "gram_distance_last": last,
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
     tracing::info!(
         "wrote {} (Gram distance {:?} -> {:?})",
         a.out.display(),
@@ -210,7 +203,7 @@ fn optimise(
     style: &Image,
 ) -> Result<(crate::Scene, LossLog, Vec<Image>)> {
     let ropts = crate::render::RenderOptions {
-        background: a.background,
+        background: a.background.rgb,
     };
     let originals = cams
         .iter()
@@ -280,7 +273,7 @@ fn optimise(
         fit: crate::optim::FitParams {
             lr_dc: a.lr_dc,
             lr_rest: a.lr_rest,
-            background: a.background,
+            background: a.background.rgb,
             ..crate::optim::FitParams::default()
         },
         monitor_every: a.monitor_every,

@@ -81,6 +81,7 @@ fn vgg_missing_or_malformed_weights_are_clear_errors() {
 mod stage {
     use crate::harness::repo_root;
     use fantasystyle::stages::stylize_baseline::{Args, Method, run};
+    use fantasystyle::stages::{Background, SceneInput, Threads};
     use std::path::{Path, PathBuf};
 
     /// Real VGG16 weights when set-up has made them, else the golden test's narrow
@@ -98,14 +99,16 @@ mod stage {
     fn args(method: Method, out: &Path, style: &Path, steps: usize) -> Args {
         Args {
             method,
-            scene: repo_root().join("data-sample/scene.ply"),
-            cameras: "orbit:2".into(),
+            input: SceneInput {
+                scene: repo_root().join("data-sample/scene.ply"),
+                cameras: "orbit:2".into(),
+            },
             style: style.to_path_buf(),
             steps,
             out: out.to_path_buf(),
             width: 48,
             height: 48,
-            background: [0.0; 3],
+            background: Background { rgb: [0.0; 3] },
             lr_dc: 0.03,
             lr_rest: 0.001,
             style_size: 128,
@@ -114,7 +117,7 @@ mod stage {
             monitor_every: steps,
             vgg: Some(vgg_dir()),
             stylizer: Some(repo_root().join("vendor/models/stylizer")),
-            threads: 2,
+            threads: Threads::new(2),
         }
     }
 
@@ -246,7 +249,7 @@ mod stage {
         std::fs::write(&cams, "[]").unwrap();
         let out = d.path().join("out");
         let mut a = args(Method::Nnfm, &out, &sample_style(), 1);
-        a.cameras = cams.to_string_lossy().into_owned();
+        a.input.cameras = cams.to_string_lossy().into_owned();
         let e = run(a).unwrap_err();
         assert_eq!(e.exit_code(), 2, "{e}");
         assert!(e.to_string().contains("cameras.json"), "{e}");

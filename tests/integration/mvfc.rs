@@ -205,9 +205,8 @@ use fantasystyle::artifacts::{read_latents, read_noised_latents, read_targets};
 use fantasystyle::csd::{Mode, Weighting};
 use fantasystyle::prior::gaussian::{GaussianPrior, vae_decode};
 use fantasystyle::scheduler::Schedule;
-use fantasystyle::stages::csd_step::{CsdStepArgs, csd_step};
-use fantasystyle::stages::encode_latents::{EncodeLatents, encode_latents};
-use fantasystyle::stages::mvfc_filter::{MvfcFilterArgs, TimestepChoice, mvfc_filter};
+use fantasystyle::stages::mvfc_filter::TimestepChoice;
+use fantasystyle::stages::{Threads, csd_step, encode_latents, mvfc_filter};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use std::path::{Path, PathBuf};
 
@@ -252,8 +251,8 @@ fn write_views(dir: &Path, imgs: &Array4<f32>) {
     );
 }
 
-fn filter_args(d: &Path, model: &Path) -> MvfcFilterArgs {
-    MvfcFilterArgs {
+fn filter_args(d: &Path, model: &Path) -> mvfc_filter::Args {
+    mvfc_filter::Args {
         latents: d.join("lat_tgt"),
         source_latents: d.join("lat_src"),
         model: model.to_path_buf(),
@@ -264,7 +263,7 @@ fn filter_args(d: &Path, model: &Path) -> MvfcFilterArgs {
         params: MvfcParams::default(),
         no_filter: false,
         group_size: 0,
-        threads: 1,
+        threads: Threads::new(1),
     }
 }
 
@@ -284,7 +283,7 @@ fn mvfc_filter_stage_noises_and_filters() {
     write_latents(&d.path().join("lat_tgt"), &z_t);
     write_latents(&d.path().join("lat_src"), &z_s);
     let args = filter_args(d.path(), &model);
-    let t = mvfc_filter(&args).unwrap();
+    let t = mvfc_filter::run(args.clone()).unwrap();
     let (sched, set) = fantasystyle::prior::model_timesteps(&model).unwrap();
     assert!(set.contains(t));
     let nd = d.path().join("noised");
@@ -303,7 +302,7 @@ fn mvfc_filter_stage_noises_and_filters() {
     let mut a2 = filter_args(d.path(), &model);
     a2.no_filter = true;
     a2.out = d.path().join("nofilter");
-    assert_eq!(mvfc_filter(&a2).unwrap(), t);
+    assert_eq!(mvfc_filter::run(a2.clone()).unwrap(), t);
     let n2 = d.path().join("nofilter");
     let n2 = read_noised_latents(&n2).unwrap();
     assert_eq!(n2.eps, eps);
@@ -316,7 +315,7 @@ fn mvfc_filter_stage_noises_and_filters() {
     let mut a3 = filter_args(d.path(), &model);
     a3.timestep = TimestepChoice::Fixed(set.steps()[2]);
     a3.out = d.path().join("fixed");
-    assert_eq!(mvfc_filter(&a3).unwrap(), set.steps()[2]);
+    assert_eq!(mvfc_filter::run(a3.clone()).unwrap(), set.steps()[2]);
 }
 
 /// Bad input to mvfc-filter: clear errors naming the problem, nothing written.
@@ -332,8 +331,8 @@ fn mvfc_filter_stage_rejects_bad_input() {
         &d.path().join("lat_src"),
         &Array4::<f32>::zeros((2, 4, 8, 6)),
     );
-    let err = |a: &MvfcFilterArgs| {
-        let e = mvfc_filter(a).unwrap_err();
+    let err = |a: &mvfc_filter::Args| {
+        let e = mvfc_filter::run(a.clone()).unwrap_err();
         assert_eq!(e.exit_code(), 2, "{e}");
         assert!(!a.out.exists());
         e.to_string()
@@ -371,11 +370,11 @@ fn mvfc_filter_stage_rejects_bad_input() {
 /// Build views, latents and noised latents for a csd-step run in `d`.
 fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) -> PathBuf {
     write_views(&d.join("views"), views);
-    encode_latents(&EncodeLatents {
+    encode_latents::run(encode_latents::Args {
         views: d.join("views"),
         model: model.to_path_buf(),
         out: d.join("lat"),
-        threads: 1,
+        threads: Threads::new(1),
         batch: 0,
     })
     .unwrap();
@@ -384,7 +383,7 @@ fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) 
     a.latents = d.join("lat");
     a.source_latents = d.join("lat");
     a.timestep = TimestepChoice::Fixed(set.steps()[set.steps().len() / 2]);
-    mvfc_filter(&a).unwrap();
+    mvfc_filter::run(a.clone()).unwrap();
     let sp = d.join("style.png");
     let s = style.index_axis(ndarray::Axis(0), 0);
     let (h, w) = (s.shape()[1], s.shape()[2]);
@@ -397,8 +396,8 @@ fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) 
     sp
 }
 
-fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> CsdStepArgs {
-    CsdStepArgs {
+fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd_step::Args {
+    csd_step::Args {
         noised: d.join("noised"),
         latents: d.join("lat"),
         views: d.join("views"),
@@ -412,7 +411,7 @@ fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> CsdStepArgs {
             ..Default::default()
         },
         out: d.join("targets"),
-        threads: 1,
+        threads: Threads::new(1),
     }
 }
 
@@ -428,7 +427,7 @@ fn csd_step_stage_matches_closed_form_targets() {
     let views = content_views(2, 32);
     let style = style_image(64);
     let sp = csd_inputs(d.path(), &model, &views, &style);
-    let report = csd_step(&step_args(d.path(), &model, &sp, Mode::Csd)).unwrap();
+    let report = csd_step::run(step_args(d.path(), &model, &sp, Mode::Csd)).unwrap();
     let td = d.path().join("targets");
     let targets = read_targets(&td).unwrap();
     assert_eq!(
@@ -493,7 +492,7 @@ fn csd_step_stage_matches_closed_form_targets() {
         let mut a = step_args(d.path(), &model, &sp, mode);
         a.out = d.path().join(format!("t{i}"));
         a.params.weighting = Weighting::Uniform;
-        csd_step(&a).unwrap();
+        csd_step::run(a.clone()).unwrap();
         let o = read_targets(&a.out).unwrap().rgb;
         assert!(o != rgb, "{mode:?}");
     }
@@ -512,7 +511,7 @@ fn csd_step_stage_with_stylizer() {
     let sp = csd_inputs(d.path(), &model, &views, &style);
     let mut a = step_args(d.path(), &model, &sp, Mode::Csd);
     a.params.lr = 0.1;
-    csd_step(&a).unwrap();
+    csd_step::run(a.clone()).unwrap();
     let rgb = read_targets(&d.path().join("targets")).unwrap().rgb;
     let tgt = rgb.permuted_axes([0, 3, 1, 2]).to_owned();
     let (m0, _) = style_distance(&views, &style);
@@ -530,8 +529,8 @@ fn csd_step_stage_rejects_bad_input() {
     let d = tempfile::tempdir().unwrap();
     let views = content_views(2, 32);
     let sp = csd_inputs(d.path(), &model, &views, &style_image(32));
-    let err = |a: &CsdStepArgs| {
-        let e = csd_step(a).unwrap_err();
+    let err = |a: &csd_step::Args| {
+        let e = csd_step::run(a.clone()).unwrap_err();
         assert!(!a.out.exists());
         (e.exit_code(), e.to_string())
     };
@@ -560,7 +559,7 @@ fn csd_step_stage_rejects_bad_input() {
     c.latents = d.path().join("lat");
     c.source_latents = d.path().join("lat");
     c.out = d.path().join("noised");
-    mvfc_filter(&c).unwrap();
+    mvfc_filter::run(c.clone()).unwrap();
     let stylizer_set = r#"{"t_min": 1, "t_max": 2, "count": 2}"#;
     let md = tempfile::tempdir().unwrap();
     for f in std::fs::read_dir(&model).unwrap() {
