@@ -6,6 +6,7 @@
 #   vendor/venv/                 Python (numpy, onnx) for conversion and reference scripts
 #   vendor/onnxruntime/          libonnxruntime.so.1.31.1 from the PyPI onnxruntime wheel
 #   vendor/models/...            ONNX graphs and weights made by scripts/setup/*
+#   vendor/venv/bin/snakemake    pinned Snakemake for `pipeline export --snakemake` (40_snakemake.sh)
 #
 # Steps under scripts/setup/ run in name order; each is an executable shell or Python
 # script that receives the repo root as $1 and uses vendor/venv/bin/python.
