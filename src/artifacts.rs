@@ -6,7 +6,7 @@
 //!
 //! | artifact (kind) | written by | reader |
 //! |---|---|---|
-//! | `views` | render-views | [`read_views`]: rgb `[N,H,W,3]`, depth and alpha `[N,H,W]`, [`Views::cameras`] |
+//! | `views` | render-views | [`read_views`]: rgb `[N,H,W,3]`, depth and alpha `[N,H,W]`, [`Views::cameras`]; [`read_view_images`]: rgb only |
 //! | `latents` | encode-latents | [`read_latents`]: `[N,C,h,w]` |
 //! | `noised-latents` | mvfc-filter | [`read_noised_latents`]: z_src, z_tgt, eps `[N,C,h,w]`, eps' `[C,h,w]`, t |
 //! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
@@ -86,11 +86,18 @@ impl Views {
     }
 }
 
+/// Open a `views` artifact and read only its images, `rgb.npy` `[N, H, W, 3]`
+/// (N, H, W >= 1); for stages that need neither depth nor alpha.
+pub fn read_view_images(dir: &Path) -> Result<(Artifact, Array4<f32>)> {
+    let art = Artifact::open(dir, ArtifactKind::Views)?;
+    let rgb = read_rgb(&art, "rgb.npy")?;
+    Ok((art, rgb))
+}
+
 /// Open a `views` artifact and read `rgb.npy` `[N, H, W, 3]` (N, H, W >= 1) and
 /// `depth.npy`, `alpha.npy` `[N, H, W]`.
 pub fn read_views(dir: &Path) -> Result<Views> {
-    let art = Artifact::open(dir, ArtifactKind::Views)?;
-    let rgb = read_rgb(&art, "rgb.npy")?;
+    let (art, rgb) = read_view_images(dir)?;
     let (n, h, w, _) = rgb.dim();
     let plane = |name: &str| -> Result<Array3<f32>> {
         let t = art.read_f32(name)?;

@@ -8,7 +8,7 @@
 //! inputs recorded are the views artifact and the model's `model.json`.
 
 use super::Threads;
-use crate::artifacts::read_views;
+use crate::artifacts::read_view_images;
 use crate::prior::manifest::ModelManifest;
 use crate::prior::{self, PriorOptions};
 use crate::runtime::Optimization;
@@ -40,9 +40,9 @@ pub struct Args {
 
 /// The stage; returns the latents' shape.
 pub fn run(p: Args) -> Result<[usize; 4]> {
-    let views = read_views(&p.views)?;
-    let rgb_path = views.art.path("rgb.npy");
-    let (n, h, w) = views.dim();
+    let (views, rgb) = read_view_images(&p.views)?;
+    let rgb_path = views.path("rgb.npy");
+    let (n, h, w, _) = rgb.dim();
     let md = ModelManifest::load(&p.model)?;
     let f = md.manifest.downsample.max(1);
     if h % f != 0 || w % f != 0 {
@@ -55,8 +55,7 @@ pub fn run(p: Args) -> Result<[usize; 4]> {
             ),
         ));
     }
-    let images = views
-        .rgb
+    let images = rgb
         .view()
         .permuted_axes([0, 3, 1, 2])
         .as_standard_layout()
@@ -101,7 +100,7 @@ pub fn run(p: Args) -> Result<[usize; 4]> {
         &shape,
         data.as_slice().expect("standard layout"),
     )?;
-    let cams = views.art.path("cameras.json");
+    let cams = views.path("cameras.json");
     let bytes = std::fs::read(&cams).map_err(|e| Error::io(&cams, e))?;
     wr.write_bytes("cameras.json", &bytes)?;
     wr.set_meta(serde_json::json!({
