@@ -267,7 +267,10 @@ pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint> {
         if a.shape != [2, len] {
             return Err(Error::input(
                 art.path(name),
-                format!("expected shape [2, {len}] for this scene, found {:?}", a.shape),
+                format!(
+                    "expected shape [2, {len}] for this scene, found {:?}",
+                    a.shape
+                ),
             ));
         }
         let mut d = a.data;

@@ -117,6 +117,10 @@ pub struct StepInputs<'a> {
     pub z_tgt: ArrayView4<'a, f32>,
     pub z_src: ArrayView4<'a, f32>,
     pub eps: ArrayView4<'a, f32>,
+    /// The source's clean latents, when `z_src` is not simply `add_noise(z0_src, eps)`
+    /// (MVFC on the source branch): an identity prior's exact source noise is then
+    /// `(z_src - sqrt(ab) z0_src) / sqrt(1 - ab)`; without it, `eps`.
+    pub z0_src: Option<ArrayView4<'a, f32>>,
     pub t: usize,
     /// Control image for priors with a ControlNet (`[N, 3, H, W]`).
     pub control: Option<ArrayView4<'a, f32>>,
@@ -211,11 +215,15 @@ pub fn gradient(
     Ok(g)
 }
 
+/// Per-conditioning predictions of the target and the source branch.
+type BranchPredictions = (Vec<Array4<f32>>, Vec<Array4<f32>>);
+
 /// Predictions for a prior whose unconditional branch is the identity
 /// ([`Prior::unconditional_is_identity`]): `Null` and `Content` are not asked of the
 /// prior but given exactly, as the noise that takes the clean latents to the noisy ones
 /// (target: `(z_tgt - sqrt(ab) z0) / sqrt(1 - ab)`, which includes MVFC's change of
-/// z_tgt; source: `eps`, with which `z_src` was made). The other conditionings go to
+/// z_tgt; source: `(z_src - sqrt(ab) z0_src) / sqrt(1 - ab)` when z0_src is given, else
+/// `eps`, with which `z_src` was made). The other conditionings go to
 /// the prior in one call per branch.
 fn oracle_predictions(
     prior: &mut dyn Prior,
@@ -223,7 +231,7 @@ fn oracle_predictions(
     x: &StepInputs<'_>,
     ct: &[Cond],
     cs: &[Cond],
-) -> Result<(Vec<Array4<f32>>, Vec<Array4<f32>>)> {
+) -> Result<BranchPredictions> {
     let (sa, sb) = schedule.coefficients(x.t)?;
     let (sa, sb) = (sa as f32, sb as f32);
     let oracle = |c: Cond| matches!(c, Cond::Null | Cond::Content);
@@ -256,7 +264,12 @@ fn oracle_predictions(
             .and(x.z0)
             .map_collect(|&z, &z0| (z - sa * z0) / sb)
     })?;
-    let es = branch(prior, x.z_src, cs, &|| x.eps.to_owned())?;
+    let es = branch(prior, x.z_src, cs, &|| match x.z0_src {
+        Some(z0s) => Zip::from(x.z_src)
+            .and(z0s)
+            .map_collect(|&z, &z0| (z - sa * z0) / sb),
+        None => x.eps.to_owned(),
+    })?;
     Ok((et, es))
 }
 
@@ -323,6 +336,7 @@ mod tests {
             z_tgt: c.zt.view(),
             z_src: c.zs.view(),
             eps: c.eps.view(),
+            z0_src: None,
             t,
             control: None,
         }

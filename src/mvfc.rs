@@ -460,7 +460,8 @@ mod tests {
         let z = randn4(6, s);
         // Influence of a change of the last view on the first view.
         let mut z2 = z.clone();
-        z2.slice_mut(ndarray::s![n - 1, .., .., ..]).mapv_inplace(|v| v + 3.0);
+        z2.slice_mut(ndarray::s![n - 1, .., .., ..])
+            .mapv_inplace(|v| v + 3.0);
         let influence = |circular: bool| {
             let a = mvfc_path(z.view(), e.view(), p, circular).unwrap();
             let b = mvfc_path(z2.view(), e.view(), p, circular).unwrap();

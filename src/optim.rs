@@ -256,7 +256,8 @@ impl Adam {
                 self.m.len()
             )));
         }
-        if s.t < 0 || s.m.iter().chain(&s.v).any(|x| !x.is_finite()) || s.v.iter().any(|x| *x < 0.0) {
+        if s.t < 0 || s.m.iter().chain(&s.v).any(|x| !x.is_finite()) || s.v.iter().any(|x| *x < 0.0)
+        {
             return Err(Error::param(format!(
                 "{what}: optimizer state is not valid (negative step or second moment, or not finite)"
             )));

@@ -145,14 +145,26 @@ mod tests {
     fn fill_stays_in_the_range_of_covered_colours() {
         let (h, w) = (13, 9);
         let mut rng = crate::rng::Rng::new(3);
-        let c: Vec<f32> = (0..h * w * 3).map(|_| 0.2 + 0.5 * rng.uniform() as f32).collect();
+        let c: Vec<f32> = (0..h * w * 3)
+            .map(|_| 0.2 + 0.5 * rng.uniform() as f32)
+            .collect();
         let a: Vec<f32> = (0..h * w)
-            .map(|_| if rng.uniform() < 0.2 { rng.uniform() as f32 } else { 0.0 })
+            .map(|_| {
+                if rng.uniform() < 0.2 {
+                    rng.uniform() as f32
+                } else {
+                    0.0
+                }
+            })
             .collect();
         let f = push_pull(&c, &a, h, w);
         assert!(f.iter().all(|v| (0.2 - 1e-5..=0.7 + 1e-5).contains(v)));
         // No coverage at all: zeros, no NaN.
-        assert!(push_pull(&c, &vec![0.0; h * w], h, w).iter().all(|v| *v == 0.0));
+        assert!(
+            push_pull(&c, &vec![0.0; h * w], h, w)
+                .iter()
+                .all(|v| *v == 0.0)
+        );
     }
 
     #[test]

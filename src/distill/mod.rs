@@ -11,15 +11,20 @@
 //!    the source views' z0_src (encoded once);
 //! 3. t from the model's DDIM set, eps `[N, C, h, w]`, eps' `[C, h, w]`;
 //!    z_src = add_noise(z0_src, eps, t), z_tgt = MVFC(add_noise(z0, eps, t), eps')
-//!    along the path ([`crate::mvfc::mvfc_path`]; "without MVFC" skips it);
+//!    along the path ([`crate::mvfc::mvfc_path`]; "without MVFC" skips it); by default
+//!    z_src goes through the same filter with the same eps' (`mvfc_source`; the paper
+//!    filters the target only, which biases the update: see the field's docs);
 //! 4. the CSD step ([`crate::csd`]): z0' = z0 - lr w(t) (Phi_tgt - Phi_src); the image
 //!    change the prior asks for is Delta = decode(z0') - decode(z0);
 //! 5. targets: the object's colour c (the render un-premultiplied by its alpha) moves to
-//!    c' = clamp(c + Delta) (with colour preservation: c' keeps the source's chroma and
-//!    takes only the new luminance, Gatys et al. 2016's luminance-only transfer), and is
-//!    composited back with the render's alpha, target = a c' + (1 - a) bg, so that the
-//!    thin fringe of a silhouette (small a) asks for a small change only, not for a
-//!    colour it can reach only by blowing up (the "glowing haze" of the first version);
+//!    c' = c + Delta (with colour preservation: c' keeps the source's chroma and takes
+//!    only the new luminance, Gatys et al. 2016's luminance-only transfer), limited to
+//!    [min(c, 0), max(c, 1)] (a change never pushes a colour out of range; one already
+//!    out of range is left where it is), and the render moves by the alpha-weighted
+//!    change, target = render + a (c' - c), so that the thin fringe of a silhouette
+//!    (small a) asks for a small change only, not for a colour it can reach only by
+//!    blowing up (the "glowing haze" of the first version), and Delta = 0 asks for no
+//!    change at all (the target is then the render, bit for bit);
 //! 6. one Adam step of the SH colours on the window's views towards the targets
 //!    (L1 + D-SSIM, [`crate::optim`]); geometry is frozen.
 //!
@@ -50,13 +55,21 @@ pub struct DistillParams {
     pub csd: CsdParams,
     /// MVFC parameters; `None` = the "without MVFC" ablation.
     pub mvfc: Option<MvfcParams>,
+    /// Filter the source branch's noisy latents with MVFC too (same eps'), not only the
+    /// target's. MVFC scales the low band of the signal by gamma; on the target alone
+    /// that is a bias the CSD difference does not cancel (the scene moves even when the
+    /// style is its own look); on both branches Phi_tgt - Phi_src is 0 at the source.
+    pub mvfc_source: bool,
     /// Keep the scene's own chroma, change luminance (texture, contrast) only.
     pub preserve_color: bool,
     /// Let f_rest (view-dependent colour) change.
     pub fit_rest: bool,
     /// Adam learning rate of f_dc (f_rest: lr_dc / 20 when `fit_rest`).
     pub lr_dc: f32,
-    /// D-SSIM weight of the colour loss.
+    /// D-SSIM weight of the colour loss. 0 by default: the target differs from the
+    /// render only by the prior's small change, and where that change is 0 the D-SSIM
+    /// gradient is rounding noise, which Adam's per-parameter normalisation (eps 1e-15)
+    /// turns into full-size steps: the scene then drifts with no style asking for it.
     pub ssim_weight: f32,
     /// Give the prior the object over a fill of its own colours ([`fill`]).
     pub fill_background: bool,
@@ -72,10 +85,11 @@ impl Default for DistillParams {
             views_per_iter: 4,
             csd: CsdParams::default(),
             mvfc: Some(MvfcParams::default()),
+            mvfc_source: true,
             preserve_color: false,
             fit_rest: false,
             lr_dc: 0.01,
-            ssim_weight: 0.2,
+            ssim_weight: 0.0,
             fill_background: true,
             background: [0.0; 3],
             seed: 0,
@@ -207,7 +221,10 @@ impl<'a> Distiller<'a> {
             .collect();
         // The source latents, encoded once, a few views per call.
         let mut z0_src = Vec::with_capacity(n);
-        for chunk in (0..n).collect::<Vec<_>>().chunks(params.views_per_iter.max(1)) {
+        for chunk in (0..n)
+            .collect::<Vec<_>>()
+            .chunks(params.views_per_iter.max(1))
+        {
             let imgs: Vec<Array3<f32>> = chunk
                 .iter()
                 .map(|&v| to_chw(&Self::prior_view(&params, source, &source.rgb[v], v), h, w))
@@ -238,7 +255,13 @@ impl<'a> Distiller<'a> {
     /// fill of its own colours.
     fn prior_view(p: &DistillParams, source: &SourceViews, rgb: &[f32], v: usize) -> Vec<f32> {
         if p.fill_background {
-            fill::fill_background(rgb, &source.alpha[v], p.background, source.height, source.width)
+            fill::fill_background(
+                rgb,
+                &source.alpha[v],
+                p.background,
+                source.height,
+                source.width,
+            )
         } else {
             rgb.to_vec()
         }
@@ -288,11 +311,6 @@ impl<'a> Distiller<'a> {
 
         // Renders, what the prior sees, latents.
         let renders: Vec<Vec<f32>> = views.iter().map(|&v| self.fit.render_view(v)).collect();
-        let colours: Vec<Vec<f32>> = views
-            .iter()
-            .zip(&renders)
-            .map(|(&v, r)| fill::unpremultiply(r, &self.source.alpha[v], p.background))
-            .collect();
         let seen: Vec<Array3<f32>> = views
             .iter()
             .zip(&renders)
@@ -303,7 +321,12 @@ impl<'a> Distiller<'a> {
             concatenate(Axis(0), &v).map_err(|e| Error::Other(e.to_string()))
         };
         let z0 = self.prior.encode(stack(&seen)?.view())?;
-        let z0_src = stack(&views.iter().map(|&v| self.z0_src[v].clone()).collect::<Vec<_>>())?;
+        let z0_src = stack(
+            &views
+                .iter()
+                .map(|&v| self.z0_src[v].clone())
+                .collect::<Vec<_>>(),
+        )?;
         if z0.shape() != z0_src.shape() {
             return Err(Error::Other(format!(
                 "prior encoded renders to {:?} but the source to {:?}",
@@ -312,28 +335,56 @@ impl<'a> Distiller<'a> {
             )));
         }
         let sh = z0.shape().to_vec();
-        let eps = Array4::from_shape_vec(
-            (sh[0], sh[1], sh[2], sh[3]),
-            rng.normals_f32(z0.len()),
+        let eps = Array4::from_shape_vec((sh[0], sh[1], sh[2], sh[3]), rng.normals_f32(z0.len()))
+            .expect("length matches");
+        let eps_shared = Array3::from_shape_vec(
+            (sh[1], sh[2], sh[3]),
+            rng.normals_f32(sh[1] * sh[2] * sh[3]),
         )
         .expect("length matches");
-        let eps_shared = Array3::from_shape_vec((sh[1], sh[2], sh[3]), rng.normals_f32(sh[1] * sh[2] * sh[3]))
-            .expect("length matches");
-        let z_src = self.schedule.add_noise(z0_src.view(), eps.view(), t)?;
+        let src_noisy = self.schedule.add_noise(z0_src.view(), eps.view(), t)?;
         let z_noisy = self.schedule.add_noise(z0.view(), eps.view(), t)?;
-        let z_tgt = match &p.mvfc {
-            Some(m) => mvfc_path(z_noisy.view(), eps_shared.view(), *m, circular)?,
-            None => z_noisy,
+        let (z_tgt, z_src) = match &p.mvfc {
+            Some(m) => (
+                mvfc_path(z_noisy.view(), eps_shared.view(), *m, circular)?,
+                if p.mvfc_source {
+                    mvfc_path(src_noisy.view(), eps_shared.view(), *m, circular)?
+                } else {
+                    src_noisy
+                },
+            ),
+            None => (z_noisy, src_noisy),
         };
         let control = match self.prior.info().control {
+            // The original render as the prior sees it (over the same fill).
+            Some(crate::prior::ControlKind::Source) => {
+                let imgs: Vec<Array3<f32>> = views
+                    .iter()
+                    .map(|&v| {
+                        to_chw(
+                            &Self::prior_view(&p, self.source, &self.source.rgb[v], v),
+                            h,
+                            w,
+                        )
+                    })
+                    .collect();
+                Some(stack(&imgs)?)
+            }
             Some(kind) => {
                 let pick = |xs: &Vec<Vec<f32>>, c: usize| -> Array4<f32> {
-                    Array4::from_shape_fn((n, h, w, c), |(i, y, x, k)| xs[views[i]][(y * w + x) * c + k])
+                    Array4::from_shape_fn((n, h, w, c), |(i, y, x, k)| {
+                        xs[views[i]][(y * w + x) * c + k]
+                    })
                 };
                 let rgb = pick(&self.source.rgb, 3);
                 let depth = pick(&self.source.depth, 1).remove_axis(Axis(3));
                 let alpha = pick(&self.source.alpha, 1).remove_axis(Axis(3));
-                Some(crate::prior::control_image(kind, rgb.view(), depth.view(), alpha.view())?)
+                Some(crate::prior::control_image(
+                    kind,
+                    rgb.view(),
+                    depth.view(),
+                    alpha.view(),
+                )?)
             }
             None => None,
         };
@@ -345,12 +396,14 @@ impl<'a> Distiller<'a> {
                 z_tgt: z_tgt.view(),
                 z_src: z_src.view(),
                 eps: eps.view(),
+                z0_src: Some(z0_src.view()),
                 t,
                 control: control.as_ref().map(|c| c.view()),
             },
             &p.csd,
         )?;
-        let both = concatenate(Axis(0), &[z1.view(), z0.view()]).map_err(|e| Error::Other(e.to_string()))?;
+        let both = concatenate(Axis(0), &[z1.view(), z0.view()])
+            .map_err(|e| Error::Other(e.to_string()))?;
         let dec = self.prior.decode(both.view())?;
         if dec.shape() != [2 * n, 3, h, w] {
             return Err(Error::Other(format!(
@@ -372,6 +425,15 @@ impl<'a> Distiller<'a> {
                 for x in 0..w {
                     let q = y * w + x;
                     let a = alpha[q];
+                    let rgb = &renders[i][q * 3..q * 3 + 3];
+                    // The object's own colour (un-premultiplied, not clamped).
+                    let c0: [f32; 3] = std::array::from_fn(|k| {
+                        if a >= 1e-4 {
+                            (rgb[k] - (1.0 - a) * bg[k]) / a
+                        } else {
+                            0.0
+                        }
+                    });
                     let mut c = [0.0f32; 3];
                     for k in 0..3 {
                         let d = delta[[i, k, y, x]];
@@ -380,7 +442,7 @@ impl<'a> Distiller<'a> {
                                 "prior asked for a non-finite change at t = {t}"
                             )));
                         }
-                        c[k] = colours[i][q * 3 + k] + d;
+                        c[k] = c0[k] + d;
                         if a > 0.5 {
                             d2 += (d * d) as f64;
                         }
@@ -388,7 +450,8 @@ impl<'a> Distiller<'a> {
                     if p.preserve_color {
                         c = keep_chroma(c, [src[q * 3], src[q * 3 + 1], src[q * 3 + 2]]);
                     }
-                    let c = c.map(|v| v.clamp(0.0, 1.0));
+                    let c: [f32; 3] =
+                        std::array::from_fn(|k| c[k].clamp(c0[k].min(0.0), c0[k].max(1.0)));
                     if a > 0.5 {
                         covered += 1;
                         if c.iter().all(|v| *v <= 0.02) || c.iter().all(|v| *v >= 0.98) {
@@ -396,7 +459,7 @@ impl<'a> Distiller<'a> {
                         }
                     }
                     for k in 0..3 {
-                        targets[[i, y, x, k]] = a * c[k] + (1.0 - a) * bg[k];
+                        targets[[i, y, x, k]] = rgb[k] + a * (c[k] - c0[k]);
                     }
                 }
             }

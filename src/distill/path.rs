@@ -86,13 +86,15 @@ mod tests {
     use crate::camera::load_cameras;
 
     fn orbit(n: usize) -> Vec<Camera> {
-        let mut s = crate::Scene::default();
-        s.positions = vec![[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]];
-        s.log_scales = vec![[0.0; 3]; 2];
-        s.rotations = vec![[1.0, 0.0, 0.0, 0.0]; 2];
-        s.opacity_logits = vec![0.0; 2];
-        s.sh_dc = vec![[0.0; 3]; 2];
-        load_cameras(&format!("orbit:{n}"), &s, 32, 32).unwrap()
+        let s = crate::Scene {
+            positions: vec![[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]],
+            log_scales: vec![[0.0; 3]; 2],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; 2],
+            opacity_logits: vec![0.0; 2],
+            sh_dc: vec![[0.0; 3]; 2],
+            ..Default::default()
+        };
+        load_cameras(&format!("orbit:{n}"), &s.bounds(), 32, 32).unwrap()
     }
 
     #[test]

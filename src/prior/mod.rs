@@ -67,12 +67,14 @@ pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
             Ok(Box::new(OnnxPrior::from_model_dir(md, opts)?))
         }
         // The MVFC/CSD stages' 2D-stylizer prior plugs in here.
-        Family::Stylizer => Ok(Box::new(stylizer::StylizerPrior::open(
-            &md.dir,
-            opts.style_image.as_ref().map(|a| a.view()),
-            opts.threads,
-        )?
-        .with_strength(opts.strength.unwrap_or(1.0))?)),
+        Family::Stylizer => Ok(Box::new(
+            stylizer::StylizerPrior::open(
+                &md.dir,
+                opts.style_image.as_ref().map(|a| a.view()),
+                opts.threads,
+            )?
+            .with_strength(opts.strength.unwrap_or(1.0))?,
+        )),
     }
 }
 
@@ -86,6 +88,9 @@ pub enum ControlKind {
     /// An edge map of the rendered RGB (Sobel gradient magnitude of the luminance, an
     /// approximation of the Canny maps edge ControlNets are trained on), 3 channels.
     Edges,
+    /// The original render itself, RGB: the 2D stylizer takes the content's own style
+    /// from it (a tile-ControlNet would take it too).
+    Source,
 }
 
 /// The conditioning sets of the paper's guidance terms (Sec. 3.3):

@@ -21,13 +21,15 @@
 //!   std left in z_t / sqrt(ab): white noise of std r blurred by a Gaussian of std sigma
 //!   keeps std r / (2 sqrt(pi) sigma), so this leaves about 0.05 (capped for very noisy t).
 //! * the conditionings, with s(x) the style vector of image x, s_style that of the style
-//!   image and s_a = (1 - a) s(x^) + a s_style at style strength a (1 by default):
+//!   image, s_own = s(c) of the control image c (the original render, [`ControlKind::Source`];
+//!   without one, s(x^)) and s_a = (1 - a) s_own + a s_style at style strength a (1 by
+//!   default):
 //!
 //! | Cond | x0_c |
 //! |---|---|
 //! | Null | x^ (the identity: no stylization) |
 //! | Content | x^ (the identity: a stylizer cannot leak the style image's content) |
-//! | Prompt | T(x^, s(x^)): the image redrawn in its own style |
+//! | Prompt | T(x^, s_own): the image redrawn in the scene's own style |
 //! | PromptStyle | T(x^, s_a) |
 //!
 //! The unconditional branches are the identity ([`Prior::unconditional_is_identity`]),
@@ -38,19 +40,21 @@
 //! beta sqrt(ab/(1-ab)),
 //!
 //! ```text
-//! (x_tgt - T(x^_tgt, s_a)) - (x_src - T(x^_src, s(x^_src)))
+//! (x_tgt - T(x^_tgt, s_a)) - (x_src - T(x^_src, s_own))
 //! ```
 //!
 //! which vanishes when the render differs from its stylization as the source differs
 //! from its own restyling: a bounded fixed point near the stylized scene, not a drift
 //! (the first version took Content = T(x^, s(x^)) and Prompt = x^, whose difference
 //! never vanishes and, on a frame that is mostly black, brightens every iteration).
-//! At strength 0, and when the style image is the content itself, s_a = s(x^) and the
-//! gradient is zero at the source. `csd` and `csd-no-neg` coincide for this prior
-//! (Content = Null).
+//! At strength 0, and when the style image is the content itself, s_a = s_own and the
+//! gradient is zero at the source. The own style comes from the clean original render,
+//! not from x^: the style vector of a blurred image is a "smooth" style, and comparing it
+//! with the sharp style image's would ask for a change even when the two are the same
+//! picture. `csd` and `csd-no-neg` coincide for this prior (Content = Null).
 
 use super::session::{Kind, LazyGraph};
-use super::{Cond, Prior, PriorInfo};
+use super::{Cond, ControlKind, Prior, PriorInfo};
 use crate::imageio::{Filter, Image};
 use crate::runtime::SessionConfig;
 use crate::scheduler::{Schedule, SchedulerConfig};
@@ -135,6 +139,9 @@ pub struct StylizerPrior {
     transform: LazyGraph,
     style: Option<Vec<f32>>,
     strength: f32,
+    /// Style vectors of control images seen before, by the blake3 of their pixels (the
+    /// same source view comes back every few iterations).
+    own_styles: std::collections::HashMap<[u8; 32], Vec<f32>>,
 }
 
 impl std::fmt::Debug for StylizerPrior {
@@ -194,7 +201,7 @@ impl StylizerPrior {
             latent_channels: 3,
             downsample: 1,
             scheduler: mj.scheduler,
-            control: None,
+            control: Some(ControlKind::Source),
         };
         let mut p = StylizerPrior {
             info,
@@ -204,6 +211,7 @@ impl StylizerPrior {
             transform,
             style: None,
             strength: 1.0,
+            own_styles: Default::default(),
         };
         if let Some(s) = style {
             if s.shape()[0] != 1 || s.shape()[1] != 3 {
@@ -215,6 +223,21 @@ impl StylizerPrior {
             p.style = Some(p.style_vector(s.index_axis(Axis(0), 0))?);
         }
         Ok(p)
+    }
+
+    /// The style vector of control image `img` `[3, H, W]`, cached by content.
+    fn own_style(&mut self, img: ArrayView3<'_, f32>) -> Result<Vec<f32>> {
+        let mut h = blake3::Hasher::new();
+        for v in img.iter() {
+            h.update(&v.to_le_bytes());
+        }
+        let key = *h.finalize().as_bytes();
+        if let Some(s) = self.own_styles.get(&key) {
+            return Ok(s.clone());
+        }
+        let s = self.style_vector(img)?;
+        self.own_styles.insert(key, s.clone());
+        Ok(s)
     }
 
     /// Set the style strength in [0, 1] (module docs).
@@ -281,7 +304,10 @@ impl StylizerPrior {
             resize(img, sh, sw)
         };
         let (ph, pw) = if self.manifest.transform.dynamic {
-            (sh.max(64).next_multiple_of(8), sw.max(64).next_multiple_of(8))
+            (
+                sh.max(64).next_multiple_of(8),
+                sw.max(64).next_multiple_of(8),
+            )
         } else {
             (size, size)
         };
@@ -449,9 +475,18 @@ impl Prior for StylizerPrior {
         z_t: ArrayView4<'_, f32>,
         t: usize,
         conds: &[Cond],
-        _control: Option<ArrayView4<'_, f32>>,
+        control: Option<ArrayView4<'_, f32>>,
     ) -> Result<Vec<Array4<f32>>> {
         check_rgb(z_t, "z_t")?;
+        if let Some(c) = control
+            && (c.shape()[0] != z_t.shape()[0] || c.shape()[1] != 3)
+        {
+            return Err(Error::param(format!(
+                "stylizer prior: control images {:?} for latents {:?}",
+                c.shape(),
+                z_t.shape()
+            )));
+        }
         if conds.contains(&Cond::PromptStyle) && self.style.is_none() {
             return Err(Error::param(
                 "the stylizer prior needs a style image for the PromptStyle conditioning",
@@ -465,7 +500,10 @@ impl Prior for StylizerPrior {
             let needs_own = conds.contains(&Cond::Prompt)
                 || (conds.contains(&Cond::PromptStyle) && self.strength < 1.0);
             let own = if needs_own {
-                Some(self.style_vector(xh.view())?)
+                Some(match control {
+                    Some(c) => self.own_style(c.index_axis(Axis(0), b))?,
+                    None => self.style_vector(xh.view())?,
+                })
             } else {
                 None
             };

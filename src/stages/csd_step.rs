@@ -193,6 +193,7 @@ pub fn run(a: Args) -> Result<StepReport> {
                 z_tgt: z_tgt.view(),
                 z_src: z_src.view(),
                 eps: eps.view(),
+                z0_src: None,
                 t,
                 control: control.as_ref().map(|c| c.view()),
             },

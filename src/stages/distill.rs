@@ -19,8 +19,8 @@
 //! give the same bytes as one uninterrupted run.
 
 use crate::artifacts::{
-    CHECKPOINT_ADAM_DC, CHECKPOINT_ADAM_REST, CHECKPOINT_HISTORY, CHECKPOINT_STATE,
-    load_scene, read_checkpoint, read_views,
+    CHECKPOINT_ADAM_DC, CHECKPOINT_ADAM_REST, CHECKPOINT_HISTORY, CHECKPOINT_STATE, load_scene,
+    read_checkpoint, read_views,
 };
 use crate::csd::CsdParams;
 use crate::distill::{DistillParams, Distiller, SourceViews};
@@ -92,6 +92,10 @@ pub struct Args {
     /// Skip MVFC (the paper's "w/o MVFC" ablation).
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub no_mvfc: bool,
+    /// Filter the source branch with MVFC too (false: the target only, as in the paper,
+    /// which moves the scene even when the style is its own look).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub mvfc_source: bool,
     #[command(flatten)]
     pub mvfc: MvfcParams,
     /// Timestep set MIN:MAX:COUNT (default: the model's own set).
@@ -131,6 +135,7 @@ fn params(a: &Args) -> DistillParams {
         views_per_iter: a.views_per_iter,
         csd: a.csd,
         mvfc: (!a.no_mvfc).then_some(a.mvfc),
+        mvfc_source: a.mvfc_source,
         preserve_color: a.preserve_color,
         fit_rest: a.fit_rest,
         lr_dc: a.lr_dc,
@@ -162,9 +167,21 @@ pub fn run(a: Args) -> Result<()> {
     let (scene, start, state, history, resumed_from) = match (&a.scene, &a.resume) {
         (_, Some(dir)) => {
             let c = crate::timing::load(|| read_checkpoint(dir))?;
-            (c.scene, c.iteration, Some(c.state), c.history, Some(dir.clone()))
+            (
+                c.scene,
+                c.iteration,
+                Some(c.state),
+                c.history,
+                Some(dir.clone()),
+            )
         }
-        (Some(p), None) => (crate::timing::load(|| load_scene(p))?, 0, None, Vec::new(), None),
+        (Some(p), None) => (
+            crate::timing::load(|| load_scene(p))?,
+            0,
+            None,
+            Vec::new(),
+            None,
+        ),
         (None, None) => return Err(Error::param("give --scene or --resume")),
     };
     let views = crate::timing::load(|| read_views(&a.source_views))?;
@@ -178,7 +195,8 @@ pub fn run(a: Args) -> Result<()> {
     }
     let style = load_style(&a.style, MIN_STYLE_SIDE)?;
     let (_, model_set) = model_timesteps(&a.model)?;
-    let plane = |x: &ndarray::Array3<f32>, i: usize| x.index_axis(Axis(0), i).iter().copied().collect();
+    let plane =
+        |x: &ndarray::Array3<f32>, i: usize| x.index_axis(Axis(0), i).iter().copied().collect();
     let source = SourceViews {
         width: w,
         height: h,
@@ -253,7 +271,12 @@ pub fn run(a: Args) -> Result<()> {
                 reports.push(r);
             }
             bar.finish_and_clear();
-            Ok((d.scene().clone(), d.optimizer_state(), reports, d.last().cloned()))
+            Ok((
+                d.scene().clone(),
+                d.optimizer_state(),
+                reports,
+                d.last().cloned(),
+            ))
         })??
     };
     if let Some(r) = reports.last() {
@@ -273,7 +296,7 @@ pub fn run(a: Args) -> Result<()> {
         serde_json::json!({
             "iters": a.iters, "start": start, "views_per_iter": a.views_per_iter,
             "strength": a.strength, "preserve_color": a.preserve_color, "fit_rest": a.fit_rest,
-            "csd": a.csd, "lr_dc": a.lr_dc, "mvfc": !a.no_mvfc, "gamma": a.mvfc.gamma,
+            "csd": a.csd, "lr_dc": a.lr_dc, "mvfc": !a.no_mvfc, "mvfc_source": a.mvfc_source, "gamma": a.mvfc.gamma,
             "d_s": a.mvfc.d_s, "d_t": a.mvfc.d_t, "timesteps": a.timesteps,
             "fill": !a.no_fill, "seed": a.seed, "prompt": a.prompt, "format": a.format,
         }),
@@ -313,7 +336,8 @@ pub fn run(a: Args) -> Result<()> {
     out.write_json(CHECKPOINT_HISTORY, &hist)?;
     if let Some(l) = &last {
         let sh = |x: &ndarray::Array4<f32>| x.shape().to_vec();
-        let flat = |x: &ndarray::Array4<f32>| x.as_standard_layout().iter().copied().collect::<Vec<_>>();
+        let flat =
+            |x: &ndarray::Array4<f32>| x.as_standard_layout().iter().copied().collect::<Vec<_>>();
         out.write_tensor("last_z0.npy", &sh(&l.z0), &flat(&l.z0))?;
         out.write_tensor("last_z_tgt.npy", &sh(&l.z_tgt), &flat(&l.z_tgt))?;
         out.write_tensor("last_z_src.npy", &sh(&l.z_src), &flat(&l.z_src))?;
