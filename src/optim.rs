@@ -196,6 +196,21 @@ pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
     -10.0 * mse.max(1e-20).log10()
 }
 
+/// The moments and step count of one [`Adam`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct AdamState {
+    pub m: Vec<f32>,
+    pub v: Vec<f32>,
+    pub t: i32,
+}
+
+/// The state of a [`ColourFit`]'s optimizers (f_dc, f_rest).
+#[derive(Debug, Clone, PartialEq)]
+pub struct OptimizerState {
+    pub dc: AdamState,
+    pub rest: AdamState,
+}
+
 /// Adam state for one parameter vector.
 #[derive(Debug, Clone)]
 pub struct Adam {
@@ -220,6 +235,37 @@ impl Adam {
             v: vec![0.0; n],
             t: 0,
         }
+    }
+
+    /// The moments and step count.
+    pub fn state(&self) -> AdamState {
+        AdamState {
+            m: self.m.clone(),
+            v: self.v.clone(),
+            t: self.t,
+        }
+    }
+
+    /// Replace the moments and step count; `what` names the parameters in errors.
+    pub fn set_state(&mut self, s: AdamState, what: &str) -> Result<()> {
+        if s.m.len() != self.m.len() || s.v.len() != self.v.len() {
+            return Err(Error::param(format!(
+                "{what}: optimizer state holds {} / {} moments, the scene needs {}",
+                s.m.len(),
+                s.v.len(),
+                self.m.len()
+            )));
+        }
+        if s.t < 0 || s.m.iter().chain(&s.v).any(|x| !x.is_finite()) || s.v.iter().any(|x| *x < 0.0)
+        {
+            return Err(Error::param(format!(
+                "{what}: optimizer state is not valid (negative step or second moment, or not finite)"
+            )));
+        }
+        self.m = s.m;
+        self.v = s.v;
+        self.t = s.t;
+        Ok(())
     }
 
     /// One update of `params` with gradient `grad`.
@@ -332,6 +378,11 @@ fn check_params(
             )));
         }
     }
+    check_options(p)
+}
+
+/// Learning rates, SSIM weight and background of a fit.
+fn check_options(p: &FitParams) -> Result<()> {
     let lr_ok = |v: f32| v.is_finite() && v >= 0.0;
     if !(lr_ok(p.lr_dc) && lr_ok(p.lr_rest)) {
         return Err(Error::param(format!(
@@ -392,7 +443,7 @@ pub type ViewLoss<'a> = dyn FnMut(usize, &[f32], Option<&[f32]>) -> Result<(f64,
 /// scene. [`fit_colours`] drives it; benchmarks time [`ColourFit::step`] alone.
 pub struct ColourFit<'a> {
     cameras: &'a [Camera],
-    targets: &'a [Vec<f32>],
+    targets: Option<&'a [Vec<f32>]>,
     params: FitParams,
     states: Vec<ViewState>,
     scene: Scene,
@@ -415,6 +466,26 @@ impl<'a> ColourFit<'a> {
         p: &FitParams,
     ) -> Result<ColourFit<'a>> {
         check_params(scene, cameras, targets, 1, p)?;
+        let mut fit = Self::without_targets(scene, cameras, p)?;
+        fit.targets = Some(targets);
+        Ok(fit)
+    }
+
+    /// A fit whose per-step losses the caller supplies ([`Self::step_views`],
+    /// [`Self::step_with`]); it has no targets, so [`Self::step`] must not be called.
+    pub fn without_targets(
+        scene: &Scene,
+        cameras: &'a [Camera],
+        p: &FitParams,
+    ) -> Result<ColourFit<'a>> {
+        validate_scene(scene)?;
+        if cameras.is_empty() {
+            return Err(Error::param("no cameras to fit to"));
+        }
+        for c in cameras {
+            validate_camera(c)?;
+        }
+        check_options(p)?;
         let mut states = Vec::with_capacity(cameras.len());
         let mut cache_bytes = 0usize;
         let mut any_visible = false;
@@ -468,7 +539,7 @@ impl<'a> ColourFit<'a> {
         let n = scene.len();
         Ok(ColourFit {
             cameras,
-            targets,
+            targets: None,
             params: p.clone(),
             states,
             scene: scene.clone(),
@@ -493,7 +564,10 @@ impl<'a> ColourFit<'a> {
         let lp = LossParams {
             ssim_weight: self.params.ssim_weight,
         };
-        let (cameras, targets) = (self.cameras, self.targets);
+        let cameras = self.cameras;
+        let targets = self
+            .targets
+            .expect("ColourFit::step needs the targets given to ColourFit::new");
         let mut loss = |v: usize, rgb: &[f32], alpha: Option<&[f32]>| -> Result<(f64, Vec<f32>)> {
             let (h, w) = (cameras[v].height as usize, cameras[v].width as usize);
             let (l, g) = loss_and_grad(rgb, &targets[v], alpha, h, w, lp);
@@ -510,13 +584,29 @@ impl<'a> ColourFit<'a> {
     /// chained through the colour backward pass. Returns the mean loss over views before
     /// the update; the targets given to [`ColourFit::new`] are not used.
     pub fn step_with(&mut self, view_loss: &mut ViewLoss<'_>) -> Result<f64> {
+        let all: Vec<usize> = (0..self.cameras.len()).collect();
+        self.step_views(&all, view_loss)
+    }
+
+    /// One Adam step over the cameras `views` only (indices into the cameras given to
+    /// [`Self::new`]): the per-view losses' gradients are summed, divided by
+    /// `views.len()`, and applied once. Returns the mean loss over `views` before the
+    /// update. Distillation ([`crate::distill`]) steps on a few adjacent views at a time.
+    pub fn step_views(&mut self, views: &[usize], view_loss: &mut ViewLoss<'_>) -> Result<f64> {
+        if views.is_empty() || views.iter().any(|&v| v >= self.cameras.len()) {
+            return Err(Error::param(format!(
+                "step_views: views {views:?} for {} cameras",
+                self.cameras.len()
+            )));
+        }
         let p = &self.params;
         let out = &self.scene;
         let (grad_dc, grad_rest) = (&mut self.grad_dc, &mut self.grad_rest);
         grad_dc.iter_mut().for_each(|g| *g = [0.0; 3]);
         grad_rest.iter_mut().for_each(|g| *g = 0.0);
         let mut loss_sum = 0.0f64;
-        for (v, (cam, state)) in self.cameras.iter().zip(&self.states).enumerate() {
+        for &v in views {
+            let (cam, state) = (&self.cameras[v], &self.states[v]);
             let centre = cam.center();
             match state {
                 ViewState::Cached { cache, alpha } => {
@@ -542,7 +632,7 @@ impl<'a> ColourFit<'a> {
                 }
             }
         }
-        let nv = self.cameras.len() as f32;
+        let nv = views.len() as f32;
         let gdc: Vec<f32> = grad_dc.iter().flatten().map(|g| g / nv).collect();
         grad_rest.iter_mut().for_each(|g| *g /= nv);
         self.adam_dc.step(&mut self.dc, &gdc);
@@ -551,9 +641,42 @@ impl<'a> ColourFit<'a> {
         for (i, c) in self.scene.sh_dc.iter_mut().enumerate() {
             *c = [dc[i * 3], dc[i * 3 + 1], dc[i * 3 + 2]];
         }
-        let loss = loss_sum / self.cameras.len() as f64;
+        let loss = loss_sum / views.len() as f64;
         self.losses.push(loss as f32);
         Ok(loss)
+    }
+
+    /// Camera `v`'s render `[H, W, 3]` with the current colours (the cached forward
+    /// pass where the view is cached, a full rasterization otherwise).
+    pub fn render_view(&self, v: usize) -> Vec<f32> {
+        let cam = &self.cameras[v];
+        let centre = cam.center();
+        match &self.states[v] {
+            ViewState::Cached { cache, .. } => {
+                let raw = raw_colours(&self.scene, cache.gaussians(), centre);
+                cache.forward(&clamp_colours(&raw), self.params.background)
+            }
+            ViewState::Uncached => {
+                let frame = project(&self.scene, cam);
+                let raw = raw_colours(&self.scene, &frame.splats.ids, centre);
+                composite(&frame, &clamp_colours(&raw), self.params.background).rgb
+            }
+        }
+    }
+
+    /// The optimizer's state (Adam moments and step counts), for checkpoints.
+    pub fn optimizer_state(&self) -> OptimizerState {
+        OptimizerState {
+            dc: self.adam_dc.state(),
+            rest: self.adam_rest.state(),
+        }
+    }
+
+    /// Restore a state saved by [`Self::optimizer_state`] for this scene (same number
+    /// of Gaussians and SH degree), so a resumed fit continues bit for bit.
+    pub fn set_optimizer_state(&mut self, s: OptimizerState) -> Result<()> {
+        self.adam_dc.set_state(s.dc, "f_dc")?;
+        self.adam_rest.set_state(s.rest, "f_rest")
     }
 
     /// The scene as of the last step (geometry as given, colours updated).

@@ -281,6 +281,7 @@ fn csd_refuses_coinciding_style_and_content() {
         z_tgt: z.view(),
         z_src: z.view(),
         eps: z.view(),
+        z0_src: None,
         t: 321,
         control: Some(ctrl.view()),
     };
@@ -418,11 +419,11 @@ fn device_without_gpu_library_is_a_clear_error() {
 fn csd_step_stage_runs_the_fixture_and_refuses_shared_conditioning() {
     let Some(dir) = tiny_sd15() else { return };
     let d = tempfile::tempdir().unwrap();
-    // Two 64x64 views and a 32x32 style image.
+    // Two 64x64 views and a 64x64 style image (the smallest csd-step accepts).
     let views = Array4::from_shape_fn((2, 3, 64, 64), |(v, c, y, x)| {
         0.5 + 0.4 * (((x + 2 * y + 7 * c) as f32) * 0.1 + v as f32).sin()
     });
-    let style = Array4::from_shape_fn((1, 3, 32, 32), |(_, c, y, x)| {
+    let style = Array4::from_shape_fn((1, 3, 64, 64), |(_, c, y, x)| {
         ((x * 3 + y * (c + 1)) % 17) as f32 / 16.0
     });
     let sp = crate::mvfc::csd_inputs(d.path(), &dir, &views, &style);

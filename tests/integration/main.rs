@@ -1,6 +1,7 @@
 //! The integration test binary: one binary, one harness (`harness`), one module per area.
 mod baselines;
 mod diffusion;
+mod distill;
 mod evaluate;
 mod harness;
 mod mvfc;
