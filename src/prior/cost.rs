@@ -22,9 +22,10 @@
 //! underestimates large resolutions a little (BENCHMARKS.md, "Diffusion path"); on a GPU
 //! the nominal rates mean nothing and only the calibrated estimate is given.
 
-use super::manifest::ModelDir;
+use super::manifest::{ModelDir, ModelManifest};
 use crate::runtime::Device;
 use crate::{Error, Result};
+use std::path::Path;
 
 /// UNet work units (bytes x latent pixels x rows) per second on one CPU thread: the
 /// full-size SD 1.5 UNet (random weights, fp32) at 32x32 latents, batch 4, onnxruntime
@@ -103,6 +104,14 @@ pub struct CostModel {
 }
 
 impl CostModel {
+    /// The cost model of the model at `model` (a directory or its `model.json`) with
+    /// `threads` intra-op threads on `device`; `None` for a model without a UNet (the
+    /// stylizer), whose cost the graphs' size does not predict.
+    pub fn for_model(model: &Path, threads: usize, device: Device) -> Result<Option<CostModel>> {
+        let md = ModelManifest::load(model)?;
+        Ok(GraphBytes::of(&md)?.map(|b| CostModel::new(b, threads, device)))
+    }
+
     /// Nominal rates for `threads` intra-op threads (0 = all cores) on `device`.
     pub fn new(bytes: GraphBytes, threads: usize, device: Device) -> Self {
         let n = if threads == 0 {
@@ -179,13 +188,15 @@ impl CostModel {
     }
 }
 
-/// "about 40 seconds", "about 3 minutes", "about 2.5 hours".
+/// "under a second", "about 40 seconds", "about 3 minutes", "about 2.5 hours".
 pub fn about(seconds: f64) -> String {
     if !seconds.is_finite() {
         return "an unknown time".into();
     }
     let s = seconds.max(0.0);
-    if s < 1.5 {
+    if s < 1.0 {
+        "under a second".into()
+    } else if s < 1.5 {
         "about 1 second".into()
     } else if s < 90.0 {
         format!("about {} seconds", s.round() as u64)
@@ -257,7 +268,8 @@ mod tests {
 
     #[test]
     fn about_rounds_to_a_readable_unit() {
-        assert_eq!(about(0.2), "about 1 second");
+        assert_eq!(about(0.2), "under a second");
+        assert_eq!(about(1.2), "about 1 second");
         assert_eq!(about(42.4), "about 42 seconds");
         assert_eq!(about(600.0), "about 10 minutes");
         assert_eq!(about(3.0 * 3600.0), "about 3.0 hours");

@@ -26,8 +26,7 @@
 use super::{DeviceArg, Threads};
 use crate::artifacts::{read_latents, read_noised_latents, read_views};
 use crate::csd::{self, CsdParams, StepInputs};
-use crate::prior::cost::{CostModel, GraphBytes, Plan};
-use crate::prior::manifest::ModelManifest;
+use crate::prior::cost::{CostModel, Plan};
 use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
@@ -206,9 +205,7 @@ pub fn run(a: Args) -> Result<StepReport> {
         encodes: 0,
         decodes: 2 * n,
     };
-    let mut cost = ModelManifest::load(&a.model)
-        .and_then(|md| GraphBytes::of(&md))?
-        .map(|b| CostModel::new(b, a.threads.n, a.device.device));
+    let mut cost = CostModel::for_model(&a.model, a.threads.n, a.device.device)?;
     if let Some(say) = cost.as_ref().and_then(|c| c.describe(&plan)) {
         tracing::info!(
             "csd-step: {n} views x {} conditionings at {}x{} latents: {say}",
