@@ -562,3 +562,56 @@ fn distill_runs_the_fixture_end_to_end_with_a_runtime_prompt() {
     let (rc, err) = distill(shared.path(), &refused, &["--mode", "csd-no-neg"]);
     assert_eq!(rc, Some(0), "{err}");
 }
+
+/// The sample DAG (`data-sample/stylize.toml`) with the fixture as its model
+/// (`--set model=...`) and a run-time prompt (`--set prompt=...`), end to end: source
+/// views, one distill chunk of two iterations through the ControlNet, the final splat,
+/// its renders and the evaluation (64x64, four views: seconds).
+#[test]
+fn sample_dag_runs_with_the_fixture_as_its_model() {
+    let Some(dir) = tiny_sd15() else { return };
+    let pipeline = Path::new(env!("CARGO_BIN_EXE_render-views"))
+        .parent()
+        .unwrap()
+        .join("pipeline");
+    assert!(
+        pipeline.is_file(),
+        "{} is missing: cargo build --workspace --bins",
+        pipeline.display()
+    );
+    let t = tempfile::tempdir().unwrap();
+    let dag = repo_root().join("data-sample/stylize.toml");
+    let prompt = "an ink drawing of a stone bridge";
+    let o = std::process::Command::new(&pipeline)
+        .arg("run")
+        .arg("--dag")
+        .arg(&dag)
+        .args(["--workdir", "w", "--set"])
+        .arg(format!("model={}", dir.display()))
+        .args(["--set", &format!("prompt={prompt}")])
+        .args(["--set", "render.width=64", "--set", "render.height=64"])
+        .args(["--set", "cameras=orbit:4", "--set", "distill.chunks=1"])
+        .args(["--set", "distill.chunk=2", "--set", "distill.views=2"])
+        .current_dir(t.path())
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        out.contains("result  scene    w/runs/final/scene.ply"),
+        "{out}"
+    );
+    let w = t.path().join("w");
+    let log = std::fs::read_to_string(w.join(".pipeline/logs/distill@c1.log")).unwrap();
+    assert!(log.contains(&format!("--prompt '{prompt}'")), "{log}");
+    let c1 = std::fs::read_to_string(w.join("runs/c1/manifest.json")).unwrap();
+    assert!(c1.contains(prompt) && c1.contains("tiny-sd15"), "{c1}");
+    let h: Vec<serde_json::Value> =
+        serde_json::from_slice(&std::fs::read(w.join("runs/c1/history.json")).unwrap()).unwrap();
+    assert_eq!(h.len(), 2);
+    assert!(w.join("runs/eval/report.html").is_file());
+}
