@@ -14,7 +14,7 @@
 
 use super::Frame;
 use super::project::TILE;
-use super::raster::{Plane, Sink, TileState, composite_tile};
+use super::raster::{HALF, Plane, Sink, TileState, composite_tile};
 use super::sh;
 use crate::Scene;
 use rayon::prelude::*;
@@ -24,21 +24,32 @@ pub(crate) struct GradSink<'a> {
     /// Tile-local gradient planes dL/dC (R, G, B).
     pub grad: [Plane; 3],
     pub out: &'a mut Vec<(u32, [f32; 3])>,
+    /// The current splat's sum, pixels in row-major order.
+    sum: [f32; 3],
 }
 
 impl Sink for GradSink<'_> {
     #[inline(always)]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
-        let mut s = [0.0f32; 3];
-        for r in r0..r1 {
-            for c in c0..c1 {
-                let wp = w[r][c];
-                s[0] += wp * self.grad[0][r][c];
-                s[1] += wp * self.grad[1][r][c];
-                s[2] += wp * self.grad[2][r][c];
-            }
+    fn begin(&mut self, _local: u32, _slot: usize) {
+        self.sum = [0.0; 3];
+    }
+
+    #[inline(always)]
+    fn half(&mut self, r: usize, h: usize, w: &[f32; HALF]) {
+        // Half rows that are not reported have zero weight; leaving them out of the sum
+        // changes no bit (the sum starts at +0 and the gradients are finite).
+        let s = &mut self.sum;
+        for (c, &wp) in w.iter().enumerate() {
+            let x = h * HALF + c;
+            s[0] += wp * self.grad[0][r][x];
+            s[1] += wp * self.grad[1][r][x];
+            s[2] += wp * self.grad[2][r][x];
         }
-        self.out.push((local, s));
+    }
+
+    #[inline(always)]
+    fn end(&mut self, local: u32, _slot: usize, _any: bool) {
+        self.out.push((local, self.sum));
     }
 }
 
@@ -89,6 +100,7 @@ pub fn colour_grad_uncached(frame: &Frame, grad_rgb: &[f32]) -> Vec<[f32; 3]> {
             let mut sink = GradSink {
                 grad: load_tile(grad_rgb, frame.width, frame.height, t, frame.tiles_x),
                 out: &mut out,
+                sum: [0.0; 3],
             };
             composite_tile(frame, t, st, &mut sink);
             out
