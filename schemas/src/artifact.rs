@@ -34,6 +34,28 @@ pub fn hash_file(path: &Path) -> Result<String> {
     Ok(h.finalize().to_hex().to_string())
 }
 
+/// Write `bytes` at byte offset `at` of `file`: on Unix in 1 MiB pieces written in
+/// parallel (positional writes do not move a shared cursor), elsewhere in one piece.
+fn write_at(file: &fs::File, bytes: &[u8], at: u64) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use rayon::prelude::*;
+        use std::os::unix::fs::FileExt;
+        const PIECE: usize = 1 << 20;
+        bytes
+            .par_chunks(PIECE)
+            .enumerate()
+            .try_for_each(|(k, c)| file.write_all_at(c, at + (k * PIECE) as u64))
+    }
+    #[cfg(not(unix))]
+    {
+        use std::io::{Seek, SeekFrom, Write};
+        let mut f = file;
+        f.seek(SeekFrom::Start(at))?;
+        f.write_all(bytes)
+    }
+}
+
 /// Feed `bytes` to `h`, in parallel when they are large enough to pay for it.
 pub(crate) fn hash_update(h: &mut blake3::Hasher, bytes: &[u8]) {
     if bytes.len() >= 1 << 20 {
@@ -107,12 +129,14 @@ pub struct ArtifactWriter {
 /// and written into the artifact's staging directory, so the artifact stays atomic.
 /// Start with [`ArtifactWriter::stream_tensor`], end with [`ArtifactWriter::finish_stream`];
 /// the bytes are exactly those [`ArtifactWriter::write_tensor`] writes for the whole
-/// tensor, and so is the manifest entry.
+/// tensor, and so is the manifest entry. Each append hashes (on all cores) and writes
+/// (in 1 MiB pieces at their offsets, in parallel, on Unix) at the same time, so that a
+/// producer on many cores is not held up by one thread copying into the page cache.
 #[derive(Debug)]
 pub struct TensorStream<T> {
     name: String,
     path: PathBuf,
-    file: std::io::BufWriter<fs::File>,
+    file: fs::File,
     hasher: blake3::Hasher,
     shape: Vec<usize>,
     /// Elements still expected.
@@ -125,25 +149,41 @@ pub struct TensorStream<T> {
 impl<T: NpyElement> TensorStream<T> {
     /// Append `data` (C order, continuing where the last append stopped).
     pub fn append(&mut self, data: &[T]) -> Result<()> {
-        use std::io::Write;
-        if data.len() > self.left {
+        let mut buf = std::mem::take(&mut self.buf);
+        buf.clear();
+        T::extend_le(data, &mut buf);
+        let r = self.append_le_bytes(&buf);
+        self.buf = buf;
+        r
+    }
+
+    /// Append elements already encoded as little-endian bytes (see
+    /// [`NpyElement::extend_le`]), e.g. by worker threads.
+    pub fn append_le_bytes(&mut self, bytes: &[u8]) -> Result<()> {
+        let size = T::DTYPE.size();
+        if !bytes.len().is_multiple_of(size) {
+            return Err(SchemaError::invalid(
+                &self.path,
+                format!("{} bytes are not whole {} elements", bytes.len(), T::DTYPE),
+            ));
+        }
+        let n = bytes.len() / size;
+        if n > self.left {
             return Err(SchemaError::invalid(
                 &self.path,
                 format!(
                     "{} more elements than shape {:?} holds",
-                    data.len() - self.left,
+                    n - self.left,
                     self.shape
                 ),
             ));
         }
-        self.buf.clear();
-        T::extend_le(data, &mut self.buf);
-        hash_update(&mut self.hasher, &self.buf);
-        self.file
-            .write_all(&self.buf)
-            .map_err(|e| SchemaError::io(&self.path, e))?;
-        self.left -= data.len();
-        self.bytes += self.buf.len() as u64;
+        let (hasher, file, at) = (&mut self.hasher, &self.file, self.bytes);
+        let ((), written) =
+            rayon::join(|| hash_update(hasher, bytes), || write_at(file, bytes, at));
+        written.map_err(|e| SchemaError::io(&self.path, e))?;
+        self.left -= n;
+        self.bytes += bytes.len() as u64;
         Ok(())
     }
 
@@ -297,8 +337,7 @@ impl ArtifactWriter {
             .try_fold(1usize, |a, &s| a.checked_mul(s))
             .ok_or_else(|| SchemaError::invalid(&p, format!("shape {shape:?} overflows")))?;
         let header = crate::npy::npy_header(T::DTYPE, shape);
-        let f = fs::File::create(&p).map_err(|e| SchemaError::io(&p, e))?;
-        let mut file = std::io::BufWriter::with_capacity(1 << 20, f);
+        let mut file = fs::File::create(&p).map_err(|e| SchemaError::io(&p, e))?;
         file.write_all(&header)
             .map_err(|e| SchemaError::io(&p, e))?;
         let mut hasher = blake3::Hasher::new();
@@ -319,8 +358,7 @@ impl ArtifactWriter {
 
     /// Finish a stream: every element must have been appended. The file joins the
     /// manifest with its hash, size, dtype and shape.
-    pub fn finish_stream<T: NpyElement>(&mut self, mut s: TensorStream<T>) -> Result<()> {
-        use std::io::Write;
+    pub fn finish_stream<T: NpyElement>(&mut self, s: TensorStream<T>) -> Result<()> {
         let Some(i) = self.streaming.iter().position(|n| *n == s.name) else {
             return Err(SchemaError::invalid(
                 &s.path,
@@ -336,7 +374,6 @@ impl ArtifactWriter {
                 ),
             ));
         }
-        s.file.flush().map_err(|e| SchemaError::io(&s.path, e))?;
         self.streaming.swap_remove(i);
         self.files.push(FileEntry {
             name: s.name,
@@ -427,12 +464,19 @@ impl ArtifactWriter {
             .map_err(|e| SchemaError::invalid(&mpath, e.to_string()))?;
         b.push(b'\n');
         fs::write(&mpath, &b).map_err(|e| SchemaError::io(&mpath, e))?;
-        // fsync files so that a crash after the rename never exposes empty files.
+        // fsync files so that a crash after the rename never exposes empty files (in
+        // parallel: the device queues the writes of many files at once).
+        let mut paths = Vec::new();
         for f in fs::read_dir(&self.tmp).map_err(|e| SchemaError::io(&self.tmp, e))? {
-            let p = f.map_err(|e| SchemaError::io(&self.tmp, e))?.path();
-            if let Ok(file) = fs::File::open(&p) {
-                let _ = file.sync_all();
-            }
+            paths.push(f.map_err(|e| SchemaError::io(&self.tmp, e))?.path());
+        }
+        {
+            use rayon::prelude::*;
+            paths.par_iter().for_each(|p| {
+                if let Ok(file) = fs::File::open(p) {
+                    let _ = file.sync_all();
+                }
+            });
         }
         let backup = if self.target.exists() {
             let b = crate::atomic::temp_sibling(&self.target, "old");
@@ -743,7 +787,7 @@ mod tests {
         let mut s = w
             .stream_tensor::<f32>("latents.npy", &[3, 300_000])
             .unwrap();
-        for piece in data.chunks(250_000) {
+        for piece in data.chunks(400_000) {
             s.append(piece).unwrap();
         }
         assert_eq!(s.remaining(), 0);
