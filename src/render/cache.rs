@@ -220,8 +220,16 @@ impl ViewCache {
 
     /// RGB `[H, W, 3]` for colours `colours[j]` of `gaussians()[j]` over `background`.
     pub fn forward(&self, colours: &[[f32; 3]], background: [f32; 3]) -> Vec<f32> {
-        let (w, h) = (self.width, self.height);
-        let mut rgb = vec![0.0f32; w * h * 3];
+        let mut rgb = vec![0.0f32; self.width * self.height * 3];
+        self.forward_into(colours, background, &mut rgb);
+        rgb
+    }
+
+    /// [`Self::forward`] into `rgb` (`[H, W, 3]`, every value overwritten), so that a
+    /// caller rendering many steps reuses one buffer.
+    pub fn forward_into(&self, colours: &[[f32; 3]], background: [f32; 3], rgb: &mut [f32]) {
+        let w = self.width;
+        assert_eq!(rgb.len(), w * self.height * 3, "forward_into: buffer size");
         let tiles_x = self.tiles_x;
         rgb.par_chunks_mut(TILE * w * 3)
             .enumerate()
@@ -256,7 +264,6 @@ impl ViewCache {
                     }
                 }
             });
-        rgb
     }
 
     /// `dL/dc` per entry of `gaussians()` given `dL/dC` as an `[H, W, 3]` image.
