@@ -280,7 +280,7 @@ impl ArtifactWriter {
                 format!("bad file name `{name}` inside an artifact"),
             ));
         }
-        if self.files.iter().any(|f| f.name == name) || self.streaming.iter().any(|n| n == name) {
+        if self.files.iter().any(|f| f.name == name) {
             return Err(SchemaError::invalid(
                 &self.target,
                 format!("file `{name}` written twice"),
@@ -343,6 +343,15 @@ impl ArtifactWriter {
         let mut hasher = blake3::Hasher::new();
         hasher.update(&header);
         self.streaming.push(name.to_string());
+        // The manifest lists files in the order they were started; the entry is filled
+        // in by `finish_stream`.
+        self.files.push(FileEntry {
+            name: name.to_string(),
+            blake3: String::new(),
+            bytes: 0,
+            dtype: Some(T::DTYPE),
+            shape: Some(shape.to_vec()),
+        });
         Ok(TensorStream {
             name: name.to_string(),
             path: p,
@@ -375,13 +384,13 @@ impl ArtifactWriter {
             ));
         }
         self.streaming.swap_remove(i);
-        self.files.push(FileEntry {
-            name: s.name,
-            blake3: s.hasher.finalize().to_hex().to_string(),
-            bytes: s.bytes,
-            dtype: Some(T::DTYPE),
-            shape: Some(s.shape),
-        });
+        let entry = self
+            .files
+            .iter_mut()
+            .find(|f| f.name == s.name)
+            .expect("a started stream has its manifest entry");
+        entry.blake3 = s.hasher.finalize().to_hex().to_string();
+        entry.bytes = s.bytes;
         Ok(())
     }
 
@@ -787,6 +796,8 @@ mod tests {
         let mut s = w
             .stream_tensor::<f32>("latents.npy", &[3, 300_000])
             .unwrap();
+        // Files written while the stream is open are listed after it.
+        w.write_bytes("notes.txt", b"x").unwrap();
         for piece in data.chunks(400_000) {
             s.append(piece).unwrap();
         }
@@ -799,7 +810,8 @@ mod tests {
         );
         w.finish_stream(s).unwrap();
         let b = w.commit().unwrap();
-        assert_eq!(a.files, b.files);
+        assert_eq!(a.files[..], b.files[..1]);
+        assert_eq!(b.files[1].name, "notes.txt");
         assert_eq!(
             fs::read(whole.join("latents.npy")).unwrap(),
             fs::read(streamed.join("latents.npy")).unwrap()
