@@ -661,7 +661,7 @@ impl Artifact {
     /// Read an `f32` tensor and refuse NaN or infinity.
     pub fn read_f32(&self, name: &str) -> Result<NpyArray<f32>> {
         let a = self.read_tensor::<f32>(name)?;
-        if let Some(i) = a.data.iter().position(|x| !x.is_finite()) {
+        if let Some(i) = crate::npy::first_non_finite(&a.data) {
             return Err(SchemaError::Npy {
                 path: self.path(name),
                 reason: format!("element {i} is {} (NaN or infinity not allowed)", a.data[i]),

@@ -306,21 +306,44 @@ pub fn decode_npy<T: NpyElement>(path: &Path, bytes: &[u8]) -> Result<NpyArray<T
             ),
         });
     }
-    let mut data = Vec::with_capacity(n);
-    T::decode_le(body, &mut data);
-    Ok(NpyArray { shape, data })
+    Ok(NpyArray {
+        shape,
+        data: decode_body::<T>(body),
+    })
+}
+
+/// Decode little-endian elements, in parallel pieces when there are many.
+fn decode_body<T: NpyElement>(body: &[u8]) -> Vec<T> {
+    use rayon::prelude::*;
+    const PIECE: usize = 1 << 16;
+    let sz = T::DTYPE.size();
+    let mut data = vec![T::default(); body.len() / sz];
+    data.par_chunks_mut(PIECE)
+        .zip(body.par_chunks(PIECE * sz))
+        .for_each(|(d, b)| {
+            for (x, c) in d.iter_mut().zip(b.chunks_exact(sz)) {
+                *x = T::read_le(c);
+            }
+        });
+    data
 }
 
 /// Read an `f32` tensor, checking it has no NaN or infinity.
 pub fn read_npy_f32(path: &Path) -> Result<NpyArray<f32>> {
     let a = read_npy::<f32>(path)?;
-    if let Some(i) = a.data.iter().position(|x| !x.is_finite()) {
+    if let Some(i) = first_non_finite(&a.data) {
         return Err(SchemaError::Npy {
             path: path.to_path_buf(),
             reason: format!("element {i} is {} (NaN or infinity not allowed)", a.data[i]),
         });
     }
     Ok(a)
+}
+
+/// Index of the first NaN or infinity (searched in parallel).
+pub(crate) fn first_non_finite(v: &[f32]) -> Option<usize> {
+    use rayon::prelude::*;
+    v.par_iter().position_first(|x| !x.is_finite())
 }
 
 /// A `.npy` file read in pieces along its first axis (say one view of `[N, H, W, 3]`
