@@ -26,6 +26,7 @@ pub mod imageio;
 pub mod metrics;
 pub mod mvfc;
 pub mod optim;
+pub mod parallel;
 pub mod prior;
 pub mod render;
 pub mod rng;
