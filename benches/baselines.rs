@@ -8,9 +8,10 @@
 //! Prints the markdown table for BENCHMARKS.md. Times are medians of `BASELINES_BENCH_REPS`
 //! (default 5) runs.
 
+use fantasystyle::baselines::Objective;
 use fantasystyle::baselines::gram::{GramConfig, GramObjective};
 use fantasystyle::baselines::nnfm::{NnfmConfig, NnfmObjective};
-use fantasystyle::baselines::{Image, Objective};
+use fantasystyle::imageio::Image;
 use fantasystyle::rng::Rng;
 use fantasystyle::vgg::{Layer, Tensor3, Vgg16};
 use std::path::PathBuf;
@@ -37,8 +38,8 @@ fn time<F: FnMut()>(reps: usize, mut f: F) -> f64 {
 fn image(seed: u64, s: usize) -> Image {
     let mut r = Rng::new(seed);
     Image {
-        h: s,
-        w: s,
+        width: s,
+        height: s,
         data: (0..s * s * 3).map(|_| r.uniform() as f32).collect(),
     }
 }

@@ -9,11 +9,12 @@
 //! Cameras: the default orbit of `../shared/TARGETS.md` (`orbit:N`: radius 2.2 x the
 //! largest extent, 15 degrees elevation, 50 degrees fov), black background.
 
+use fantasystyle::artifacts::load_scene;
 use fantasystyle::camera::load_cameras;
 use fantasystyle::optim::{ColourFit, FitParams};
 use fantasystyle::render::{CacheMode, RenderOptions, ViewCache, project, render};
 use fantasystyle::rng::Rng;
-use fantasystyle::scene::{load_scene, sh_coeffs};
+use fantasystyle::scene::sh_coeffs;
 use fantasystyle::{Camera, Scene};
 use std::path::PathBuf;
 use std::process::Command;
@@ -100,7 +101,7 @@ fn cpu_ms() -> f64 {
 }
 
 fn cams(scene: &Scene, n: usize, size: u32) -> Vec<Camera> {
-    load_cameras(&format!("orbit:{n}"), scene, size, size).expect("orbit")
+    load_cameras(&format!("orbit:{n}"), &scene.bounds(), size, size).expect("orbit")
 }
 
 /// Forward: mean ms per view over `reps` passes of an 8-view orbit (after one warm-up

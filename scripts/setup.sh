@@ -9,6 +9,7 @@
 #                                libonnxruntime.so.1.31.1 (Linux x86_64, aarch64) or
 #                                libonnxruntime.1.31.1.dylib (macOS arm64)
 #   vendor/models/...            ONNX graphs and weights made by scripts/setup/*
+#   vendor/venv/bin/snakemake    pinned Snakemake for `pipeline export --snakemake` (40_snakemake.sh)
 #
 # Steps under scripts/setup/ run in name order; each is an executable shell or Python
 # script that receives the repo root as $1 and uses vendor/venv/bin/python.

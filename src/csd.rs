@@ -81,14 +81,21 @@ impl Weighting {
     }
 }
 
-/// Parameters of one distillation step.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// Parameters of one distillation step (also `csd-step`'s flags; the field docs are
+/// its `--help`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, clap::Args)]
 pub struct CsdParams {
+    /// Distillation gradient: csd (paper), sds, dds, or csd-no-neg (no negative content guidance).
+    #[arg(long, value_enum, default_value = "csd")]
     pub mode: Mode,
-    /// Guidance scale beta.
+    /// Classifier-free guidance scale beta.
+    #[arg(long, default_value_t = 7.5)]
     pub guidance: f32,
+    /// Timestep weighting w(t): 1-ab, uniform, or sqrt-ab-1-ab (= sqrt(ab)(1-ab)).
+    #[arg(long, value_enum, default_value = "1-ab")]
     pub weighting: Weighting,
-    /// Step size on the clean latents (see module docs).
+    /// Step size on the clean latents: z0' = z0 - lr * w(t) * grad.
+    #[arg(long, default_value_t = 0.1)]
     pub lr: f32,
 }
 

@@ -1,29 +1,42 @@
 //! fantasystyle: restyle a trained 3D Gaussian Splatting scene after a style image by
 //! distilling a 2D prior into the scene's colours (FantasyStyle, AAAI 2026).
 //!
-//! One module per concept; the stage binaries in `stages/` are thin wrappers over
+//! One module per concept; the stage binaries in `stages/` are one line each over
 //! [`stages`]. Where to look:
 //!
 //! | module | what |
 //! |---|---|
-//! | [`scene`] | Gaussian scenes: INRIA `.ply`, `.splat`, the generated sample |
-//! | [`camera`] | cameras: INRIA `cameras.json`, COLMAP, nerfstudio, generated orbits |
+//! | [`scene`] | Gaussian scenes: INRIA `.ply`, `.splat` |
+//! | [`camera`] | cameras: INRIA `cameras.json`, COLMAP, nerfstudio, generated orbits around [`geometry::Bounds`] |
+//! | [`geometry`] | unit vectors, quaternions, look-at frames, bounds (on `glam`) |
+//! | [`imageio`] | the one image type ([`imageio::Image`], HWC RGB f32), its resizer, PNG/JPEG files |
 //! | [`render`] | CPU EWA rasterizer: forward, colour backward, frozen-geometry cache |
 //! | [`optim`] | L1 + D-SSIM loss, Adam over SH colours |
 //! | [`runtime`] | the one onnxruntime environment per process |
+//! | [`models`] | where installed models are found (`$FANTASYSTYLE_MODELS`, `vendor/models`) |
 //! | [`prior`] | the prior interface: ONNX diffusion, Gaussian closed form, 2D stylizer |
 //! | [`scheduler`] | DDIM: alphas, the discrete timestep set, noising, eps/x0/v |
 //! | [`mvfc`] | multi-view frequency consistency (paper Sec. 3.2) |
 //! | [`csd`] | controllable stylized distillation (paper Sec. 3.3) |
-//! | [`metrics`] | LPIPS, FID/KID, ArtFID, view consistency, Gram distance |
-//! | [`stages`] | one function per stage binary, shared CLI plumbing |
+//! | [`vgg`] | VGG16 forward and backward in Rust (the baselines' features) |
+//! | [`baselines`] | Gram, NNFM and per-view refit baselines |
+//! | [`metrics`] | LPIPS, FID/KID, ArtFID, view consistency, Gram distance, the evaluation and its report |
+//! | [`artifacts`] | typed readers of the stages' artifacts (on `fantasystyle_schemas`) |
+//! | [`stages`] | one module per stage binary (`Args` + `run`), shared CLI plumbing |
+//! | [`sample`] | the deterministic sample of `data-sample/` (`make-sample`) |
+//! | [`sweep`] | the speed-accuracy sweep driver and its table |
+//! | [`timing`] | phase timing the stages report to the DAG runner |
+//! | [`rng`], [`error`] | seeded random streams; the typed error and its exit codes |
 
+pub mod artifacts;
 pub mod baselines;
 pub mod camera;
 pub mod csd;
 pub mod error;
+pub mod geometry;
 pub mod imageio;
 pub mod metrics;
+pub mod models;
 pub mod mvfc;
 pub mod optim;
 pub mod parallel;
@@ -31,9 +44,12 @@ pub mod prior;
 pub mod render;
 pub mod rng;
 pub mod runtime;
+pub mod sample;
 pub mod scene;
 pub mod scheduler;
 pub mod stages;
+pub mod sweep;
+pub mod timing;
 pub mod vgg;
 
 pub use camera::Camera;

@@ -47,14 +47,20 @@ use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
 use std::sync::Arc;
 
-/// MVFC parameters.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// MVFC parameters (also `mvfc-filter`'s flags; the field docs are its `--help`).
+#[derive(Debug, Clone, Copy, PartialEq, clap::Args)]
 pub struct MvfcParams {
-    /// Weight of z_t's own low frequencies (paper: 0.9). 1 = identity, 0 = all shared noise.
+    /// Weight of the target's own low frequencies (paper: 0.9; 1 = no change, 0 = shared
+    /// noise only).
+    #[arg(long, default_value_t = 0.9)]
     pub gamma: f32,
-    /// Spatial cut-off d_s (normalised frequency, FreeInit convention), >= 0 or +inf.
+    /// Spatial cut-off d_s of the Gaussian low-pass mask (normalised frequency, FreeInit
+    /// convention; >= 0, `inf` allowed).
+    #[arg(long = "ds", default_value_t = 0.25)]
     pub d_s: f32,
-    /// View cut-off d_t, >= 0 or +inf.
+    /// View cut-off d_t of the Gaussian low-pass mask (normalised frequency; >= 0, `inf`
+    /// allowed).
+    #[arg(long = "dt", default_value_t = 0.25)]
     pub d_t: f32,
 }
 

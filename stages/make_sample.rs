@@ -1,7 +1,4 @@
-//! `make-sample`: thin binary over `fantasystyle::stages::make_sample`.
-use clap::Parser;
-use fantasystyle::stages::{make_sample, run_main};
-
+//! `make-sample`: the stage binary; everything is in [`fantasystyle::stages::make_sample`].
 fn main() -> std::process::ExitCode {
-    run_main(make_sample::Args::parse(), make_sample::run)
+    fantasystyle::stages::run_main(fantasystyle::stages::make_sample::run)
 }

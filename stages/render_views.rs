@@ -1,7 +1,4 @@
-//! `render-views`: thin binary over `fantasystyle::stages::render_views`.
-use clap::Parser;
-use fantasystyle::stages::{render_views, run_main};
-
+//! `render-views`: the stage binary; everything is in [`fantasystyle::stages::render_views`].
 fn main() -> std::process::ExitCode {
-    run_main(render_views::Args::parse(), render_views::run)
+    fantasystyle::stages::run_main(fantasystyle::stages::render_views::run)
 }

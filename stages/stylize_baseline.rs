@@ -1,7 +1,4 @@
-//! `stylize-baseline`: thin binary over `fantasystyle::stages::stylize_baseline`.
-use clap::Parser;
-use fantasystyle::stages::{run_main, stylize_baseline};
-
+//! `stylize-baseline`: the stage binary; everything is in [`fantasystyle::stages::stylize_baseline`].
 fn main() -> std::process::ExitCode {
-    run_main(stylize_baseline::Args::parse(), stylize_baseline::run)
+    fantasystyle::stages::run_main(fantasystyle::stages::stylize_baseline::run)
 }

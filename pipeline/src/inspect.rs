@@ -9,6 +9,7 @@
 //! are clearly in another range);
 //! `[N,H,W]` (depth, alpha) as a grey row.
 
+use crate::error::{Error, Result};
 use fantasystyle_schemas::npy::parse_header;
 use fantasystyle_schemas::{Artifact, DType};
 use image::{Rgb, RgbImage};
@@ -38,18 +39,18 @@ pub struct Tensor {
 }
 
 /// Read any supported `.npy` as f64.
-pub fn read_any(path: &Path) -> Result<Tensor, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let (dtype, shape, off) = parse_header(path, &bytes).map_err(|e| e.to_string())?;
+pub fn read_any(path: &Path) -> Result<Tensor> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let (dtype, shape, off) = parse_header(path, &bytes)?;
     let n: usize = shape.iter().product();
     let body = &bytes[off..];
     if body.len() != n * dtype.size() {
-        return Err(format!(
+        return Err(Error::Inspect(format!(
             "{}: shape {shape:?} needs {} data bytes, file has {}",
             path.display(),
             n * dtype.size(),
             body.len()
-        ));
+        )));
     }
     let c = body.chunks_exact(dtype.size());
     let data: Vec<f64> = match dtype {
@@ -127,7 +128,7 @@ pub enum LatentMode {
 
 /// The text report for `path` (an artifact directory or a `.npy` file), the tensors
 /// found (name, path), and a verification warning if the hashes did not check out.
-pub fn inspect(path: &Path) -> Result<(String, Vec<(String, PathBuf)>), String> {
+pub fn inspect(path: &Path) -> Result<(String, Vec<(String, PathBuf)>)> {
     let mut out = String::new();
     let mut tensors = Vec::new();
     if path.is_dir() {
@@ -135,7 +136,7 @@ pub fn inspect(path: &Path) -> Result<(String, Vec<(String, PathBuf)>), String> 
             Ok(a) => a,
             Err(e) => {
                 let _ = writeln!(out, "WARNING: {e}");
-                Artifact::open_unverified(path).map_err(|e| e.to_string())?
+                Artifact::open_unverified(path)?
             }
         };
         let m = &art.manifest;
@@ -178,7 +179,10 @@ pub fn inspect(path: &Path) -> Result<(String, Vec<(String, PathBuf)>), String> 
             .unwrap_or_default();
         tensors.push((name, path.to_path_buf()));
     } else {
-        return Err(format!("{}: no such file or directory", path.display()));
+        return Err(Error::Inspect(format!(
+            "{}: no such file or directory",
+            path.display()
+        )));
     }
     if !tensors.is_empty() {
         let _ = writeln!(
@@ -209,13 +213,13 @@ pub fn inspect(path: &Path) -> Result<(String, Vec<(String, PathBuf)>), String> 
 
 /// Pick the tensor to draw: `want`, else the first of latents, z_tgt, rgb, else the
 /// first tensor of rank 2 to 4.
-pub fn pick(tensors: &[(String, PathBuf)], want: Option<&str>) -> Result<PathBuf, String> {
+pub fn pick(tensors: &[(String, PathBuf)], want: Option<&str>) -> Result<PathBuf> {
     if let Some(w) = want {
         return tensors
             .iter()
             .find(|(n, _)| n == w || n.trim_end_matches(".npy") == w)
             .map(|(_, p)| p.clone())
-            .ok_or_else(|| format!("no tensor named `{w}`"));
+            .ok_or_else(|| Error::Inspect(format!("no tensor named `{w}`")));
     }
     for pref in ["latents.npy", "z_tgt.npy", "rgb.npy"] {
         if let Some((_, p)) = tensors.iter().find(|(n, _)| n == pref) {
@@ -225,11 +229,11 @@ pub fn pick(tensors: &[(String, PathBuf)], want: Option<&str>) -> Result<PathBuf
     tensors
         .first()
         .map(|(_, p)| p.clone())
-        .ok_or_else(|| "no tensor to draw".to_string())
+        .ok_or_else(|| Error::Inspect("no tensor to draw".into()))
 }
 
 /// Draw a tensor (see the module docs).
-pub fn draw(t: &Tensor, mode: LatentMode) -> Result<RgbImage, String> {
+pub fn draw(t: &Tensor, mode: LatentMode) -> Result<RgbImage> {
     let s = &t.shape;
     const GAP: u32 = 2;
     match s.len() {
@@ -298,9 +302,9 @@ pub fn draw(t: &Tensor, mode: LatentMode) -> Result<RgbImage, String> {
                 }
                 LatentMode::Rgb => {
                     if c < 3 {
-                        return Err(format!(
+                        return Err(Error::Inspect(format!(
                             "rgb mode needs at least 3 channels, the tensor has {c}"
-                        ));
+                        )));
                     }
                     let mut img = canvas(n as u32 * (cw + GAP), chh);
                     for v in 0..n {
@@ -344,18 +348,18 @@ pub fn draw(t: &Tensor, mode: LatentMode) -> Result<RgbImage, String> {
             }
             Ok(img)
         }
-        _ => Err(format!(
+        _ => Err(Error::Inspect(format!(
             "cannot draw a tensor of shape {s:?} (rank 2 to 4 only)"
-        )),
+        ))),
     }
 }
 
 /// Encode as PNG and write atomically.
-pub fn save_png(img: &RgbImage, out: &Path) -> Result<(), String> {
+pub fn save_png(img: &RgbImage, out: &Path) -> Result<()> {
     let mut buf = std::io::Cursor::new(Vec::new());
     img.write_to(&mut buf, image::ImageFormat::Png)
-        .map_err(|e| format!("{}: {e}", out.display()))?;
-    fantasystyle_schemas::atomic_write(out, buf.get_ref()).map_err(|e| e.to_string())
+        .map_err(|e| Error::Inspect(format!("{}: {e}", out.display())))?;
+    Ok(fantasystyle_schemas::atomic_write(out, buf.get_ref())?)
 }
 
 fn canvas(w: u32, h: u32) -> RgbImage {

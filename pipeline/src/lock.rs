@@ -7,9 +7,13 @@
 //! first word and the blake3 of that executable); every dep's hash (an artifact
 //! directory hashes as its manifest, see `fantasystyle_schemas::hash_path`); every
 //! tracked param's hash (blake3 of its canonical JSON); every output's hash; `status`
-//! (`ok` or `failed`), wall time and the log file. `last_run` records the wall time of
+//! (`ok` or `failed`), wall time and the log file; and, per artifact output, the size
+//! and modification time of each file its manifest lists (see [`FileStamp`]), so that
+//! a file changed, truncated or deleted behind the runner's back is noticed cheaply.
+//! `last_run` records the wall time of
 //! the most recent `pipeline run` as a whole, for `pipeline report`.
 
+use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -65,6 +69,37 @@ pub struct Entry {
     /// e.g. `load_s`, `compute_s`, `io_s`); empty when it reported none.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub timing: BTreeMap<String, f64>,
+    /// Per artifact output, its manifest's files as they were when the stage finished
+    /// (absent for plain-file outputs and for locks written before this field).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub files: BTreeMap<String, BTreeMap<String, FileStamp>>,
+}
+
+/// A file of an artifact output as the runner last saw it: size and modification
+/// time (nanoseconds since the Unix epoch). When both still match, the file is taken
+/// as unchanged without hashing it (the manifest holds its blake3); when either
+/// differs, it is hashed and compared with the manifest (as DVC does with its cache).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileStamp {
+    pub bytes: u64,
+    pub mtime_ns: u64,
+}
+
+impl FileStamp {
+    /// The stamp of `p` now, if it is a readable file.
+    pub fn of(p: &Path) -> Option<FileStamp> {
+        let m = std::fs::metadata(p).ok().filter(|m| m.is_file())?;
+        let mtime_ns = m
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map_or(0, |d| d.as_nanos() as u64);
+        Some(FileStamp {
+            bytes: m.len(),
+            mtime_ns,
+        })
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -80,7 +115,7 @@ pub struct RunRecord {
 
 impl Lock {
     /// Read a lock file; a missing file is an empty lock.
-    pub fn read(path: &Path) -> Result<Lock, String> {
+    pub fn read(path: &Path) -> Result<Lock> {
         let text = match std::fs::read_to_string(path) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -89,27 +124,27 @@ impl Lock {
                     ..Lock::default()
                 });
             }
-            Err(e) => return Err(format!("{}: {e}", path.display())),
+            Err(e) => return Err(Error::io(path, e)),
         };
-        let lock: Lock = serde_json::from_str(&text).map_err(|e| {
-            format!(
-                "{}: not a valid lock file ({e}); delete it to rebuild everything",
-                path.display()
-            )
+        let lock: Lock = serde_json::from_str(&text).map_err(|e| Error::Lock {
+            path: path.to_path_buf(),
+            reason: format!("not a valid lock file ({e})"),
         })?;
         if lock.version != LOCK_VERSION {
-            return Err(format!(
-                "{}: lock file version {} (this build reads {LOCK_VERSION}); delete it to rebuild everything",
-                path.display(),
-                lock.version
-            ));
+            return Err(Error::Lock {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "lock file version {} (this build reads {LOCK_VERSION})",
+                    lock.version
+                ),
+            });
         }
         Ok(lock)
     }
 
     /// Write atomically.
-    pub fn write(&self, path: &Path) -> Result<(), String> {
-        fantasystyle_schemas::atomic_write_json(path, self).map_err(|e| e.to_string())
+    pub fn write(&self, path: &Path) -> Result<()> {
+        Ok(fantasystyle_schemas::atomic_write_json(path, self)?)
     }
 }
 
@@ -148,12 +183,13 @@ mod tests {
                 finished_unix: 1,
                 log: ".pipeline/logs/a.log".into(),
                 timing: BTreeMap::new(),
+                files: BTreeMap::new(),
             },
         );
         l.write(&p).unwrap();
         assert_eq!(Lock::read(&p).unwrap().stages["a"], l.stages["a"]);
         std::fs::write(&p, "{\"version\": 1, \"stages\": {}, \"extra\": 1}").unwrap();
-        let e = Lock::read(&p).unwrap_err();
+        let e = Lock::read(&p).unwrap_err().to_string();
         assert!(
             e.contains("not a valid lock file") && e.contains("extra"),
             "{e}"

@@ -1,7 +1,7 @@
 //! `pipeline`: run, explain and inspect a DAG of fantasystyle stages.
 //! Exit codes: 0 ok, 1 a stage failed, 2 a DAG or usage error.
-use clap::{Parser, Subcommand};
-use fantasystyle_pipeline::{dag, inspect, run, show, tools};
+use clap::{Args, Parser, Subcommand};
+use fantasystyle_pipeline::{Error, dag, inspect, run, show, tools};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -14,13 +14,28 @@ struct Cli {
     cmd: Cmd,
 }
 
+/// Which DAG, where its outputs go, and overrides of its values.
+#[derive(Args, Debug)]
+struct DagArgs {
+    /// The DAG file (TOML).
+    #[arg(long)]
+    dag: PathBuf,
+    /// Work directory: commands run here and every output, the lock, logs and the pid
+    /// file go here (default: the DAG's directory).
+    #[arg(long, short = 'w')]
+    workdir: Option<PathBuf>,
+    /// Override a [vars] value or a params value (dotted key): NAME=VALUE. A value that
+    /// names an existing path is taken relative to the current directory. Repeatable.
+    #[arg(long = "set", short = 's', value_name = "NAME=VALUE")]
+    sets: Vec<String>,
+}
+
 #[derive(Subcommand, Debug)]
 enum Cmd {
     /// Run the stale stages of a DAG (and of TARGETS' upstream only, when given).
     Run {
-        /// The DAG file (TOML).
-        #[arg(long)]
-        dag: PathBuf,
+        #[command(flatten)]
+        dag: DagArgs,
         /// Stage names (`csd-step@r3`) or base names (`csd-step`, every round).
         targets: Vec<String>,
         /// Run the selected stages even when up to date.
@@ -38,25 +53,40 @@ enum Cmd {
     },
     /// Say for each stage whether it is up to date, or stale and why.
     Status {
-        #[arg(long)]
-        dag: PathBuf,
+        #[command(flatten)]
+        dag: DagArgs,
     },
     /// Print the graph: stages in run order, or Graphviz DOT with --dot.
     Dag {
-        #[arg(long)]
-        dag: PathBuf,
+        #[command(flatten)]
+        dag: DagArgs,
         #[arg(long)]
         dot: bool,
     },
+    /// Write the DAG as a Snakefile (one rule per stage, the same commands), to run it
+    /// with Snakemake and its cluster or cloud executors.
+    Export {
+        #[command(flatten)]
+        dag: DagArgs,
+        /// Export for Snakemake (the one format so far).
+        #[arg(long, required = true)]
+        snakemake: bool,
+        /// Where to write the Snakefile (written atomically).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Wall time per stage against the compute time stages reported.
     Report {
-        #[arg(long)]
-        dag: PathBuf,
+        #[command(flatten)]
+        dag: DagArgs,
     },
     /// Show an artifact's manifest and tensor statistics (or a lone .npy's).
     Inspect {
-        /// An artifact directory or a .npy file.
+        /// An artifact directory or a .npy file (relative to --workdir when given).
         path: PathBuf,
+        /// The work directory a relative PATH is in (as given to `pipeline run`).
+        #[arg(long, short = 'w')]
+        workdir: Option<PathBuf>,
         /// Draw a tensor into this PNG.
         #[arg(long)]
         png: Option<PathBuf>,
@@ -96,10 +126,24 @@ enum Cmd {
     },
 }
 
-fn load(p: &std::path::Path) -> Result<dag::Dag, ExitCode> {
-    dag::load(p).map_err(|e| {
-        eprintln!("{e}");
-        ExitCode::from(2)
+fn load(a: &DagArgs) -> Result<dag::Dag, ExitCode> {
+    let sets = a
+        .sets
+        .iter()
+        .map(|s| s.parse::<dag::Set>())
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| fail(2, e))?;
+    let opts = dag::LoadOptions {
+        workdir: a.workdir.clone(),
+        sets,
+    };
+    dag::load_with(&a.dag, &opts).map_err(|e| match e {
+        // DAG problems read `file:line: problem`.
+        Error::Dag(d) => {
+            eprintln!("{d}");
+            ExitCode::from(2)
+        }
+        e => fail(2, e),
     })
 }
 
@@ -161,6 +205,27 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
             print!("{}", if dot { show::dot(&d) } else { show::text(&d) });
             ExitCode::SUCCESS
         }
+        Cmd::Export {
+            dag,
+            snakemake: _,
+            out,
+        } => {
+            let d = load(&dag)?;
+            let bin_dir = std::env::current_exe()
+                .ok()
+                .and_then(|e| e.parent().map(|p| p.to_path_buf()))
+                .unwrap_or_else(|| PathBuf::from("."));
+            let text =
+                fantasystyle_pipeline::export::snakefile(&d, &bin_dir).map_err(|e| fail(2, e))?;
+            fantasystyle_schemas::atomic_write(&out, text.as_bytes()).map_err(|e| fail(2, e))?;
+            println!(
+                "wrote {} ({} rules); run: snakemake -s {} --cores 2",
+                out.display(),
+                d.stages.len() + 1,
+                out.display()
+            );
+            ExitCode::SUCCESS
+        }
         Cmd::Report { dag } => match show::report(&load(&dag)?) {
             Ok(t) => {
                 print!("{t}");
@@ -170,10 +235,15 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
         },
         Cmd::Inspect {
             path,
+            workdir,
             png,
             mode,
             tensor,
         } => {
+            let path = match workdir {
+                Some(w) if path.is_relative() => w.join(path),
+                _ => path,
+            };
             let (text, tensors) = inspect::inspect(&path).map_err(|e| fail(2, e))?;
             print!("{text}");
             if let Some(out) = png {

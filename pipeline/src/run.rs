@@ -1,8 +1,10 @@
 //! Running a DAG: stale stages in topological order, independent ones in parallel.
 //!
-//! Each stage runs as `sh -c CMD` in the DAG's directory, with the `pipeline`
-//! executable's own directory first on PATH (so sibling stage binaries are found), its
-//! stdout and stderr going to `.pipeline/logs/NAME.log` next to the DAG.
+//! Each stage runs as `sh -c CMD` in the work directory (`--workdir`, default the
+//! DAG's directory), with the `pipeline` executable's own directory first on PATH (so
+//! sibling stage binaries are found), its stdout and stderr going to
+//! `.pipeline/logs/NAME.log` in the work directory. At the end of a successful run the
+//! DAG's `[result]` paths are printed.
 //!
 //! Resume semantics (what makes an interrupted run safe to restart):
 //! * A stage counts as done only when the lock records it `ok`, which the runner writes
@@ -25,6 +27,7 @@
 //!   for a done one.
 
 use crate::dag::Dag;
+use crate::error::{Error, Result};
 use crate::lock::{Entry, Lock, RunRecord, Status, now_unix};
 use crate::state::{Fingerprint, Hasher, Reason, reasons, stage_path_env};
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -54,11 +57,6 @@ pub struct Summary {
     /// Not run because an upstream stage failed (or the run stopped).
     pub blocked: Vec<String>,
 }
-
-/// A DAG-level problem (exit code 2), as opposed to a stage failure.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct UsageError(pub String);
 
 /// For each selected stage (topological order), the reasons it is stale, with
 /// [`Reason::Upstream`] added where an upstream stage is stale.
@@ -100,10 +98,9 @@ pub fn plan(
 /// is gone (a killed runner).
 struct RunGuard(PathBuf);
 impl RunGuard {
-    fn take(state: &Path) -> Result<RunGuard, UsageError> {
+    fn take(state: &Path) -> Result<RunGuard> {
         use std::io::ErrorKind;
-        std::fs::create_dir_all(state)
-            .map_err(|e| UsageError(format!("{}: {e}", state.display())))?;
+        std::fs::create_dir_all(state).map_err(|e| Error::io(state, e))?;
         let p = state.join("run.pid");
         for _ in 0..3 {
             // create_new: of two runners starting at once, exactly one gets the file.
@@ -120,21 +117,21 @@ impl RunGuard {
                     let pid = std::fs::read_to_string(&p).unwrap_or_default();
                     let pid = pid.trim();
                     if !pid.is_empty() && Path::new("/proc").join(pid).exists() {
-                        return Err(UsageError(format!(
-                            "another pipeline run (pid {pid}) is using this DAG ({}); wait for it or remove the file if it is stale",
-                            p.display()
-                        )));
+                        return Err(Error::Busy {
+                            pid: pid.to_string(),
+                            path: p,
+                        });
                     }
                     // A killed runner's file: take it over.
                     let _ = std::fs::remove_file(&p);
                 }
-                Err(e) => return Err(UsageError(format!("{}: {e}", p.display()))),
+                Err(e) => return Err(Error::io(p, e)),
             }
         }
-        Err(UsageError(format!(
-            "{}: could not take the run lock",
-            p.display()
-        )))
+        Err(Error::io(
+            p,
+            std::io::Error::other("could not take the run lock"),
+        ))
     }
 }
 impl Drop for RunGuard {
@@ -202,11 +199,11 @@ enum St {
 
 /// Run the DAG. Stage failures are reported in the summary; DAG-level problems are
 /// errors.
-pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
+pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
-    let selected = dag.select(&opts.targets).map_err(UsageError)?;
+    let selected = dag.select(&opts.targets)?;
     let lock_path = dag.lock_path();
-    let mut lock = Lock::read(&lock_path).map_err(UsageError)?;
+    let mut lock = Lock::read(&lock_path)?;
     let path_env = stage_path_env();
     let mut hasher = Hasher::new(path_env.clone());
     let mut summary = Summary::default();
@@ -228,12 +225,12 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
         return Ok(summary);
     }
 
+    std::fs::create_dir_all(&dag.workdir).map_err(|e| Error::io(&dag.workdir, e))?;
     let _guard = RunGuard::take(&dag.state_dir())?;
     // Forget stages that are no longer in the DAG (e.g. after lowering `rounds`).
     lock.stages.retain(|name, _| dag.index(name).is_some());
     let log_dir = dag.state_dir().join("logs");
-    std::fs::create_dir_all(&log_dir)
-        .map_err(|e| UsageError(format!("{}: {e}", log_dir.display())))?;
+    std::fs::create_dir_all(&log_dir).map_err(|e| Error::io(&log_dir, e))?;
 
     let mp = MultiProgress::with_draw_target(ProgressDrawTarget::stderr());
     let overall = mp.add(ProgressBar::new(selected.len() as u64));
@@ -286,6 +283,9 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
                 r.push(Reason::Forced);
             }
             if r.is_empty() {
+                if let Some(e) = lock.stages.get_mut(&s.name) {
+                    refresh_stamps(dag, s, e);
+                }
                 st[i] = St::Done;
                 summary.up_to_date.push(s.name.clone());
                 say(format!("up to date  {}", s.name));
@@ -316,7 +316,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
                 i,
                 s.name.clone(),
                 s.cmd.clone(),
-                dag.dir.clone(),
+                dag.workdir.clone(),
                 env,
                 log,
                 tx.clone(),
@@ -367,7 +367,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
         let log_rel = format!(".pipeline/logs/{}.log", s.name);
         if let Some(e) = &error {
             append_log(
-                &dag.dir.join(&log_rel),
+                &dag.workdir.join(&log_rel),
                 &format!("pipeline: stage failed: {e}"),
             );
             clean_failed(dag, &s.outs);
@@ -378,6 +378,15 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
             s.outs
                 .iter()
                 .map(|o| (o.clone(), crate::state::hash_or_missing(&dag.path(o))))
+                .collect()
+        } else {
+            BTreeMap::new()
+        };
+        let files: BTreeMap<_, _> = if ok {
+            s.outs
+                .iter()
+                .map(|o| (o.clone(), crate::state::stamp_files(&dag.path(o))))
+                .filter(|(_, f)| !f.is_empty())
                 .collect()
         } else {
             BTreeMap::new()
@@ -400,9 +409,10 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
                 } else {
                     BTreeMap::new()
                 },
+                files,
             },
         );
-        lock.write(&lock_path).map_err(UsageError)?;
+        lock.write(&lock_path)?;
         if let Some(sp) = spinners[i].take() {
             sp.finish_and_clear();
         }
@@ -414,7 +424,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
                 "FAILED      {} ({:.1}s): {e}; log: {}",
                 s.name,
                 out.duration,
-                dag.dir.join(&log_rel).display()
+                dag.workdir.join(&log_rel).display()
             ));
             if !opts.keep_going {
                 stop = true;
@@ -437,7 +447,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
         jobs,
         finished_unix: now_unix(),
     });
-    lock.write(&lock_path).map_err(UsageError)?;
+    lock.write(&lock_path)?;
     if summary.ran.is_empty() && summary.failed.is_empty() && summary.blocked.is_empty() {
         println!("nothing to run: all {} stages up to date", selected.len());
     } else {
@@ -450,7 +460,47 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary, UsageError> {
             t0.elapsed().as_secs_f64()
         );
     }
+    if summary.failed.is_empty() && summary.blocked.is_empty() {
+        print!("{}", result_lines(dag));
+    }
     Ok(summary)
+}
+
+/// The DAG's `[result]` paths that exist, one `result  NAME  PATH` line each, with
+/// paths as seen from the current directory.
+pub fn result_lines(dag: &Dag) -> String {
+    let cwd = crate::dag::absolute(Path::new("."));
+    let mut out = String::new();
+    for (name, p) in &dag.result {
+        let full = dag.path(p);
+        if full.exists() {
+            let shown = crate::dag::relative(&crate::dag::lexical(&full), &cwd);
+            out.push_str(&format!("result  {name:<8} {shown}\n"));
+        }
+    }
+    out
+}
+
+/// For an up-to-date stage: bring the lock's file stamps of its artifact outputs up to
+/// date, so that a file whose mtime moved but whose bytes did not is hashed once, not
+/// at every check (as DVC refreshes its cache state). Files with a moved mtime were
+/// just hashed and found equal to the manifest by `reasons`; outputs with no stamps at
+/// all (a lock from before stamps existed) are verified by hashing every file first.
+fn refresh_stamps(dag: &Dag, s: &crate::dag::Stage, e: &mut Entry) {
+    for o in &s.outs {
+        let p = dag.path(o);
+        let now = crate::state::stamp_files(&p);
+        if now.is_empty() {
+            continue;
+        }
+        let ok = match e.files.get(o) {
+            Some(old) => *old != now,
+            None => fantasystyle_schemas::Artifact::open_any(&p).is_ok(),
+        };
+        if ok {
+            e.files.insert(o.clone(), now);
+        }
+    }
 }
 
 /// Environment variable naming the file where a stage may report its timing.
@@ -524,12 +574,11 @@ fn spawn_stage(
 ) {
     std::thread::spawn(move || {
         let t = Instant::now();
-        let res = (|| -> Result<std::process::ExitStatus, String> {
-            let mut f =
-                std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
+        let res = (|| -> Result<std::process::ExitStatus> {
+            let mut f = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
             writeln!(f, "# stage {name}\n# cmd: {cmd}\n# cwd: {}", dir.display())
-                .map_err(|e| format!("{}: {e}", log.display()))?;
-            let err = f.try_clone().map_err(|e| e.to_string())?;
+                .map_err(|e| Error::io(&log, e))?;
+            let err = f.try_clone().map_err(|e| Error::io(&log, e))?;
             let status = Command::new("sh")
                 .arg("-c")
                 .arg(&cmd)
@@ -539,7 +588,7 @@ fn spawn_stage(
                 .stdout(f)
                 .stderr(err)
                 .status()
-                .map_err(|e| format!("cannot start `sh -c`: {e}"))?;
+                .map_err(|e| Error::io("sh", e))?;
             Ok(status)
         })();
         let duration = t.elapsed().as_secs_f64();
@@ -553,7 +602,7 @@ fn spawn_stage(
             Err(e) => Outcome {
                 exit: None,
                 signal: None,
-                error: Some(e),
+                error: Some(e.to_string()),
                 duration,
             },
         };

@@ -10,13 +10,14 @@
 //! artifact manifests, which must stay byte-identical between runs.
 
 use crate::dag::Dag;
+use crate::error::Result;
 use crate::lock::Lock;
 use crate::run::plan;
 use crate::state::{Hasher, stage_path_env};
 use std::fmt::Write;
 
 /// `pipeline status`: one line per stage.
-pub fn status(dag: &Dag) -> Result<String, String> {
+pub fn status(dag: &Dag) -> Result<String> {
     let lock = Lock::read(&dag.lock_path())?;
     let mut h = Hasher::new(stage_path_env());
     let all: Vec<usize> = (0..dag.stages.len()).collect();
@@ -100,7 +101,7 @@ pub fn dot(dag: &Dag) -> String {
 
 /// `pipeline report`: per stage wall time (from the lock) and reported phases; totals
 /// and the share of wall time spent outside stage compute.
-pub fn report(dag: &Dag) -> Result<String, String> {
+pub fn report(dag: &Dag) -> Result<String> {
     let lock = Lock::read(&dag.lock_path())?;
     let mut out = String::new();
     let _ = writeln!(

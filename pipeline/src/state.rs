@@ -3,13 +3,21 @@
 //!
 //! A stage is up to date when the lock has an `ok` entry whose cmd, binary hash, dep
 //! hashes and param hashes equal the current ones and every output exists with the
-//! recorded hash. Anything else is a [`Reason`] to run it. Because outputs are
-//! compared by content, an output replaced or half-written behind the runner's back
-//! makes its stage stale, and a rerun that reproduces byte-identical outputs leaves
-//! downstream stages up to date.
+//! recorded hash, and every file an artifact output's manifest lists is still the file
+//! the manifest describes. Anything else is a [`Reason`] to run it. Because outputs
+//! are compared by content, an output replaced or half-written behind the runner's
+//! back makes its stage stale, and a rerun that reproduces byte-identical outputs
+//! leaves downstream stages up to date.
+//!
+//! Output integrity, cheaply (as DVC does): an artifact directory hashes as its
+//! manifest, which lists each file's size and blake3; the lock keeps each file's size
+//! and mtime as the runner saw them after the stage. A file whose size and mtime still
+//! match is taken as unchanged; a missing file, or one of another size than the
+//! manifest says, is broken without hashing; only a file whose mtime changed is
+//! hashed and compared with the manifest.
 
-use crate::dag::{Dag, Stage};
-use crate::lock::{Binary, Entry, Status};
+use crate::dag::{Dag, Stage, is_value_dep};
+use crate::lock::{Binary, Entry, FileStamp, Status};
 use std::collections::{BTreeMap, HashMap};
 use std::ffi::OsString;
 use std::fmt;
@@ -29,6 +37,12 @@ pub enum Reason {
     MissingOutput(String),
     NewOutput(String),
     ChangedOutput(String),
+    /// A file of an artifact output no longer matches the output's manifest.
+    BrokenOutput {
+        out: String,
+        file: String,
+        how: String,
+    },
     /// An upstream stage will run first (used by `status` and `--dry-run`).
     Upstream(String),
 }
@@ -47,6 +61,9 @@ impl fmt::Display for Reason {
             Reason::MissingOutput(o) => write!(f, "missing output {o}"),
             Reason::NewOutput(o) => write!(f, "output {o} not recorded by the last run"),
             Reason::ChangedOutput(o) => write!(f, "output {o} modified since it was written"),
+            Reason::BrokenOutput { out, file, how } => {
+                write!(f, "output {out}: file {file} {how}")
+            }
             Reason::Upstream(s) => write!(f, "upstream {s} is stale"),
         }
     }
@@ -85,7 +102,7 @@ impl Hasher {
         let deps = stage
             .deps
             .iter()
-            .map(|d| (d.clone(), hash_or_missing(&dag.path(d))))
+            .map(|d| (d.clone(), hash_dep(dag, d)))
             .collect();
         let params = stage
             .params
@@ -98,7 +115,7 @@ impl Hasher {
             .collect();
         Fingerprint {
             cmd: stage.cmd.clone(),
-            binary: self.binary(&dag.dir, &stage.cmd),
+            binary: self.binary(&dag.workdir, &stage.cmd),
             deps,
             params,
         }
@@ -141,6 +158,75 @@ pub fn hash_or_missing(p: &Path) -> String {
         return MISSING.into();
     }
     fantasystyle_schemas::hash_path(p).unwrap_or_else(|e| format!("unreadable: {e}"))
+}
+
+/// The hash of a dep: a value (`orbit:16`) by its text, a path by its content.
+pub fn hash_dep(dag: &Dag, d: &str) -> String {
+    if is_value_dep(d) {
+        format!("value:{}", blake3::hash(d.as_bytes()).to_hex())
+    } else {
+        hash_or_missing(&dag.path(d))
+    }
+}
+
+/// The stamps of the files an artifact output's manifest lists (empty for a plain
+/// file or a directory without a manifest).
+pub fn stamp_files(out: &Path) -> BTreeMap<String, FileStamp> {
+    let Ok(a) = fantasystyle_schemas::Artifact::open_unverified(out) else {
+        return BTreeMap::new();
+    };
+    a.manifest
+        .files
+        .iter()
+        .filter_map(|f| FileStamp::of(&out.join(&f.name)).map(|s| (f.name.clone(), s)))
+        .collect()
+}
+
+/// The files of artifact output `out` (at `dir`) that no longer match its manifest,
+/// with how: missing, another size, or (size the same, mtime not) another blake3.
+pub fn broken_files(out: &str, dir: &Path, recorded: &BTreeMap<String, FileStamp>) -> Vec<Reason> {
+    let Ok(a) = fantasystyle_schemas::Artifact::open_unverified(dir) else {
+        return vec![Reason::ChangedOutput(out.to_string())];
+    };
+    let mut r = Vec::new();
+    let mut broken = |file: &str, how: String| {
+        r.push(Reason::BrokenOutput {
+            out: out.to_string(),
+            file: file.to_string(),
+            how,
+        })
+    };
+    for f in &a.manifest.files {
+        let p = dir.join(&f.name);
+        let Some(now) = FileStamp::of(&p) else {
+            broken(&f.name, "missing".into());
+            continue;
+        };
+        if now.bytes < f.bytes {
+            broken(
+                &f.name,
+                format!("truncated ({} of {} bytes)", now.bytes, f.bytes),
+            );
+        } else if now.bytes != f.bytes {
+            broken(
+                &f.name,
+                format!(
+                    "changed size ({} bytes, manifest says {})",
+                    now.bytes, f.bytes
+                ),
+            );
+        } else if recorded.get(&f.name) != Some(&now) {
+            match fantasystyle_schemas::hash_file(&p) {
+                Ok(h) if h == f.blake3 => {}
+                Ok(_) => broken(
+                    &f.name,
+                    "changed (its blake3 differs from the manifest's)".into(),
+                ),
+                Err(e) => broken(&f.name, format!("unreadable ({e})")),
+            }
+        }
+    }
+    r
 }
 
 /// The PATH stage commands run with: the directory of the running `pipeline`
@@ -230,6 +316,8 @@ pub fn reasons(dag: &Dag, stage: &Stage, fp: &Fingerprint, entry: Option<&Entry>
             r.push(Reason::NewOutput(o.clone()));
         } else if e.outs.get(o) != Some(&hash_or_missing(&p)) {
             r.push(Reason::ChangedOutput(o.clone()));
+        } else if let Some(stamps) = e.files.get(o) {
+            r.extend(broken_files(o, &p, stamps));
         }
     }
     r

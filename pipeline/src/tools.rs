@@ -6,16 +6,20 @@
 //!   a `latents` artifact slowly, in steps, and can be told to abort at a step
 //!   (`PIPELINE_TEST_ABORT=<substring of --out>:<step>`), like a stage killed mid-write.
 
+use crate::error::{Error, Result};
 use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer, SchemaError};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Copy `files` (by base name) into a new artifact of `kind` at `out`.
-pub fn wrap(kind: &str, files: &[PathBuf], out: &Path) -> Result<(), String> {
+pub fn wrap(kind: &str, files: &[PathBuf], out: &Path) -> Result<()> {
     let kind: ArtifactKind = serde_json::from_value(serde_json::Value::String(kind.into()))
         .map_err(|_| {
             let all: Vec<&str> = ArtifactKind::ALL.iter().map(|k| k.as_str()).collect();
-            format!("unknown artifact kind `{kind}` (one of {})", all.join(", "))
+            Error::Usage(format!(
+                "unknown artifact kind `{kind}` (one of {})",
+                all.join(", ")
+            ))
         })?;
     let names: Vec<String> = files
         .iter()
@@ -26,18 +30,18 @@ pub fn wrap(kind: &str, files: &[PathBuf], out: &Path) -> Result<(), String> {
         env!("CARGO_PKG_VERSION"),
         serde_json::json!({ "kind": kind.as_str(), "files": names }),
     );
-    let mut w = ArtifactWriter::create(out, kind, producer).map_err(|e| e.to_string())?;
+    let mut w = ArtifactWriter::create(out, kind, producer)?;
     for f in files {
         let name = f
             .file_name()
-            .ok_or_else(|| format!("{}: not a file name", f.display()))?
+            .ok_or_else(|| Error::Usage(format!("{}: not a file name", f.display())))?
             .to_string_lossy()
             .into_owned();
-        let bytes = std::fs::read(f).map_err(|e| format!("{}: {e}", f.display()))?;
-        w.add_input(&name, f).map_err(|e| e.to_string())?;
-        w.write_bytes(&name, &bytes).map_err(|e| e.to_string())?;
+        let bytes = std::fs::read(f).map_err(|e| Error::io(f, e))?;
+        w.add_input(&name, f)?;
+        w.write_bytes(&name, &bytes)?;
     }
-    w.commit().map_err(|e| e.to_string())?;
+    w.commit()?;
     Ok(())
 }
 
@@ -140,12 +144,16 @@ mod tests {
         wrap("scene", std::slice::from_ref(&f), &d.path().join("s")).unwrap();
         let a = Artifact::open(&d.path().join("s"), ArtifactKind::Scene).unwrap();
         assert_eq!(std::fs::read(a.path("scene.ply")).unwrap(), b"ply\n");
-        let e = wrap("nope", &[f], &d.path().join("t")).unwrap_err();
+        let e = wrap("nope", &[f], &d.path().join("t"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("unknown artifact kind `nope`"), "{e}");
         // Missing required file for the kind.
         let g = d.path().join("x.txt");
         std::fs::write(&g, b"x").unwrap();
-        let e = wrap("scene", &[g], &d.path().join("u")).unwrap_err();
+        let e = wrap("scene", &[g], &d.path().join("u"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("scene.ply"), "{e}");
     }
 }

@@ -9,7 +9,8 @@
 //! an objective (the refit baseline) it is the plain target fit ([`ColourFit::step`],
 //! L1 + D-SSIM).
 
-use super::{Image, Objective};
+use super::Objective;
+use crate::imageio::Image;
 use crate::optim::{ColourFit, FitParams};
 use crate::render::{RenderOptions, render};
 use crate::{Camera, Error, Result, Scene};
@@ -47,8 +48,8 @@ fn render_all(scene: &Scene, cameras: &[Camera], background: [f32; 3]) -> Result
         .map(|c| {
             let r = render(scene, c, &opts)?;
             Ok(Image {
-                h: r.height,
-                w: r.width,
+                width: r.width,
+                height: r.height,
                 data: r.rgb,
             })
         })
@@ -109,8 +110,8 @@ pub fn fit_objective(
                             &img.data,
                             &targets[v],
                             None,
-                            img.h,
-                            img.w,
+                            img.height,
+                            img.width,
                             lp,
                         )
                         .0 as f64;
@@ -130,8 +131,8 @@ pub fn fit_objective(
                 let mut hook = |v: usize, rgb: &[f32], _alpha: Option<&[f32]>| {
                     let cam = &cameras[v];
                     let img = Image {
-                        h: cam.height as usize,
-                        w: cam.width as usize,
+                        width: cam.width as usize,
+                        height: cam.height as usize,
                         data: rgb.to_vec(),
                     };
                     let t = o.eval(v, &img)?;

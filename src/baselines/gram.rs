@@ -12,11 +12,12 @@
 //! `style_weight * L_style + content_weight * L_content`.
 
 use super::{
-    Image, Objective, Terms, content_loss_grad, downsample, downsample_adjoint_add, gram_loss_grad,
+    Objective, Terms, content_loss_grad, downsample, downsample_adjoint_add, gram_loss_grad,
 };
+use crate::imageio::Image;
+use crate::metrics::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
-use ndarray::Array2;
 
 /// Settings of the Gram baseline.
 #[derive(Debug, Clone, PartialEq)]
@@ -53,7 +54,8 @@ impl Default for GramConfig {
 pub struct GramTargets {
     pub layers: Vec<Layer>,
     pub factors: Vec<usize>,
-    pub grams: Vec<Vec<Array2<f32>>>,
+    /// Row-major `C x C` (see [`crate::metrics::gram::gram`]).
+    pub grams: Vec<Vec<Vec<f64>>>,
 }
 
 impl GramTargets {
@@ -71,8 +73,8 @@ impl GramTargets {
         let mut grams = Vec::new();
         for &f in factors {
             let s = downsample(style, f);
-            let fw = vgg.forward(&s.data, s.h, s.w, deepest)?;
-            grams.push(layers.iter().map(|&l| super::gram(fw.get(l))).collect());
+            let fw = vgg.forward(&s.data, s.height, s.width, deepest)?;
+            grams.push(layers.iter().map(|&l| gram(fw.get(l))).collect());
         }
         Ok(GramTargets {
             layers: layers.to_vec(),
@@ -103,7 +105,11 @@ impl<'a> GramObjective<'a> {
     ) -> Result<Self> {
         super::check_views(originals)?;
         for &f in &cfg.factors {
-            let min = originals.iter().map(|v| v.h.min(v.w)).min().unwrap_or(0);
+            let min = originals
+                .iter()
+                .map(|v| v.height.min(v.width))
+                .min()
+                .unwrap_or(0);
             if f == 0 || min / f < 8 {
                 return Err(Error::param(format!(
                     "scale factor {f} leaves views of side {min} too small for relu4_3 (needs >= 8 px after downsampling)"
@@ -114,7 +120,7 @@ impl<'a> GramObjective<'a> {
         let content = originals
             .iter()
             .map(|v| {
-                let f = vgg.forward(&v.data, v.h, v.w, cfg.content_layer)?;
+                let f = vgg.forward(&v.data, v.height, v.width, cfg.content_layer)?;
                 Ok(f.get(cfg.content_layer).clone())
             })
             .collect::<Result<Vec<_>>>()?;
@@ -149,10 +155,10 @@ impl Objective for GramObjective<'_> {
             if with_content {
                 deepest = deepest.max(cfg.content_layer);
             }
-            let fw = self.vgg.forward(&x.data, x.h, x.w, deepest)?;
+            let fw = self.vgg.forward(&x.data, x.height, x.width, deepest)?;
             let mut grads: Vec<(Layer, Tensor3)> = Vec::new();
             for (li, &l) in cfg.layers.iter().enumerate() {
-                let (v, g) = gram_loss_grad(fw.get(l), self.targets.grams[si][li].view(), sw);
+                let (v, g) = gram_loss_grad(fw.get(l), &self.targets.grams[si][li], sw);
                 style += v;
                 grads.push((l, g));
             }
@@ -161,7 +167,7 @@ impl Objective for GramObjective<'_> {
                 if (f.c, f.h, f.w) != (c0.c, c0.h, c0.w) {
                     return Err(Error::param(format!(
                         "view {view} is {}x{}, its original render had another size",
-                        img.w, img.h
+                        img.width, img.height
                     )));
                 }
                 let (v, g) = content_loss_grad(f, c0, cfg.content_weight as f32);
@@ -175,7 +181,7 @@ impl Objective for GramObjective<'_> {
                     *a += b;
                 }
             } else {
-                downsample_adjoint_add(&gx, factor, img.h, img.w, &mut grad);
+                downsample_adjoint_add(&gx, factor, img.height, img.width, &mut grad);
             }
         }
         style /= n_terms;
@@ -204,8 +210,8 @@ mod tests {
     #[test]
     fn gram_gradient_matches_finite_differences() {
         let f = rand_tensor(1, 5, 4, 3);
-        let a = super::super::gram(&rand_tensor(2, 5, 6, 6));
-        let (_, g) = gram_loss_grad(&f, a.view(), 1.0);
+        let a = gram(&rand_tensor(2, 5, 6, 6));
+        let (_, g) = gram_loss_grad(&f, &a, 1.0);
         let gmax = g.data.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
         let eps = 1e-2;
         for i in 0..f.data.len() {
@@ -213,7 +219,7 @@ mod tests {
             p.data[i] += eps;
             let mut m = f.clone();
             m.data[i] -= eps;
-            let fd = (gram_loss_grad(&p, a.view(), 1.0).0 - gram_loss_grad(&m, a.view(), 1.0).0)
+            let fd = (gram_loss_grad(&p, &a, 1.0).0 - gram_loss_grad(&m, &a, 1.0).0)
                 / (2.0 * eps as f64);
             assert!(
                 (fd - g.data[i] as f64).abs() <= 1e-3 * gmax,
@@ -248,8 +254,8 @@ mod tests {
         let vgg = Vgg16::random(7, 16);
         let mut r = crate::rng::Rng::new(8);
         let mut img = |h: usize, w: usize| Image {
-            h,
-            w,
+            width: w,
+            height: h,
             data: (0..h * w * 3).map(|_| r.uniform() as f32).collect(),
         };
         let style = img(40, 36);
@@ -284,15 +290,15 @@ mod tests {
     fn bad_views_are_errors() {
         let vgg = Vgg16::random(7, 16);
         let style = Image {
-            h: 96,
-            w: 96,
+            width: 96,
+            height: 96,
             data: vec![0.3; 96 * 96 * 3],
         };
         let e = GramObjective::new(&vgg, GramConfig::default(), &style, &[]).unwrap_err();
         assert!(e.to_string().contains("empty"), "{e}");
         let tiny = Image {
-            h: 12,
-            w: 30,
+            width: 30,
+            height: 12,
             data: vec![0.3; 12 * 30 * 3],
         };
         assert!(GramObjective::new(&vgg, GramConfig::default(), &style, &[tiny]).is_err());

@@ -25,9 +25,11 @@ pub mod fit;
 pub mod gram;
 pub mod nnfm;
 
+use crate::imageio::{Filter, Image};
+use crate::metrics::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16, receptive_field};
 use crate::{Error, Result};
-use ndarray::{Array2, ArrayView2, linalg::general_mat_mul};
+use ndarray::{Array2, linalg::general_mat_mul};
 
 /// Smallest accepted style image side: the receptive field of relu4_3.
 pub const MIN_STYLE_SIDE: usize = 92;
@@ -35,14 +37,6 @@ pub const MIN_STYLE_SIDE: usize = 92;
 /// Smallest accepted render side for the VGG baselines: relu4_3 must have 2x2 positions
 /// at the coarsest scale (three 2x2 poolings).
 pub const MIN_VIEW_SIDE: usize = 16;
-
-/// An `[H, W, 3]` image in [0, 1].
-#[derive(Debug, Clone, PartialEq)]
-pub struct Image {
-    pub h: usize,
-    pub w: usize,
-    pub data: Vec<f32>,
-}
 
 /// Loss terms of one view and the gradient of `total` w.r.t. the view's pixels.
 #[derive(Debug, Clone, PartialEq)]
@@ -62,16 +56,17 @@ pub trait Objective: Sync {
 }
 
 /// Check that a style image is large enough (see module docs) and resize it so its
-/// shorter side is `style_size` (bilinear; aspect kept). `path` names it in errors.
+/// shorter side is `style_size` ([`Filter::Bilinear`]; aspect kept). `path` names it in
+/// errors.
 pub fn prepare_style(img: &Image, style_size: usize, path: &std::path::Path) -> Result<Image> {
     debug_assert_eq!(receptive_field(Layer::Relu4_3), MIN_STYLE_SIDE);
-    let short = img.w.min(img.h);
+    let short = img.width.min(img.height);
     if short < MIN_STYLE_SIDE {
         return Err(Error::input(
             path,
             format!(
                 "style image is {}x{}; the VGG baselines need a shorter side of at least {MIN_STYLE_SIDE} px (the receptive field of relu4_3)",
-                img.w, img.h
+                img.width, img.height
             ),
         ));
     }
@@ -81,41 +76,9 @@ pub fn prepare_style(img: &Image, style_size: usize, path: &std::path::Path) -> 
         )));
     }
     let s = style_size as f64 / short as f64;
-    let nw = ((img.w as f64 * s).round() as usize).max(1);
-    let nh = ((img.h as f64 * s).round() as usize).max(1);
-    Ok(resize_bilinear(img, nh, nw))
-}
-
-/// Bilinear resize (pixel centres aligned; area-averaging is not needed for the
-/// moderate factors used on style images).
-pub fn resize_bilinear(img: &Image, nh: usize, nw: usize) -> Image {
-    if (nh, nw) == (img.h, img.w) {
-        return img.clone();
-    }
-    let mut out = vec![0.0; nh * nw * 3];
-    let sy = img.h as f64 / nh as f64;
-    let sx = img.w as f64 / nw as f64;
-    for y in 0..nh {
-        let fy = ((y as f64 + 0.5) * sy - 0.5).clamp(0.0, (img.h - 1) as f64);
-        let (y0, ty) = (fy.floor() as usize, fy - fy.floor());
-        let y1 = (y0 + 1).min(img.h - 1);
-        for x in 0..nw {
-            let fx = ((x as f64 + 0.5) * sx - 0.5).clamp(0.0, (img.w - 1) as f64);
-            let (x0, tx) = (fx.floor() as usize, fx - fx.floor());
-            let x1 = (x0 + 1).min(img.w - 1);
-            for c in 0..3 {
-                let at = |yy: usize, xx: usize| img.data[(yy * img.w + xx) * 3 + c] as f64;
-                let v = (1.0 - ty) * ((1.0 - tx) * at(y0, x0) + tx * at(y0, x1))
-                    + ty * ((1.0 - tx) * at(y1, x0) + tx * at(y1, x1));
-                out[(y * nw + x) * 3 + c] = v as f32;
-            }
-        }
-    }
-    Image {
-        h: nh,
-        w: nw,
-        data: out,
-    }
+    let nw = ((img.width as f64 * s).round() as usize).max(1);
+    let nh = ((img.height as f64 * s).round() as usize).max(1);
+    Ok(img.resized(nw, nh, Filter::Bilinear))
 }
 
 /// Box-downsample by an integer `factor` (floor: trailing rows/columns dropped).
@@ -123,14 +86,14 @@ pub fn downsample(img: &Image, factor: usize) -> Image {
     if factor == 1 {
         return img.clone();
     }
-    let (h, w) = (img.h / factor, img.w / factor);
+    let (h, w) = (img.height / factor, img.width / factor);
     let mut out = vec![0.0f32; h * w * 3];
     let inv = 1.0 / (factor * factor) as f32;
     for y in 0..h {
         for x in 0..w {
             for dy in 0..factor {
                 for dx in 0..factor {
-                    let p = ((y * factor + dy) * img.w + x * factor + dx) * 3;
+                    let p = ((y * factor + dy) * img.width + x * factor + dx) * 3;
                     for c in 0..3 {
                         out[(y * w + x) * 3 + c] += img.data[p + c] * inv;
                     }
@@ -138,7 +101,11 @@ pub fn downsample(img: &Image, factor: usize) -> Image {
             }
         }
     }
-    Image { h, w, data: out }
+    Image {
+        width: w,
+        height: h,
+        data: out,
+    }
 }
 
 /// Adjoint of [`downsample`]: add the small image's gradient back onto `grad` (full size
@@ -160,22 +127,17 @@ pub fn downsample_adjoint_add(small: &[f32], factor: usize, h: usize, w: usize, 
     }
 }
 
-/// Gram matrix `F F^T / (H W)` of a `[C, H, W]` map.
-pub fn gram(f: &Tensor3) -> Array2<f32> {
-    let m = f.matrix();
-    let mut g = Array2::zeros((f.c, f.c));
-    general_mat_mul(1.0 / f.hw() as f32, &m, &m.t(), 0.0, &mut g);
-    g
-}
-
-/// Mean squared difference of two Gram matrices, `||G - A||^2 / C^2` (f64), and
-/// the gradient w.r.t. the features `F` that made `G`, scaled by `scale`:
+/// Mean squared difference of two Gram matrices, `||G - A||^2 / C^2` (f64; `G` from
+/// [`crate::metrics::gram::gram`], `target` = A row-major `C x C`), and the gradient
+/// w.r.t. the features `F` that made `G`, scaled by `scale`:
 /// `scale * 4 (G - A) F / (C^2 H W)` (G - A is symmetric).
-pub fn gram_loss_grad(f: &Tensor3, target: ArrayView2<'_, f32>, scale: f32) -> (f64, Tensor3) {
+pub fn gram_loss_grad(f: &Tensor3, target: &[f64], scale: f32) -> (f64, Tensor3) {
     let g = gram(f);
     let c2 = (f.c * f.c) as f64;
-    let diff = &g - &target;
-    let loss = diff.iter().map(|&d| d as f64 * d as f64).sum::<f64>() / c2;
+    let d64: Vec<f64> = g.iter().zip(target).map(|(a, b)| a - b).collect();
+    let loss = d64.iter().map(|d| d * d).sum::<f64>() / c2;
+    let diff =
+        Array2::from_shape_vec((f.c, f.c), d64.iter().map(|&d| d as f32).collect()).expect("C x C");
     let mut grad = Array2::zeros((f.c, f.hw()));
     let k = scale * 4.0 / (c2 as f32 * f.hw() as f32);
     general_mat_mul(k, &diff, &f.matrix(), 0.0, &mut grad);
@@ -225,13 +187,13 @@ pub fn check_views(views: &[Image]) -> Result<()> {
         return Err(Error::param("the view set is empty: nothing to stylize"));
     }
     for (i, v) in views.iter().enumerate() {
-        if v.h.min(v.w) < MIN_VIEW_SIDE {
+        if v.height.min(v.width) < MIN_VIEW_SIDE {
             return Err(Error::param(format!(
                 "view {i} is {}x{}; the VGG baselines need at least {MIN_VIEW_SIDE}x{MIN_VIEW_SIDE}",
-                v.w, v.h
+                v.width, v.height
             )));
         }
-        if v.data.len() != v.h * v.w * 3 {
+        if v.data.len() != v.height * v.width * 3 {
             return Err(Error::param(format!(
                 "view {i} has a wrong number of values"
             )));
@@ -244,11 +206,11 @@ pub fn check_views(views: &[Image]) -> Result<()> {
 /// mean over relu1_2, relu2_2, relu3_3, relu4_3 at scale 1 of `||G - A||^2 / C^2`.
 /// Uses [`gram::GramTargets`] built once for the style.
 pub fn gram_distance(vgg: &Vgg16, targets: &gram::GramTargets, img: &Image) -> Result<f64> {
-    let f = vgg.forward(&img.data, img.h, img.w, Layer::Relu4_3)?;
+    let f = vgg.forward(&img.data, img.height, img.width, Layer::Relu4_3)?;
     let layers = &targets.layers;
     let mut s = 0.0;
     for (li, &l) in layers.iter().enumerate() {
-        s += gram_loss_grad(f.get(l), targets.grams[0][li].view(), 0.0).0;
+        s += gram_loss_grad(f.get(l), &targets.grams[0][li], 0.0).0;
     }
     Ok(s / layers.len() as f64)
 }
@@ -262,8 +224,8 @@ mod tests {
         let mut r = crate::rng::Rng::new(3);
         let (h, w) = (7, 9);
         let x = Image {
-            h,
-            w,
+            width: w,
+            height: h,
             data: (0..h * w * 3).map(|_| r.normal() as f32).collect(),
         };
         let y = downsample(&x, 2);
@@ -284,19 +246,19 @@ mod tests {
     fn style_size_limits() {
         let p = std::path::Path::new("style.png");
         let small = Image {
-            w: 91,
-            h: 300,
+            width: 91,
+            height: 300,
             data: vec![0.5; 91 * 300 * 3],
         };
         let e = prepare_style(&small, 256, p).unwrap_err().to_string();
         assert!(e.contains("style.png") && e.contains("92"), "{e}");
         let ok = Image {
-            w: 92,
-            h: 184,
+            width: 92,
+            height: 184,
             data: vec![0.5; 92 * 184 * 3],
         };
         let s = prepare_style(&ok, 128, p).unwrap();
-        assert_eq!((s.w, s.h), (128, 256));
+        assert_eq!((s.width, s.height), (128, 256));
         assert!(s.data.iter().all(|&v| (v - 0.5).abs() < 1e-6));
         assert!(prepare_style(&ok, 64, p).is_err());
         assert!(check_views(&[]).is_err());

@@ -12,7 +12,8 @@
 //! treats it as fixed: `d cos / d f = s_hat / n - cos f / n^2`. Content loss: mean squared
 //! error at relu3_3 against the original render. ARF's colour pre-transfer is not done.
 
-use super::{Image, Objective, Terms, content_loss_grad};
+use super::{Objective, Terms, content_loss_grad};
+use crate::imageio::Image;
 use crate::vgg::{Forward, Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
 use ndarray::{Array2, ArrayView2, Axis, linalg::general_mat_mul};
@@ -117,7 +118,7 @@ impl<'a> NnfmObjective<'a> {
         originals: &[Image],
     ) -> Result<Self> {
         super::check_views(originals)?;
-        let fw = vgg.forward(&style.data, style.h, style.w, Layer::Relu3_3)?;
+        let fw = vgg.forward(&style.data, style.height, style.width, Layer::Relu3_3)?;
         let mut s = stacked(&fw);
         for mut col in s.columns_mut() {
             let n = (col.iter().map(|v| v * v).sum::<f32>() + NORM_EPS).sqrt();
@@ -126,7 +127,7 @@ impl<'a> NnfmObjective<'a> {
         let content = originals
             .iter()
             .map(|v| {
-                let f = vgg.forward(&v.data, v.h, v.w, Layer::Relu3_3)?;
+                let f = vgg.forward(&v.data, v.height, v.width, Layer::Relu3_3)?;
                 Ok(f.get(Layer::Relu3_3).clone())
             })
             .collect::<Result<Vec<_>>>()?;
@@ -145,12 +146,14 @@ impl Objective for NnfmObjective<'_> {
             .content
             .get(view)
             .ok_or_else(|| Error::param(format!("view {view} out of range")))?;
-        let fw = self.vgg.forward(&img.data, img.h, img.w, Layer::Relu3_3)?;
+        let fw = self
+            .vgg
+            .forward(&img.data, img.height, img.width, Layer::Relu3_3)?;
         let f3 = fw.get(Layer::Relu3_3);
         if (f3.c, f3.h, f3.w) != (c0.c, c0.h, c0.w) {
             return Err(Error::param(format!(
                 "view {view} is {}x{}, its original render had another size",
-                img.w, img.h
+                img.width, img.height
             )));
         }
         let f = stacked(&fw);
@@ -242,8 +245,8 @@ mod tests {
         let vgg = Vgg16::random(5, 16);
         let mut r = crate::rng::Rng::new(1);
         let mut img = |h: usize, w: usize| Image {
-            h,
-            w,
+            width: w,
+            height: h,
             data: (0..h * w * 3).map(|_| r.uniform() as f32).collect(),
         };
         let style = img(32, 32);

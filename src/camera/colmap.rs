@@ -16,7 +16,8 @@
 //! are refused when an image uses them. Cameras are returned sorted by image name (as the
 //! INRIA loader does). When both binary and text files exist the binary ones are read.
 
-use super::{Camera, quat_to_mat};
+use super::Camera;
+use crate::geometry::{mat_to_quat, mat3, quat_to_mat, rows};
 use crate::{Error, Result};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -158,7 +159,7 @@ fn assemble(
                 ),
             ));
         };
-        let r = quat_to_mat(im.q).ok_or_else(|| {
+        let r = quat_to_mat(im.q).map(rows).ok_or_else(|| {
             Error::input(
                 imgs_path,
                 format!(
@@ -381,7 +382,7 @@ pub fn write_colmap_txt(dir: &Path, cams: &[Camera]) -> Result<()> {
             cam.cx,
             cam.cy
         ));
-        let q = mat_to_quat(cam.rotation.map(|r| r.map(|v| v as f64)));
+        let q = mat_to_quat(mat3(cam.rotation.map(|r| r.map(|v| v as f64))));
         let t = cam.translation;
         im.push_str(&format!(
             "{} {} {} {} {} {} {} {} {} {}\n\n",
@@ -402,70 +403,9 @@ pub fn write_colmap_txt(dir: &Path, cams: &[Camera]) -> Result<()> {
     Ok(())
 }
 
-/// Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix (Shepperd's method).
-pub fn mat_to_quat(r: [[f64; 3]; 3]) -> [f64; 4] {
-    let tr = r[0][0] + r[1][1] + r[2][2];
-    let q = if tr > 0.0 {
-        let s = (tr + 1.0).sqrt() * 2.0;
-        [
-            0.25 * s,
-            (r[2][1] - r[1][2]) / s,
-            (r[0][2] - r[2][0]) / s,
-            (r[1][0] - r[0][1]) / s,
-        ]
-    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
-        let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
-        [
-            (r[2][1] - r[1][2]) / s,
-            0.25 * s,
-            (r[0][1] + r[1][0]) / s,
-            (r[0][2] + r[2][0]) / s,
-        ]
-    } else if r[1][1] > r[2][2] {
-        let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
-        [
-            (r[0][2] - r[2][0]) / s,
-            (r[0][1] + r[1][0]) / s,
-            0.25 * s,
-            (r[1][2] + r[2][1]) / s,
-        ]
-    } else {
-        let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
-        [
-            (r[1][0] - r[0][1]) / s,
-            (r[0][2] + r[2][0]) / s,
-            (r[1][2] + r[2][1]) / s,
-            0.25 * s,
-        ]
-    };
-    if q[0] < 0.0 { q.map(|v| -v) } else { q }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn quaternion_round_trip() {
-        for q in [
-            [1.0, 0.0, 0.0, 0.0],
-            [0.1, 0.9, -0.3, 0.2],
-            [0.0, 0.0, 1.0, 0.0],
-            [0.2, 0.1, 0.1, -0.95],
-        ] {
-            let n = (q.iter().map(|v: &f64| v * v).sum::<f64>()).sqrt();
-            let q = q.map(|v| v / n);
-            let back = mat_to_quat(quat_to_mat(q).unwrap());
-            let s = if back[0] * q[0] + back[1] * q[1] + back[2] * q[2] + back[3] * q[3] < 0.0 {
-                -1.0
-            } else {
-                1.0
-            };
-            for k in 0..4 {
-                assert!((back[k] * s - q[k]).abs() < 1e-12, "{q:?} {back:?}");
-            }
-        }
-    }
 
     #[test]
     fn text_errors_name_file_and_line() {

@@ -9,7 +9,8 @@
 //! centre in INRIA's code; we also write (and read, when present) `cx`, `cy`, which other
 //! readers ignore.
 
-use super::{Camera, transpose};
+use super::Camera;
+use crate::geometry::{mat3, rows};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -91,7 +92,7 @@ pub fn to_inria(cams: &[Camera]) -> Vec<InriaCamera> {
                 width: c.width,
                 height: c.height,
                 position,
-                rotation: transpose(r),
+                rotation: rows(mat3(r).transpose()),
                 fy: c.fy as f64,
                 fx: c.fx as f64,
                 cx: Some(c.cx as f64),

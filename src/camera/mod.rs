@@ -8,7 +8,9 @@
 //!   (`cameras.bin`, `images.bin`);
 //! * [`nerfstudio`]: nerfstudio / instant-ngp `transforms.json` (OpenGL camera-to-world);
 //! * [`orbit`]: generated orbits `orbit:N[,elev=DEG][,radius=R][,fov=DEG]` around the
-//!   centre of the scene's bounds.
+//!   centre of given [`Bounds`] (a scene's, but cameras know nothing of scenes).
+//!
+//! Pose arithmetic (quaternions, look-at frames, matrix products) is [`crate::geometry`].
 //!
 //! Every camera is checked by [`Camera::validate`]: the rotation must be orthonormal
 //! with determinant +1 within [`ROTATION_TOL`], focal lengths positive and finite, the
@@ -19,7 +21,8 @@ pub mod inria;
 pub mod nerfstudio;
 pub mod orbit;
 
-use crate::{Error, Result, Scene};
+use crate::geometry::{Bounds, DVec3, mat3, rows};
+use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -113,9 +116,9 @@ impl Camera {
         c2w: [[f64; 3]; 3],
         center: [f64; 3],
     ) -> Camera {
-        let r = transpose(c2w);
-        let t = mat_vec(r, center).map(|v| -v);
-        Camera::from_w2c(name, width, height, intr, r, t)
+        let r = mat3(c2w).transpose();
+        let t = -(r * DVec3::from_array(center));
+        Camera::from_w2c(name, width, height, intr, rows(r), t.to_array())
     }
 
     /// Check the camera; `path` names the source file in errors.
@@ -142,23 +145,20 @@ impl Camera {
         if self.translation.iter().any(|v| !v.is_finite()) {
             return bad(format!("translation {:?} is not finite", self.translation));
         }
-        let r = self.rotation.map(|row| row.map(|v| v as f64));
-        if r.iter().flatten().any(|v| !v.is_finite()) {
+        let r = mat3(self.rotation.map(|row| row.map(|v| v as f64)));
+        if !r.is_finite() {
             return bad(format!("rotation {:?} is not finite", self.rotation));
         }
-        let mut dev = 0.0f64;
-        for i in 0..3 {
-            for j in 0..3 {
-                let d: f64 = (0..3).map(|k| r[i][k] * r[j][k]).sum();
-                dev = dev.max((d - if i == j { 1.0 } else { 0.0 }).abs());
-            }
-        }
+        let dev = (r * r.transpose() - crate::geometry::DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |m, d| m.max(d.abs()));
         if dev > ROTATION_TOL as f64 {
             return bad(format!(
                 "rotation is not orthonormal (max |R R^T - I| = {dev:.3e}, tolerance {ROTATION_TOL:e})"
             ));
         }
-        let det = det3(r);
+        let det = r.determinant();
         if (det - 1.0).abs() > ROTATION_TOL as f64 {
             return bad(format!(
                 "rotation has determinant {det:.4} (a reflection; must be +1)"
@@ -187,75 +187,41 @@ impl Camera {
     }
 }
 
-pub(crate) fn transpose(m: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    let mut t = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            t[i][j] = m[j][i];
-        }
-    }
-    t
-}
-
-pub(crate) fn mat_vec(m: [[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
-}
-
-pub(crate) fn det3(r: [[f64; 3]; 3]) -> f64 {
-    r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
-        - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
-        + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0])
-}
-
-/// Rotation matrix of a unit quaternion (w, x, y, z) (Hamilton convention, as COLMAP's
-/// `qvec2rotmat`). The quaternion is normalised first; `None` when it is zero or not finite.
-pub fn quat_to_mat(q: [f64; 4]) -> Option<[[f64; 3]; 3]> {
-    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    if !n.is_finite() || n < 1e-12 {
-        return None;
-    }
-    let [w, x, y, z] = q.map(|v| v / n);
-    Some([
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ])
-}
-
 /// Load the cameras named by `spec` for images of `width` x `height`:
-/// `orbit:...` (generated around `scene`), an INRIA `cameras.json`, a nerfstudio
-/// `transforms.json`, a COLMAP sparse model directory (`sparse/0`, or a directory holding
-/// one), or a views/targets artifact directory (its `cameras.json`). Cameras read from
-/// files keep their poses; their intrinsics are rescaled from the file's image size to
-/// `width` x `height`.
-pub fn load_cameras(spec: &str, scene: &Scene, width: u32, height: u32) -> Result<Vec<Camera>> {
-    if width == 0 || height == 0 {
-        return Err(Error::param(format!(
-            "image size {width}x{height}: width and height must be positive"
-        )));
-    }
+/// `orbit:...` (generated around `bounds`, e.g. [`crate::Scene::bounds`]), an INRIA
+/// `cameras.json`, a nerfstudio `transforms.json`, or a COLMAP sparse model directory
+/// (`sparse/0`, or a directory holding one). Cameras read from files keep their poses;
+/// their intrinsics are rescaled from the file's image size to `width` x `height`
+/// ([`fit_cameras`]). Stages read their `--cameras` through
+/// [`crate::artifacts::load_cameras`], which also takes artifact directories.
+pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Result<Vec<Camera>> {
+    check_size(width, height)?;
     if let Some(rest) = spec.strip_prefix("orbit:") {
         let o = orbit::OrbitSpec::parse(rest)?;
-        let cams = orbit::orbit(&o, scene, width, height)?;
+        let cams = orbit::orbit(&o, bounds, width, height)?;
         for c in &cams {
             c.validate(Path::new(spec))?;
         }
         return Ok(cams);
     }
-    let path = Path::new(spec);
-    let (cams, src) = load_camera_file(path)?;
+    let (cams, src) = load_camera_file(Path::new(spec))?;
+    fit_cameras(cams, &src, width, height)
+}
+
+/// Error unless `width` and `height` are positive.
+pub fn check_size(width: u32, height: u32) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::param(format!(
+            "image size {width}x{height}: width and height must be positive"
+        )));
+    }
+    Ok(())
+}
+
+/// Cameras read from `src` (at their own image size) for images of `width` x `height`:
+/// intrinsics rescaled per axis (a warning if that changes the aspect ratio), each
+/// validated; an empty list is an error naming `src`.
+pub fn fit_cameras(cams: Vec<Camera>, src: &Path, width: u32, height: u32) -> Result<Vec<Camera>> {
     for c in cams.iter().take(1) {
         let (a, b) = (
             c.width as f64 / c.height as f64,
@@ -273,10 +239,10 @@ pub fn load_cameras(spec: &str, scene: &Scene, width: u32, height: u32) -> Resul
     }
     let cams: Vec<Camera> = cams.iter().map(|c| c.resized(width, height)).collect();
     if cams.is_empty() {
-        return Err(Error::input(&src, "no cameras in the file"));
+        return Err(Error::input(src, "no cameras in the file"));
     }
     for c in &cams {
-        c.validate(&src)?;
+        c.validate(src)?;
     }
     Ok(cams)
 }
@@ -285,20 +251,6 @@ pub fn load_cameras(spec: &str, scene: &Scene, width: u32, height: u32) -> Resul
 /// file they came from (for messages).
 pub fn load_camera_file(path: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)> {
     if path.is_dir() {
-        if path.join(fantasystyle_schemas::MANIFEST_FILE).is_file() {
-            let a = fantasystyle_schemas::Artifact::open_any(path)?;
-            let p = a.path("cameras.json");
-            if !p.is_file() {
-                return Err(Error::input(
-                    path,
-                    format!(
-                        "artifact of kind `{}` holds no cameras.json",
-                        a.manifest.kind
-                    ),
-                ));
-            }
-            return Ok((inria::read_inria(&p)?, p));
-        }
         for (name, is_colmap) in [
             ("cameras.json", false),
             ("transforms.json", false),
@@ -318,8 +270,8 @@ pub fn load_camera_file(path: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)
         }
         return Err(Error::input(
             path,
-            "directory holds no cameras (expected an artifact with cameras.json, \
-             cameras.json, transforms.json or a COLMAP sparse model)",
+            "directory holds no cameras (expected cameras.json, transforms.json or a \
+             COLMAP sparse model; stages also take an artifact with cameras.json)",
         ));
     }
     if !path.is_file() {
@@ -351,20 +303,8 @@ pub(crate) mod tests {
 
     /// A camera at `eye` looking at `target` with world -y up (OpenCV axes).
     pub(crate) fn look_at(eye: [f64; 3], target: [f64; 3]) -> Camera {
-        let c2w = orbit::look_at_c2w(eye, target, [0.0, 1.0, 0.0]);
-        Camera::from_c2w("t".into(), 64, 48, [50.0, 50.0, 32.0, 24.0], c2w, eye)
-    }
-
-    #[test]
-    fn quaternion_matrix_is_a_rotation() {
-        let r = quat_to_mat([0.3, -0.2, 0.9, 0.1]).unwrap();
-        assert!((det3(r) - 1.0).abs() < 1e-12);
-        // 90 degrees about z: x -> y.
-        let h = std::f64::consts::FRAC_1_SQRT_2;
-        let r = quat_to_mat([h, 0.0, 0.0, h]).unwrap();
-        let v = mat_vec(r, [1.0, 0.0, 0.0]);
-        assert!((v[1] - 1.0).abs() < 1e-12 && v[0].abs() < 1e-12);
-        assert!(quat_to_mat([0.0; 4]).is_none());
+        let c2w = crate::geometry::look_at_c2w(eye.into(), target.into(), DVec3::Y);
+        Camera::from_c2w("t".into(), 64, 48, [50.0, 50.0, 32.0, 24.0], rows(c2w), eye)
     }
 
     #[test]

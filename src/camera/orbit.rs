@@ -1,7 +1,7 @@
 //! Generated orbit cameras: `orbit:N[,elev=DEG][,radius=R][,fov=DEG]`.
 //!
-//! N cameras on a circle around the centre `c` of the scene's bounds (of the Gaussian
-//! means), all looking at `c`. The scenes this project uses have their up axis along
+//! N cameras on a circle around the centre `c` of the given bounds (a scene's: of the
+//! Gaussian means), all looking at `c`. The scenes this project uses have their up axis along
 //! **-y** (the OpenCV/COLMAP habit), so the circle lies in a plane of constant y and
 //! "elevation toward up" moves cameras toward -y:
 //!
@@ -14,7 +14,8 @@
 //! horizontal (`fx = fy = (W/2) / tan(fov/2)`), principal point at the image centre.
 
 use super::Camera;
-use crate::{Error, Result, Scene};
+use crate::geometry::{Bounds, DVec3, look_at_c2w, rows};
+use crate::{Error, Result};
 
 /// A parsed `orbit:` spec.
 #[derive(Debug, Clone, PartialEq)]
@@ -76,44 +77,13 @@ impl OrbitSpec {
     }
 }
 
-fn normalize(v: [f64; 3]) -> Option<[f64; 3]> {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    (n > 1e-12 && n.is_finite()).then(|| v.map(|x| x / n))
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-/// Camera-to-world rotation (columns: camera x right, y down, z forward) of a camera at
-/// `eye` looking at `target`, with image-down as close to `down` as possible.
-pub fn look_at_c2w(eye: [f64; 3], target: [f64; 3], down: [f64; 3]) -> [[f64; 3]; 3] {
-    let z = normalize([0, 1, 2].map(|i| target[i] - eye[i])).unwrap_or([0.0, 0.0, 1.0]);
-    let proj = |d: [f64; 3]| {
-        let k = d[0] * z[0] + d[1] * z[1] + d[2] * z[2];
-        normalize([0, 1, 2].map(|i| d[i] - k * z[i]))
-    };
-    let y = proj(down)
-        .or_else(|| proj([0.0, 0.0, 1.0]))
-        .unwrap_or([0.0, 1.0, 0.0]);
-    let x = cross(y, z);
-    [0, 1, 2].map(|i| [x[i], y[i], z[i]])
-}
-
-/// The orbit cameras for `scene` at `width` x `height`.
-pub fn orbit(o: &OrbitSpec, scene: &Scene, width: u32, height: u32) -> Result<Vec<Camera>> {
-    if scene.is_empty() {
+/// The orbit cameras around `bounds` at `width` x `height`.
+pub fn orbit(o: &OrbitSpec, bounds: &Bounds, width: u32, height: u32) -> Result<Vec<Camera>> {
+    if bounds.is_empty() {
         return Err(Error::param("cannot place an orbit around an empty scene"));
     }
-    let (lo, hi) = scene.bounds();
-    let c = [0, 1, 2].map(|i| 0.5 * (lo[i] as f64 + hi[i] as f64));
-    let extent = (0..3)
-        .map(|i| hi[i] as f64 - lo[i] as f64)
-        .fold(0.0, f64::max);
+    let c = bounds.center();
+    let extent = bounds.largest_extent();
     let r = o
         .radius
         .unwrap_or(2.2 * if extent > 0.0 { extent } else { 1.0 });
@@ -123,10 +93,17 @@ pub fn orbit(o: &OrbitSpec, scene: &Scene, width: u32, height: u32) -> Result<Ve
     Ok((0..o.n)
         .map(|i| {
             let a = std::f64::consts::TAU * i as f64 / o.n as f64;
-            let d = [e.cos() * a.sin(), -e.sin(), -e.cos() * a.cos()];
-            let eye = [0, 1, 2].map(|k| c[k] + r * d[k]);
-            let c2w = look_at_c2w(eye, c, [0.0, 1.0, 0.0]);
-            Camera::from_c2w(format!("orbit_{i:03}"), width, height, intr, c2w, eye)
+            let d = DVec3::new(e.cos() * a.sin(), -e.sin(), -e.cos() * a.cos());
+            let eye = c + r * d;
+            let c2w = look_at_c2w(eye, c, DVec3::Y);
+            Camera::from_c2w(
+                format!("orbit_{i:03}"),
+                width,
+                height,
+                intr,
+                rows(c2w),
+                eye.to_array(),
+            )
         })
         .collect())
 }
@@ -136,16 +113,8 @@ mod tests {
     use super::*;
     use std::path::Path;
 
-    fn scene() -> Scene {
-        let mut s = crate::scene::Scene::default();
-        for p in [[-1.0, -0.5, 0.0], [1.0, 0.5, 0.4]] {
-            s.positions.push(p);
-            s.log_scales.push([0.0; 3]);
-            s.rotations.push([1.0, 0.0, 0.0, 0.0]);
-            s.opacity_logits.push(0.0);
-            s.sh_dc.push([0.0; 3]);
-        }
-        s
+    fn bounds() -> Bounds {
+        Bounds::of_points(&[[-1.0, -0.5, 0.0], [1.0, 0.5, 0.4]])
     }
 
     #[test]
@@ -171,8 +140,7 @@ mod tests {
 
     #[test]
     fn orbit_geometry_matches_the_definition() {
-        let s = scene();
-        let cams = orbit(&OrbitSpec::parse("4").unwrap(), &s, 100, 80).unwrap();
+        let cams = orbit(&OrbitSpec::parse("4").unwrap(), &bounds(), 100, 80).unwrap();
         let c = [0.0f32, 0.0, 0.2];
         for (i, cam) in cams.iter().enumerate() {
             cam.validate(Path::new("orbit")).unwrap();

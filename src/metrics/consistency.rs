@@ -12,12 +12,12 @@
 //! perfect (view-dependent colour, splat blending at edges), so stylized consistency is
 //! read relative to it. Pairs with less than [`MIN_OVERLAP`] valid pixels are skipped.
 
-use super::image::Image;
 use super::lpips;
 use super::nets::LpipsModel;
 use super::views::ViewSet;
 use super::warp::{Warped, surface_depth, warp_into};
 use crate::Result;
+use crate::imageio::Image;
 use serde::Serialize;
 
 /// Fewest valid pixels (fraction of the image) for a pair to be measured.

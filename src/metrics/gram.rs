@@ -5,22 +5,109 @@
 //! `F` (`C x HW`), `G = F F^T / (H W)`, so images of different sizes are comparable; the
 //! distance is `sum_k mean_{c,c'} (G_k(x) - G_k(s))^2`.
 
-use super::nets::{Features, Tap};
+use super::nets::Features;
+use crate::vgg::Tensor3;
+use rayon::prelude::*;
 
-/// `C x C` Gram matrix of one tap, normalised by the number of positions.
-pub fn gram(t: &Tap) -> Vec<f64> {
-    let hw = t.h * t.w;
-    let mut g = vec![0.0; t.c * t.c];
-    for a in 0..t.c {
-        let fa = &t.data[a * hw..(a + 1) * hw];
-        for b in a..t.c {
-            let fb = &t.data[b * hw..(b + 1) * hw];
-            let s: f64 = fa.iter().zip(fb).map(|(x, y)| *x as f64 * *y as f64).sum();
-            g[a * t.c + b] = s / hw as f64;
-            g[b * t.c + a] = s / hw as f64;
+/// The `C x C` Gram matrix `G = F F^T / (H W)` of a `[C, H, W]` feature map, row-major,
+/// in f64. The one Gram of the crate: the metric below and the VGG baselines' style loss
+/// ([`crate::baselines::gram_loss_grad`]) both use it.
+///
+/// Each entry is the sum over positions, in position order, of `f_a f_b` (products in
+/// f64), divided by `H W`. For speed the features are laid out position-major and the
+/// upper triangle is computed in tiles (in parallel) whose entries all advance one
+/// position at a time, so the inner loop runs over contiguous channels; that changes no
+/// entry's summation order (see the bitwise test below).
+pub fn gram(t: &Tensor3) -> Vec<f64> {
+    let (c, hw) = (t.c, t.h * t.w);
+    // Position-major copy, transposed in 64 x 64 blocks.
+    let mut xt = vec![0.0f64; hw * c];
+    for p0 in (0..hw).step_by(64) {
+        for a0 in (0..c).step_by(64) {
+            for a in a0..(a0 + 64).min(c) {
+                let src = &t.data[a * hw..(a + 1) * hw];
+                for p in p0..(p0 + 64).min(hw) {
+                    xt[p * c + a] = src[p] as f64;
+                }
+            }
+        }
+    }
+    let tiles: Vec<(usize, usize)> = (0..c)
+        .step_by(TILE)
+        .flat_map(|a0| (a0..c).step_by(TILE).map(move |b0| (a0, b0)))
+        .collect();
+    let sums: Vec<Vec<f64>> = tiles
+        .par_iter()
+        .map(|&(a0, b0)| gram_tile(&xt, c, a0, b0))
+        .collect();
+    let mut g = vec![0.0; c * c];
+    for (&(a0, b0), acc) in tiles.iter().zip(&sums) {
+        let tb = TILE.min(c - b0);
+        for (k, s) in acc.iter().enumerate() {
+            let (a, b) = (a0 + k / tb, b0 + k % tb);
+            if b >= a {
+                g[a * c + b] = s / hw as f64;
+                g[b * c + a] = s / hw as f64;
+            }
         }
     }
     g
+}
+
+/// Side of the tiles of the Gram matrix computed as one task.
+const TILE: usize = 16;
+
+/// The sums `sum_p x[p][a] x[p][b]` of one tile (`a0..a0 + TILE` x `b0..b0 + TILE`,
+/// clipped to `c`) of position-major features `xt` (`hw x c`), row-major `ta x tb`. Each
+/// sum runs over the positions in order; positions are taken in chunks (so the tile's
+/// columns stay in cache) and 4x4 blocks of sums are held in registers within a chunk.
+/// On a diagonal tile only the blocks on or above the diagonal are computed.
+fn gram_tile(xt: &[f64], c: usize, a0: usize, b0: usize) -> Vec<f64> {
+    const CHUNK: usize = 128;
+    let (ta, tb) = (TILE.min(c - a0), TILE.min(c - b0));
+    let mut acc = vec![-0.0f64; ta * tb];
+    for chunk in xt.chunks(CHUNK * c) {
+        for i0 in (0..ta).step_by(4) {
+            for j0 in (0..tb).step_by(4) {
+                if a0 == b0 && j0 < i0 {
+                    continue; // below the diagonal: its mirror block is computed
+                }
+                let (ni, nj) = (4.min(ta - i0), 4.min(tb - j0));
+                let mut s = [[-0.0f64; 4]; 4];
+                for i in 0..ni {
+                    for j in 0..nj {
+                        s[i][j] = acc[(i0 + i) * tb + j0 + j];
+                    }
+                }
+                let (a, b) = (a0 + i0, b0 + j0);
+                if ni == 4 && nj == 4 {
+                    for row in chunk.chunks_exact(c) {
+                        let x: [f64; 4] = row[a..a + 4].try_into().expect("4 values");
+                        let y: [f64; 4] = row[b..b + 4].try_into().expect("4 values");
+                        for i in 0..4 {
+                            for j in 0..4 {
+                                s[i][j] += x[i] * y[j];
+                            }
+                        }
+                    }
+                } else {
+                    for row in chunk.chunks_exact(c) {
+                        for i in 0..ni {
+                            for j in 0..nj {
+                                s[i][j] += row[a + i] * row[b + j];
+                            }
+                        }
+                    }
+                }
+                for i in 0..ni {
+                    for j in 0..nj {
+                        acc[(i0 + i) * tb + j0 + j] = s[i][j];
+                    }
+                }
+            }
+        }
+    }
+    acc
 }
 
 /// Gram matrices of every tap.
@@ -46,10 +133,38 @@ pub fn gram_distance(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 mod tests {
     use super::*;
 
+    /// The tiled, parallel loop gives, bit for bit, the plain per-entry sum in position
+    /// order (C = 75: full and partial tiles, diagonal and off-diagonal).
+    #[test]
+    fn gram_equals_the_plain_sum_bitwise() {
+        let mut r = crate::rng::Rng::new(5);
+        let (c, h, w) = (75, 7, 9);
+        let t = Tensor3 {
+            c,
+            h,
+            w,
+            data: (0..c * h * w).map(|_| r.normal() as f32).collect(),
+        };
+        let g = gram(&t);
+        let hw = h * w;
+        for a in 0..c {
+            for b in 0..c {
+                let s: f64 = (0..hw)
+                    .map(|p| t.data[a * hw + p] as f64 * t.data[b * hw + p] as f64)
+                    .sum();
+                assert_eq!(
+                    g[a * c + b].to_bits(),
+                    (s / hw as f64).to_bits(),
+                    "({a}, {b})"
+                );
+            }
+        }
+    }
+
     #[test]
     fn gram_by_hand_and_size_invariance() {
         // c = 2, positions: (1, 2), (3, 4) -> G = [[10, 14], [14, 20]] / 2
-        let t = Tap {
+        let t = Tensor3 {
             c: 2,
             h: 1,
             w: 2,
@@ -57,7 +172,7 @@ mod tests {
         };
         assert_eq!(gram(&t), vec![5.0, 7.0, 7.0, 10.0]);
         // the same statistics over twice the positions give the same Gram matrix
-        let t2 = Tap {
+        let t2 = Tensor3 {
             c: 2,
             h: 2,
             w: 2,
@@ -66,7 +181,7 @@ mod tests {
         assert_eq!(gram(&t2), gram(&t));
         let g = grams(&vec![t.clone()]);
         assert_eq!(gram_distance(&g, &g), 0.0);
-        let other = grams(&vec![Tap {
+        let other = grams(&vec![Tensor3 {
             c: 2,
             h: 1,
             w: 2,

@@ -10,15 +10,16 @@
 //! mask, each tap's spatial mean becomes a weighted mean with the mask box-averaged to
 //! that tap's resolution.
 
-use super::image::Image;
-use super::nets::{Features, LpipsModel, Tap};
+use super::nets::{Features, LpipsModel};
 use crate::Result;
+use crate::imageio::Image;
+use crate::vgg::Tensor3;
 
 /// Per-pixel `sum_c lin[c] (f̂a - f̂b)^2` at one tap, `h x w`.
-pub fn tap_map(a: &Tap, b: &Tap, lin: &[f32]) -> Vec<f64> {
+pub fn tap_map(a: &Tensor3, b: &Tensor3, lin: &[f32]) -> Vec<f64> {
     assert_eq!((a.c, a.h, a.w), (b.c, b.h, b.w), "LPIPS: tap shapes differ");
     let hw = a.h * a.w;
-    let norm = |t: &Tap| {
+    let norm = |t: &Tensor3| {
         (0..hw)
             .map(|p| {
                 let s: f64 = (0..t.c).map(|c| (t.data[c * hw + p] as f64).powi(2)).sum();
@@ -100,8 +101,8 @@ mod tests {
     use super::*;
     use crate::metrics::nets::{LpipsNet, tests::setup};
 
-    fn tap(c: usize, h: usize, w: usize, f: impl Fn(usize) -> f32) -> Tap {
-        Tap {
+    fn tap(c: usize, h: usize, w: usize, f: impl Fn(usize) -> f32) -> Tensor3 {
+        Tensor3 {
             c,
             h,
             w,

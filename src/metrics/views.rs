@@ -1,11 +1,11 @@
-//! Loading `views` artifacts (`rgb.npy` [N,H,W,3], `depth.npy` [N,H,W], `alpha.npy`
-//! [N,H,W], `cameras.json`) for evaluation, and checking that an original and a stylized
-//! set show the same views: same count, same image size, same cameras.
+//! `views` artifacts (read by [`crate::artifacts::read_views`]) as the evaluation holds
+//! them, and checking that an original and a stylized set show the same views: same
+//! count, same image size, same cameras.
 
-use super::image::Image;
+use crate::artifacts::{Views, read_views};
+use crate::imageio::Image;
 use crate::{Camera, Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind};
-use ndarray::{Array3, Array4, Axis};
+use ndarray::Axis;
 use std::path::{Path, PathBuf};
 
 /// One views artifact in memory.
@@ -23,64 +23,17 @@ pub struct ViewSet {
     pub cameras: Vec<Camera>,
 }
 
-/// The tensors of a views artifact, shape-checked against each other: `rgb`
-/// [N, H, W, 3], `depth` and `alpha` [N, H, W].
-#[derive(Debug)]
-pub struct ViewTensors {
-    pub art: Artifact,
-    pub rgb: Array4<f32>,
-    pub depth: Array3<f32>,
-    pub alpha: Array3<f32>,
-}
-
-/// Open a views artifact and read its tensors (finite, consistent shapes).
-pub fn read_view_tensors(dir: &Path) -> Result<ViewTensors> {
-    let art = Artifact::open(dir, ArtifactKind::Views)?;
-    let rgb = art.read_f32("rgb.npy")?;
-    let [n, h, w, 3] = rgb.shape[..] else {
-        return Err(Error::input(
-            art.path("rgb.npy"),
-            format!("expected shape [N, H, W, 3], got {:?}", rgb.shape),
-        ));
-    };
-    let rgb = Array4::from_shape_vec((n, h, w, 3), rgb.data).expect("shape checked");
-    let plane = |name: &str| -> Result<Array3<f32>> {
-        let t = art.read_f32(name)?;
-        if t.shape != [n, h, w] {
-            return Err(Error::input(
-                art.path(name),
-                format!(
-                    "expected shape [{n}, {h}, {w}] to match rgb.npy, got {:?}",
-                    t.shape
-                ),
-            ));
-        }
-        Ok(Array3::from_shape_vec((n, h, w), t.data).expect("shape checked"))
-    };
-    let depth = plane("depth.npy")?;
-    let alpha = plane("alpha.npy")?;
-    Ok(ViewTensors {
-        art,
-        rgb,
-        depth,
-        alpha,
-    })
-}
-
-/// Read the INRIA-format `cameras.json` of a views artifact.
-fn read_cameras(path: &Path) -> Result<Vec<Camera>> {
-    crate::camera::inria::read_inria(path)
-}
-
 impl ViewSet {
     /// Open and validate a views artifact.
     pub fn load(dir: &Path) -> Result<ViewSet> {
         if !dir.is_dir() {
             return Err(Error::input(dir, "views artifact directory not found"));
         }
-        let ViewTensors {
+        let views = read_views(dir)?;
+        let cameras = views.cameras()?;
+        let Views {
             rgb, depth, alpha, ..
-        } = read_view_tensors(dir)?;
+        } = views;
         let (n, h, w) = (rgb.shape()[0], rgb.shape()[1], rgb.shape()[2]);
         let bad = |f: &str, r: String| Err(Error::input(dir.join(f), r));
         if n == 0 || h == 0 || w == 0 {
@@ -92,7 +45,6 @@ impl ViewSet {
         if alpha.iter().any(|a| !(-1e-4..=1.0 + 1e-4).contains(a)) {
             return bad("alpha.npy", "values outside [0, 1]".into());
         }
-        let cameras = read_cameras(&dir.join("cameras.json"))?;
         if cameras.len() != n {
             return bad(
                 "cameras.json",

@@ -16,8 +16,8 @@
 //! behind something nearer in `s` fails it. Valid pixels take the bilinear sample of the
 //! source image; invalid ones are masked out of every consistency measure.
 
-use super::image::Image;
 use crate::Camera;
+use crate::imageio::Image;
 
 /// Pixels with accumulated alpha at or below this have no surface depth.
 pub const ALPHA_MIN: f32 = 0.5;
@@ -183,40 +183,27 @@ pub fn look_at(
     height: u32,
     f: f64,
 ) -> Camera {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let norm = |a: [f64; 3]| {
-        let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-        [a[0] / l, a[1] / l, a[2] / l]
-    };
-    let fwd = norm(sub(target, eye));
-    let up = if fwd[2].abs() > 0.99 {
-        [0.0, 1.0, 0.0]
+    use crate::geometry::{DMat3, DVec3, unit};
+    let (eye, target) = (DVec3::from_array(eye), DVec3::from_array(target));
+    let fwd = unit(target - eye);
+    let up = if fwd.z.abs() > 0.99 {
+        DVec3::Y
     } else {
-        [0.0, 0.0, 1.0]
+        DVec3::Z
     };
-    let right = norm(cross(fwd, up));
-    let down = cross(fwd, right);
-    let r = [right, down, fwd];
-    let t: [f64; 3] =
-        std::array::from_fn(|i| -(r[i][0] * eye[0] + r[i][1] * eye[1] + r[i][2] * eye[2]));
-    Camera {
-        name: name.into(),
+    let right = unit(fwd.cross(up));
+    let down = fwd.cross(right);
+    // World-to-camera: rows right, down, forward.
+    let r = DMat3::from_cols(right, down, fwd).transpose();
+    let t = -(r * eye);
+    Camera::from_w2c(
+        name.into(),
         width,
         height,
-        fx: f as f32,
-        fy: f as f32,
-        cx: width as f32 / 2.0,
-        cy: height as f32 / 2.0,
-        rotation: r.map(|row| row.map(|v| v as f32)),
-        translation: t.map(|v| v as f32),
-    }
+        [f, f, 0.5 * width as f64, 0.5 * height as f64],
+        crate::geometry::rows(r),
+        t.to_array(),
+    )
 }
 
 /// Synthetic scenes rendered analytically (ray casting): a textured ground plane `z = 0`

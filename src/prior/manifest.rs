@@ -23,7 +23,7 @@
 //! manifest fields live in [`ModelManifest::stylizer`] (free-form JSON, parsed by that
 //! prior), and [`crate::prior::open`] dispatches it.
 
-use crate::scheduler::SchedulerConfig;
+use crate::scheduler::{Schedule, SchedulerConfig, TimestepSet};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -382,6 +382,31 @@ fn check_file(md: &ModelDir, what: &str, file: &str) -> Result<()> {
         return Err(md.err(format!("{what}: file {} does not exist", p.display())));
     }
     Ok(())
+}
+
+/// The model's noise schedule and the fixed DDIM timestep set the method draws t from:
+/// the manifest's `stylizer.timesteps` range if present, else
+/// [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]). `model`
+/// is a model directory or its `model.json`; the manifest is read and validated by
+/// [`ModelManifest::load`].
+pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
+    let md = ModelManifest::load(model)?;
+    let m = &md.manifest;
+    let bad = |e: Error| md.err(e.to_string());
+    let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
+    let range = match m.stylizer.as_ref().and_then(|s| s.get("timesteps")) {
+        Some(v) => Some(
+            serde_json::from_value::<super::stylizer::TimestepRange>(v.clone())
+                .map_err(|e| md.err(format!("stylizer.timesteps: {e}")))?,
+        ),
+        None => None,
+    };
+    let set = match range {
+        Some(r) => TimestepSet::new(&m.scheduler, r.t_min, r.t_max, r.count),
+        None => TimestepSet::default_for(&m.scheduler),
+    }
+    .map_err(bad)?;
+    Ok((schedule, set))
 }
 
 #[cfg(test)]

@@ -12,22 +12,64 @@
 //! * `stylizer`: a feed-forward 2D style-transfer network used as an x0-predictor in
 //!   pixel space (real weights, the CPU demo).
 //!
+//! [`open`] opens the prior of a model directory, dispatching on its manifest's family.
 //! Submodules: [`gaussian`] (closed form in Rust), [`manifest`] (the model directory's
-//! `model.json`), [`onnx`] (the ONNX-backed prior and [`open`], which dispatches on the
-//! manifest's family), [`preprocess`] (resizing and normalising images for encoders).
+//! `model.json`), [`onnx`] (the ONNX-backed diffusion prior), [`stylizer`] (the 2D
+//! stylizer), [`session`] (ONNX sessions and their I/O checks, shared by both),
+//! [`preprocess`] (image-encoder crops, ControlNet control images, shape checks).
 
 pub mod gaussian;
 pub mod manifest;
 pub mod onnx;
 pub mod preprocess;
+pub mod session;
 pub mod stylizer;
 
-pub use onnx::{OnnxPrior, PriorOptions, control_image, open};
+pub use manifest::model_timesteps;
+pub use onnx::OnnxPrior;
+pub use preprocess::control_image;
 
 use crate::Result;
+use crate::runtime::Optimization;
 use crate::scheduler::SchedulerConfig;
+use manifest::{Family, ModelManifest};
 use ndarray::{Array4, ArrayView4};
 use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// How to open a prior.
+#[derive(Debug, Clone, Default)]
+pub struct PriorOptions {
+    /// The style image `[1, 3, H, W]` in [0, 1], for the image-prompt encoder (needed by
+    /// `Cond::PromptStyle` and `Cond::Content`).
+    pub style_image: Option<Array4<f32>>,
+    /// Text of an exported prompt (see the manifest's `text.prompts`); `None` = the
+    /// first one. Prompts cannot be encoded here: there is no text encoder at run time.
+    pub prompt: Option<String>,
+    /// Intra-op threads per session (0 = onnxruntime's default).
+    pub threads: usize,
+    /// Graph optimisation level.
+    pub optimization: Optimization,
+    /// Largest VAE batch per call (0 = the whole batch at once).
+    pub vae_batch: usize,
+}
+
+/// Open the prior in `model_dir` (a directory with `model.json`), dispatching on the
+/// manifest's family.
+pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
+    let md = ModelManifest::load(model_dir)?;
+    match md.manifest.family {
+        Family::Sd15 | Family::Sd21 | Family::Sdxl | Family::Custom | Family::Gaussian => {
+            Ok(Box::new(OnnxPrior::from_model_dir(md, opts)?))
+        }
+        // The MVFC/CSD stages' 2D-stylizer prior plugs in here.
+        Family::Stylizer => Ok(Box::new(stylizer::StylizerPrior::open(
+            &md.dir,
+            opts.style_image.as_ref().map(|a| a.view()),
+            opts.threads,
+        )?)),
+    }
+}
 
 /// Which control image a ControlNet wants; both can be made from our renders.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

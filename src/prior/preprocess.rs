@@ -1,49 +1,17 @@
-//! Image preprocessing shared by the priors: resizing (bilinear, half-pixel centres as
-//! in PyTorch's `align_corners=False`, no antialiasing) and shape checks.
+//! Image preprocessing shared by the priors: the image encoder's square crop (resized with
+//! the crate's one resizer, [`crate::imageio::Image::resized`]), the ControlNet control
+//! images made from renders ([`control_image`]), and shape checks.
 
+use super::ControlKind;
+use crate::imageio::{Filter, Image};
 use crate::{Error, Result};
-use ndarray::{Array4, ArrayView4};
-
-/// Resize `[B, C, H, W]` to `[B, C, h, w]` bilinearly (half-pixel centres, edge clamp).
-/// Returns a copy when the size is unchanged.
-pub fn resize_bilinear(img: ArrayView4<'_, f32>, h: usize, w: usize) -> Array4<f32> {
-    let (b, c, ih, iw) = img.dim();
-    if (ih, iw) == (h, w) {
-        return img.to_owned();
-    }
-    let axis = |out: usize, inp: usize| -> Vec<(usize, usize, f32)> {
-        let scale = inp as f64 / out as f64;
-        (0..out)
-            .map(|o| {
-                let x = ((o as f64 + 0.5) * scale - 0.5).max(0.0);
-                let i0 = (x.floor() as usize).min(inp - 1);
-                let i1 = (i0 + 1).min(inp - 1);
-                (i0, i1, (x - i0 as f64) as f32)
-            })
-            .collect()
-    };
-    let ys = axis(h, ih);
-    let xs = axis(w, iw);
-    let mut out = Array4::<f32>::zeros((b, c, h, w));
-    for bi in 0..b {
-        for ci in 0..c {
-            for (oy, &(y0, y1, fy)) in ys.iter().enumerate() {
-                for (ox, &(x0, x1, fx)) in xs.iter().enumerate() {
-                    let p = |y: usize, x: usize| img[[bi, ci, y, x]];
-                    let top = p(y0, x0) * (1.0 - fx) + p(y0, x1) * fx;
-                    let bot = p(y1, x0) * (1.0 - fx) + p(y1, x1) * fx;
-                    out[[bi, ci, oy, ox]] = top * (1.0 - fy) + bot * fy;
-                }
-            }
-        }
-    }
-    out
-}
+use ndarray::{Array4, ArrayView4, Axis};
 
 /// Resize so that the shorter side is `size`, then crop the centre `size` x `size`
-/// (CLIP's preprocessing, with bilinear instead of bicubic resampling).
+/// (CLIP's preprocessing, with [`Filter::Bilinear`] instead of bicubic resampling).
+/// `img` is `[B, 3, H, W]`.
 pub fn fit_square(img: ArrayView4<'_, f32>, size: usize) -> Array4<f32> {
-    let (_, _, h, w) = img.dim();
+    let (b, _, h, w) = img.dim();
     let (rh, rw) = if h <= w {
         (
             size,
@@ -55,10 +23,13 @@ pub fn fit_square(img: ArrayView4<'_, f32>, size: usize) -> Array4<f32> {
             size,
         )
     };
-    let r = resize_bilinear(img, rh, rw);
     let (y0, x0) = ((rh - size) / 2, (rw - size) / 2);
-    r.slice(ndarray::s![.., .., y0..y0 + size, x0..x0 + size])
-        .to_owned()
+    let mut out = Array4::zeros((b, 3, size, size));
+    for (bi, mut o) in out.axis_iter_mut(Axis(0)).enumerate() {
+        let r = Image::from_chw(img.index_axis(Axis(0), bi)).resized(rw, rh, Filter::Bilinear);
+        o.assign(&r.crop(x0, y0, size, size).to_chw());
+    }
+    out
 }
 
 /// Check that `images` is `[B, 3, H, W]` with H and W multiples of `downsample`,
@@ -90,32 +61,85 @@ pub fn check_finite(a: ArrayView4<'_, f32>, what: &str) -> Result<()> {
     Ok(())
 }
 
+/// The control image a ControlNet of `kind` wants, `[B, 3, H, W]` in [0, 1], from a
+/// views artifact's `rgb` `[B, H, W, 3]`, `depth` `[B, H, W]` and `alpha` `[B, H, W]`.
+/// * Depth: inverse depth normalised per view over covered pixels (alpha > 0.5) to
+///   [0, 1], near = 1, background 0 (the MiDaS convention depth ControlNets use).
+/// * Edges: Sobel gradient magnitude of the luminance, normalised per view to [0, 1].
+///
+/// Both are replicated to 3 channels.
+pub fn control_image(
+    kind: ControlKind,
+    rgb: ndarray::ArrayView4<'_, f32>,
+    depth: ndarray::ArrayView3<'_, f32>,
+    alpha: ndarray::ArrayView3<'_, f32>,
+) -> Result<Array4<f32>> {
+    let (b, h, w) = depth.dim();
+    if alpha.dim() != (b, h, w) || rgb.dim() != (b, h, w, 3) {
+        return Err(Error::param(format!(
+            "control image: rgb {:?}, depth {:?} and alpha {:?} do not agree",
+            rgb.shape(),
+            depth.shape(),
+            alpha.shape()
+        )));
+    }
+    let mut out = Array4::<f32>::zeros((b, 3, h, w));
+    for bi in 0..b {
+        let vals: Vec<Option<f32>> = match kind {
+            ControlKind::Depth => depth
+                .index_axis(Axis(0), bi)
+                .iter()
+                .zip(alpha.index_axis(Axis(0), bi).iter())
+                .map(|(&d, &a)| (a > 0.5 && d > 0.0 && d.is_finite()).then(|| 1.0 / d))
+                .collect(),
+            ControlKind::Edges => {
+                let lum = |y: usize, x: usize| {
+                    let p = rgb.slice(ndarray::s![bi, y.min(h - 1), x.min(w - 1), ..]);
+                    0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]
+                };
+                (0..h * w)
+                    .map(|i| {
+                        let (y, x) = (i / w, i % w);
+                        let (ym, xm) = (y.saturating_sub(1), x.saturating_sub(1));
+                        let gx = lum(ym, x + 1) + 2.0 * lum(y, x + 1) + lum(y + 1, x + 1)
+                            - lum(ym, xm)
+                            - 2.0 * lum(y, xm)
+                            - lum(y + 1, xm);
+                        let gy = lum(y + 1, xm) + 2.0 * lum(y + 1, x) + lum(y + 1, x + 1)
+                            - lum(ym, xm)
+                            - 2.0 * lum(ym, x)
+                            - lum(ym, x + 1);
+                        Some((gx * gx + gy * gy).sqrt())
+                    })
+                    .collect()
+            }
+        };
+        let (lo, hi) = vals
+            .iter()
+            .flatten()
+            .fold((f32::MAX, f32::MIN), |(l, u), &v| (l.min(v), u.max(v)));
+        let span = (hi - lo).max(1e-12);
+        for (i, v) in vals.iter().enumerate() {
+            let x = v.map(|v| (v - lo) / span).unwrap_or(0.0);
+            for ch in 0..3 {
+                out[[bi, ch, i / w, i % w]] = x;
+            }
+        }
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn resize_preserves_constants_and_linear_ramps() {
-        let img = Array4::from_shape_fn((1, 1, 4, 4), |(_, _, _, x)| x as f32);
-        let up = resize_bilinear(img.view(), 8, 8);
-        // Half-pixel centres: output x maps to input 0.5 x - 0.25 (clamped at 0).
-        assert!((up[[0, 0, 0, 3]] - 1.25).abs() < 1e-6);
-        assert!((up[[0, 0, 5, 0]] - 0.0).abs() < 1e-6);
-        let c = Array4::from_elem((2, 3, 5, 7), 0.3f32);
-        let r = resize_bilinear(c.view(), 3, 11);
-        assert!(r.iter().all(|x| (x - 0.3).abs() < 1e-6));
-        let down = resize_bilinear(img.view(), 2, 2);
-        assert!((down[[0, 0, 0, 0]] - 0.5).abs() < 1e-6);
-        assert!((down[[0, 0, 0, 1]] - 2.5).abs() < 1e-6);
-    }
-
-    #[test]
     fn fit_square_crops_the_centre() {
-        let img = Array4::from_shape_fn((1, 1, 4, 8), |(_, _, _, x)| x as f32);
+        let img = Array4::from_shape_fn((1, 3, 4, 8), |(_, _, _, x)| x as f32);
         let sq = fit_square(img.view(), 4);
-        assert_eq!(sq.dim(), (1, 1, 4, 4));
-        assert_eq!(sq[[0, 0, 0, 0]], 2.0);
-        assert_eq!(sq[[0, 0, 3, 3]], 5.0);
+        assert_eq!(sq.dim(), (1, 3, 4, 4));
+        assert_eq!(sq[[0, 2, 0, 0]], 2.0);
+        assert_eq!(sq[[0, 2, 3, 3]], 5.0);
         let tall = Array4::<f32>::ones((1, 3, 10, 5));
         assert_eq!(fit_square(tall.view(), 3).dim(), (1, 3, 3, 3));
     }

@@ -34,11 +34,13 @@
 //! the network's own reconstruction bias (what it does to any image) cancelled by the
 //! negative content branch; the source term Phi_src is exactly zero for this prior.
 
+use super::session::{Kind, LazyGraph};
 use super::{Cond, Prior, PriorInfo};
+use crate::imageio::{Filter, Image};
+use crate::runtime::SessionConfig;
 use crate::scheduler::{Schedule, SchedulerConfig};
 use crate::{Error, Result};
 use ndarray::{Array3, Array4, ArrayView3, ArrayView4, Axis};
-use ort::session::Session;
 use ort::value::Tensor;
 use serde::Deserialize;
 use std::path::Path;
@@ -107,59 +109,9 @@ pub struct StylizerPrior {
     info: PriorInfo,
     schedule: Schedule,
     manifest: StylizerManifest,
-    predict: LazySession,
-    transform: LazySession,
+    predict: LazyGraph,
+    transform: LazyGraph,
     style: Option<Vec<f32>>,
-}
-
-/// An onnxruntime session loaded (and checked against the manifest) on first use: the
-/// pixel-space VAE is the identity, so `encode-latents` never pays for the two Magenta
-/// graphs, and a stage that only stylizes with a known style vector loads one of them.
-struct LazySession {
-    path: std::path::PathBuf,
-    threads: usize,
-    inputs: Vec<String>,
-    output: String,
-    session: Option<Session>,
-}
-
-impl LazySession {
-    fn new(
-        path: std::path::PathBuf,
-        threads: usize,
-        inputs: &[&str],
-        output: &str,
-    ) -> Result<Self> {
-        if !path.is_file() {
-            return Err(Error::input(
-                &path,
-                "ONNX graph named by the stylizer manifest not found",
-            ));
-        }
-        // The environment (and the onnxruntime library) must exist before any tensor is
-        // made, sessions or not: ort would otherwise look for a library by default name.
-        crate::runtime::environment()?;
-        Ok(LazySession {
-            path,
-            threads,
-            inputs: inputs.iter().map(|s| s.to_string()).collect(),
-            output: output.to_string(),
-            session: None,
-        })
-    }
-
-    fn get(&mut self) -> Result<&mut Session> {
-        if self.session.is_none() {
-            let inputs: Vec<&str> = self.inputs.iter().map(String::as_str).collect();
-            self.session = Some(load_checked(
-                &self.path,
-                self.threads,
-                &inputs,
-                &self.output,
-            )?);
-        }
-        Ok(self.session.as_mut().expect("loaded above"))
-    }
 }
 
 impl std::fmt::Debug for StylizerPrior {
@@ -191,21 +143,23 @@ impl StylizerPrior {
         let manifest = mj.stylizer;
         let schedule = Schedule::new(mj.scheduler.clone())
             .map_err(|e| Error::input(&mpath, format!("scheduler: {e}")))?;
-        let predict = LazySession::new(
-            dir.join(&manifest.style_predict.file),
+        let cfg = SessionConfig {
             threads,
-            &[&manifest.style_predict.input],
-            &manifest.style_predict.output,
-        )?;
-        let transform = LazySession::new(
-            dir.join(&manifest.transform.file),
-            threads,
-            &[
-                &manifest.transform.content_input,
-                &manifest.transform.style_input,
-            ],
-            &manifest.transform.output,
-        )?;
+            ..Default::default()
+        };
+        let (sp, tr, dim) = (
+            &manifest.style_predict,
+            &manifest.transform,
+            manifest.style_dim,
+        );
+        let image = |size: usize| [(1, size), (2, size), (3, 3)];
+        let predict = LazyGraph::new(dir.join(&sp.file), "style_predict", cfg)?
+            .expect(false, &sp.input, Kind::F32(&[4]), &image(sp.size))
+            .expect(true, &sp.output, Kind::F32(&[4]), &[(3, dim)]);
+        let transform = LazyGraph::new(dir.join(&tr.file), "transform", cfg)?
+            .expect(false, &tr.content_input, Kind::F32(&[4]), &image(tr.size))
+            .expect(false, &tr.style_input, Kind::F32(&[4]), &[(3, dim)])
+            .expect(true, &tr.output, Kind::F32(&[4]), &image(tr.size));
         let info = PriorInfo {
             name: mj.name.unwrap_or_else(|| "magenta-stylizer".into()),
             latent_channels: 3,
@@ -248,6 +202,7 @@ impl StylizerPrior {
         let out = self
             .predict
             .get()?
+            .session
             .run(ort::inputs![g.input.as_str() => t])
             .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
         let v = out
@@ -295,6 +250,7 @@ impl StylizerPrior {
         let out = self
             .transform
             .get()?
+            .session
             .run(ort::inputs![g.content_input.as_str() => content, g.style_input.as_str() => style])
             .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
         let (_, data) = out
@@ -339,28 +295,6 @@ impl StylizerPrior {
     }
 }
 
-fn load_checked(path: &Path, threads: usize, inputs: &[&str], output: &str) -> Result<Session> {
-    let s = crate::runtime::load_session(path, threads)?;
-    for name in inputs {
-        if !s.inputs().iter().any(|o| o.name() == *name) {
-            return Err(Error::input(
-                path,
-                format!(
-                    "graph has no input `{name}` (it has {:?})",
-                    s.inputs().iter().map(|o| o.name()).collect::<Vec<_>>()
-                ),
-            ));
-        }
-    }
-    if !s.outputs().iter().any(|o| o.name() == output) {
-        return Err(Error::input(
-            path,
-            format!("graph has no output `{output}`"),
-        ));
-    }
-    Ok(s)
-}
-
 /// Mirror index (reflect without repeating the edge, periodic for any overshoot).
 fn mirror(i: usize, n: usize) -> usize {
     mirror_signed(i as isize, n)
@@ -379,20 +313,12 @@ fn to_nhwc(x: ArrayView3<'_, f32>) -> Vec<f32> {
     x.permuted_axes([1, 2, 0]).iter().copied().collect()
 }
 
-/// Resize `[3, H, W]` with a triangle filter (area-aware when shrinking).
+/// Resize `[3, H, W]` with the triangle filter ([`Filter::Triangle`], area-aware when
+/// shrinking).
 fn resize(img: ArrayView3<'_, f32>, h: usize, w: usize) -> Array3<f32> {
-    let (ih, iw) = (img.shape()[1], img.shape()[2]);
-    let buf: image::ImageBuffer<image::Rgb<f32>, Vec<f32>> =
-        image::ImageBuffer::from_raw(iw as u32, ih as u32, to_nhwc(img))
-            .expect("buffer size matches");
-    let r = image::imageops::resize(
-        &buf,
-        w as u32,
-        h as u32,
-        image::imageops::FilterType::Triangle,
-    );
-    let raw = r.into_raw();
-    Array3::from_shape_fn((3, h, w), |(c, y, x)| raw[(y * w + x) * 3 + c])
+    Image::from_chw(img)
+        .resized(w, h, Filter::Triangle)
+        .to_chw()
 }
 
 /// Separable Gaussian blur of `[C, H, W]` with pixel std `sigma`, mirrored borders

@@ -388,7 +388,9 @@ fn project_one_f64(scene: &Scene, cam: &Cam, margin: BoxMargin, i: usize) -> Opt
     if opacity.is_nan() || opacity < ALPHA_MIN as f64 {
         return None;
     }
-    let rq = crate::camera::quat_to_mat(scene.rotations[i].map(f64::from))?;
+    let rq = crate::geometry::rows(crate::geometry::quat_to_mat(
+        scene.rotations[i].map(f64::from),
+    )?);
     let ls = scene.log_scales[i];
     let s = [
         (ls[0] as f64).exp(),

@@ -5,14 +5,16 @@
 //! so that reading and writing a `.ply` round-trips every field bit-exactly.
 //! Only colour (`sh_dc`, `sh_rest`) changes during stylization; geometry is frozen.
 //!
-//! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout),
-//! [`sample`] (the deterministic sample scene in `data-sample/`). [`load_scene`] picks
-//! the reader from the path; every reader ends with [`Scene::validate`].
+//! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout).
+//! [`read_scene_file`] picks the reader from the path (stages read their `--scene`
+//! through [`crate::artifacts::load_scene`], which also takes scene artifacts); every reader ends with
+//! [`Scene::validate`]. Scenes know nothing of cameras: [`Scene::bounds`] is what a
+//! generated orbit needs ([`crate::camera::orbit`]).
 
 pub mod ply;
-pub mod sample;
 pub mod splat;
 
+use crate::geometry::Bounds;
 use crate::{Error, Result};
 use rayon::prelude::*;
 use std::path::Path;
@@ -71,17 +73,9 @@ impl Scene {
         let s = self.log_scales[i];
         [s[0].exp(), s[1].exp(), s[2].exp()]
     }
-    /// Axis-aligned bounds of the means: (min, max).
-    pub fn bounds(&self) -> ([f32; 3], [f32; 3]) {
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in &self.positions {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        (lo, hi)
+    /// Axis-aligned bounds of the means (empty for an empty scene).
+    pub fn bounds(&self) -> Bounds {
+        Bounds::of_points(&self.positions)
     }
 
     /// Check the invariants every renderer relies on; `path` names the file in errors.
@@ -179,18 +173,10 @@ impl Scene {
     }
 }
 
-/// Load a scene from `path`: a `.ply` (INRIA), a `.splat`, or a directory holding a
-/// `scene.ply` (a `scene` artifact, whose manifest and hashes are checked, or a plain
-/// directory).
-pub fn load_scene(path: &Path) -> Result<Scene> {
+/// Load a scene from `path`: a `.ply` (INRIA), a `.splat`, or a plain directory holding
+/// a `scene.ply`.
+pub fn read_scene_file(path: &Path) -> Result<Scene> {
     if path.is_dir() {
-        if path.join(fantasystyle_schemas::MANIFEST_FILE).is_file() {
-            let a = fantasystyle_schemas::Artifact::open(
-                path,
-                fantasystyle_schemas::ArtifactKind::Scene,
-            )?;
-            return ply::read_ply(&a.path("scene.ply"));
-        }
         let p = path.join("scene.ply");
         if p.is_file() {
             return ply::read_ply(&p);

@@ -324,7 +324,7 @@ mod tests {
     fn written_splat_renders_like_the_scene() {
         use crate::render::{RenderOptions, render};
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        let mut s = super::super::load_scene(&root.join("data-sample/scene.ply")).unwrap();
+        let mut s = super::super::read_scene_file(&root.join("data-sample/scene.ply")).unwrap();
         // The format has no higher-order SH: compare against the base colours.
         s.sh_degree = 0;
         s.sh_rest.clear();
@@ -332,7 +332,7 @@ mod tests {
             *c = c.map(|d| d.clamp(-0.5 / SH_C0, 0.5 / SH_C0));
         }
         let r = parse_splat(Path::new("w.splat"), &encode_splat(&s)).unwrap();
-        let cams = crate::camera::load_cameras("orbit:4", &s, 128, 128).unwrap();
+        let cams = crate::camera::load_cameras("orbit:4", &s.bounds(), 128, 128).unwrap();
         let (mut worst, mut sum, mut cnt) = (0.0f32, 0.0f64, 0usize);
         for c in &cams {
             let a = render(&s, c, &RenderOptions::default()).unwrap();

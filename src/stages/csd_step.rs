@@ -23,31 +23,52 @@
 //! `delta.npy` [N, H, W, 3] (target - render, for inspection) and PNG previews; `meta`
 //! records t, the mode and the step's statistics.
 
+use super::Threads;
+use crate::artifacts::{read_latents, read_noised_latents, read_views};
 use crate::csd::{self, CsdParams, StepInputs};
-use crate::metrics::views::read_view_tensors;
-use crate::prior::{self, PriorOptions};
+use crate::imageio::Image;
+use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
-use crate::stages::mvfc_filter::{model_timesteps, read_latents};
-use crate::stages::with_threads;
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array4, Axis, concatenate, s};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-/// Parameters of `csd-step`.
-#[derive(Debug, Clone)]
-pub struct CsdStepArgs {
+/// One controllable stylized distillation (CSD) step: from noised latents (mvfc-filter),
+/// the clean target latents and the renders, compute z0' = z0 - lr w(t) grad and write
+/// target images render + decode(z0') - decode(z0) as a targets artifact
+/// (rgb.npy [N,H,W,3], cameras.json, delta.npy, PNG previews).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "csd-step", version)]
+pub struct Args {
+    /// Noised-latents artifact from mvfc-filter (z_src, z_tgt, eps; meta.timestep).
+    #[arg(long)]
     pub noised: PathBuf,
+    /// Latents artifact of the current renders (the clean target latents z0).
+    #[arg(long)]
     pub latents: PathBuf,
+    /// Views artifact of the current renders (the targets are built on them; cameras copied).
+    #[arg(long)]
     pub views: PathBuf,
+    /// Views artifact of the original renders (control image for ControlNet priors).
+    #[arg(long)]
     pub source_views: PathBuf,
+    /// Model directory with model.json (e.g. vendor/models/stylizer, vendor/models/gaussian-prior).
+    #[arg(long)]
     pub model: PathBuf,
+    /// Style image (PNG or JPEG).
+    #[arg(long)]
     pub style: PathBuf,
+    /// Text of one of the model's exported prompts (default: its first); ignored by the stylizer.
+    #[arg(long)]
     pub prompt: Option<String>,
+    #[command(flatten)]
     pub params: CsdParams,
+    /// Output targets artifact directory (written atomically).
+    #[arg(long)]
     pub out: PathBuf,
-    /// Threads (0 = all cores).
-    pub threads: usize,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
 /// Statistics of one step (also written to the artifact's meta).
@@ -60,18 +81,6 @@ pub struct StepReport {
     pub clamped_fraction: f64,
 }
 
-/// Load an image file as `[1, 3, H, W]` in [0, 1].
-pub fn load_image(path: &Path) -> Result<Array4<f32>> {
-    if !path.is_file() {
-        return Err(Error::input(path, "style image not found"));
-    }
-    let img = crate::imageio::read_rgb(path)?;
-    let (w, h) = (img.width, img.height);
-    Ok(Array4::from_shape_fn((1, 3, h, w), |(_, c, y, x)| {
-        img.data[(y * w + x) * 3 + c]
-    }))
-}
-
 fn rms(a: impl Iterator<Item = f32>) -> f64 {
     let (mut s, mut n) = (0.0f64, 0usize);
     for v in a {
@@ -81,8 +90,8 @@ fn rms(a: impl Iterator<Item = f32>) -> f64 {
     (s / n.max(1) as f64).sqrt()
 }
 
-/// Run the stage.
-pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
+/// The stage: read the inputs, step, write the targets artifact.
+pub fn run(a: Args) -> Result<StepReport> {
     let p = a.params;
     if !(p.guidance.is_finite() && p.lr.is_finite() && p.lr >= 0.0) {
         return Err(Error::param(format!(
@@ -91,46 +100,22 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         )));
     }
     // Inputs, checked against each other before the (slow) prior is loaded.
-    let noised = Artifact::open(&a.noised, ArtifactKind::NoisedLatents)?;
-    let read4 = |name: &str| -> Result<Array4<f32>> {
-        let t = noised.read_f32(name)?;
-        let [n, c, h, w] = t.shape[..] else {
-            return Err(Error::input(
-                noised.path(name),
-                format!("expected shape [N, C, h, w], found {:?}", t.shape),
-            ));
-        };
-        Ok(Array4::from_shape_vec((n, c, h, w), t.data).expect("shape checked"))
-    };
-    let z_src = read4("z_src.npy")?;
-    let z_tgt = read4("z_tgt.npy")?;
-    let eps = read4("eps.npy")?;
+    let noised = read_noised_latents(&a.noised)?;
     let z0 = read_latents(&a.latents)?;
-    for (name, x) in [
-        ("z_src.npy", &z_src),
-        ("z_tgt.npy", &z_tgt),
-        ("eps.npy", &eps),
-    ] {
-        if x.shape() != z0.shape() {
-            return Err(Error::input(
-                noised.path(name),
-                format!(
-                    "shape {:?} differs from the latents' {:?} ({})",
-                    x.shape(),
-                    z0.shape(),
-                    a.latents.join("latents.npy").display()
-                ),
-            ));
-        }
+    if noised.z_src.shape() != z0.shape() {
+        return Err(Error::input(
+            noised.art.path("z_src.npy"),
+            format!(
+                "shape {:?} differs from the latents' {:?} ({})",
+                noised.z_src.shape(),
+                z0.shape(),
+                a.latents.join("latents.npy").display()
+            ),
+        ));
     }
-    let t = noised.manifest.meta["timestep"].as_u64().ok_or_else(|| {
-        Error::input(
-            noised.path("manifest.json"),
-            "meta.timestep is missing or not a non-negative integer",
-        )
-    })? as usize;
-    let views = super::timing::load(|| read_view_tensors(&a.views))?;
-    let source = super::timing::load(|| read_view_tensors(&a.source_views))?;
+    let (z_src, z_tgt, eps, t) = (&noised.z_src, &noised.z_tgt, &noised.eps, noised.timestep);
+    let views = crate::timing::load(|| read_views(&a.views))?;
+    let source = crate::timing::load(|| read_views(&a.source_views))?;
     if views.rgb.shape() != source.rgb.shape() {
         return Err(Error::input(
             source.art.path("rgb.npy"),
@@ -153,18 +138,25 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         ));
     }
     let (_, set) = model_timesteps(&a.model)?;
-    set.check(t)
-        .map_err(|e| Error::input(noised.path("manifest.json"), format!("meta.timestep: {e}")))?;
-    let style = load_image(&a.style)?;
+    set.check(t).map_err(|e| {
+        Error::input(
+            noised.art.path("manifest.json"),
+            format!("meta.timestep: {e}"),
+        )
+    })?;
+    if !a.style.is_file() {
+        return Err(Error::input(&a.style, "style image not found"));
+    }
+    let style = Image::load(&a.style)?.to_chw().insert_axis(Axis(0));
 
     // The prior.
-    let mut prior = super::timing::load(|| {
+    let mut prior = crate::timing::load(|| {
         prior::open(
             &a.model,
             &PriorOptions {
                 style_image: Some(style),
                 prompt: a.prompt.clone(),
-                threads: a.threads,
+                threads: a.threads.n,
                 ..Default::default()
             },
         )
@@ -194,7 +186,7 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
     };
 
     // The step.
-    let (z1, g) = with_threads(a.threads, || {
+    let (z1, g) = a.threads.install(|| {
         csd::step(
             prior.as_mut(),
             &schedule,
@@ -289,6 +281,6 @@ pub fn csd_step(a: &CsdStepArgs) -> Result<StepReport> {
         "mode": p.mode,
         "report": report,
     }));
-    super::timing::io(|| wr.commit())?;
+    crate::timing::io(|| wr.commit())?;
     Ok(report)
 }

@@ -7,44 +7,42 @@
 //! artifact: `latents.npy` `[N, C, H/f, W/f]` f32 plus the views' `cameras.json`. The
 //! inputs recorded are the views artifact and the model's `model.json`.
 
+use super::Threads;
+use crate::artifacts::read_view_images;
 use crate::prior::manifest::ModelManifest;
 use crate::prior::{self, PriorOptions};
 use crate::runtime::Optimization;
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use indicatif::{ProgressBar, ProgressStyle};
-use ndarray::{Array4, Axis, concatenate};
+use ndarray::{Axis, concatenate};
 use std::path::PathBuf;
 
-/// Parameters of `encode-latents`.
-#[derive(Debug, Clone)]
-pub struct EncodeLatents {
+/// VAE-encode a views artifact's renders into a latents artifact (latents.npy [N,C,h,w]).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "encode-latents", version)]
+pub struct Args {
+    /// Views artifact directory (rgb.npy [N,H,W,3] in [0,1]).
+    #[arg(long)]
     pub views: PathBuf,
+    /// Model directory holding model.json (e.g. vendor/models/gaussian-prior).
+    #[arg(long)]
     pub model: PathBuf,
+    /// Output latents artifact directory (written atomically).
+    #[arg(long)]
     pub out: PathBuf,
-    /// Intra-op threads (0 = all cores).
-    pub threads: usize,
-    /// Views per VAE call (0 = all at once).
+    #[command(flatten)]
+    pub threads: Threads,
+    /// Views per VAE call (0 = all at once; lower it to bound memory with real VAEs).
+    #[arg(long, default_value_t = 4)]
     pub batch: usize,
 }
 
-/// Run the stage; returns the latents' shape.
-pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
-    let views = Artifact::open(&p.views, ArtifactKind::Views)?;
-    let rgb = views.read_f32("rgb.npy")?;
+/// The stage; returns the latents' shape.
+pub fn run(p: Args) -> Result<[usize; 4]> {
+    let (views, rgb) = read_view_images(&p.views)?;
     let rgb_path = views.path("rgb.npy");
-    let [n, h, w, c] = rgb.shape[..] else {
-        return Err(Error::input(
-            &rgb_path,
-            format!("expected shape [N, H, W, 3], found {:?}", rgb.shape),
-        ));
-    };
-    if c != 3 || n == 0 || h == 0 || w == 0 {
-        return Err(Error::input(
-            &rgb_path,
-            format!("expected shape [N>=1, H, W, 3], found {:?}", rgb.shape),
-        ));
-    }
+    let (n, h, w, _) = rgb.dim();
     let md = ModelManifest::load(&p.model)?;
     let f = md.manifest.downsample.max(1);
     if h % f != 0 || w % f != 0 {
@@ -57,17 +55,17 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
             ),
         ));
     }
-    let images = Array4::from_shape_vec((n, h, w, 3), rgb.data)
-        .map_err(|e| Error::input(&rgb_path, e.to_string()))?
+    let images = rgb
+        .view()
         .permuted_axes([0, 3, 1, 2])
         .as_standard_layout()
         .to_owned();
     let opts = PriorOptions {
-        threads: p.threads,
+        threads: p.threads.n,
         optimization: Optimization::All,
         ..Default::default()
     };
-    let mut prior = super::timing::load(|| prior::open(&md.dir, &opts))?;
+    let mut prior = crate::timing::load(|| prior::open(&md.dir, &opts))?;
     let batch = if p.batch == 0 { n } else { p.batch };
     let bar = ProgressBar::new(n as u64).with_style(
         ProgressStyle::with_template("encode-latents {bar:30} {pos}/{len} views {elapsed}")
@@ -113,7 +111,7 @@ pub fn encode_latents(p: &EncodeLatents) -> Result<[usize; 4]> {
         "vae_scaling_factor": md.manifest.vae_scaling_factor,
         "image_size": [h, w],
     }));
-    super::timing::io(|| wr.commit())?;
+    crate::timing::io(|| wr.commit())?;
     tracing::info!("encode-latents: {n} views -> latents {shape:?}");
     Ok(shape)
 }

@@ -1,6 +1,6 @@
 //! `make-sample`: write the deterministic sample of `data-sample/` (see
-//! [`crate::scene::sample`]): `scene.ply`, `cameras.json` (the orbit
-//! [`crate::scene::sample::SAMPLE_ORBIT`] at 256x256) and `style.png`.
+//! [`crate::sample`]): `scene.ply`, `cameras.json` (the orbit
+//! [`crate::sample::SAMPLE_ORBIT`] at 256x256) and `style.png`.
 
 use crate::Result;
 use std::path::PathBuf;
@@ -20,7 +20,7 @@ pub struct Args {
 
 /// The stage.
 pub fn run(a: Args) -> Result<()> {
-    crate::scene::sample::write_sample(&a.out, a.seed)?;
+    crate::sample::write_sample(&a.out, a.seed)?;
     tracing::info!(
         "wrote scene.ply, cameras.json, style.png to {}",
         a.out.display()

@@ -1,9 +1,34 @@
-//! One function per stage binary, plus the plumbing every binary shares: logging set-up,
-//! error-to-exit-code mapping ([`run_main`]), phase timing for the DAG runner ([`timing`]).
+//! The stages: one module per stage binary, and the plumbing every binary shares.
 //!
-//! A stage binary is `fn main() -> ExitCode { run_main(Args::parse(), stage_fn) }`.
+//! Every stage has the same shape:
+//! * `src/stages/X.rs` owns `Args` (clap derive; its doc comments are the `--help`) and
+//!   `pub fn run(args: Args) -> Result<T>`, which does the stage's work through the
+//!   library (`T` is what tests want to see: a report, the metrics, or `()`);
+//! * the binary `stages/X.rs` is one line, `run_main(X::run)`: parse the flags, set up
+//!   logging, run, print the error chain and map it to an exit code ([`run_main`]).
+//!
+//! Flags several stages share are clap groups flattened into their `Args`:
+//! [`SceneInput`] (`--scene`, `--cameras`), [`Background`] (`--background`) and
+//! [`Threads`] (`--threads`); a stage's own numerics parameters are the library's
+//! parameter structs flattened the same way (`csd::CsdParams`, `mvfc::MvfcParams`).
+//! A stage never imports another stage: what two stages need lives in the library
+//! (artifact readers in [`crate::artifacts`], model lookup in [`crate::models`], phase
+//! timing for the DAG runner in [`crate::timing`]).
 
+use crate::artifacts::{load_cameras, load_scene};
+use crate::{Camera, Error, Result, Scene};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+pub mod csd_step;
+pub mod encode_latents;
+pub mod evaluate;
+pub mod make_sample;
+pub mod mvfc_filter;
+pub mod render_views;
+pub mod stylize_baseline;
+pub mod sweep;
+pub mod update_gaussians;
 
 /// Initialise tracing (RUST_LOG, default `info`) to stderr.
 pub fn init_logging() {
@@ -16,14 +41,16 @@ pub fn init_logging() {
         .try_init();
 }
 
-/// Run a stage: set up logging, call `f`, print the error chain and map it to an exit
-/// code (see [`crate::error`]).
-pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
+/// A stage binary's `main`: parse the flags into `A` (clap prints help or a usage error
+/// and exits 2 itself), set up logging, call `run`, print the error chain and map it to
+/// an exit code (see [`crate::error`]); report phase timing when the runner asks.
+pub fn run_main<A: clap::Parser, T>(run: fn(A) -> Result<T>) -> ExitCode {
+    let args = A::parse();
     init_logging();
     let start = std::time::Instant::now();
-    match f(args) {
-        Ok(()) => {
-            timing::write_if_requested(start.elapsed());
+    match run(args) {
+        Ok(_) => {
+            crate::timing::write_if_requested(start.elapsed());
             ExitCode::SUCCESS
         }
         Err(e) => {
@@ -38,18 +65,67 @@ pub fn run_main<A>(args: A, f: fn(A) -> crate::Result<()>) -> ExitCode {
     }
 }
 
-pub mod csd_step;
-pub mod encode_latents;
-pub mod evaluate;
-pub mod make_sample;
-pub mod mvfc_filter;
-pub mod render_views;
-pub mod stylize_baseline;
-pub mod timing;
-pub mod update_gaussians;
+/// `--scene` and `--cameras`: the scene and the views of it a stage works on.
+#[derive(clap::Args, Debug, Clone)]
+pub struct SceneInput {
+    /// Scene: an INRIA .ply, a .splat, or a scene artifact directory (its scene.ply).
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Cameras: `orbit:N[,elev=DEG][,radius=R][,fov=DEG]` (around the scene's bounds), an
+    /// INRIA cameras.json, a COLMAP sparse/0 directory, a nerfstudio transforms.json, or a
+    /// views/targets artifact directory. Intrinsics read from files are rescaled to the
+    /// image size the stage works at.
+    #[arg(long)]
+    pub cameras: String,
+}
 
-use crate::{Error, Result};
-use std::path::Path;
+impl SceneInput {
+    /// Load the scene (counted as loading time).
+    pub fn load_scene(&self) -> Result<Scene> {
+        crate::timing::load(|| load_scene(&self.scene))
+    }
+
+    /// The cameras for `scene` at `width` x `height`.
+    pub fn load_cameras(&self, scene: &Scene, width: u32, height: u32) -> Result<Vec<Camera>> {
+        load_cameras(&self.cameras, &scene.bounds(), width, height)
+    }
+
+    /// Record both as inputs of the artifact being written.
+    pub fn add_inputs(&self, w: &mut fantasystyle_schemas::ArtifactWriter) -> Result<()> {
+        w.add_input("scene", &self.scene)?;
+        add_cameras_input(w, &self.cameras)
+    }
+}
+
+/// `--background`: the colour behind the Gaussians.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct Background {
+    /// Background colour R,G,B in [0, 1] the Gaussians are composited over (to fit targets,
+    /// use the one they were rendered with).
+    #[arg(long = "background", value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb)]
+    pub rgb: [f32; 3],
+}
+
+/// `--threads`.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct Threads {
+    /// Worker threads: the rasterizer's and the numerics' pool, or onnxruntime's intra-op
+    /// threads (0 = all cores).
+    #[arg(long = "threads", value_name = "THREADS", default_value_t = 0)]
+    pub n: usize,
+}
+
+impl Threads {
+    /// `n` threads.
+    pub fn new(n: usize) -> Threads {
+        Threads { n }
+    }
+
+    /// Run `f` on a pool of this many threads ([`with_threads`]).
+    pub fn install<T: Send>(self, f: impl FnOnce() -> T + Send) -> Result<T> {
+        with_threads(self.n, f)
+    }
+}
 
 /// Run `f` on a rayon pool of `threads` threads (0 = all cores).
 pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Result<T> {

@@ -6,7 +6,7 @@
 //! same shape `[N, C, h, w]`) and the model's `model.json` (its noise schedule and
 //! timestep set). Draws, from `--seed` and `--round`:
 //! * t: given explicitly (must be in the set) or `auto`: uniform over the set,
-//!   deterministic in (seed, round) ([`TimestepSet::sample_for_round`]);
+//!   deterministic in (seed, round) ([`crate::scheduler::TimestepSet::sample_for_round`]);
 //! * eps `[N, C, h, w]` (stream `mvfc/eps/<round>`), shared by source and target;
 //! * eps' `[C, h, w]` (stream `mvfc/shared/<round>`), the MVFC noise shared by all views.
 //!
@@ -15,18 +15,18 @@
 //! the paper's "w/o MVFC" ablation), `eps.npy`, `eps_shared.npy`; `meta.timestep` and
 //! the filter parameters.
 //!
-//! The timestep set: the model manifest's `stylizer.timesteps` range if present, else
-//! [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]).
+//! The timestep set: [`crate::prior::model_timesteps`] (the model manifest's
+//! `stylizer.timesteps` range if present, else 50 steps over [0.02 T, 0.98 T]).
 
+use super::Threads;
+use crate::artifacts::read_latents;
 use crate::mvfc::{MvfcParams, mvfc_grouped};
-use crate::prior::manifest::ModelManifest;
-use crate::prior::stylizer::TimestepRange;
+use crate::prior::model_timesteps;
 use crate::rng::Rng;
-use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array3, Array4};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Which timestep to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -49,69 +49,48 @@ impl std::str::FromStr for TimestepChoice {
     }
 }
 
-/// Parameters of `mvfc-filter`.
-#[derive(Debug, Clone)]
-pub struct MvfcFilterArgs {
+/// Noise target and source latents with one shared eps at a DDIM timestep and apply
+/// multi-view frequency consistency (MVFC) to the noisy target latents. Writes a
+/// noised-latents artifact (z_src.npy, z_tgt.npy, eps.npy, eps_shared.npy; meta.timestep).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "mvfc-filter", version)]
+pub struct Args {
+    /// Target latents artifact (latents of the current renders).
+    #[arg(long)]
     pub latents: PathBuf,
+    /// Source latents artifact (latents of the original renders), same shape.
+    #[arg(long)]
     pub source_latents: PathBuf,
+    /// Model directory with model.json (its noise schedule and timestep set).
+    #[arg(long)]
     pub model: PathBuf,
+    /// Timestep: an integer from the model's DDIM set, or `auto` to draw one with (seed, round).
+    #[arg(long, default_value = "auto")]
     pub timestep: TimestepChoice,
+    /// Seed for t (auto), eps and the shared MVFC noise.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Iteration index: with the seed, selects t and the noise of this round.
+    #[arg(long, default_value_t = 0)]
     pub round: u64,
+    /// Output noised-latents artifact directory (written atomically).
+    #[arg(long)]
     pub out: PathBuf,
+    #[command(flatten)]
     pub params: MvfcParams,
+    /// Skip MVFC (the paper's "w/o MVFC" ablation): z_tgt is only noised.
+    #[arg(long)]
     pub no_filter: bool,
-    /// Views per MVFC group (0 = all views in one group); see [`crate::mvfc::mvfc_grouped`].
+    /// Views per MVFC group: the 3D FFT runs over runs of this many adjacent views
+    /// (0 = all views in one group).
+    #[arg(long, default_value_t = 0)]
     pub group_size: usize,
-    /// Worker threads (0 = all cores).
-    pub threads: usize,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
-/// The model's noise schedule and the fixed timestep set (see module docs). `model`
-/// is a model directory or its `model.json`; the manifest is read and validated by
-/// [`ModelManifest::load`].
-pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
-    let md = ModelManifest::load(model)?;
-    let m = &md.manifest;
-    let bad = |e: Error| md.err(e.to_string());
-    let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
-    let range = match m.stylizer.as_ref().and_then(|s| s.get("timesteps")) {
-        Some(v) => Some(
-            serde_json::from_value::<TimestepRange>(v.clone())
-                .map_err(|e| md.err(format!("stylizer.timesteps: {e}")))?,
-        ),
-        None => None,
-    };
-    let set = match range {
-        Some(r) => TimestepSet::new(&m.scheduler, r.t_min, r.t_max, r.count),
-        None => TimestepSet::default_for(&m.scheduler),
-    }
-    .map_err(bad)?;
-    Ok((schedule, set))
-}
-
-/// Read a `latents` artifact's `latents.npy` as `[N, C, h, w]` (finite, checked).
-pub fn read_latents(dir: &Path) -> Result<Array4<f32>> {
-    let a = Artifact::open(dir, ArtifactKind::Latents)?;
-    let t = a.read_f32("latents.npy")?;
-    let [n, c, h, w] = t.shape[..] else {
-        return Err(Error::input(
-            a.path("latents.npy"),
-            format!("expected shape [N, C, h, w], found {:?}", t.shape),
-        ));
-    };
-    if n * c * h * w == 0 {
-        return Err(Error::input(
-            a.path("latents.npy"),
-            format!("empty latents {:?}", t.shape),
-        ));
-    }
-    Array4::from_shape_vec((n, c, h, w), t.data)
-        .map_err(|e| Error::input(a.path("latents.npy"), e.to_string()))
-}
-
-/// Run the stage; returns the timestep used.
-pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
+/// The stage; returns the timestep used.
+pub fn run(a: Args) -> Result<usize> {
     a.params.validate()?;
     let z0_tgt = read_latents(&a.latents)?;
     let z0_src = read_latents(&a.source_latents)?;
@@ -152,9 +131,8 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
     let z_tgt = if a.no_filter {
         z_noisy
     } else {
-        super::with_threads(a.threads, || {
-            mvfc_grouped(z_noisy.view(), eps_shared.view(), a.params, a.group_size)
-        })??
+        a.threads
+            .install(|| mvfc_grouped(z_noisy.view(), eps_shared.view(), a.params, a.group_size))??
     };
     tracing::info!(
         "mvfc-filter: t = {t} (ab = {:.4}), latents {shape:?}, {}",
@@ -207,6 +185,7 @@ pub fn mvfc_filter(a: &MvfcFilterArgs) -> Result<usize> {
         "seed": a.seed,
         "round": a.round,
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
+    tracing::info!("wrote noised latents at t = {t}");
     Ok(t)
 }

@@ -6,9 +6,9 @@
 //! [N,H,W], `cameras.json` (INRIA format, at W x H), and `view_000.png`.. previews.
 //! The manifest records the scene and cameras as inputs (hashes) and the parameters.
 
-use crate::camera::{inria, load_cameras};
+use super::{Background, SceneInput, Threads};
+use crate::camera::inria;
 use crate::render::{RenderOptions, RenderOutput, render};
-use crate::scene::load_scene;
 use crate::{Camera, Error, Result, Scene};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;
@@ -18,14 +18,8 @@ use std::path::PathBuf;
 #[derive(clap::Parser, Debug, Clone)]
 #[command(name = "render-views", version)]
 pub struct Args {
-    /// Scene: an INRIA .ply, a .splat, or a scene artifact directory (its scene.ply).
-    #[arg(long)]
-    pub scene: PathBuf,
-    /// Cameras: `orbit:N[,elev=DEG][,radius=R][,fov=DEG]`, an INRIA cameras.json, a
-    /// COLMAP sparse/0 directory, a nerfstudio transforms.json, or a views/targets
-    /// artifact directory. Intrinsics read from files are rescaled to --width x --height.
-    #[arg(long)]
-    pub cameras: String,
+    #[command(flatten)]
+    pub input: SceneInput,
     /// Image width in pixels (> 0).
     #[arg(long)]
     pub width: u32,
@@ -35,12 +29,10 @@ pub struct Args {
     /// Output artifact directory (written atomically; replaces an existing artifact).
     #[arg(long)]
     pub out: PathBuf,
-    /// Background colour R,G,B in [0, 1].
-    #[arg(long, default_value = "0,0,0", value_parser = super::parse_rgb)]
-    pub background: [f32; 3],
-    /// Worker threads for the rasterizer (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
+    #[command(flatten)]
+    pub background: Background,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
 /// Render every camera, with a progress bar.
@@ -72,16 +64,15 @@ pub fn run(a: Args) -> Result<()> {
             a.width, a.height
         )));
     }
-    let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let cams = load_cameras(&a.cameras, &scene, a.width, a.height)?;
+    let scene = a.input.load_scene()?;
+    let cams = a.input.load_cameras(&scene, a.width, a.height)?;
     let params = serde_json::json!({
-        "cameras": a.cameras, "width": a.width, "height": a.height,
-        "background": a.background,
+        "cameras": a.input.cameras, "width": a.width, "height": a.height,
+        "background": a.background.rgb,
     });
     let producer = Producer::new("render-views", crate::VERSION, params);
     let mut w = super::create_artifact(&a.out, ArtifactKind::Views, producer)?;
-    w.add_input("scene", &a.scene)?;
-    super::add_cameras_input(&mut w, &a.cameras)?;
+    a.input.add_inputs(&mut w)?;
     tracing::info!(
         "rendering {} Gaussians, {} views at {}x{}",
         scene.len(),
@@ -90,9 +81,9 @@ pub fn run(a: Args) -> Result<()> {
         a.height
     );
     let opts = RenderOptions {
-        background: a.background,
+        background: a.background.rgb,
     };
-    let views = super::with_threads(a.threads, || render_all(&scene, &cams, &opts))??;
+    let views = a.threads.install(|| render_all(&scene, &cams, &opts))??;
     let (n, h, wd) = (views.len(), a.height as usize, a.width as usize);
     let mut rgb = Vec::with_capacity(n * h * wd * 3);
     let mut depth = Vec::with_capacity(n * h * wd);
@@ -117,10 +108,10 @@ pub fn run(a: Args) -> Result<()> {
         w.write_bytes(&format!("view_{i:03}.png"), &png)?;
     }
     w.set_meta(serde_json::json!({
-        "views": n, "width": wd, "height": h, "background": a.background,
+        "views": n, "width": wd, "height": h, "background": a.background.rgb,
         "camera_names": cams.iter().map(|c| c.name.clone()).collect::<Vec<_>>(),
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
     tracing::info!("wrote {}", a.out.display());
     Ok(())
 }

@@ -14,12 +14,12 @@
 //! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
 //! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
 
+use super::{Background, SceneInput, Threads};
 use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
-use crate::baselines::{Image, Objective, gram_distance, prepare_style};
-use crate::camera::load_cameras;
-use crate::scene::load_scene;
+use crate::baselines::{Objective, gram_distance, prepare_style};
+use crate::imageio::Image;
 use crate::vgg::Vgg16;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
@@ -45,13 +45,8 @@ pub struct Args {
     /// The baseline.
     #[arg(long, value_enum)]
     pub method: Method,
-    /// Scene: an INRIA .ply, a .splat, or a scene artifact directory (its scene.ply).
-    #[arg(long)]
-    pub scene: PathBuf,
-    /// Cameras: `orbit:N[,...]`, an INRIA cameras.json, a COLMAP sparse/0 directory, a
-    /// nerfstudio transforms.json, or a views/targets artifact directory.
-    #[arg(long)]
-    pub cameras: String,
+    #[command(flatten)]
+    pub input: SceneInput,
     /// Style image (PNG/JPEG; grayscale expanded, alpha dropped; shorter side >= 92 px).
     #[arg(long)]
     pub style: PathBuf,
@@ -67,9 +62,8 @@ pub struct Args {
     /// Render height (>= 16).
     #[arg(long, default_value_t = 128)]
     pub height: u32,
-    /// Background colour R,G,B in [0, 1].
-    #[arg(long, default_value = "0,0,0", value_parser = super::parse_rgb)]
-    pub background: [f32; 3],
+    #[command(flatten)]
+    pub background: Background,
     /// Adam learning rate of the DC colour coefficients.
     #[arg(long, default_value_t = 0.01)]
     pub lr_dc: f32,
@@ -88,15 +82,17 @@ pub struct Args {
     /// Log the Gram distance to the style every this many steps (0: first and last only).
     #[arg(long, default_value_t = 10)]
     pub monitor_every: usize,
-    /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh).
-    #[arg(long, default_value = "vendor/models/lpips/vgg16")]
-    pub vgg: PathBuf,
-    /// Stylizer model directory for `refit` (model.json, made by scripts/setup.sh).
-    #[arg(long, default_value = "vendor/models/stylizer")]
-    pub stylizer: PathBuf,
-    /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
+    /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh); default:
+    /// lpips/vgg16 in the models directory ($FANTASYSTYLE_MODELS, else the nearest
+    /// vendor/models above the executable or the current directory).
+    #[arg(long)]
+    pub vgg: Option<PathBuf>,
+    /// Stylizer model directory for `refit` (model.json, made by scripts/setup.sh);
+    /// default: stylizer in the models directory (see --vgg).
+    #[arg(long)]
+    pub stylizer: Option<PathBuf>,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
 /// What a run produced (also used by tests).
@@ -109,21 +105,6 @@ pub struct LossLog {
     pub steps: Vec<crate::baselines::fit::StepLog>,
 }
 
-fn chw(img: &Image) -> ndarray::Array3<f32> {
-    ndarray::Array3::from_shape_fn((3, img.h, img.w), |(c, y, x)| {
-        img.data[(y * img.w + x) * 3 + c]
-    })
-}
-
-fn hwc(a: &ndarray::Array3<f32>) -> Image {
-    let (h, w) = (a.shape()[1], a.shape()[2]);
-    let mut data = vec![0.0; h * w * 3];
-    for ((c, y, x), &v) in a.indexed_iter() {
-        data[(y * w + x) * 3 + c] = v.clamp(0.0, 1.0);
-    }
-    Image { h, w, data }
-}
-
 /// Stylize every view on its own with the 2D stylizer (the refit baseline's targets).
 fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Result<Vec<Image>> {
     if !dir.join("model.json").is_file() {
@@ -133,10 +114,14 @@ fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Resul
         )));
     }
     let mut p = crate::prior::stylizer::StylizerPrior::open(dir, None, 0)?;
-    let s = p.style_vector(chw(style).view())?;
+    let s = p.style_vector(style.to_chw().view())?;
     views
         .iter()
-        .map(|v| Ok(hwc(&p.stylize(chw(v).view(), &s)?)))
+        .map(|v| {
+            let mut out = Image::from_chw(p.stylize(v.to_chw().view(), &s)?.view());
+            out.data.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
+            Ok(out)
+        })
         .collect()
 }
 
@@ -148,35 +133,30 @@ pub fn run(a: Args) -> Result<()> {
             a.width, a.height
         )));
     }
-    let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let cams = load_cameras(&a.cameras, &scene, a.width, a.height)?;
+    let scene = a.input.load_scene()?;
+    let cams = a.input.load_cameras(&scene, a.width, a.height)?;
     if cams.is_empty() {
         return Err(Error::param(format!(
             "{}: the view set is empty: nothing to stylize",
-            a.cameras
+            a.input.cameras
         )));
     }
     let raw_style = crate::imageio::read_rgb(&a.style)?;
-    let style = prepare_style(
-        &Image {
-            h: raw_style.height,
-            w: raw_style.width,
-            data: raw_style.data,
-        },
-        a.style_size,
-        &a.style,
-    )?;
-    let vgg = Vgg16::load(&a.vgg)?;
+    let style = prepare_style(&raw_style, a.style_size, &a.style)?;
+    let vgg_dir = match &a.vgg {
+        Some(p) => p.clone(),
+        None => crate::models::model_path("lpips/vgg16")?,
+    };
+    let vgg = Vgg16::load(&vgg_dir)?;
     let params = serde_json::json!({
-        "method": a.method, "cameras": a.cameras, "steps": a.steps, "width": a.width,
-        "height": a.height, "background": a.background, "lr_dc": a.lr_dc,
+        "method": a.method, "cameras": a.input.cameras, "steps": a.steps, "width": a.width,
+        "height": a.height, "background": a.background.rgb, "lr_dc": a.lr_dc,
         "lr_rest": a.lr_rest, "style_size": a.style_size, "style_weight": a.style_weight,
         "content_weight": a.content_weight, "monitor_every": a.monitor_every,
     });
     let producer = Producer::new("stylize-baseline", crate::VERSION, params);
     let mut w = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
-    w.add_input("scene", &a.scene)?;
-    super::add_cameras_input(&mut w, &a.cameras)?;
+    a.input.add_inputs(&mut w)?;
     w.add_input("style", &a.style)?;
     tracing::info!(
         "{:?} baseline: {} Gaussians, {} views at {}x{}, {} steps",
@@ -187,14 +167,15 @@ pub fn run(a: Args) -> Result<()> {
         a.height,
         a.steps
     );
-    let (scene, log, targets) =
-        super::with_threads(a.threads, || optimise(&a, scene, &cams, &vgg, &style))??;
+    let (scene, log, targets) = a
+        .threads
+        .install(|| optimise(&a, scene, &cams, &vgg, &style))??;
     w.write_bytes("scene.ply", &crate::scene::ply::encode_ply(&scene))?;
     w.write_json("loss.json", &log)?;
     for (i, t) in targets.iter().enumerate() {
         w.write_bytes(
             &format!("target_{i:03}.png"),
-            &crate::imageio::encode_png_rgb(&t.data, t.w, t.h)?,
+            &crate::imageio::encode_png_rgb(&t.data, t.width, t.height)?,
         )?;
     }
     let first = log.steps.first().and_then(|s| s.gram_distance);
@@ -203,7 +184,7 @@ pub fn run(a: Args) -> Result<()> {
         "method": a.method, "views": cams.len(), "gram_distance_first": first,
         "gram_distance_last": last,
     }));
-    super::timing::io(|| w.commit())?;
+    crate::timing::io(|| w.commit())?;
     tracing::info!(
         "wrote {} (Gram distance {:?} -> {:?})",
         a.out.display(),
@@ -222,15 +203,15 @@ fn optimise(
     style: &Image,
 ) -> Result<(crate::Scene, LossLog, Vec<Image>)> {
     let ropts = crate::render::RenderOptions {
-        background: a.background,
+        background: a.background.rgb,
     };
     let originals = cams
         .iter()
         .map(|c| {
             let r = crate::render::render(&scene, c, &ropts)?;
             Ok(Image {
-                h: r.height,
-                w: r.width,
+                width: r.width,
+                height: r.height,
                 data: r.rgb,
             })
         })
@@ -271,7 +252,11 @@ fn optimise(
             )?))
         }
         Method::Refit => {
-            targets = stylize_views(&a.stylizer, style, &originals)?;
+            let dir = match &a.stylizer {
+                Some(p) => p.clone(),
+                None => crate::models::model_path("stylizer")?,
+            };
+            targets = stylize_views(&dir, style, &originals)?;
             let d = monitor(&targets)?;
             tracing::info!("refit targets: Gram distance to the style {d:.4}");
             targets_gram = Some(d);
@@ -288,7 +273,7 @@ fn optimise(
         fit: crate::optim::FitParams {
             lr_dc: a.lr_dc,
             lr_rest: a.lr_rest,
-            background: a.background,
+            background: a.background.rgb,
             ..crate::optim::FitParams::default()
         },
         monitor_every: a.monitor_every,

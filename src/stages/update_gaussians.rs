@@ -7,12 +7,13 @@
 //! (every non-colour field bit-identical to the input) and `loss.json` (the mean loss
 //! over views per step, plus cache statistics).
 
-use crate::camera::load_cameras;
+use super::{Background, SceneInput, Threads};
+use crate::artifacts::read_targets;
 use crate::optim::{FitParams, fit_colours};
 use crate::render::CacheMode;
-use crate::scene::{load_scene, ply};
+use crate::scene::ply;
 use crate::{Error, Result};
-use fantasystyle_schemas::{Artifact, ArtifactKind, Producer};
+use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;
 
 /// Fit the SH colours of a splat scene to target images (geometry frozen) and write
@@ -20,14 +21,9 @@ use std::path::PathBuf;
 #[derive(clap::Parser, Debug, Clone)]
 #[command(name = "update-gaussians", version)]
 pub struct Args {
-    /// Scene: an INRIA .ply, a .splat, or a scene artifact directory (its scene.ply).
-    #[arg(long)]
-    pub scene: PathBuf,
-    /// Cameras, one per target image: `orbit:N[,elev=DEG][,radius=R][,fov=DEG]`, an INRIA
-    /// cameras.json, a COLMAP sparse/0 directory, a nerfstudio transforms.json, or a
-    /// views/targets artifact directory. Intrinsics are rescaled to the targets' size.
-    #[arg(long)]
-    pub cameras: String,
+    /// The scene, and the cameras: one per target image, at the targets' size.
+    #[command(flatten)]
+    pub input: SceneInput,
     /// Targets: a `targets` or `views` artifact directory whose rgb.npy is [N,H,W,3].
     #[arg(long)]
     pub targets: PathBuf,
@@ -53,13 +49,10 @@ pub struct Args {
     /// `budget=MB` (cache views in order while they fit in MB megabytes).
     #[arg(long, default_value = "on")]
     pub cache: String,
-    /// Background colour R,G,B in [0, 1] the renders are composited over (use the one
-    /// the targets were rendered with).
-    #[arg(long, default_value = "0,0,0", value_parser = super::parse_rgb)]
-    pub background: [f32; 3],
-    /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
+    #[command(flatten)]
+    pub background: Background,
+    #[command(flatten)]
+    pub threads: Threads,
 }
 
 /// The stage: load, fit, write the artifact.
@@ -68,67 +61,48 @@ pub fn run(a: Args) -> Result<()> {
     if a.steps == 0 {
         return Err(Error::param("--steps must be at least 1"));
     }
-    let scene = super::timing::load(|| load_scene(&a.scene))?;
-    let targets_art = Artifact::open_any(&a.targets)?;
-    let kind = targets_art.manifest.kind;
-    if kind != ArtifactKind::Targets && kind != ArtifactKind::Views {
-        return Err(Error::input(
-            &a.targets,
-            format!("expected a `targets` or `views` artifact, found `{kind}`"),
-        ));
-    }
-    let rgb = targets_art.read_f32("rgb.npy")?;
-    let rgb_path = targets_art.path("rgb.npy");
-    let [n, h, w, 3] = rgb.shape[..] else {
-        return Err(Error::input(
-            &rgb_path,
-            format!("shape {:?}, expected [N, H, W, 3]", rgb.shape),
-        ));
-    };
-    if n == 0 || h == 0 || w == 0 {
-        return Err(Error::input(
-            &rgb_path,
-            format!("empty shape {:?}", rgb.shape),
-        ));
-    }
-    let cams = load_cameras(&a.cameras, &scene, w as u32, h as u32)?;
+    let scene = a.input.load_scene()?;
+    let targets = read_targets(&a.targets)?;
+    let rgb_path = targets.art.path("rgb.npy");
+    let (n, h, w, _) = targets.rgb.dim();
+    let cams = a.input.load_cameras(&scene, w as u32, h as u32)?;
     if cams.len() != n {
         return Err(Error::input(
             &rgb_path,
             format!(
                 "{n} target images but {} cameras in `{}`",
                 cams.len(),
-                a.cameras
+                a.input.cameras
             ),
         ));
     }
     let per = h * w * 3;
-    let targets: Vec<Vec<f32>> = rgb.data.chunks(per).map(|c| c.to_vec()).collect();
+    let rgb = targets.rgb.as_slice().expect("standard layout");
+    let targets: Vec<Vec<f32>> = rgb.chunks(per).map(|c| c.to_vec()).collect();
     let params = FitParams {
         lr_dc: a.lr_dc,
         lr_rest: a.lr_rest.unwrap_or(a.lr_dc / 20.0),
         ssim_weight: a.ssim_weight,
         mask_alpha: a.mask_alpha,
         cache,
-        background: a.background,
+        background: a.background.rgb,
         progress: true,
     };
     let producer = Producer::new(
         "update-gaussians",
         crate::VERSION,
         serde_json::json!({
-            "cameras": a.cameras, "steps": a.steps, "lr_dc": params.lr_dc,
+            "cameras": a.input.cameras, "steps": a.steps, "lr_dc": params.lr_dc,
             "lr_rest": params.lr_rest, "ssim_weight": a.ssim_weight,
-            "mask_alpha": a.mask_alpha, "cache": a.cache, "background": a.background,
+            "mask_alpha": a.mask_alpha, "cache": a.cache, "background": a.background.rgb,
         }),
     );
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
-    out.add_input("scene", &a.scene)?;
-    super::add_cameras_input(&mut out, &a.cameras)?;
+    a.input.add_inputs(&mut out)?;
     out.add_input("targets", &a.targets)?;
-    let (fitted, report) = super::with_threads(a.threads, || {
-        fit_colours(&scene, &cams, &targets, a.steps, &params)
-    })??;
+    let (fitted, report) = a
+        .threads
+        .install(|| fit_colours(&scene, &cams, &targets, a.steps, &params))??;
     out.write_bytes("scene.ply", &ply::encode_ply(&fitted))?;
     out.write_json(
         "loss.json",
@@ -144,7 +118,7 @@ pub fn run(a: Args) -> Result<()> {
         "gaussians": fitted.len(), "sh_degree": fitted.sh_degree,
         "final_loss": report.losses.last(),
     }));
-    super::timing::io(|| out.commit())?;
+    crate::timing::io(|| out.commit())?;
     tracing::info!(
         "loss {:.5} -> {:.5}; wrote {}",
         report.losses.first().unwrap_or(&f32::NAN),

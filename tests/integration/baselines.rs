@@ -81,6 +81,7 @@ fn vgg_missing_or_malformed_weights_are_clear_errors() {
 mod stage {
     use crate::harness::repo_root;
     use fantasystyle::stages::stylize_baseline::{Args, Method, run};
+    use fantasystyle::stages::{Background, SceneInput, Threads};
     use std::path::{Path, PathBuf};
 
     /// Real VGG16 weights when set-up has made them, else the golden test's narrow
@@ -98,23 +99,25 @@ mod stage {
     fn args(method: Method, out: &Path, style: &Path, steps: usize) -> Args {
         Args {
             method,
-            scene: repo_root().join("data-sample/scene.ply"),
-            cameras: "orbit:2".into(),
+            input: SceneInput {
+                scene: repo_root().join("data-sample/scene.ply"),
+                cameras: "orbit:2".into(),
+            },
             style: style.to_path_buf(),
             steps,
             out: out.to_path_buf(),
             width: 48,
             height: 48,
-            background: [0.0; 3],
+            background: Background { rgb: [0.0; 3] },
             lr_dc: 0.03,
             lr_rest: 0.001,
             style_size: 128,
             style_weight: 1.0,
             content_weight: None,
             monitor_every: steps,
-            vgg: vgg_dir(),
-            stylizer: repo_root().join("vendor/models/stylizer"),
-            threads: 2,
+            vgg: Some(vgg_dir()),
+            stylizer: Some(repo_root().join("vendor/models/stylizer")),
+            threads: Threads::new(2),
         }
     }
 
@@ -147,8 +150,9 @@ mod stage {
         );
         assert!(last < first, "{method:?}: Gram distance {first} -> {last}");
         let before =
-            fantasystyle::scene::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap();
-        let after = fantasystyle::scene::load_scene(&out.join("scene.ply")).unwrap();
+            fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
+                .unwrap();
+        let after = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
         let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&before.positions), bits(&after.positions));
         assert_eq!(bits(&before.log_scales), bits(&after.log_scales));
@@ -245,11 +249,56 @@ mod stage {
         std::fs::write(&cams, "[]").unwrap();
         let out = d.path().join("out");
         let mut a = args(Method::Nnfm, &out, &sample_style(), 1);
-        a.cameras = cams.to_string_lossy().into_owned();
+        a.input.cameras = cams.to_string_lossy().into_owned();
         let e = run(a).unwrap_err();
         assert_eq!(e.exit_code(), 2, "{e}");
         assert!(e.to_string().contains("cameras.json"), "{e}");
         assert!(!out.exists());
+    }
+
+    /// One rule for the models (`fantasystyle::models`): started from another directory,
+    /// the binary finds `vendor/models` above itself (the `--vgg` default no longer
+    /// depends on the current directory); `FANTASYSTYLE_MODELS` overrides the search.
+    #[test]
+    fn models_are_found_from_any_directory_and_the_env_var_wins() {
+        if !repo_root()
+            .join("vendor/models/lpips/vgg16/conv9_weight.npy")
+            .is_file()
+        {
+            eprintln!("SKIPPED: vendor/models/lpips/vgg16 is absent (run scripts/setup.sh)");
+            return;
+        }
+        let bin = env!("CARGO_BIN_EXE_stylize-baseline");
+        let d = tempfile::tempdir().unwrap();
+        let run = |models: Option<&Path>, out: &str| {
+            let mut c = std::process::Command::new(bin);
+            c.current_dir(d.path())
+                .env_remove("FANTASYSTYLE_MODELS")
+                .args(["--method", "gram", "--cameras", "orbit:1", "--steps", "1"])
+                .args(["--width", "16", "--height", "16", "--style-size", "92"])
+                .arg("--scene")
+                .arg(repo_root().join("data-sample/scene.ply"))
+                .arg("--style")
+                .arg(sample_style())
+                .args(["--out", out, "--threads", "1"]);
+            if let Some(m) = models {
+                c.env("FANTASYSTYLE_MODELS", m);
+            }
+            c.output().unwrap()
+        };
+        let ok = run(None, "o1");
+        assert!(
+            ok.status.success(),
+            "{}",
+            String::from_utf8_lossy(&ok.stderr)
+        );
+        assert!(d.path().join("o1/scene.ply").is_file());
+        let elsewhere = d.path().join("no-models-here");
+        let bad = run(Some(&elsewhere), "o2");
+        assert_eq!(bad.status.code(), Some(3));
+        let err = String::from_utf8_lossy(&bad.stderr);
+        assert!(err.contains("no-models-here/lpips/vgg16"), "{err}");
+        assert!(!d.path().join("o2").exists());
     }
 
     /// Through the binary: `-h` documents every flag; a bad style exits 2 naming the file.

@@ -4,12 +4,13 @@
 
 use fantasystyle::Camera;
 use fantasystyle::camera::inria::to_inria;
+use fantasystyle::imageio::Image;
 use fantasystyle::metrics::consistency;
-use fantasystyle::metrics::image::Image;
-use fantasystyle::metrics::nets::{LpipsModel, LpipsNet, models_dir};
+use fantasystyle::metrics::nets::{LpipsModel, LpipsNet};
 use fantasystyle::metrics::views::ViewSet;
 use fantasystyle::metrics::warp::{look_at, synthetic};
-use fantasystyle::stages::evaluate::{EvaluateOptions, run};
+use fantasystyle::models::models_dir;
+use fantasystyle::stages::evaluate::{Args, run};
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -70,15 +71,17 @@ fn style_png(dir: &Path) -> PathBuf {
 }
 
 fn ready() -> bool {
-    if fantasystyle::runtime::library_path().is_err() || models_dir().is_err() {
+    if fantasystyle::runtime::library_path().is_err()
+        || !models_dir().is_ok_and(|m| m.join("metrics").is_dir())
+    {
         eprintln!("SKIPPED: onnxruntime or metric networks not set up (scripts/setup.sh)");
         return false;
     }
     true
 }
 
-fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> EvaluateOptions {
-    EvaluateOptions {
+fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
+    Args {
         original: o.into(),
         stylized: s.into(),
         style: style.into(),
@@ -87,7 +90,7 @@ fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> EvaluateOptions {
         short_range: 1,
         long_range: 5,
         seed: 0,
-        threads: 2,
+        threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
     }
 }
@@ -107,7 +110,7 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
     });
     let style = style_png(d.path());
     let out = d.path().join("eval");
-    let m = run(&opts(&orig, &styl, &style, &out)).unwrap();
+    let m = run(opts(&orig, &styl, &style, &out)).unwrap();
 
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();

@@ -3,6 +3,8 @@ mod baselines;
 mod evaluate;
 mod harness;
 mod mvfc;
+mod own_scene;
 mod render;
 mod runtime;
 mod scene;
+mod snakemake_sample;

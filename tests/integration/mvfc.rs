@@ -201,13 +201,13 @@ fn stylizer_csd_moves_views_toward_the_style() {
 // ---------------------------------------------------------------------------------
 // The stages: mvfc-filter and csd-step, through their library functions.
 
+use fantasystyle::artifacts::{read_latents, read_noised_latents, read_targets};
 use fantasystyle::csd::{Mode, Weighting};
 use fantasystyle::prior::gaussian::{GaussianPrior, vae_decode};
 use fantasystyle::scheduler::Schedule;
-use fantasystyle::stages::csd_step::{CsdStepArgs, csd_step};
-use fantasystyle::stages::encode_latents::{EncodeLatents, encode_latents};
-use fantasystyle::stages::mvfc_filter::{MvfcFilterArgs, TimestepChoice, mvfc_filter};
-use fantasystyle_schemas::{Artifact, ArtifactKind, ArtifactWriter, Producer};
+use fantasystyle::stages::mvfc_filter::TimestepChoice;
+use fantasystyle::stages::{Threads, csd_step, encode_latents, mvfc_filter};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use std::path::{Path, PathBuf};
 
 fn model_dir(name: &str) -> Option<PathBuf> {
@@ -251,15 +251,8 @@ fn write_views(dir: &Path, imgs: &Array4<f32>) {
     );
 }
 
-fn read4(dir: &Path, kind: ArtifactKind, name: &str) -> Array4<f32> {
-    let a = Artifact::open(dir, kind).unwrap();
-    let t = a.read_f32(name).unwrap();
-    let s = &t.shape;
-    Array4::from_shape_vec((s[0], s[1], s[2], s[3]), t.data).unwrap()
-}
-
-fn filter_args(d: &Path, model: &Path) -> MvfcFilterArgs {
-    MvfcFilterArgs {
+fn filter_args(d: &Path, model: &Path) -> mvfc_filter::Args {
+    mvfc_filter::Args {
         latents: d.join("lat_tgt"),
         source_latents: d.join("lat_src"),
         model: model.to_path_buf(),
@@ -270,7 +263,7 @@ fn filter_args(d: &Path, model: &Path) -> MvfcFilterArgs {
         params: MvfcParams::default(),
         no_filter: false,
         group_size: 0,
-        threads: 1,
+        threads: Threads::new(1),
     }
 }
 
@@ -290,17 +283,14 @@ fn mvfc_filter_stage_noises_and_filters() {
     write_latents(&d.path().join("lat_tgt"), &z_t);
     write_latents(&d.path().join("lat_src"), &z_s);
     let args = filter_args(d.path(), &model);
-    let t = mvfc_filter(&args).unwrap();
-    let (sched, set) = fantasystyle::stages::mvfc_filter::model_timesteps(&model).unwrap();
+    let t = mvfc_filter::run(args.clone()).unwrap();
+    let (sched, set) = fantasystyle::prior::model_timesteps(&model).unwrap();
     assert!(set.contains(t));
     let nd = d.path().join("noised");
-    let art = Artifact::open(&nd, ArtifactKind::NoisedLatents).unwrap();
-    assert_eq!(art.manifest.meta["timestep"].as_u64().unwrap() as usize, t);
-    let eps = read4(&nd, ArtifactKind::NoisedLatents, "eps.npy");
-    let zs = read4(&nd, ArtifactKind::NoisedLatents, "z_src.npy");
-    let zt = read4(&nd, ArtifactKind::NoisedLatents, "z_tgt.npy");
-    let es = art.read_f32("eps_shared.npy").unwrap();
-    let es = Array3::from_shape_vec((4, 8, 6), es.data).unwrap();
+    let noised = read_noised_latents(&nd).unwrap();
+    assert_eq!(noised.timestep, t);
+    let (eps, zs, zt, es) = (noised.eps, noised.z_src, noised.z_tgt, noised.eps_shared);
+    assert_eq!(es.dim(), (4, 8, 6));
     let want_s = sched.add_noise(z_s.view(), eps.view(), t).unwrap();
     assert_eq!(zs, want_s);
     let noisy_t = sched.add_noise(z_t.view(), eps.view(), t).unwrap();
@@ -312,13 +302,11 @@ fn mvfc_filter_stage_noises_and_filters() {
     let mut a2 = filter_args(d.path(), &model);
     a2.no_filter = true;
     a2.out = d.path().join("nofilter");
-    assert_eq!(mvfc_filter(&a2).unwrap(), t);
+    assert_eq!(mvfc_filter::run(a2.clone()).unwrap(), t);
     let n2 = d.path().join("nofilter");
-    assert_eq!(read4(&n2, ArtifactKind::NoisedLatents, "eps.npy"), eps);
-    assert_eq!(
-        read4(&n2, ArtifactKind::NoisedLatents, "z_tgt.npy"),
-        noisy_t
-    );
+    let n2 = read_noised_latents(&n2).unwrap();
+    assert_eq!(n2.eps, eps);
+    assert_eq!(n2.z_tgt, noisy_t);
     // Different rounds draw different timesteps (over a few rounds).
     let ts: std::collections::BTreeSet<usize> =
         (0..8).map(|r| set.sample_for_round(3, r)).collect();
@@ -327,7 +315,7 @@ fn mvfc_filter_stage_noises_and_filters() {
     let mut a3 = filter_args(d.path(), &model);
     a3.timestep = TimestepChoice::Fixed(set.steps()[2]);
     a3.out = d.path().join("fixed");
-    assert_eq!(mvfc_filter(&a3).unwrap(), set.steps()[2]);
+    assert_eq!(mvfc_filter::run(a3.clone()).unwrap(), set.steps()[2]);
 }
 
 /// Bad input to mvfc-filter: clear errors naming the problem, nothing written.
@@ -343,8 +331,8 @@ fn mvfc_filter_stage_rejects_bad_input() {
         &d.path().join("lat_src"),
         &Array4::<f32>::zeros((2, 4, 8, 6)),
     );
-    let err = |a: &MvfcFilterArgs| {
-        let e = mvfc_filter(a).unwrap_err();
+    let err = |a: &mvfc_filter::Args| {
+        let e = mvfc_filter::run(a.clone()).unwrap_err();
         assert_eq!(e.exit_code(), 2, "{e}");
         assert!(!a.out.exists());
         e.to_string()
@@ -382,20 +370,20 @@ fn mvfc_filter_stage_rejects_bad_input() {
 /// Build views, latents and noised latents for a csd-step run in `d`.
 fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) -> PathBuf {
     write_views(&d.join("views"), views);
-    encode_latents(&EncodeLatents {
+    encode_latents::run(encode_latents::Args {
         views: d.join("views"),
         model: model.to_path_buf(),
         out: d.join("lat"),
-        threads: 1,
+        threads: Threads::new(1),
         batch: 0,
     })
     .unwrap();
-    let (_, set) = fantasystyle::stages::mvfc_filter::model_timesteps(model).unwrap();
+    let (_, set) = fantasystyle::prior::model_timesteps(model).unwrap();
     let mut a = filter_args(d, model);
     a.latents = d.join("lat");
     a.source_latents = d.join("lat");
     a.timestep = TimestepChoice::Fixed(set.steps()[set.steps().len() / 2]);
-    mvfc_filter(&a).unwrap();
+    mvfc_filter::run(a.clone()).unwrap();
     let sp = d.join("style.png");
     let s = style.index_axis(ndarray::Axis(0), 0);
     let (h, w) = (s.shape()[1], s.shape()[2]);
@@ -408,8 +396,8 @@ fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) 
     sp
 }
 
-fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> CsdStepArgs {
-    CsdStepArgs {
+fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd_step::Args {
+    csd_step::Args {
         noised: d.join("noised"),
         latents: d.join("lat"),
         views: d.join("views"),
@@ -423,7 +411,7 @@ fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> CsdStepArgs {
             ..Default::default()
         },
         out: d.join("targets"),
-        threads: 1,
+        threads: Threads::new(1),
     }
 }
 
@@ -439,27 +427,29 @@ fn csd_step_stage_matches_closed_form_targets() {
     let views = content_views(2, 32);
     let style = style_image(64);
     let sp = csd_inputs(d.path(), &model, &views, &style);
-    let report = csd_step(&step_args(d.path(), &model, &sp, Mode::Csd)).unwrap();
+    let report = csd_step::run(step_args(d.path(), &model, &sp, Mode::Csd)).unwrap();
     let td = d.path().join("targets");
-    let art = Artifact::open(&td, ArtifactKind::Targets).unwrap();
+    let targets = read_targets(&td).unwrap();
     assert_eq!(
         std::fs::read(td.join("cameras.json")).unwrap(),
         std::fs::read(d.path().join("views/cameras.json")).unwrap()
     );
-    let rgb = art.read_f32("rgb.npy").unwrap();
-    assert_eq!(rgb.shape, [2, 32, 32, 3]);
-    assert!(rgb.data.iter().all(|v| (0.0..=1.0).contains(v)));
+    let rgb = targets.rgb;
+    assert_eq!(rgb.shape(), [2, 32, 32, 3]);
+    assert!(rgb.iter().all(|v| (0.0..=1.0).contains(v)));
     assert!(report.image_delta_rms > 1e-4, "{report:?}");
 
     // Independent recomputation: Rust closed-form prior, style as re-read from the PNG.
-    let style_png = fantasystyle::stages::csd_step::load_image(&sp).unwrap();
+    let style_png = fantasystyle::imageio::Image::load(&sp)
+        .unwrap()
+        .to_chw()
+        .insert_axis(ndarray::Axis(0));
     let mut prior = GaussianPrior::with_default_text(Some(style_png.view())).unwrap();
     let sched = Schedule::new(prior.info().scheduler.clone()).unwrap();
     let nd = d.path().join("noised");
-    let z0 = read4(&d.path().join("lat"), ArtifactKind::Latents, "latents.npy");
-    let zt = read4(&nd, ArtifactKind::NoisedLatents, "z_tgt.npy");
-    let zs = read4(&nd, ArtifactKind::NoisedLatents, "z_src.npy");
-    let eps = read4(&nd, ArtifactKind::NoisedLatents, "eps.npy");
+    let z0 = read_latents(&d.path().join("lat")).unwrap();
+    let noised = read_noised_latents(&nd).unwrap();
+    let (zt, zs, eps) = (noised.z_tgt, noised.z_src, noised.eps);
     let t = report.timestep;
     let par = step_args(d.path(), &model, &sp, Mode::Csd).params;
     let (z1, _) = csd::step(
@@ -480,7 +470,6 @@ fn csd_step_stage_matches_closed_form_targets() {
     let mut worst = 0.0f32;
     let mut compared = 0;
     for ((i, &got), &v) in rgb
-        .data
         .iter()
         .enumerate()
         .zip(views.view().permuted_axes([0, 2, 3, 1]).iter())
@@ -503,12 +492,9 @@ fn csd_step_stage_matches_closed_form_targets() {
         let mut a = step_args(d.path(), &model, &sp, mode);
         a.out = d.path().join(format!("t{i}"));
         a.params.weighting = Weighting::Uniform;
-        csd_step(&a).unwrap();
-        let o = Artifact::open(&a.out, ArtifactKind::Targets)
-            .unwrap()
-            .read_f32("rgb.npy")
-            .unwrap();
-        assert!(o.data != rgb.data, "{mode:?}");
+        csd_step::run(a.clone()).unwrap();
+        let o = read_targets(&a.out).unwrap().rgb;
+        assert!(o != rgb, "{mode:?}");
     }
 }
 
@@ -525,8 +511,8 @@ fn csd_step_stage_with_stylizer() {
     let sp = csd_inputs(d.path(), &model, &views, &style);
     let mut a = step_args(d.path(), &model, &sp, Mode::Csd);
     a.params.lr = 0.1;
-    csd_step(&a).unwrap();
-    let rgb = read4(&d.path().join("targets"), ArtifactKind::Targets, "rgb.npy");
+    csd_step::run(a.clone()).unwrap();
+    let rgb = read_targets(&d.path().join("targets")).unwrap().rgb;
     let tgt = rgb.permuted_axes([0, 3, 1, 2]).to_owned();
     let (m0, _) = style_distance(&views, &style);
     let (m1, _) = style_distance(&tgt, &style);
@@ -543,8 +529,8 @@ fn csd_step_stage_rejects_bad_input() {
     let d = tempfile::tempdir().unwrap();
     let views = content_views(2, 32);
     let sp = csd_inputs(d.path(), &model, &views, &style_image(32));
-    let err = |a: &CsdStepArgs| {
-        let e = csd_step(a).unwrap_err();
+    let err = |a: &csd_step::Args| {
+        let e = csd_step::run(a.clone()).unwrap_err();
         assert!(!a.out.exists());
         (e.exit_code(), e.to_string())
     };
@@ -573,7 +559,7 @@ fn csd_step_stage_rejects_bad_input() {
     c.latents = d.path().join("lat");
     c.source_latents = d.path().join("lat");
     c.out = d.path().join("noised");
-    mvfc_filter(&c).unwrap();
+    mvfc_filter::run(c.clone()).unwrap();
     let stylizer_set = r#"{"t_min": 1, "t_max": 2, "count": 2}"#;
     let md = tempfile::tempdir().unwrap();
     for f in std::fs::read_dir(&model).unwrap() {

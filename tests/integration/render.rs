@@ -93,7 +93,7 @@ fn render_matches_numpy_reference() {
 // Colour fitting and update-gaussians.
 
 fn sample_scene() -> Scene {
-    fantasystyle::scene::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap()
+    fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap()
 }
 
 /// Recovery: render the sample on a 16-view orbit (64x64), randomise its colours, fit
@@ -103,7 +103,7 @@ fn sample_scene() -> Scene {
 fn recovery_of_randomised_sample_colours() {
     use fantasystyle::optim::{FitParams, fit_colours, psnr};
     let truth = sample_scene();
-    let cams = fantasystyle::camera::load_cameras("orbit:16", &truth, 64, 64).unwrap();
+    let cams = fantasystyle::camera::load_cameras("orbit:16", &truth.bounds(), 64, 64).unwrap();
     let opts = RenderOptions::default();
     let renders: Vec<Vec<f32>> = cams
         .iter()
@@ -209,7 +209,7 @@ fn update_gaussians_fits_and_keeps_geometry() {
     assert_eq!(code, 0, "{err}");
     let a = fantasystyle_schemas::Artifact::open(&out, fantasystyle_schemas::ArtifactKind::Scene)
         .unwrap();
-    let fitted = fantasystyle::scene::load_scene(&out).unwrap();
+    let fitted = fantasystyle::artifacts::read_scene(&out).unwrap();
     let orig = sample_scene();
     let b = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert_eq!(b(&fitted.positions), b(&orig.positions));
@@ -267,7 +267,7 @@ fn update_gaussians_fits_and_keeps_geometry() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("rgb.npy") && err.contains("NaN"), "{err}");
     // The earlier output is still intact after the failed runs.
-    assert!(fantasystyle::scene::load_scene(&out).is_ok());
+    assert!(fantasystyle::artifacts::read_scene(&out).is_ok());
 }
 
 #[test]

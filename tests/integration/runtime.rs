@@ -251,40 +251,38 @@ fn write_views(dir: &Path, n: usize, h: usize, w: usize) {
 
 #[test]
 fn encode_latents_stage_writes_latents_and_rejects_bad_input() {
-    use fantasystyle::stages::encode_latents::{EncodeLatents, encode_latents};
+    use fantasystyle::stages::{Threads, encode_latents};
     let Some(dir) = gaussian_dir() else { return };
     let t = tempfile::tempdir().unwrap();
     let views = t.path().join("views");
     write_views(&views, 3, 16, 24);
     let out = t.path().join("lat");
-    let p = EncodeLatents {
+    let p = encode_latents::Args {
         views: views.clone(),
         model: dir.clone(),
         out: out.clone(),
-        threads: 1,
+        threads: Threads::new(1),
         batch: 2,
     };
-    assert_eq!(encode_latents(&p).unwrap(), [3, 4, 2, 3]);
+    assert_eq!(encode_latents::run(p.clone()).unwrap(), [3, 4, 2, 3]);
     let a = Artifact::open(&out, ArtifactKind::Latents).unwrap();
-    let lat = a.read_f32("latents.npy").unwrap();
-    assert_eq!(lat.shape, vec![3, 4, 2, 3]);
+    let got = fantasystyle::artifacts::read_latents(&out).unwrap();
+    assert_eq!(got.shape(), [3, 4, 2, 3]);
     assert!(a.manifest.inputs.iter().any(|i| i.role == "model"));
     // Same numbers as the Rust closed form's encoder on the same images.
-    let v = Artifact::open(&views, ArtifactKind::Views).unwrap();
-    let rgb = v.read_f32("rgb.npy").unwrap();
-    let img = Array4::from_shape_vec((3, 16, 24, 3), rgb.data)
+    let img = fantasystyle::artifacts::read_views(&views)
         .unwrap()
+        .rgb
         .permuted_axes([0, 3, 1, 2])
         .to_owned();
     let want = gaussian::vae_encode(img.view()).unwrap();
-    let got = Array4::from_shape_vec((3, 4, 2, 3), lat.data).unwrap();
     assert!(max_diff(&got, &want) < 1e-5);
 
     // Image size not divisible by 8: error names rgb.npy, nothing written.
     let bad = t.path().join("bad_views");
     write_views(&bad, 1, 12, 16);
     let out2 = t.path().join("lat2");
-    let e = encode_latents(&EncodeLatents {
+    let e = encode_latents::run(encode_latents::Args {
         views: bad,
         out: out2.clone(),
         ..p.clone()
@@ -298,7 +296,7 @@ fn encode_latents_stage_writes_latents_and_rejects_bad_input() {
     assert_eq!(e.exit_code(), 2);
     assert!(!out2.exists());
     // Not a views artifact; missing model.
-    let e = encode_latents(&EncodeLatents {
+    let e = encode_latents::run(encode_latents::Args {
         views: out.clone(),
         out: out2.clone(),
         ..p.clone()
@@ -306,7 +304,7 @@ fn encode_latents_stage_writes_latents_and_rejects_bad_input() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("views"), "{e}");
-    let e = encode_latents(&EncodeLatents {
+    let e = encode_latents::run(encode_latents::Args {
         model: t.path().join("nomodel"),
         out: out2.clone(),
         ..p

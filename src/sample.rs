@@ -1,4 +1,6 @@
-//! The deterministic sample scene of `data-sample/` and its style image.
+//! The deterministic sample of `data-sample/` (the `make-sample` stage's work): the scene,
+//! its orbit cameras and its style image. It sits beside the stages, above both
+//! [`crate::scene`] and [`crate::camera`], which know nothing of each other.
 //!
 //! [`sample_scene`] builds a small still life from surface-aligned flat Gaussians
 //! (one thin disk per surface sample, its normal along the Gaussian's third axis):
@@ -17,9 +19,9 @@
 //! Everything is drawn from [`crate::rng::Rng`] with a fixed seed and plain IEEE
 //! arithmetic, so the generated files are byte-identical from run to run.
 
-use super::{SH_C0, Scene};
-use crate::camera::colmap::mat_to_quat;
+use crate::geometry::{DMat3, DVec3, mat_to_quat, normalize};
 use crate::rng::Rng;
+use crate::scene::{SH_C0, Scene};
 
 /// Degree-1 SH constant sqrt(3) / (2 sqrt(pi)).
 const SH_C1: f64 = 0.488_602_511_902_919_9;
@@ -33,27 +35,12 @@ pub const SAMPLE_ORBIT: &str = "orbit:8,elev=30,radius=2.4,fov=50";
 pub const SAMPLE_SIZE: u32 = 256;
 
 /// Light direction (toward the light): above (-y), front-left.
-fn light() -> [f64; 3] {
-    norm([0.4, -1.0, -0.5])
+fn light() -> DVec3 {
+    norm(DVec3::new(0.4, -1.0, -0.5))
 }
 
-fn norm(v: [f64; 3]) -> [f64; 3] {
-    let n = dot(v, v).sqrt();
-    if n > 0.0 {
-        v.map(|x| x / n)
-    } else {
-        [0.0, 0.0, 1.0]
-    }
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
+fn norm(v: DVec3) -> DVec3 {
+    normalize(v).unwrap_or(DVec3::Z)
 }
 
 struct Builder {
@@ -65,23 +52,18 @@ impl Builder {
     /// Add a flat Gaussian at `p` with normal `n`, in-plane size `size`, albedo `albedo`
     /// and highlight strength `k`.
     fn disk(&mut self, p: [f64; 3], n: [f64; 3], size: f64, albedo: [f64; 3], k: f64) {
-        let n = norm(n);
-        let helper = if n[0].abs() < 0.9 {
-            [1.0, 0.0, 0.0]
-        } else {
-            [0.0, 1.0, 0.0]
-        };
-        let t1 = norm(cross(helper, n));
-        let t2 = cross(n, t1);
-        let rot = [0, 1, 2].map(|i| [t1[i], t2[i], n[i]]);
-        let q = mat_to_quat(rot);
+        let n = norm(DVec3::from_array(n));
+        let helper = if n.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+        let t1 = norm(helper.cross(n));
+        let t2 = n.cross(t1);
+        let q = mat_to_quat(DMat3::from_cols(t1, t2, n));
         let jitter = 1.0 + 0.15 * (self.rng.uniform() - 0.5);
         let s = size * jitter;
         let l = light();
-        let shade = 0.35 + 0.65 * dot(n, l).max(0.0);
+        let shade = 0.35 + 0.65 * n.dot(l).max(0.0);
         let c = albedo.map(|a| a * shade);
         // Mirror direction of the light about the normal.
-        let nl = dot(n, l);
+        let nl = n.dot(l);
         let r = [0, 1, 2].map(|i| 2.0 * nl * n[i] - l[i]);
         let a = [k * r[1], -k * r[2], k * r[0]].map(|v| v / SH_C1);
         self.s.positions.push(p.map(|v| v as f32));
@@ -267,8 +249,9 @@ pub fn style_image(seed: u64) -> (usize, usize, Vec<f32>) {
 pub fn write_sample(dir: &std::path::Path, seed: u64) -> crate::Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
     let scene = sample_scene(seed);
-    super::ply::write_ply(&dir.join("scene.ply"), &scene)?;
-    let cams = crate::camera::load_cameras(SAMPLE_ORBIT, &scene, SAMPLE_SIZE, SAMPLE_SIZE)?;
+    crate::scene::ply::write_ply(&dir.join("scene.ply"), &scene)?;
+    let cams =
+        crate::camera::load_cameras(SAMPLE_ORBIT, &scene.bounds(), SAMPLE_SIZE, SAMPLE_SIZE)?;
     crate::camera::inria::write_inria(&dir.join("cameras.json"), &cams)?;
     let (w, h, img) = style_image(seed);
     crate::imageio::write_png_rgb(&dir.join("style.png"), &img, w, h)?;

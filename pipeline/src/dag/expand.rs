@@ -1,0 +1,439 @@
+//! Phase 2 of loading a DAG: `foreach` expansion and `${...}` substitution. Each raw
+//! stage becomes one [`Stage`] (or one per `foreach` item, named `NAME@ITEM`) with its
+//! `cmd`, `deps` and `outs` substituted and its tracked params collected; problems go
+//! into the diagnostics with their lines.
+
+use super::locate::is_value_dep;
+use super::parse::{Lines, Parsed};
+use super::{Diag, Stage, normalize};
+use std::collections::{BTreeSet, HashMap};
+use toml::Spanned;
+
+/// Why `${...}` substitution failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SubstError {
+    #[error("unterminated `${{` in `{0}`")]
+    Unterminated(String),
+    #[error("undefined variable `${{{0}}}`")]
+    Undefined(String),
+}
+
+/// Why a `foreach` value cannot be expanded.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ForeachError {
+    #[error("the list is empty")]
+    Empty,
+    #[error("items must be strings or integers, found {0}")]
+    ItemType(&'static str),
+    #[error("item `{0}` may only use letters, digits, `-`, `_` and `.`")]
+    Label(String),
+    #[error("item `{0}` appears twice")]
+    Twice(String),
+    #[error("unknown key `{0}` in a range (expected `from`, `to`, `prefix`)")]
+    RangeKey(String),
+    #[error(
+        "a matrix is a table of lists, e.g. {{ matrix = {{ scene = [\"a\", \"b\"], style = [\"x\"] }} }}; `{0}` is not a non-empty list"
+    )]
+    Matrix(String),
+    #[error("a range needs `{0}`")]
+    MissingBound(&'static str),
+    #[error(transparent)]
+    Subst(#[from] SubstError),
+    #[error("`{key}` = \"{raw}\" is `{value}`, not an integer")]
+    NotInteger {
+        key: &'static str,
+        raw: String,
+        value: String,
+    },
+    #[error("`{key}` must be an integer or a \"${{var}}\", found {found}")]
+    BoundType {
+        key: &'static str,
+        found: &'static str,
+    },
+    #[error("`prefix` must be a string of letters/digits")]
+    Prefix,
+    #[error("range is empty (from = {from}, to = {to})")]
+    EmptyRange { from: i64, to: i64 },
+    #[error("range {from}..={to} is too long")]
+    TooLong { from: i64, to: i64 },
+    #[error("expected a list of items or a range table {{ from, to, prefix }}, found {0}")]
+    Shape(&'static str),
+}
+
+/// An expanded stage with the lines of its deps and outs (for later diagnostics).
+pub(super) struct Expanded {
+    pub stage: Stage,
+    pub dep_lines: Vec<usize>,
+    pub out_lines: Vec<usize>,
+    /// Per dep: written without `${...}` (a literal path in the DAG file).
+    pub dep_literal: Vec<bool>,
+}
+
+/// A `[result]` entry after substitution: (name, path, line).
+pub(super) type ResultEntry = (String, String, usize);
+
+/// Substitute the `[result]` table (vars and params only).
+pub(super) fn expand_result(p: &Parsed, diags: &mut Vec<Diag>) -> Vec<ResultEntry> {
+    let mut out = Vec::new();
+    for (name, v) in &p.raw.result {
+        let line = p.lines.line(v.span().start);
+        let look = |n: &str| p.vars.get(n).or_else(|| p.params_text.get(n)).cloned();
+        match substitute(v.get_ref(), look) {
+            Ok(s) => out.push((name.clone(), normalize(&s), line)),
+            Err(e) => diags.push(Diag {
+                line: Some(line),
+                msg: format!("result `{name}`: {e}"),
+            }),
+        }
+    }
+    out
+}
+
+/// Expand every raw stage, in file order.
+pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expanded> {
+    let lines = &p.lines;
+    let mut raw_stages: Vec<_> = p.raw.stages.iter().collect();
+    raw_stages.sort_by_key(|(_, s)| s.span().start);
+    let mut stages = Vec::new();
+    for (base, rs) in raw_stages {
+        let line = stage_line(text, lines, base, rs.span().start);
+        if base.is_empty()
+            || !base
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            diags.push(Diag {
+                line: Some(line),
+                msg: format!("stage name `{base}` may only use letters, digits, `-` and `_`"),
+            });
+            continue;
+        }
+        let st = rs.get_ref();
+        let items = match &st.foreach {
+            None => vec![None],
+            Some(f) => match foreach_items(f.get_ref(), &p.vars, &p.params_text) {
+                Ok(items) => items.into_iter().map(Some).collect(),
+                Err(m) => {
+                    diags.push(Diag {
+                        line: Some(lines.line(f.span().start)),
+                        msg: format!("stage `{base}`: bad foreach: {m}"),
+                    });
+                    continue;
+                }
+            },
+        };
+        for item in items {
+            let name = match &item {
+                Some(it) => format!("{base}@{}", it.label),
+                None => base.clone(),
+            };
+            let mut tracked: BTreeSet<String> = BTreeSet::new();
+            let mut sub = |s: &Spanned<String>, what: &str, diags: &mut Vec<Diag>| {
+                let look = |n: &str| -> Option<String> {
+                    if let Some(it) = &item {
+                        if n == "item" {
+                            return Some(it.value.clone());
+                        }
+                        if n == "prev" {
+                            return it.prev.clone();
+                        }
+                        if let Some(f) = n.strip_prefix("item.") {
+                            return it
+                                .fields
+                                .iter()
+                                .find(|(k, _)| k == f)
+                                .map(|(_, v)| v.clone());
+                        }
+                    }
+                    if let Some(v) = p.vars.get(n) {
+                        return Some(v.clone());
+                    }
+                    let v = p.params_text.get(n)?;
+                    tracked.insert(n.to_string());
+                    Some(v.clone())
+                };
+                match substitute(s.get_ref(), look) {
+                    Ok(v) => Some(v),
+                    Err(e) => {
+                        let hint = if e == SubstError::Undefined("prev".into()) && item.is_some() {
+                            " (the first item of a foreach list has no previous item)"
+                        } else {
+                            ""
+                        };
+                        diags.push(Diag {
+                            line: Some(lines.line(s.span().start)),
+                            msg: format!("stage `{name}`: {what}: {e}{hint}"),
+                        });
+                        None
+                    }
+                }
+            };
+            let cmd = sub(&st.cmd, "cmd", diags);
+            let deps: Vec<_> = st.deps.iter().map(|d| sub(d, "deps", diags)).collect();
+            let outs: Vec<_> = st.outs.iter().map(|d| sub(d, "outs", diags)).collect();
+            for k in &st.params {
+                if p.params.contains_key(k.get_ref()) {
+                    tracked.insert(k.get_ref().clone());
+                } else {
+                    diags.push(Diag {
+                        line: Some(lines.line(k.span().start)),
+                        msg: format!(
+                            "stage `{name}`: params key `{}` is not in the params file{}",
+                            k.get_ref(),
+                            if p.raw.params.is_none() {
+                                " (no `params = \"...\"` file is given)"
+                            } else {
+                                ""
+                            }
+                        ),
+                    });
+                }
+            }
+            let (Some(cmd), Some(deps), Some(outs)) = (
+                cmd,
+                deps.into_iter().collect::<Option<Vec<_>>>(),
+                outs.into_iter().collect::<Option<Vec<_>>>(),
+            ) else {
+                continue;
+            };
+            stages.push(Expanded {
+                stage: Stage {
+                    name,
+                    base: base.clone(),
+                    desc: st.desc.clone(),
+                    cmd,
+                    deps: deps
+                        .iter()
+                        .map(|d| {
+                            if is_value_dep(d) {
+                                d.clone()
+                            } else {
+                                normalize(d)
+                            }
+                        })
+                        .collect(),
+                    outs: outs.iter().map(|d| normalize(d)).collect(),
+                    params: tracked.into_iter().collect(),
+                    line,
+                    upstream: Vec::new(),
+                },
+                dep_lines: st.deps.iter().map(|d| lines.line(d.span().start)).collect(),
+                out_lines: st.outs.iter().map(|d| lines.line(d.span().start)).collect(),
+                dep_literal: st
+                    .deps
+                    .iter()
+                    .map(|d| !d.get_ref().contains("${"))
+                    .collect(),
+            });
+        }
+    }
+    stages
+}
+
+/// The line of `[stages.NAME]` if the stage is written as a header table, else the
+/// line of the span start.
+fn stage_line(text: &str, lines: &Lines, name: &str, span_start: usize) -> usize {
+    for pat in [format!("[stages.{name}]"), format!("[stages.\"{name}\"]")] {
+        if let Some(i) = text.find(&pat) {
+            return lines.line(i);
+        }
+    }
+    lines.line(span_start)
+}
+
+struct Item {
+    label: String,
+    value: String,
+    prev: Option<String>,
+    /// A matrix item's values by axis (`${item.scene}`); empty otherwise.
+    fields: Vec<(String, String)>,
+}
+
+/// `{ matrix = { axis = [labels], ... } }`: one item per combination, axes in key
+/// order, labelled `a.b` (the values joined by `.`), `${item.axis}` each value.
+fn matrix_items(m: &toml::Value) -> Result<Vec<Item>, ForeachError> {
+    let toml::Value::Table(t) = m else {
+        return Err(ForeachError::Matrix("matrix".into()));
+    };
+    if t.is_empty() {
+        return Err(ForeachError::Matrix("matrix".into()));
+    }
+    let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
+    for (axis, v) in t {
+        let toml::Value::Array(a) = v else {
+            return Err(ForeachError::Matrix(axis.clone()));
+        };
+        if a.is_empty() {
+            return Err(ForeachError::Matrix(axis.clone()));
+        }
+        let mut labels: Vec<String> = Vec::new();
+        for x in a {
+            let s = match x {
+                toml::Value::String(s) => s.clone(),
+                toml::Value::Integer(i) => i.to_string(),
+                other => return Err(ForeachError::ItemType(other.type_str())),
+            };
+            if !ok_label(&s) {
+                return Err(ForeachError::Label(s));
+            }
+            if labels.contains(&s) {
+                return Err(ForeachError::Twice(s));
+            }
+            labels.push(s);
+        }
+        combos = combos
+            .into_iter()
+            .flat_map(|c| {
+                labels.iter().map(move |l| {
+                    let mut c = c.clone();
+                    c.push((axis.clone(), l.clone()));
+                    c
+                })
+            })
+            .collect();
+    }
+    Ok(combos
+        .into_iter()
+        .map(|fields| {
+            let label = fields
+                .iter()
+                .map(|(_, v)| v.as_str())
+                .collect::<Vec<_>>()
+                .join(".");
+            Item {
+                label: label.clone(),
+                value: label,
+                prev: None,
+                fields,
+            }
+        })
+        .collect())
+}
+
+fn ok_label(s: &str) -> bool {
+    !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+}
+
+fn foreach_items(
+    v: &toml::Value,
+    vars: &HashMap<String, String>,
+    params: &HashMap<String, String>,
+) -> Result<Vec<Item>, ForeachError> {
+    match v {
+        toml::Value::Array(a) => {
+            if a.is_empty() {
+                return Err(ForeachError::Empty);
+            }
+            let mut items: Vec<Item> = Vec::new();
+            for x in a {
+                let s = match x {
+                    toml::Value::String(s) => s.clone(),
+                    toml::Value::Integer(i) => i.to_string(),
+                    other => return Err(ForeachError::ItemType(other.type_str())),
+                };
+                if !ok_label(&s) {
+                    return Err(ForeachError::Label(s));
+                }
+                if items.iter().any(|i| i.value == s) {
+                    return Err(ForeachError::Twice(s));
+                }
+                let prev = items.last().map(|i| i.value.clone());
+                items.push(Item {
+                    label: s.clone(),
+                    value: s,
+                    prev,
+                    fields: Vec::new(),
+                });
+            }
+            Ok(items)
+        }
+        toml::Value::Table(t) if t.contains_key("matrix") => {
+            if let Some(k) = t.keys().find(|k| *k != "matrix") {
+                return Err(ForeachError::RangeKey(k.clone()));
+            }
+            matrix_items(&t["matrix"])
+        }
+        toml::Value::Table(t) => {
+            for k in t.keys() {
+                if !["from", "to", "prefix"].contains(&k.as_str()) {
+                    return Err(ForeachError::RangeKey(k.clone()));
+                }
+            }
+            let int = |key: &'static str| -> Result<i64, ForeachError> {
+                match t.get(key) {
+                    None => Err(ForeachError::MissingBound(key)),
+                    Some(toml::Value::Integer(i)) => Ok(*i),
+                    Some(toml::Value::String(s)) => {
+                        let r = substitute(s, |n| vars.get(n).or_else(|| params.get(n)).cloned())?;
+                        r.trim()
+                            .parse::<i64>()
+                            .map_err(|_| ForeachError::NotInteger {
+                                key,
+                                raw: s.clone(),
+                                value: r,
+                            })
+                    }
+                    Some(o) => Err(ForeachError::BoundType {
+                        key,
+                        found: o.type_str(),
+                    }),
+                }
+            };
+            let (from, to) = (int("from")?, int("to")?);
+            let prefix = match t.get("prefix") {
+                None => String::new(),
+                Some(toml::Value::String(s)) if s.is_empty() || ok_label(s) => s.clone(),
+                Some(_) => return Err(ForeachError::Prefix),
+            };
+            if to < from {
+                return Err(ForeachError::EmptyRange { from, to });
+            }
+            if to - from >= 10_000 {
+                return Err(ForeachError::TooLong { from, to });
+            }
+            Ok((from..=to)
+                .map(|n| Item {
+                    label: format!("{prefix}{n}"),
+                    value: n.to_string(),
+                    prev: Some((n - 1).to_string()),
+                    fields: Vec::new(),
+                })
+                .collect())
+        }
+        other => Err(ForeachError::Shape(other.type_str())),
+    }
+}
+
+/// Replace `${name}` using `look`; `$${` is a literal `${`.
+pub fn substitute(
+    s: &str,
+    mut look: impl FnMut(&str) -> Option<String>,
+) -> Result<String, SubstError> {
+    let mut out = String::with_capacity(s.len());
+    let mut rest = s;
+    while let Some(i) = rest.find('$') {
+        out.push_str(&rest[..i]);
+        let tail = &rest[i..];
+        if let Some(after) = tail.strip_prefix("$${") {
+            out.push_str("${");
+            rest = after;
+        } else if let Some(body) = tail.strip_prefix("${") {
+            let end = body
+                .find('}')
+                .ok_or_else(|| SubstError::Unterminated(s.to_string()))?;
+            let name = body[..end].trim();
+            match look(name) {
+                Some(v) => out.push_str(&v),
+                None => return Err(SubstError::Undefined(name.to_string())),
+            }
+            rest = &body[end + 1..];
+        } else {
+            out.push('$');
+            rest = &tail[1..];
+        }
+    }
+    out.push_str(rest);
+    Ok(out)
+}

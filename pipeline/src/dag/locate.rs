@@ -1,0 +1,259 @@
+//! Where paths live: the DAG's directory, the work directory (`--workdir`, where
+//! commands run and every output, lock, log and pid file goes) and the current
+//! directory (where `--set` paths are taken from).
+//!
+//! The rule (also in the README): stage commands run with the work directory as their
+//! current directory, so outputs and stage-produced deps are relative to it. A value
+//! that names an existing file or directory is a path, and it is rewritten to the same
+//! file as seen from the work directory before it is substituted anywhere:
+//! * a `[vars]` value or a literal dep written in the DAG file is relative to the DAG's
+//!   directory (only when the work directory is elsewhere, and only when no stage
+//!   produces it);
+//! * a `--set` value is relative to the current directory.
+//!
+//! Rewritten paths are relative to the work directory (absolute when the two share
+//! nothing but `/`), so a lock stays valid when the whole tree moves. Values that name
+//! nothing (numbers, words, `orbit:16` specs) are left as they are.
+
+use super::expand::Expanded;
+use super::inside;
+use std::path::{Component, Path, PathBuf};
+
+/// The three directories paths are resolved against (all absolute).
+#[derive(Debug, Clone)]
+pub struct Places {
+    /// The DAG file's directory.
+    pub dir: PathBuf,
+    /// Where commands run and outputs go.
+    pub workdir: PathBuf,
+    /// The current directory (`--set` paths are relative to it).
+    pub cwd: PathBuf,
+}
+
+impl Places {
+    /// Whether the work directory is elsewhere than the DAG's directory.
+    pub fn moved(&self) -> bool {
+        self.dir != self.workdir
+    }
+
+    /// `v`, relative to the DAG's directory, as seen from the work directory, when it
+    /// names an existing path and the work directory is elsewhere.
+    pub fn from_dag(&self, v: &str) -> Option<String> {
+        if !self.moved() {
+            return None;
+        }
+        self.seen_from_workdir(&self.dir, v)
+    }
+
+    /// `v`, relative to the current directory, as seen from the work directory, when
+    /// it names an existing path.
+    pub fn from_cwd(&self, v: &str) -> Option<String> {
+        self.seen_from_workdir(&self.cwd, v)
+    }
+
+    fn seen_from_workdir(&self, base: &Path, v: &str) -> Option<String> {
+        if v.trim().is_empty() || is_value_dep(v) {
+            return None;
+        }
+        let p = Path::new(v);
+        if p.is_absolute() {
+            return None;
+        }
+        let abs = lexical(&base.join(p));
+        if !abs.exists() {
+            return None;
+        }
+        Some(relative(&abs, &self.workdir))
+    }
+}
+
+/// Whether some stage writes `p` (or a directory holding it).
+pub(super) fn produced(p: &str, stages: &[Expanded]) -> bool {
+    stages
+        .iter()
+        .any(|e| e.stage.outs.iter().any(|o| o == p || inside(p, o)))
+}
+
+/// Literal deps of the DAG file that name existing paths relative to the DAG's
+/// directory (and that no stage produces), and a relative executable as the command's
+/// first word, rewritten as seen from the work directory, in `deps` and in `cmd`
+/// (as a whole word or after `=`).
+pub(super) fn relocate_literals(stages: &mut [Expanded], places: &Places) {
+    if !places.moved() {
+        return;
+    }
+    let mut todo: Vec<(usize, usize, String)> = Vec::new();
+    for (i, e) in stages.iter().enumerate() {
+        for (k, d) in e.stage.deps.iter().enumerate() {
+            if e.dep_literal[k]
+                && !is_value_dep(d)
+                && !produced(d, stages)
+                && let Some(r) = places.from_dag(d)
+            {
+                todo.push((i, k, r));
+            }
+        }
+    }
+    for (i, k, r) in todo {
+        let s = &mut stages[i].stage;
+        let d = std::mem::replace(&mut s.deps[k], r.clone());
+        s.cmd = replace_word(&s.cmd, &d, &r);
+    }
+    for e in stages.iter_mut() {
+        let s = &mut e.stage;
+        let first = s.cmd.split(' ').find(|w| !w.is_empty()).unwrap_or("");
+        if first.contains('/')
+            && !first.contains('=')
+            && let Some(r) = places.from_dag(first)
+        {
+            let first = first.to_string();
+            s.cmd = s.cmd.replacen(&first, &r, 1);
+        }
+    }
+}
+
+/// Replace the shell word `from` (also written `./from`, or after `=`) by `to`.
+fn replace_word(cmd: &str, from: &str, to: &str) -> String {
+    let dotted = format!("./{from}");
+    cmd.split(' ')
+        .map(|w| {
+            if w == from || w == dotted {
+                return to.to_string();
+            }
+            if let Some((head, tail)) = w.split_once('=')
+                && (tail == from || tail == dotted)
+            {
+                return format!("{head}={to}");
+            }
+            w.to_string()
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// A dep that is a value, not a path: `scheme:rest` with a scheme of two or more
+/// letters, digits, `+`, `-` or `.` (e.g. `orbit:16,elev=30`). Hashed by its text.
+pub fn is_value_dep(d: &str) -> bool {
+    let Some((scheme, _)) = d.split_once(':') else {
+        return false;
+    };
+    scheme.len() >= 2
+        && scheme.starts_with(|c: char| c.is_ascii_alphabetic())
+        && scheme
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
+}
+
+/// `p` made absolute against the current directory, `.` and `..` folded lexically,
+/// and its longest existing ancestor canonicalised (so that the same directory gets
+/// the same name whether it exists yet or not).
+pub fn absolute(p: &Path) -> PathBuf {
+    let cwd = std::env::current_dir().unwrap_or_else(|_| PathBuf::from("/"));
+    let full = lexical(&cwd.join(p));
+    let mut head = full.clone();
+    let mut tail = Vec::new();
+    loop {
+        if let Ok(c) = std::fs::canonicalize(&head) {
+            let mut out = c;
+            for t in tail.iter().rev() {
+                out.push(t);
+            }
+            return out;
+        }
+        match (head.file_name().map(|s| s.to_os_string()), head.parent()) {
+            (Some(name), Some(parent)) => {
+                tail.push(name);
+                head = parent.to_path_buf();
+            }
+            _ => return full,
+        }
+    }
+}
+
+/// Fold `.` and `..` of an absolute path lexically.
+pub fn lexical(p: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// `target` relative to `base` (both absolute and lexical): `../x/y`; the absolute
+/// `target` when they share nothing but the root.
+pub fn relative(target: &Path, base: &Path) -> String {
+    let t: Vec<Component> = target.components().collect();
+    let b: Vec<Component> = base.components().collect();
+    let common = t.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    if common <= 1 {
+        return target.to_string_lossy().into_owned();
+    }
+    let mut parts: Vec<String> = vec!["..".into(); b.len() - common];
+    parts.extend(
+        t[common..]
+            .iter()
+            .map(|c| c.as_os_str().to_string_lossy().into_owned()),
+    );
+    if parts.is_empty() {
+        ".".into()
+    } else {
+        parts.join("/")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn relative_paths_and_value_deps() {
+        let r = |t: &str, b: &str| relative(Path::new(t), Path::new(b));
+        assert_eq!(r("/a/b/c", "/a/b"), "c");
+        assert_eq!(r("/a/d/s.ply", "/a/b/c"), "../../d/s.ply");
+        assert_eq!(r("/a/b", "/a/b"), ".");
+        assert_eq!(r("/x/s.ply", "/a/b"), "/x/s.ply");
+        assert!(is_value_dep("orbit:16") && is_value_dep("orbit:8,elev=30,radius=2.4"));
+        assert!(!is_value_dep("runs/a:b") && !is_value_dep("c:x") && !is_value_dep("a.ply"));
+        assert_eq!(lexical(Path::new("/a/./b/../c")), PathBuf::from("/a/c"));
+        assert_eq!(
+            replace_word(
+                "x --c cameras.json --d=./cameras.json  cameras.jsonx",
+                "cameras.json",
+                "../c.json"
+            ),
+            "x --c ../c.json --d=../c.json  cameras.jsonx"
+        );
+    }
+
+    #[test]
+    fn values_naming_files_are_rewritten_for_the_workdir() {
+        let d = tempfile::tempdir().unwrap();
+        let root = std::fs::canonicalize(d.path()).unwrap();
+        std::fs::create_dir_all(root.join("dag")).unwrap();
+        std::fs::write(root.join("dag/scene.ply"), "x").unwrap();
+        std::fs::write(root.join("mine.splat"), "x").unwrap();
+        let p = Places {
+            dir: root.join("dag"),
+            workdir: root.join("out/w"),
+            cwd: root.clone(),
+        };
+        assert_eq!(p.from_dag("scene.ply").unwrap(), "../../dag/scene.ply");
+        assert_eq!(p.from_dag("./scene.ply").unwrap(), "../../dag/scene.ply");
+        assert_eq!(p.from_dag("nope.ply"), None);
+        assert_eq!(p.from_dag("3"), None);
+        assert_eq!(p.from_cwd("mine.splat").unwrap(), "../../mine.splat");
+        assert_eq!(p.from_cwd("orbit:16"), None);
+        let same = Places {
+            workdir: root.join("dag"),
+            ..p
+        };
+        assert_eq!(same.from_dag("scene.ply"), None);
+        assert_eq!(same.from_cwd("mine.splat").unwrap(), "../mine.splat");
+    }
+}

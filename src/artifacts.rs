@@ -1,0 +1,369 @@
+//! Typed readers of the artifacts the stages exchange, on top of `fantasystyle_schemas`
+//! (which opens an artifact, checks its manifest, kind and file hashes, and reads `.npy`).
+//! The one place that knows what each artifact holds: stages, metrics and tests read
+//! artifacts through these functions, and every shape is checked here, with errors that
+//! name the file.
+//!
+//! | artifact (kind) | written by | reader |
+//! |---|---|---|
+//! | `views` | render-views | [`read_views`]: rgb `[N,H,W,3]`, depth and alpha `[N,H,W]`, [`Views::cameras`]; [`read_view_images`]: rgb only |
+//! | `latents` | encode-latents | [`read_latents`]: `[N,C,h,w]` |
+//! | `noised-latents` | mvfc-filter | [`read_noised_latents`]: z_src, z_tgt, eps `[N,C,h,w]`, eps' `[C,h,w]`, t |
+//! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
+//! | `scene` | update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] |
+//!
+//! Stage inputs that may be an artifact or a plain file: [`load_scene`] (a `.ply`, a
+//! `.splat` or a scene artifact) and [`load_cameras`] (an `orbit:` spec, a camera file or
+//! directory, or any artifact holding a `cameras.json`).
+
+use crate::camera::{self, Camera};
+use crate::geometry::Bounds;
+use crate::scene::{self, Scene};
+use crate::{Error, Result};
+use fantasystyle_schemas::{Artifact, ArtifactKind};
+use ndarray::{Array3, Array4};
+use std::path::{Path, PathBuf};
+
+/// True when `dir` is an artifact directory (holds a manifest).
+pub fn is_artifact(dir: &Path) -> bool {
+    dir.is_dir() && dir.join(fantasystyle_schemas::MANIFEST_FILE).is_file()
+}
+
+/// Read tensor `name` of `art` as `[N, C, h, w]`.
+fn read4(art: &Artifact, name: &str) -> Result<Array4<f32>> {
+    let t = art.read_f32(name)?;
+    let [n, c, h, w] = t.shape[..] else {
+        return Err(Error::input(
+            art.path(name),
+            format!("expected shape [N, C, h, w], found {:?}", t.shape),
+        ));
+    };
+    Array4::from_shape_vec((n, c, h, w), t.data)
+        .map_err(|e| Error::input(art.path(name), e.to_string()))
+}
+
+/// Read tensor `name` of `art` as RGB images `[N, H, W, 3]`, `N, H, W >= 1`.
+fn read_rgb(art: &Artifact, name: &str) -> Result<Array4<f32>> {
+    let t = art.read_f32(name)?;
+    let [n, h, w, 3] = t.shape[..] else {
+        return Err(Error::input(
+            art.path(name),
+            format!("expected shape [N, H, W, 3], found {:?}", t.shape),
+        ));
+    };
+    if n == 0 || h == 0 || w == 0 {
+        return Err(Error::input(
+            art.path(name),
+            format!("empty image set, shape {:?}", t.shape),
+        ));
+    }
+    Ok(Array4::from_shape_vec((n, h, w, 3), t.data).expect("shape checked"))
+}
+
+/// A `views` artifact's tensors, shape-checked against each other.
+#[derive(Debug)]
+pub struct Views {
+    pub art: Artifact,
+    /// `[N, H, W, 3]` in [0, 1].
+    pub rgb: Array4<f32>,
+    /// Expected depth `sum_i w_i z_i` (not divided by alpha), `[N, H, W]`.
+    pub depth: Array3<f32>,
+    /// Accumulated opacity, `[N, H, W]`.
+    pub alpha: Array3<f32>,
+}
+
+impl Views {
+    /// `(N, H, W)`.
+    pub fn dim(&self) -> (usize, usize, usize) {
+        let (n, h, w, _) = self.rgb.dim();
+        (n, h, w)
+    }
+
+    /// The views' cameras (`cameras.json`, INRIA format), at the views' size.
+    pub fn cameras(&self) -> Result<Vec<Camera>> {
+        camera::inria::read_inria(&self.art.path("cameras.json"))
+    }
+}
+
+/// Open a `views` artifact and read only its images, `rgb.npy` `[N, H, W, 3]`
+/// (N, H, W >= 1); for stages that need neither depth nor alpha.
+pub fn read_view_images(dir: &Path) -> Result<(Artifact, Array4<f32>)> {
+    let art = Artifact::open(dir, ArtifactKind::Views)?;
+    let rgb = read_rgb(&art, "rgb.npy")?;
+    Ok((art, rgb))
+}
+
+/// Open a `views` artifact and read `rgb.npy` `[N, H, W, 3]` (N, H, W >= 1) and
+/// `depth.npy`, `alpha.npy` `[N, H, W]`.
+pub fn read_views(dir: &Path) -> Result<Views> {
+    let (art, rgb) = read_view_images(dir)?;
+    let (n, h, w, _) = rgb.dim();
+    let plane = |name: &str| -> Result<Array3<f32>> {
+        let t = art.read_f32(name)?;
+        if t.shape != [n, h, w] {
+            return Err(Error::input(
+                art.path(name),
+                format!(
+                    "expected shape [{n}, {h}, {w}] to match rgb.npy, got {:?}",
+                    t.shape
+                ),
+            ));
+        }
+        Ok(Array3::from_shape_vec((n, h, w), t.data).expect("shape checked"))
+    };
+    let depth = plane("depth.npy")?;
+    let alpha = plane("alpha.npy")?;
+    Ok(Views {
+        art,
+        rgb,
+        depth,
+        alpha,
+    })
+}
+
+/// Read a `latents` artifact's `latents.npy` as `[N, C, h, w]` (non-empty).
+pub fn read_latents(dir: &Path) -> Result<Array4<f32>> {
+    let a = Artifact::open(dir, ArtifactKind::Latents)?;
+    let z = read4(&a, "latents.npy")?;
+    if z.is_empty() {
+        return Err(Error::input(
+            a.path("latents.npy"),
+            format!("empty latents {:?}", z.shape()),
+        ));
+    }
+    Ok(z)
+}
+
+/// A `noised-latents` artifact (mvfc-filter's output).
+#[derive(Debug)]
+pub struct NoisedLatents {
+    pub art: Artifact,
+    /// add_noise(z0_src, eps, t), `[N, C, h, w]`.
+    pub z_src: Array4<f32>,
+    /// MVFC(add_noise(z0_tgt, eps, t), eps'), `[N, C, h, w]`.
+    pub z_tgt: Array4<f32>,
+    /// The noise shared by source and target, `[N, C, h, w]`.
+    pub eps: Array4<f32>,
+    /// The MVFC noise eps' shared by the views, `[C, h, w]`.
+    pub eps_shared: Array3<f32>,
+    /// The timestep t (`meta.timestep`).
+    pub timestep: usize,
+}
+
+/// Open a `noised-latents` artifact: `z_src.npy`, `z_tgt.npy`, `eps.npy` of one shape
+/// `[N, C, h, w]`, `eps_shared.npy` `[C, h, w]`, and `meta.timestep`.
+pub fn read_noised_latents(dir: &Path) -> Result<NoisedLatents> {
+    let art = Artifact::open(dir, ArtifactKind::NoisedLatents)?;
+    let z_src = read4(&art, "z_src.npy")?;
+    let z_tgt = read4(&art, "z_tgt.npy")?;
+    let eps = read4(&art, "eps.npy")?;
+    for (name, x) in [("z_tgt.npy", &z_tgt), ("eps.npy", &eps)] {
+        if x.shape() != z_src.shape() {
+            return Err(Error::input(
+                art.path(name),
+                format!(
+                    "shape {:?} differs from z_src.npy's {:?}",
+                    x.shape(),
+                    z_src.shape()
+                ),
+            ));
+        }
+    }
+    let (_, c, h, w) = z_src.dim();
+    let es = art.read_f32("eps_shared.npy")?;
+    if es.shape != [c, h, w] {
+        return Err(Error::input(
+            art.path("eps_shared.npy"),
+            format!("expected shape [{c}, {h}, {w}], found {:?}", es.shape),
+        ));
+    }
+    let eps_shared = Array3::from_shape_vec((c, h, w), es.data).expect("shape checked");
+    let timestep = art.manifest.meta["timestep"].as_u64().ok_or_else(|| {
+        Error::input(
+            art.path("manifest.json"),
+            "meta.timestep is missing or not a non-negative integer",
+        )
+    })? as usize;
+    Ok(NoisedLatents {
+        art,
+        z_src,
+        z_tgt,
+        eps,
+        eps_shared,
+        timestep,
+    })
+}
+
+/// Target images for the colour fit: a `targets` artifact (csd-step) or a `views`
+/// artifact, whose `rgb.npy` is `[N, H, W, 3]`.
+#[derive(Debug)]
+pub struct Targets {
+    pub art: Artifact,
+    /// `[N, H, W, 3]`.
+    pub rgb: Array4<f32>,
+}
+
+/// Open a `targets` (or `views`) artifact and read its `rgb.npy` `[N, H, W, 3]`.
+pub fn read_targets(dir: &Path) -> Result<Targets> {
+    let art = Artifact::open_any(dir)?;
+    let kind = art.manifest.kind;
+    if kind != ArtifactKind::Targets && kind != ArtifactKind::Views {
+        return Err(Error::input(
+            dir,
+            format!("expected a `targets` or `views` artifact, found `{kind}`"),
+        ));
+    }
+    let rgb = read_rgb(&art, "rgb.npy")?;
+    Ok(Targets { art, rgb })
+}
+
+/// Read a `scene` artifact's `scene.ply` (manifest and hashes checked first).
+pub fn read_scene(dir: &Path) -> Result<Scene> {
+    let a = Artifact::open(dir, ArtifactKind::Scene)?;
+    scene::ply::read_ply(&a.path("scene.ply"))
+}
+
+/// A stage's scene input: a scene artifact directory ([`read_scene`]), else a `.ply`, a
+/// `.splat` or a directory holding `scene.ply` ([`scene::read_scene_file`]).
+pub fn load_scene(path: &Path) -> Result<Scene> {
+    if is_artifact(path) {
+        read_scene(path)
+    } else {
+        scene::read_scene_file(path)
+    }
+}
+
+/// The `cameras.json` of any artifact that has one (views, targets, latents), at the
+/// artifact's image size; also returns the file (for messages).
+pub fn read_cameras(dir: &Path) -> Result<(Vec<Camera>, PathBuf)> {
+    let a = Artifact::open_any(dir)?;
+    let p = a.path("cameras.json");
+    if !p.is_file() {
+        return Err(Error::input(
+            dir,
+            format!(
+                "artifact of kind `{}` holds no cameras.json",
+                a.manifest.kind
+            ),
+        ));
+    }
+    Ok((camera::inria::read_inria(&p)?, p))
+}
+
+/// A stage's camera input for images of `width` x `height`: an artifact directory's
+/// `cameras.json` ([`read_cameras`], rescaled like a camera file), else what
+/// [`camera::load_cameras`] reads (`orbit:` specs around `bounds`, camera files and
+/// directories).
+pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Result<Vec<Camera>> {
+    let path = Path::new(spec);
+    if !spec.starts_with("orbit:") && is_artifact(path) {
+        camera::check_size(width, height)?;
+        let (cams, src) = read_cameras(path)?;
+        return camera::fit_cameras(cams, &src, width, height);
+    }
+    camera::load_cameras(spec, bounds, width, height)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fantasystyle_schemas::{ArtifactWriter, Producer};
+
+    fn write(
+        dir: &Path,
+        kind: ArtifactKind,
+        tensors: &[(&str, &[usize])],
+        meta: serde_json::Value,
+    ) {
+        let mut w =
+            ArtifactWriter::create(dir, kind, Producer::new("test", "0", serde_json::json!({})))
+                .unwrap();
+        for (name, shape) in tensors {
+            let n = shape.iter().product::<usize>();
+            let data: Vec<f32> = (0..n).map(|i| i as f32 * 0.01).collect();
+            w.write_tensor(name, shape, &data).unwrap();
+        }
+        if kind == ArtifactKind::Views {
+            w.write_bytes("cameras.json", b"[]").unwrap();
+        }
+        w.set_meta(meta);
+        w.commit().unwrap();
+    }
+
+    #[test]
+    fn readers_check_shapes_and_name_the_file() {
+        let d = tempfile::tempdir().unwrap();
+        let v = d.path().join("views");
+        let planes: &[(&str, &[usize])] = &[
+            ("rgb.npy", &[2, 4, 6, 3]),
+            ("depth.npy", &[2, 4, 6]),
+            ("alpha.npy", &[2, 4, 5]),
+        ];
+        write(&v, ArtifactKind::Views, planes, serde_json::json!({}));
+        let e = read_views(&v).unwrap_err().to_string();
+        assert!(e.contains("alpha.npy") && e.contains("[2, 4, 6]"), "{e}");
+        // A views artifact is a valid targets input; latents are not.
+        let good: &[(&str, &[usize])] = &[
+            ("rgb.npy", &[2, 4, 6, 3]),
+            ("depth.npy", &[2, 4, 6]),
+            ("alpha.npy", &[2, 4, 6]),
+        ];
+        let v2 = d.path().join("views2");
+        write(&v2, ArtifactKind::Views, good, serde_json::json!({}));
+        let views = read_views(&v2).unwrap();
+        assert_eq!(views.dim(), (2, 4, 6));
+        assert_eq!(views.rgb[[1, 3, 5, 2]], (2 * 4 * 6 * 3 - 1) as f32 * 0.01);
+        assert_eq!(read_targets(&v2).unwrap().rgb, views.rgb);
+        let l = d.path().join("lat");
+        write(
+            &l,
+            ArtifactKind::Latents,
+            &[("latents.npy", &[2, 4, 1, 2])],
+            serde_json::json!({}),
+        );
+        assert_eq!(read_latents(&l).unwrap().dim(), (2, 4, 1, 2));
+        let e = read_targets(&l).unwrap_err().to_string();
+        assert!(e.contains("`targets` or `views`"), "{e}");
+        // Noised latents: one shape for the three tensors, and a timestep.
+        let z: &[usize] = &[2, 4, 1, 2];
+        let n = d.path().join("noised");
+        let parts: &[(&str, &[usize])] = &[
+            ("z_src.npy", z),
+            ("z_tgt.npy", z),
+            ("eps.npy", &[2, 4, 2, 1]),
+            ("eps_shared.npy", &[4, 1, 2]),
+        ];
+        write(
+            &n,
+            ArtifactKind::NoisedLatents,
+            parts,
+            serde_json::json!({"timestep": 7}),
+        );
+        let e = read_noised_latents(&n).unwrap_err().to_string();
+        assert!(e.contains("eps.npy") && e.contains("z_src.npy"), "{e}");
+        let parts: &[(&str, &[usize])] = &[
+            ("z_src.npy", z),
+            ("z_tgt.npy", z),
+            ("eps.npy", z),
+            ("eps_shared.npy", &[4, 1, 2]),
+        ];
+        let n2 = d.path().join("noised2");
+        write(
+            &n2,
+            ArtifactKind::NoisedLatents,
+            parts,
+            serde_json::json!({}),
+        );
+        let e = read_noised_latents(&n2).unwrap_err().to_string();
+        assert!(e.contains("meta.timestep"), "{e}");
+        let n3 = d.path().join("noised3");
+        write(
+            &n3,
+            ArtifactKind::NoisedLatents,
+            parts,
+            serde_json::json!({"timestep": 7}),
+        );
+        let nl = read_noised_latents(&n3).unwrap();
+        assert_eq!((nl.timestep, nl.eps_shared.dim()), (7, (4, 1, 2)));
+    }
+}

@@ -1,0 +1,359 @@
+//! The evaluation of a stylized view set (the `evaluate` stage's computation; the stage
+//! reads the artifacts and writes `metrics.json` and the report of [`super::report`]).
+//!
+//! Metrics (FantasyStyle Sec. 4; see [`crate::metrics`] for each definition):
+//! LPIPS_content (original vs stylized, per view); FID_style (stylized renders vs crops
+//! of the style image) and FID_content (stylized vs original renders), each with KID;
+//! ArtFID = (1 + LPIPS_content)(1 + FID_style) with the standard FID Inception;
+//! short/long-range consistency (LPIPS and RMSE after depth warping), also on the
+//! original renders as a floor; a VGG16 Gram-matrix distance to the style image.
+//!
+//! Style crops for FID_style: `K = max(N, 2)` crops at the views' aspect ratio, each
+//! spanning half the style image's height (or its full width if that is smaller), at
+//! positions drawn uniformly with the seeded [`crate::rng::Rng`], each resized to the
+//! view resolution so both sets go through the same Inception resize.
+
+use super::consistency::{self, PairScore};
+use super::fid::{self, FeatureSet};
+use super::gram;
+use super::lpips;
+use super::nets::{Inception, LpipsModel, LpipsNet};
+use super::views::ViewSet;
+use super::warp::Warped;
+use crate::imageio::{Filter, Image};
+use crate::{Error, Result};
+use serde::Serialize;
+use std::path::Path;
+
+/// Below this many images per set, FID's covariance is rank-deficient (feature dim 2048).
+pub const FID_FULL_RANK: usize = 2048;
+/// Largest side of the style image fed to VGG for the Gram distance.
+pub const GRAM_MAX_SIDE: usize = 512;
+
+/// Settings of an evaluation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EvalParams {
+    /// LPIPS backbone for LPIPS_content and consistency.
+    pub lpips_net: LpipsNet,
+    /// Short- and long-range pair offsets (>= 1).
+    pub short_range: usize,
+    pub long_range: usize,
+    /// Seed of the style crops.
+    pub seed: u64,
+    /// onnxruntime intra-op threads (0 = all cores).
+    pub threads: usize,
+}
+
+impl EvalParams {
+    /// Error unless both pair offsets are at least 1.
+    pub fn validate(&self) -> Result<()> {
+        if self.short_range == 0 || self.long_range == 0 {
+            return Err(Error::param(
+                "--short-range and --long-range must be at least 1",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// An evaluation: the metrics and what the report shows beside them.
+#[derive(Debug, Clone)]
+pub struct Evaluation {
+    pub metrics: Metrics,
+    /// The style crops FID_style used.
+    pub crops: Vec<Image>,
+    /// The warped views of the short- and long-range pairs (for the report's examples).
+    pub short_warps: Vec<Warped>,
+    pub long_warps: Vec<Warped>,
+}
+
+/// One distribution distance (FID or KID) with its sample counts.
+#[derive(Debug, Clone, Serialize)]
+pub struct SetDistance {
+    pub value: Option<f64>,
+    pub n_a: usize,
+    pub n_b: usize,
+    /// False when the sample counts make the value biased or impossible.
+    pub reliable: bool,
+    pub note: String,
+}
+
+/// Consistency at one pair offset.
+#[derive(Debug, Clone, Serialize)]
+pub struct RangeConsistency {
+    pub offset: usize,
+    pub lpips_mean: Option<f64>,
+    pub rmse_mean: Option<f64>,
+    pub original_lpips_mean: Option<f64>,
+    pub original_rmse_mean: Option<f64>,
+    pub stylized: Vec<PairScore>,
+    pub original: Vec<PairScore>,
+}
+
+/// `metrics.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Metrics {
+    pub format: &'static str,
+    pub views: usize,
+    pub width: usize,
+    pub height: usize,
+    pub lpips_net: LpipsNet,
+    pub lpips_content: Option<f64>,
+    pub lpips_content_per_view: Vec<f64>,
+    pub fid_style: SetDistance,
+    pub kid_style: SetDistance,
+    pub fid_content: SetDistance,
+    pub kid_content: SetDistance,
+    pub artfid: Option<f64>,
+    pub artfid_note: &'static str,
+    pub short_range: RangeConsistency,
+    pub long_range: RangeConsistency,
+    pub gram_style: Option<f64>,
+    pub gram_style_original: Option<f64>,
+    pub gram_style_per_view: Vec<f64>,
+    pub style_crops: String,
+    pub warnings: Vec<String>,
+}
+
+/// What ArtFID means here (written beside the value).
+pub const ARTFID_NOTE: &str = "ArtFID = (1 + LPIPS_content)(1 + FID_style) computed with the standard FID Inception-v3 \
+     (TF 2015, pool3); the art-trained Inception of the ArtFID paper is not obtainable, so values are not \
+     comparable with published ArtFID numbers";
+
+/// Deterministic crops of the style image (see module docs).
+pub fn style_crops(style: &Image, k: usize, width: usize, height: usize, seed: u64) -> Vec<Image> {
+    let aspect = width as f64 / height as f64;
+    let mut ch = (style.height as f64 * 0.5).max(1.0);
+    let mut cw = ch * aspect;
+    if cw > style.width as f64 {
+        cw = style.width as f64;
+        ch = cw / aspect;
+    }
+    let (cw, ch) = (
+        (cw.round() as usize).clamp(1, style.width),
+        (ch.round() as usize).clamp(1, style.height),
+    );
+    let mut rng = crate::rng::Rng::derive(seed, "evaluate-style-crops");
+    (0..k)
+        .map(|_| {
+            let x0 = (rng.uniform() * (style.width - cw + 1) as f64) as usize;
+            let y0 = (rng.uniform() * (style.height - ch + 1) as f64) as usize;
+            style
+                .crop(x0.min(style.width - cw), y0.min(style.height - ch), cw, ch)
+                .resized(width, height, Filter::Bilinear)
+        })
+        .collect()
+}
+
+fn set_distances(
+    a: &[Vec<f32>],
+    b: &[Vec<f32>],
+    what: &str,
+    warnings: &mut Vec<String>,
+) -> (SetDistance, SetDistance) {
+    let (na, nb) = (a.len(), b.len());
+    if na < fid::MIN_IMAGES || nb < fid::MIN_IMAGES {
+        let note = format!(
+            "not computed: FID/KID need at least {} images per set, have {na} and {nb}",
+            fid::MIN_IMAGES
+        );
+        warnings.push(format!("{what}: {note}"));
+        let d = SetDistance {
+            value: None,
+            n_a: na,
+            n_b: nb,
+            reliable: false,
+            note,
+        };
+        return (d.clone(), d);
+    }
+    let (fa, fb) = (FeatureSet::from_rows(a), FeatureSet::from_rows(b));
+    let f = fid::fid(&fa, &fb).ok();
+    let k = fid::kid(&fa, &fb).ok();
+    let full = na.min(nb) >= FID_FULL_RANK;
+    let fid_note = if full {
+        format!("{na} vs {nb} images")
+    } else {
+        format!(
+            "{na} vs {nb} images, fewer than the 2048 feature dimensions: the covariances are rank-deficient \
+             and FID is biased upward; compare only at equal image counts, and prefer KID"
+        )
+    };
+    if !full {
+        warnings.push(format!("{what}: FID on {na} vs {nb} images is biased (unreliable in absolute terms); KID is reported beside it"));
+    }
+    (
+        SetDistance {
+            value: f,
+            n_a: na,
+            n_b: nb,
+            reliable: full,
+            note: fid_note,
+        },
+        SetDistance {
+            value: k,
+            n_a: na,
+            n_b: nb,
+            reliable: na.min(nb) >= 10,
+            note: "unbiased MMD² estimate (can be slightly negative when the sets match), cubic polynomial \
+                   kernel, all images in one set; high variance below 10 images"
+                .into(),
+        },
+    )
+}
+
+fn range_consistency(
+    model: &mut LpipsModel,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    offset: usize,
+    warnings: &mut Vec<String>,
+) -> Result<(RangeConsistency, Vec<Warped>)> {
+    let pairs = consistency::pairs(orig.n, offset);
+    if pairs.is_empty() {
+        warnings.push(format!(
+            "consistency at offset {offset}: needs more than {offset} views, have {}",
+            orig.n
+        ));
+    }
+    let (s, warps) = consistency::score_pairs(model, orig, &styl.images, &pairs)?;
+    let (o, _) = consistency::score_pairs(model, orig, &orig.images, &pairs)?;
+    let skipped = s.iter().filter(|p| p.lpips.is_none()).count();
+    if skipped > 0 {
+        warnings.push(format!(
+            "consistency at offset {offset}: {skipped} of {} pairs overlap less than {:.0}% and were skipped",
+            s.len(),
+            consistency::MIN_OVERLAP * 100.0
+        ));
+    }
+    Ok((
+        RangeConsistency {
+            offset,
+            lpips_mean: consistency::mean_of(s.iter().map(|p| p.lpips)),
+            rmse_mean: consistency::mean_of(s.iter().map(|p| p.rmse)),
+            original_lpips_mean: consistency::mean_of(o.iter().map(|p| p.lpips)),
+            original_rmse_mean: consistency::mean_of(o.iter().map(|p| p.rmse)),
+            stylized: s,
+            original: o,
+        },
+        warps,
+    ))
+}
+
+fn progress(len: u64, msg: &'static str) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::new(len);
+    if let Ok(st) = indicatif::ProgressStyle::with_template("{msg:>14} [{bar:30}] {pos}/{len}") {
+        pb.set_style(st);
+    }
+    pb.set_message(msg);
+    pb
+}
+
+/// Evaluate `styl` against `orig` (the same views, checked by
+/// [`ViewSet::check_same_views`]) and the style image, with the metric networks of the
+/// models directory `models` (see [`crate::models`]).
+pub fn evaluate(
+    models: &Path,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    style: &Image,
+    p: &EvalParams,
+) -> Result<Evaluation> {
+    p.validate()?;
+    orig.check_same_views(styl)?;
+    let mut warnings = Vec::new();
+    let (n, w, h) = (orig.n, orig.width, orig.height);
+    tracing::info!(
+        "evaluate: {n} views at {w}x{h}, LPIPS-{}",
+        p.lpips_net.name()
+    );
+    let pb = progress(5, "evaluate");
+
+    // LPIPS content.
+    let mut lp = crate::timing::load(|| LpipsModel::load(models, p.lpips_net, p.threads))?;
+    let oi: Vec<&Image> = orig.images.iter().collect();
+    let si: Vec<&Image> = styl.images.iter().collect();
+    let lpips_per_view = lpips::pairwise(&mut lp, &oi, &si)?;
+    let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
+    pb.inc(1);
+
+    // Consistency (geometry from the original views; cameras are checked equal).
+    let (short, short_warps) =
+        range_consistency(&mut lp, orig, styl, p.short_range, &mut warnings)?;
+    pb.inc(1);
+    let (long, long_warps) = range_consistency(&mut lp, orig, styl, p.long_range, &mut warnings)?;
+    pb.inc(1);
+
+    // Gram distance to the style image (VGG16).
+    let mut vgg = if p.lpips_net == LpipsNet::Vgg16 {
+        lp
+    } else {
+        crate::timing::load(|| LpipsModel::load(models, LpipsNet::Vgg16, p.threads))?
+    };
+    let style_small = style.fit_within(GRAM_MAX_SIDE);
+    let gs = gram::grams(&vgg.features(&[&style_small])?[0]);
+    let mut gram_per_view = Vec::with_capacity(n);
+    let mut gram_orig = Vec::with_capacity(n);
+    for i in 0..n {
+        let f = vgg.features(&[&styl.images[i], &orig.images[i]])?;
+        gram_per_view.push(gram::gram_distance(&gram::grams(&f[0]), &gs));
+        gram_orig.push(gram::gram_distance(&gram::grams(&f[1]), &gs));
+    }
+    drop(vgg);
+    let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+    pb.inc(1);
+
+    // FID / KID.
+    let k = n.max(fid::MIN_IMAGES);
+    let crops = style_crops(style, k, w, h, p.seed);
+    let mut inc = crate::timing::load(|| Inception::load(models, p.threads))?;
+    let fs = inc.pool3(&si)?;
+    let fo = inc.pool3(&oi)?;
+    let fc = inc.pool3(&crops.iter().collect::<Vec<_>>())?;
+    pb.inc(1);
+    let (fid_style, kid_style) = set_distances(&fs, &fc, "FID_style", &mut warnings);
+    let (fid_content, kid_content) = set_distances(&fs, &fo, "FID_content", &mut warnings);
+    let artfid = match (lpips_content, fid_style.value) {
+        (Some(l), Some(f)) => Some(fid::artfid(l, f)),
+        _ => None,
+    };
+    if style.width < 64 || style.height < 64 {
+        warnings.push(format!(
+            "the style image is only {}x{}: its crops are upsampled for FID_style and the Gram distance sees few positions",
+            style.width, style.height
+        ));
+    }
+
+    let metrics = Metrics {
+        format: "fantasystyle-evaluation-1",
+        views: n,
+        width: w,
+        height: h,
+        lpips_net: p.lpips_net,
+        lpips_content,
+        lpips_content_per_view: lpips_per_view,
+        fid_style,
+        kid_style,
+        fid_content,
+        kid_content,
+        artfid,
+        artfid_note: ARTFID_NOTE,
+        short_range: short,
+        long_range: long,
+        gram_style: mean(&gram_per_view),
+        gram_style_original: mean(&gram_orig),
+        gram_style_per_view: gram_per_view,
+        style_crops: format!(
+            "{k} crops of the style image at the views' aspect ratio spanning half its height, seeded positions (seed {}), resized to {w}x{h}",
+            p.seed
+        ),
+        warnings,
+    };
+    pb.finish_and_clear();
+    Ok(Evaluation {
+        metrics,
+        crops,
+        short_warps,
+        long_warps,
+    })
+}

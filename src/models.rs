@@ -1,0 +1,107 @@
+//! Finding the installed models: one rule for every stage that defaults a model path
+//! (`evaluate`'s metric networks, `stylize-baseline`'s `--vgg` and `--stylizer`).
+//!
+//! The models directory is, in order:
+//! 1. `$FANTASYSTYLE_MODELS` when set (used as given, even if it does not exist, so a
+//!    wrong setting shows up as a missing file under it rather than as a silent fallback);
+//! 2. the first `vendor/models` directory in an ancestor of the running executable
+//!    (`target/release/evaluate` finds the repository's `vendor/models`);
+//! 3. the first `vendor/models` directory in an ancestor of the current directory;
+//! 4. `vendor/models` of the source tree the crate was built from.
+//!
+//! So a stage finds the models whether it is started from the repository root, from
+//! another directory, or by the DAG runner, and `FANTASYSTYLE_MODELS` points elsewhere.
+
+use crate::{Error, Result};
+use std::path::{Path, PathBuf};
+
+/// Environment variable naming the models directory.
+pub const MODELS_ENV: &str = "FANTASYSTYLE_MODELS";
+
+/// The models directory (see the module docs for the search order).
+pub fn models_dir() -> Result<PathBuf> {
+    resolve(std::env::var_os(MODELS_ENV), &candidates())
+}
+
+/// The rule itself: `env` when set and non-empty, else the first existing candidate.
+fn resolve(env: Option<std::ffi::OsString>, candidates: &[PathBuf]) -> Result<PathBuf> {
+    if let Some(p) = env.filter(|p| !p.is_empty()) {
+        return Ok(PathBuf::from(p));
+    }
+    candidates
+        .iter()
+        .find(|p| p.is_dir())
+        .cloned()
+        .ok_or_else(|| {
+            Error::Missing(format!(
+                "the models directory was not found (set {MODELS_ENV}, or run scripts/setup.sh \
+                 to make vendor/models); looked in: {}",
+                candidates
+                    .iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ))
+        })
+}
+
+/// `rel` under the models directory, e.g. `model_path("lpips/vgg16")`.
+pub fn model_path(rel: impl AsRef<Path>) -> Result<PathBuf> {
+    Ok(models_dir()?.join(rel))
+}
+
+/// The `vendor/models` directories searched when `$FANTASYSTYLE_MODELS` is not set.
+fn candidates() -> Vec<PathBuf> {
+    let mut v = Vec::new();
+    let mut push = |p: PathBuf| {
+        if !v.contains(&p) {
+            v.push(p);
+        }
+    };
+    if let Ok(exe) = std::env::current_exe() {
+        for anc in exe.ancestors().skip(1) {
+            push(anc.join("vendor/models"));
+        }
+    }
+    if let Ok(cwd) = std::env::current_dir() {
+        for anc in cwd.ancestors() {
+            push(anc.join("vendor/models"));
+        }
+    }
+    push(Path::new(env!("CARGO_MANIFEST_DIR")).join("vendor/models"));
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn search_order_starts_near_the_executable_and_ends_at_the_source_tree() {
+        let c = candidates();
+        let exe = std::env::current_exe().unwrap();
+        assert_eq!(c[0], exe.parent().unwrap().join("vendor/models"));
+        let cwd = std::env::current_dir().unwrap().join("vendor/models");
+        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("vendor/models");
+        assert!(c.contains(&cwd) && c.contains(&src), "{c:?}");
+    }
+
+    #[test]
+    fn env_wins_then_the_first_existing_candidate() {
+        let d = tempfile::tempdir().unwrap();
+        let (a, b) = (d.path().join("a"), d.path().join("b"));
+        std::fs::create_dir(&b).unwrap();
+        let c = [a.clone(), b.clone()];
+        assert_eq!(resolve(None, &c).unwrap(), b);
+        assert_eq!(resolve(Some("".into()), &c).unwrap(), b);
+        // Set: used as given, even where nothing exists.
+        assert_eq!(resolve(Some(a.clone().into()), &c).unwrap(), a);
+        let e = resolve(None, std::slice::from_ref(&a))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(MODELS_ENV) && e.contains(&a.display().to_string()),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,167 @@
+//! Issue 13: "stylize your own scene" through the real binaries: the sample DAG run on a
+//! shared `.splat` scene with an `orbit:` camera spec and a style from the current
+//! directory, every output under `--workdir`, `data-sample/` untouched, and one `--set`
+//! change rerunning exactly its downstream.
+//!
+//! LEAD: RE-CHECK AFTER THE SAMPLE DAG REWRITE (issue 11). This test is written against
+//! `data-sample/stylize.toml`'s vars `scene`, `cameras` and `style` and its params keys
+//! `rounds`, `render.width` and `render.height`. While `init-scene` is still
+//! `pipeline wrap --kind scene ... ${scene}` (which needs a `scene.ply`), it runs only the
+//! source branch (`source-latents` and upstream); once that stage reads a `.splat`, it
+//! runs the whole DAG and checks the `[result]` lines.
+
+use crate::harness;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn pipeline_bin() -> PathBuf {
+    let p = Path::new(env!("CARGO_BIN_EXE_render-views"))
+        .parent()
+        .unwrap()
+        .join("pipeline");
+    assert!(
+        p.is_file(),
+        "{} is missing: build every binary first (cargo build --workspace --bins)",
+        p.display()
+    );
+    p
+}
+
+/// The tracked files of data-sample/ and whether the runner's own files exist there.
+fn sample_state(ds: &Path) -> BTreeMap<String, Vec<u8>> {
+    let mut m = BTreeMap::new();
+    for e in std::fs::read_dir(ds).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        if p.is_file() && !name.ends_with(".lock") {
+            m.insert(name, std::fs::read(&p).unwrap());
+        }
+    }
+    for f in ["runs", ".pipeline", "stylize.lock"] {
+        m.insert(format!("exists:{f}"), vec![ds.join(f).exists() as u8]);
+    }
+    m
+}
+
+fn done(stdout: &str) -> Vec<String> {
+    let mut v: Vec<String> = stdout
+        .lines()
+        .filter_map(|l| l.strip_prefix("done"))
+        .map(|l| l.split_whitespace().next().unwrap().to_string())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
+    let Some(splat) = harness::shared_scene("bob_10k.splat") else {
+        return;
+    };
+    let root = harness::repo_root();
+    let ds = root.join("data-sample");
+    let dag = ds.join("stylize.toml");
+    let whole_dag = !std::fs::read_to_string(&dag)
+        .unwrap()
+        .contains("pipeline wrap --kind scene --out runs/r0/scene ${scene}");
+    let before = sample_state(&ds);
+    let t = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(t.path().join("art")).unwrap();
+    std::fs::copy(ds.join("style.png"), t.path().join("art/wave.png")).unwrap();
+    let bin = pipeline_bin();
+    let mut args: Vec<String> = [
+        "--dag",
+        dag.to_str().unwrap(),
+        "--workdir",
+        "out/bob",
+        "--set",
+        &format!("scene={}", splat.display()),
+        "--set",
+        "style=art/wave.png",
+        "--set",
+        "cameras=orbit:6",
+        "--set",
+        "render.width=48",
+        "--set",
+        "render.height=48",
+        "--set",
+        "rounds=1",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let targets: Vec<String> = if whole_dag {
+        vec![]
+    } else {
+        vec!["source-latents".into()]
+    };
+    let pipeline = |cmd: &str, args: &[String]| {
+        let o = Command::new(&bin)
+            .arg(cmd)
+            .args(args)
+            .current_dir(t.path())
+            .output()
+            .unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stdout).into_owned(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let run_args = |a: &[String]| [a, &targets[..]].concat();
+
+    let (rc, out, err) = pipeline("run", &run_args(&args));
+    assert_eq!(rc, Some(0), "{out}\n{err}");
+    let w = t.path().join("out/bob");
+    let views = fantasystyle_schemas::Artifact::open_any(&w.join("runs/source/views")).unwrap();
+    assert_eq!(
+        views.manifest.file("rgb.npy").unwrap().shape.as_deref(),
+        Some(&[6usize, 48, 48, 3][..])
+    );
+    assert!(w.join("runs/source/latents/manifest.json").is_file());
+    assert!(w.join("stylize.lock").is_file() && w.join(".pipeline/logs").is_dir());
+    if whole_dag {
+        assert!(
+            out.contains("result  scene    out/bob/runs/final/"),
+            "{out}"
+        );
+        assert!(
+            out.contains("result  report   out/bob/runs/eval/report.html"),
+            "{out}"
+        );
+    }
+    // Outputs only under the work directory: the temp dir holds art/ and out/ only.
+    let mut top: Vec<String> = std::fs::read_dir(t.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    top.sort();
+    assert_eq!(top, ["art", "out"]);
+    assert!(sample_state(&ds) == before, "data-sample/ changed");
+
+    // Nothing to do the second time.
+    let (rc, out, _) = pipeline("run", &run_args(&args));
+    assert_eq!(rc, Some(0));
+    assert!(out.contains("nothing to run"), "{out}");
+
+    // One --set change reruns exactly its downstream: the cameras feed source-views
+    // (and, whole DAG, every render and the colour fit).
+    let i = args.iter().position(|a| a == "cameras=orbit:6").unwrap();
+    args[i] = "cameras=orbit:5".into();
+    let (rc, st, _) = pipeline("status", &args);
+    assert_eq!(rc, Some(0));
+    assert!(
+        st.contains("stale       source-views: changed cmd, changed dep orbit:5"),
+        "{st}"
+    );
+    let (rc, out, err) = pipeline("run", &run_args(&args));
+    assert_eq!(rc, Some(0), "{out}\n{err}");
+    let ran = done(&out);
+    if whole_dag {
+        assert!(ran.contains(&"source-views".to_string()), "{out}");
+    } else {
+        assert_eq!(ran, ["source-latents", "source-views"], "{out}");
+    }
+    assert!(sample_state(&ds) == before, "data-sample/ changed");
+}
