@@ -11,6 +11,7 @@
 //! | `noised-latents` | mvfc-filter | [`read_noised_latents`]: z_src, z_tgt, eps `[N,C,h,w]`, eps' `[C,h,w]`, t |
 //! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
 //! | `scene` | update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] |
+//! | `scene` with optimizer state (a checkpoint) | distill | [`read_checkpoint`] |
 //!
 //! Stage inputs that may be an artifact or a plain file: [`load_scene`] (a `.ply`, a
 //! `.splat` or a scene artifact) and [`load_cameras`] (an `orbit:` spec, a camera file or
@@ -221,6 +222,82 @@ pub fn read_targets(dir: &Path) -> Result<Targets> {
 pub fn read_scene(dir: &Path) -> Result<Scene> {
     let a = Artifact::open(dir, ArtifactKind::Scene)?;
     scene::ply::read_ply(&a.path("scene.ply"))
+}
+
+/// A distillation checkpoint: a `scene` artifact that also holds the optimizer state
+/// and the iteration count (written by `distill`), so that a run resumes bit for bit.
+#[derive(Debug)]
+pub struct Checkpoint {
+    pub art: Artifact,
+    pub scene: Scene,
+    /// Iterations done.
+    pub iteration: u64,
+    pub state: crate::optim::OptimizerState,
+    /// Per-iteration reports of every iteration so far (`history.json`).
+    pub history: Vec<serde_json::Value>,
+}
+
+/// Files of a checkpoint beside `scene.ply`.
+pub const CHECKPOINT_STATE: &str = "state.json";
+pub const CHECKPOINT_ADAM_DC: &str = "adam_dc.npy";
+pub const CHECKPOINT_ADAM_REST: &str = "adam_rest.npy";
+pub const CHECKPOINT_HISTORY: &str = "history.json";
+
+/// Read a checkpoint written by `distill` (a scene artifact with `state.json`,
+/// `adam_dc.npy` `[2, 3 G]` and `adam_rest.npy` `[2, 3 G K]` holding Adam's first and
+/// second moments, and `history.json`).
+pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint> {
+    let art = Artifact::open(dir, ArtifactKind::Scene)?;
+    if !art.path(CHECKPOINT_STATE).is_file() {
+        return Err(Error::input(
+            dir,
+            "scene artifact holds no optimizer state (state.json): not a distill checkpoint",
+        ));
+    }
+    let scene = scene::ply::read_ply(&art.path("scene.ply"))?;
+    #[derive(serde::Deserialize)]
+    struct State {
+        iteration: u64,
+        adam_dc_step: i32,
+        adam_rest_step: i32,
+    }
+    let st: State = art.read_json(CHECKPOINT_STATE)?;
+    let adam = |name: &str, len: usize, t: i32| -> Result<crate::optim::AdamState> {
+        let a = art.read_f32(name)?;
+        if a.shape != [2, len] {
+            return Err(Error::input(
+                art.path(name),
+                format!(
+                    "expected shape [2, {len}] for this scene, found {:?}",
+                    a.shape
+                ),
+            ));
+        }
+        let mut d = a.data;
+        let v = d.split_off(len);
+        Ok(crate::optim::AdamState { m: d, v, t })
+    };
+    let n = scene.len();
+    let state = crate::optim::OptimizerState {
+        dc: adam(CHECKPOINT_ADAM_DC, n * 3, st.adam_dc_step)?,
+        rest: adam(
+            CHECKPOINT_ADAM_REST,
+            n * 3 * scene.rest_per_channel(),
+            st.adam_rest_step,
+        )?,
+    };
+    let history = if art.path(CHECKPOINT_HISTORY).is_file() {
+        art.read_json(CHECKPOINT_HISTORY)?
+    } else {
+        Vec::new()
+    };
+    Ok(Checkpoint {
+        art,
+        scene,
+        iteration: st.iteration,
+        state,
+        history,
+    })
 }
 
 /// A stage's scene input: a scene artifact directory ([`read_scene`]), else a `.ply`, a

@@ -117,6 +117,10 @@ pub struct StepInputs<'a> {
     pub z_tgt: ArrayView4<'a, f32>,
     pub z_src: ArrayView4<'a, f32>,
     pub eps: ArrayView4<'a, f32>,
+    /// The source's clean latents, when `z_src` is not simply `add_noise(z0_src, eps)`
+    /// (MVFC on the source branch): an identity prior's exact source noise is then
+    /// `(z_src - sqrt(ab) z0_src) / sqrt(1 - ab)`; without it, `eps`.
+    pub z0_src: Option<ArrayView4<'a, f32>>,
     pub t: usize,
     /// Control image for priors with a ControlNet (`[N, 3, H, W]`).
     pub control: Option<ArrayView4<'a, f32>>,
@@ -161,11 +165,16 @@ pub fn gradient(
     let w = p.weighting.weight(ab) as f32;
     let beta = p.guidance;
     let (ct, cs) = conds(p.mode);
-    let et = prior.predict_eps(x.z_tgt, x.t, &ct, x.control)?;
-    let es = if cs.is_empty() {
-        Vec::new()
+    let (et, es) = if prior.unconditional_is_identity() {
+        oracle_predictions(prior, schedule, &x, &ct, &cs)?
     } else {
-        prior.predict_eps(x.z_src, x.t, &cs, x.control)?
+        let et = prior.predict_eps(x.z_tgt, x.t, &ct, x.control)?;
+        let es = if cs.is_empty() {
+            Vec::new()
+        } else {
+            prior.predict_eps(x.z_src, x.t, &cs, x.control)?
+        };
+        (et, es)
     };
     for e in et.iter().chain(&es) {
         if e.shape() != shape {
@@ -204,6 +213,64 @@ pub fn gradient(
         )));
     }
     Ok(g)
+}
+
+/// Per-conditioning predictions of the target and the source branch.
+type BranchPredictions = (Vec<Array4<f32>>, Vec<Array4<f32>>);
+
+/// Predictions for a prior whose unconditional branch is the identity
+/// ([`Prior::unconditional_is_identity`]): `Null` and `Content` are not asked of the
+/// prior but given exactly, as the noise that takes the clean latents to the noisy ones
+/// (target: `(z_tgt - sqrt(ab) z0) / sqrt(1 - ab)`, which includes MVFC's change of
+/// z_tgt; source: `(z_src - sqrt(ab) z0_src) / sqrt(1 - ab)` when z0_src is given, else
+/// `eps`, with which `z_src` was made). The other conditionings go to
+/// the prior in one call per branch.
+fn oracle_predictions(
+    prior: &mut dyn Prior,
+    schedule: &Schedule,
+    x: &StepInputs<'_>,
+    ct: &[Cond],
+    cs: &[Cond],
+) -> Result<BranchPredictions> {
+    let (sa, sb) = schedule.coefficients(x.t)?;
+    let (sa, sb) = (sa as f32, sb as f32);
+    let oracle = |c: Cond| matches!(c, Cond::Null | Cond::Content);
+    let branch = |prior: &mut dyn Prior,
+                  z: ArrayView4<'_, f32>,
+                  conds: &[Cond],
+                  exact: &dyn Fn() -> Array4<f32>|
+     -> Result<Vec<Array4<f32>>> {
+        let ask: Vec<Cond> = conds.iter().copied().filter(|c| !oracle(*c)).collect();
+        let mut got = if ask.is_empty() {
+            Vec::new()
+        } else {
+            prior.predict_eps(z, x.t, &ask, x.control)?
+        }
+        .into_iter();
+        conds
+            .iter()
+            .map(|c| {
+                if oracle(*c) {
+                    Ok(exact())
+                } else {
+                    got.next()
+                        .ok_or_else(|| Error::Other("prior returned too few predictions".into()))
+                }
+            })
+            .collect()
+    };
+    let et = branch(prior, x.z_tgt, ct, &|| {
+        Zip::from(x.z_tgt)
+            .and(x.z0)
+            .map_collect(|&z, &z0| (z - sa * z0) / sb)
+    })?;
+    let es = branch(prior, x.z_src, cs, &|| match x.z0_src {
+        Some(z0s) => Zip::from(x.z_src)
+            .and(z0s)
+            .map_collect(|&z, &z0| (z - sa * z0) / sb),
+        None => x.eps.to_owned(),
+    })?;
+    Ok((et, es))
 }
 
 /// One step: z0' = z0 - lr * w(t) g. Returns (z0', w g).
@@ -269,6 +336,7 @@ mod tests {
             z_tgt: c.zt.view(),
             z_src: c.zs.view(),
             eps: c.eps.view(),
+            z0_src: None,
             t,
             control: None,
         }

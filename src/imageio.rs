@@ -362,6 +362,30 @@ pub fn write_png_gray(path: &Path, v: &[f32], w: usize, h: usize, normalise: boo
 }
 
 /// Read a PNG or JPEG as float RGB in [0, 1] (grayscale expanded, alpha dropped).
+/// The shortest side a style image must have to carry a style for the 2D priors: the
+/// stylizer's style network sees 256 px, and a smaller image would reach it as mostly
+/// interpolation (the VGG baselines need 92 px, `baselines::MIN_STYLE_SIDE`).
+pub const MIN_STYLE_SIDE: usize = 64;
+
+/// Load a style image (PNG or JPEG, grey expanded, alpha dropped), refusing a missing
+/// file and one whose shorter side is under `min_side`, with the size named.
+pub fn load_style(path: &Path, min_side: usize) -> Result<Image> {
+    if !path.is_file() {
+        return Err(Error::input(path, "style image not found"));
+    }
+    let img = read_rgb(path)?;
+    if img.width.min(img.height) < min_side {
+        return Err(Error::input(
+            path,
+            format!(
+                "style image is {}x{}: too small to carry a style (the shorter side must be at least {min_side} px)",
+                img.width, img.height
+            ),
+        ));
+    }
+    Ok(img)
+}
+
 pub fn read_rgb(path: &Path) -> Result<Image> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let img = image::load_from_memory(&bytes)

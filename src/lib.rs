@@ -32,6 +32,7 @@ pub mod artifacts;
 pub mod baselines;
 pub mod camera;
 pub mod csd;
+pub mod distill;
 pub mod error;
 pub mod geometry;
 pub mod imageio;

@@ -385,6 +385,30 @@ pub fn mvfc_grouped(
     Ok(out)
 }
 
+/// MVFC of the N adjacent views of one iteration taken along a camera path. When the
+/// views' ends are neighbours (`circular`: the whole of a closed path) the view axis of
+/// the 3D FFT is circular, as [`mvfc`] has it. Otherwise the FFT's wrap-around would
+/// make the last view a neighbour of the first, so the view axis is extended by its
+/// mirror image (v0 .. v_{N-1}, v_{N-2} .. v1, an even extension as in a DCT) before
+/// filtering and cut back to the N views after: each view's low frequencies are then
+/// blended with those of its path neighbours only.
+pub fn mvfc_path(
+    z_t: ArrayView4<'_, f32>,
+    eps_shared: ArrayView3<'_, f32>,
+    params: MvfcParams,
+    circular: bool,
+) -> Result<Array4<f32>> {
+    let n = z_t.shape()[0];
+    if circular || n <= 2 {
+        // Two views are each other's only neighbour either way.
+        return mvfc(z_t, eps_shared, params);
+    }
+    let order: Vec<usize> = (0..n).chain((1..n - 1).rev()).collect();
+    let ext = z_t.select(ndarray::Axis(0), &order);
+    let out = mvfc(ext.view(), eps_shared, params)?;
+    Ok(out.slice(ndarray::s![..n, .., .., ..]).to_owned())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -421,6 +445,37 @@ mod tests {
         }
         // Grouping changes the result (the view axis of the FFT is shorter).
         assert!(max_abs_diff(&g, &whole) > 1e-4);
+    }
+
+    /// On an open path the first and last views do not exchange low frequencies (the
+    /// circular filter couples them as neighbours); a circular window equals [`mvfc`].
+    #[test]
+    fn open_paths_do_not_couple_their_ends() {
+        let p = MvfcParams {
+            gamma: 0.0,
+            ..MvfcParams::default()
+        };
+        let (n, s) = (6, [6, 1, 4, 4]);
+        let e = randn3(5, [1, 4, 4]);
+        let z = randn4(6, s);
+        // Influence of a change of the last view on the first view.
+        let mut z2 = z.clone();
+        z2.slice_mut(ndarray::s![n - 1, .., .., ..])
+            .mapv_inplace(|v| v + 3.0);
+        let influence = |circular: bool| {
+            let a = mvfc_path(z.view(), e.view(), p, circular).unwrap();
+            let b = mvfc_path(z2.view(), e.view(), p, circular).unwrap();
+            let d = &a.slice(ndarray::s![0, .., .., ..]) - &b.slice(ndarray::s![0, .., .., ..]);
+            d.iter().map(|v| v.abs()).fold(0.0f32, f32::max)
+        };
+        let (open, circ) = (influence(false), influence(true));
+        // Its neighbour (view 1) feels it in both cases; the far end only when circular.
+        assert!(circ > 0.05, "circular coupling {circ}");
+        assert!(open < 0.2 * circ, "open {open} vs circular {circ}");
+        assert_eq!(
+            mvfc_path(z.view(), e.view(), p, true).unwrap(),
+            mvfc(z.view(), e.view(), p).unwrap()
+        );
     }
 
     /// Direct O(M^2) reference of the formula: DFT3 by definition in f64.

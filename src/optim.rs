@@ -367,6 +367,21 @@ pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
     -10.0 * mse.max(1e-20).log10()
 }
 
+/// The moments and step count of one [`Adam`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct AdamState {
+    pub m: Vec<f32>,
+    pub v: Vec<f32>,
+    pub t: i32,
+}
+
+/// The state of a [`ColourFit`]'s optimizers (f_dc, f_rest).
+#[derive(Debug, Clone, PartialEq)]
+pub struct OptimizerState {
+    pub dc: AdamState,
+    pub rest: AdamState,
+}
+
 /// Adam state for one parameter vector.
 #[derive(Debug, Clone)]
 pub struct Adam {
@@ -391,6 +406,37 @@ impl Adam {
             v: vec![0.0; n],
             t: 0,
         }
+    }
+
+    /// The moments and step count.
+    pub fn state(&self) -> AdamState {
+        AdamState {
+            m: self.m.clone(),
+            v: self.v.clone(),
+            t: self.t,
+        }
+    }
+
+    /// Replace the moments and step count; `what` names the parameters in errors.
+    pub fn set_state(&mut self, s: AdamState, what: &str) -> Result<()> {
+        if s.m.len() != self.m.len() || s.v.len() != self.v.len() {
+            return Err(Error::param(format!(
+                "{what}: optimizer state holds {} / {} moments, the scene needs {}",
+                s.m.len(),
+                s.v.len(),
+                self.m.len()
+            )));
+        }
+        if s.t < 0 || s.m.iter().chain(&s.v).any(|x| !x.is_finite()) || s.v.iter().any(|x| *x < 0.0)
+        {
+            return Err(Error::param(format!(
+                "{what}: optimizer state is not valid (negative step or second moment, or not finite)"
+            )));
+        }
+        self.m = s.m;
+        self.v = s.v;
+        self.t = s.t;
+        Ok(())
     }
 
     /// One update of `params` with gradient `grad`.
@@ -503,6 +549,11 @@ fn check_params(
             )));
         }
     }
+    check_options(p)
+}
+
+/// Learning rates, SSIM weight and background of a fit.
+fn check_options(p: &FitParams) -> Result<()> {
     let lr_ok = |v: f32| v.is_finite() && v >= 0.0;
     if !(lr_ok(p.lr_dc) && lr_ok(p.lr_rest)) {
         return Err(Error::param(format!(
@@ -615,7 +666,7 @@ impl<T: Default> Pool<T> {
 /// scene. [`fit_colours`] drives it; benchmarks time [`ColourFit::step`] alone.
 pub struct ColourFit<'a> {
     cameras: &'a [Camera],
-    targets: &'a [Vec<f32>],
+    targets: Option<&'a [Vec<f32>]>,
     params: FitParams,
     states: Vec<ViewState>,
     scene: Scene,
@@ -640,6 +691,26 @@ impl<'a> ColourFit<'a> {
         p: &FitParams,
     ) -> Result<ColourFit<'a>> {
         check_params(scene, cameras, targets, 1, p)?;
+        let mut fit = Self::without_targets(scene, cameras, p)?;
+        fit.targets = Some(targets);
+        Ok(fit)
+    }
+
+    /// A fit whose per-step losses the caller supplies ([`Self::step_views`],
+    /// [`Self::step_with`]); it has no targets, so [`Self::step`] must not be called.
+    pub fn without_targets(
+        scene: &Scene,
+        cameras: &'a [Camera],
+        p: &FitParams,
+    ) -> Result<ColourFit<'a>> {
+        validate_scene(scene)?;
+        if cameras.is_empty() {
+            return Err(Error::param("no cameras to fit to"));
+        }
+        for c in cameras {
+            validate_camera(c)?;
+        }
+        check_options(p)?;
         let mut states = Vec::with_capacity(cameras.len());
         let mut cache_bytes = 0usize;
         let mut any_visible = false;
@@ -701,7 +772,7 @@ impl<'a> ColourFit<'a> {
         let n = scene.len();
         Ok(ColourFit {
             cameras,
-            targets,
+            targets: None,
             params: p.clone(),
             states,
             scene: scene.clone(),
@@ -729,7 +800,10 @@ impl<'a> ColourFit<'a> {
         let lp = LossParams {
             ssim_weight: self.params.ssim_weight,
         };
-        let (cameras, targets) = (self.cameras, self.targets);
+        let cameras = self.cameras;
+        let targets = self
+            .targets
+            .expect("ColourFit::step needs the targets given to ColourFit::new");
         let loss = |v: usize, b: &mut ViewBufs, rgb: Option<&[f32]>, alpha: Option<&[f32]>| {
             let (h, w) = (cameras[v].height as usize, cameras[v].width as usize);
             let ViewBufs {
@@ -741,7 +815,8 @@ impl<'a> ColourFit<'a> {
             grad.resize(h * w * 3, 0.0);
             Ok(loss_and_grad_into(loss, rgb, &targets[v], alpha, h, w, lp, grad) as f64)
         };
-        self.step_views(Losses::Parallel(&loss))
+        let all: Vec<usize> = (0..self.cameras.len()).collect();
+        self.step_over(&all, Losses::Parallel(&loss))
             .expect("the L1 + D-SSIM loss cannot fail") as f32
     }
 
@@ -759,14 +834,36 @@ impl<'a> ColourFit<'a> {
             b.grad = g;
             Ok(l)
         };
-        self.step_views(Losses::InOrder(&mut loss))
+        let all: Vec<usize> = (0..self.cameras.len()).collect();
+        self.step_over(&all, Losses::InOrder(&mut loss))
+    }
+
+    /// One Adam step over the cameras `views` only (indices into the cameras given to
+    /// [`Self::new`]): the per-view losses' gradients are summed, divided by
+    /// `views.len()`, and applied once. Returns the mean loss over `views` before the
+    /// update. Distillation ([`crate::distill`]) steps on a few adjacent views at a time.
+    /// The hook is called view after view, in the order of `views`.
+    pub fn step_views(&mut self, views: &[usize], view_loss: &mut ViewLoss<'_>) -> Result<f64> {
+        let mut loss = |v: usize, b: &mut ViewBufs, rgb: Option<&[f32]>, alpha: Option<&[f32]>| {
+            let rgb = rgb.unwrap_or(&b.rgb);
+            let (l, g) = view_loss(v, rgb, alpha)?;
+            b.grad = g;
+            Ok(l)
+        };
+        self.step_over(views, Losses::InOrder(&mut loss))
     }
 
     /// One step: for every view (in parallel or in order, see [`Losses`]), colours,
     /// render, the loss (which leaves dL/drgb in the buffers' `grad`), colour and SH
     /// backward; then the Adam update.
-    fn step_views(&mut self, mut losses: Losses<'_, '_>) -> Result<f64> {
-        let nv = self.cameras.len();
+    fn step_over(&mut self, views: &[usize], mut losses: Losses<'_, '_>) -> Result<f64> {
+        if views.is_empty() || views.iter().any(|&v| v >= self.cameras.len()) {
+            return Err(Error::param(format!(
+                "step_views: views {views:?} for {} cameras",
+                self.cameras.len()
+            )));
+        }
+        let nv = views.len();
         let mut grad_dc = std::mem::take(&mut self.grad_dc);
         let mut grad_rest = std::mem::take(&mut self.grad_rest);
         grad_dc.par_iter_mut().for_each(|g| *g = [0.0; 3]);
@@ -776,14 +873,13 @@ impl<'a> ColourFit<'a> {
         // visible Gaussian) are held until added, so memory stays bounded.
         let window = crate::parallel::window_for(rayon::current_num_threads()).max(8);
         let mut first_err = None;
-        for lo in (0..nv).step_by(window) {
-            let hi = (lo + window).min(nv);
+        for chunk in views.chunks(window) {
             let outs: Vec<Result<ViewGradOwned<'_>>> = match &mut losses {
-                Losses::Parallel(f) => (lo..hi)
-                    .into_par_iter()
-                    .map(|v| self.view_grad(v, &mut |v, b, rgb, alpha| f(v, b, rgb, alpha)))
+                Losses::Parallel(f) => chunk
+                    .par_iter()
+                    .map(|&v| self.view_grad(v, &mut |v, b, rgb, alpha| f(v, b, rgb, alpha)))
                     .collect(),
-                Losses::InOrder(f) => (lo..hi).map(|v| self.view_grad(v, &mut **f)).collect(),
+                Losses::InOrder(f) => chunk.iter().map(|&v| self.view_grad(v, &mut **f)).collect(),
             };
             let outs: Vec<ViewGradOwned<'_>> = match outs.into_iter().collect() {
                 Ok(o) => o,
@@ -873,6 +969,39 @@ impl<'a> ColourFit<'a> {
         };
         self.bufs.put(b);
         r
+    }
+
+    /// Camera `v`'s render `[H, W, 3]` with the current colours (the cached forward
+    /// pass where the view is cached, a full rasterization otherwise).
+    pub fn render_view(&self, v: usize) -> Vec<f32> {
+        let cam = &self.cameras[v];
+        let centre = cam.center();
+        match &self.states[v] {
+            ViewState::Cached { cache, .. } => {
+                let raw = raw_colours(&self.scene, cache.gaussians(), centre);
+                cache.forward(&clamp_colours(&raw), self.params.background)
+            }
+            ViewState::Uncached => {
+                let frame = project(&self.scene, cam);
+                let raw = raw_colours(&self.scene, &frame.splats.ids, centre);
+                composite(&frame, &clamp_colours(&raw), self.params.background).rgb
+            }
+        }
+    }
+
+    /// The optimizer's state (Adam moments and step counts), for checkpoints.
+    pub fn optimizer_state(&self) -> OptimizerState {
+        OptimizerState {
+            dc: self.adam_dc.state(),
+            rest: self.adam_rest.state(),
+        }
+    }
+
+    /// Restore a state saved by [`Self::optimizer_state`] for this scene (same number
+    /// of Gaussians and SH degree), so a resumed fit continues bit for bit.
+    pub fn set_optimizer_state(&mut self, s: OptimizerState) -> Result<()> {
+        self.adam_dc.set_state(s.dc, "f_dc")?;
+        self.adam_rest.set_state(s.rest, "f_rest")
     }
 
     /// The scene as of the last step (geometry as given, colours updated).

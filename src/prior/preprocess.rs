@@ -84,8 +84,13 @@ pub fn control_image(
         )));
     }
     let mut out = Array4::<f32>::zeros((b, 3, h, w));
+    if kind == ControlKind::Source {
+        out.assign(&rgb.permuted_axes([0, 3, 1, 2]));
+        return Ok(out);
+    }
     for bi in 0..b {
         let vals: Vec<Option<f32>> = match kind {
+            ControlKind::Source => unreachable!("returned above"),
             ControlKind::Depth => depth
                 .index_axis(Axis(0), bi)
                 .iter()

@@ -20,22 +20,41 @@
 //!   pixel std sigma = min(8, r / (2 sqrt(pi) 0.05)) with r = sqrt((1-ab)/ab) the noise
 //!   std left in z_t / sqrt(ab): white noise of std r blurred by a Gaussian of std sigma
 //!   keeps std r / (2 sqrt(pi) sigma), so this leaves about 0.05 (capped for very noisy t).
-//! * the conditionings (the network has no text input, so the prompt P carries nothing):
+//! * the conditionings, with s(x) the style vector of image x, s_style that of the style
+//!   image, s_own = s(c) of the control image c (the original render, [`ControlKind::Source`];
+//!   without one, s(x^)) and s_a = (1 - a) s_own + a s_style at style strength a (1 by
+//!   default):
 //!
 //! | Cond | x0_c |
 //! |---|---|
-//! | Null | x^ (no stylization) |
-//! | Prompt | x^ (P adds nothing to this model) |
-//! | PromptStyle | T(x^, s(style image)) |
-//! | Content | T(x^, s(x^)): the image redrawn in its own style |
+//! | Null | x^ (the identity: no stylization) |
+//! | Content | x^ (the identity: a stylizer cannot leak the style image's content) |
+//! | Prompt | T(x^, s_own): the image redrawn in the scene's own style |
+//! | PromptStyle | T(x^, s_a) |
 //!
-//! Since eps(z, c1) - eps(z, c2) = sqrt(ab / (1-ab)) (x0_c2 - x0_c1), the CSD target
-//! term is beta sqrt(ab/(1-ab)) (T(x^, s(x^)) - T(x^, s_style)): the style change with
-//! the network's own reconstruction bias (what it does to any image) cancelled by the
-//! negative content branch; the source term Phi_src is exactly zero for this prior.
+//! The unconditional branches are the identity ([`Prior::unconditional_is_identity`]),
+//! so CSD takes them exactly, as the noise that produced z_t from the clean image, instead
+//! of from the blurred estimate x^ (whose missing high frequencies would otherwise count
+//! as "the style change" every iteration and pump contrast). With eps(z, c1) - eps(z, c2)
+//! = sqrt(ab / (1-ab)) (x0_c2 - x0_c1), CSD's gradient is then, up to the factor
+//! beta sqrt(ab/(1-ab)),
+//!
+//! ```text
+//! (x_tgt - T(x^_tgt, s_a)) - (x_src - T(x^_src, s_own))
+//! ```
+//!
+//! which vanishes when the render differs from its stylization as the source differs
+//! from its own restyling: a bounded fixed point near the stylized scene, not a drift
+//! (the first version took Content = T(x^, s(x^)) and Prompt = x^, whose difference
+//! never vanishes and, on a frame that is mostly black, brightens every iteration).
+//! At strength 0, and when the style image is the content itself, s_a = s_own and the
+//! gradient is zero at the source. The own style comes from the clean original render,
+//! not from x^: the style vector of a blurred image is a "smooth" style, and comparing it
+//! with the sharp style image's would ask for a change even when the two are the same
+//! picture. `csd` and `csd-no-neg` coincide for this prior (Content = Null).
 
 use super::session::{Kind, LazyGraph};
-use super::{Cond, Prior, PriorInfo};
+use super::{Cond, ControlKind, Prior, PriorInfo};
 use crate::imageio::{Filter, Image};
 use crate::runtime::SessionConfig;
 use crate::scheduler::{Schedule, SchedulerConfig};
@@ -101,7 +120,14 @@ pub struct TransformGraph {
     pub content_input: String,
     pub style_input: String,
     pub output: String,
+    /// The graph's input size; with `dynamic`, the largest side processed as it is.
     pub size: usize,
+    /// The graph takes any height and width (multiples of 8): smaller images are then
+    /// stylized at their own size, mirror-padded to a multiple of 8 only, instead of
+    /// mirror-padded to `size` (same pixel scale, the network's statistics computed over
+    /// the image itself, and fewer pixels).
+    #[serde(default)]
+    pub dynamic: bool,
 }
 
 /// The stylizer prior (see module docs).
@@ -112,6 +138,10 @@ pub struct StylizerPrior {
     predict: LazyGraph,
     transform: LazyGraph,
     style: Option<Vec<f32>>,
+    strength: f32,
+    /// Style vectors of control images seen before, by the blake3 of their pixels (the
+    /// same source view comes back every few iterations).
+    own_styles: std::collections::HashMap<[u8; 32], Vec<f32>>,
 }
 
 impl std::fmt::Debug for StylizerPrior {
@@ -156,16 +186,22 @@ impl StylizerPrior {
         let predict = LazyGraph::new(dir.join(&sp.file), "style_predict", cfg)?
             .expect(false, &sp.input, Kind::F32(&[4]), &image(sp.size))
             .expect(true, &sp.output, Kind::F32(&[4]), &[(3, dim)]);
+        let rgb_last: [(usize, usize); 1] = [(3, 3)];
+        let tr_dims: &[(usize, usize)] = if tr.dynamic {
+            &rgb_last
+        } else {
+            &image(tr.size)
+        };
         let transform = LazyGraph::new(dir.join(&tr.file), "transform", cfg)?
-            .expect(false, &tr.content_input, Kind::F32(&[4]), &image(tr.size))
+            .expect(false, &tr.content_input, Kind::F32(&[4]), tr_dims)
             .expect(false, &tr.style_input, Kind::F32(&[4]), &[(3, dim)])
-            .expect(true, &tr.output, Kind::F32(&[4]), &image(tr.size));
+            .expect(true, &tr.output, Kind::F32(&[4]), tr_dims);
         let info = PriorInfo {
             name: mj.name.unwrap_or_else(|| "magenta-stylizer".into()),
             latent_channels: 3,
             downsample: 1,
             scheduler: mj.scheduler,
-            control: None,
+            control: Some(ControlKind::Source),
         };
         let mut p = StylizerPrior {
             info,
@@ -174,6 +210,8 @@ impl StylizerPrior {
             predict,
             transform,
             style: None,
+            strength: 1.0,
+            own_styles: Default::default(),
         };
         if let Some(s) = style {
             if s.shape()[0] != 1 || s.shape()[1] != 3 {
@@ -185,6 +223,32 @@ impl StylizerPrior {
             p.style = Some(p.style_vector(s.index_axis(Axis(0), 0))?);
         }
         Ok(p)
+    }
+
+    /// The style vector of control image `img` `[3, H, W]`, cached by content.
+    fn own_style(&mut self, img: ArrayView3<'_, f32>) -> Result<Vec<f32>> {
+        let mut h = blake3::Hasher::new();
+        for v in img.iter() {
+            h.update(&v.to_le_bytes());
+        }
+        let key = *h.finalize().as_bytes();
+        if let Some(s) = self.own_styles.get(&key) {
+            return Ok(s.clone());
+        }
+        let s = self.style_vector(img)?;
+        self.own_styles.insert(key, s.clone());
+        Ok(s)
+    }
+
+    /// Set the style strength in [0, 1] (module docs).
+    pub fn with_strength(mut self, strength: f32) -> Result<Self> {
+        if !(0.0..=1.0).contains(&strength) {
+            return Err(Error::param(format!(
+                "style strength must be in [0, 1], got {strength}"
+            )));
+        }
+        self.strength = strength;
+        Ok(self)
     }
 
     /// The 100-d style vector of an image `[3, H, W]` in [0, 1]: centre square crop,
@@ -239,11 +303,19 @@ impl StylizerPrior {
         } else {
             resize(img, sh, sw)
         };
-        let padded = Array3::from_shape_fn((3, size, size), |(c, y, x)| {
+        let (ph, pw) = if self.manifest.transform.dynamic {
+            (
+                sh.max(64).next_multiple_of(8),
+                sw.max(64).next_multiple_of(8),
+            )
+        } else {
+            (size, size)
+        };
+        let padded = Array3::from_shape_fn((3, ph, pw), |(c, y, x)| {
             small[[c, mirror(y, sh), mirror(x, sw)]]
         });
         let g = self.manifest.transform.clone();
-        let content = Tensor::from_array(([1usize, size, size, 3], to_nhwc(padded.view())))
+        let content = Tensor::from_array(([1usize, ph, pw, 3], to_nhwc(padded.view())))
             .map_err(|e| Error::Onnx(e.to_string()))?;
         let style = Tensor::from_array(([1usize, 1, 1, s.len()], s.to_vec()))
             .map_err(|e| Error::Onnx(e.to_string()))?;
@@ -258,15 +330,15 @@ impl StylizerPrior {
             .ok_or_else(|| Error::Onnx(format!("{}: no output {}", g.file, g.output)))?
             .try_extract_tensor::<f32>()
             .map_err(|e| Error::Onnx(e.to_string()))?;
-        if data.len() != size * size * 3 {
+        if data.len() != ph * pw * 3 {
             return Err(Error::Onnx(format!(
                 "{}: output has {} values, expected {}",
                 g.file,
                 data.len(),
-                size * size * 3
+                ph * pw * 3
             )));
         }
-        let styl = Array3::from_shape_fn((3, sh, sw), |(c, y, x)| data[(y * size + x) * 3 + c]);
+        let styl = Array3::from_shape_fn((3, sh, sw), |(c, y, x)| data[(y * pw + x) * 3 + c]);
         Ok(if (sh, sw) == (h, w) {
             styl
         } else {
@@ -384,6 +456,10 @@ impl Prior for StylizerPrior {
         &self.info
     }
 
+    fn unconditional_is_identity(&self) -> bool {
+        true
+    }
+
     fn encode(&mut self, images: ArrayView4<'_, f32>) -> Result<Array4<f32>> {
         check_rgb(images, "images")?;
         Ok(images.to_owned())
@@ -399,9 +475,18 @@ impl Prior for StylizerPrior {
         z_t: ArrayView4<'_, f32>,
         t: usize,
         conds: &[Cond],
-        _control: Option<ArrayView4<'_, f32>>,
+        control: Option<ArrayView4<'_, f32>>,
     ) -> Result<Vec<Array4<f32>>> {
         check_rgb(z_t, "z_t")?;
+        if let Some(c) = control
+            && (c.shape()[0] != z_t.shape()[0] || c.shape()[1] != 3)
+        {
+            return Err(Error::param(format!(
+                "stylizer prior: control images {:?} for latents {:?}",
+                c.shape(),
+                z_t.shape()
+            )));
+        }
         if conds.contains(&Cond::PromptStyle) && self.style.is_none() {
             return Err(Error::param(
                 "the stylizer prior needs a style image for the PromptStyle conditioning",
@@ -412,24 +497,43 @@ impl Prior for StylizerPrior {
         for b in 0..z_t.shape()[0] {
             let zb = z_t.index_axis(Axis(0), b);
             let xh = self.clean_estimate(zb, t)?;
-            let mut own_style: Option<Array3<f32>> = None;
+            let needs_own = conds.contains(&Cond::Prompt)
+                || (conds.contains(&Cond::PromptStyle) && self.strength < 1.0);
+            let own = if needs_own {
+                Some(match control {
+                    Some(c) => self.own_style(c.index_axis(Axis(0), b))?,
+                    None => self.style_vector(xh.view())?,
+                })
+            } else {
+                None
+            };
+            let mut redrawn: Option<Array3<f32>> = None;
             let mut styled: Option<Array3<f32>> = None;
             for (k, c) in conds.iter().enumerate() {
                 let x0 = match c {
-                    Cond::Null | Cond::Prompt => xh.clone(),
+                    Cond::Null | Cond::Content => xh.clone(),
+                    Cond::Prompt => {
+                        if redrawn.is_none() {
+                            let s = own.as_ref().expect("computed above");
+                            redrawn = Some(self.stylize(xh.view(), s)?);
+                        }
+                        redrawn.clone().expect("set")
+                    }
                     Cond::PromptStyle => {
                         if styled.is_none() {
-                            let s = self.style.clone().expect("checked above");
+                            let target = self.style.clone().expect("checked above");
+                            let a = self.strength;
+                            let s: Vec<f32> = match &own {
+                                Some(o) if a < 1.0 => o
+                                    .iter()
+                                    .zip(&target)
+                                    .map(|(o, t)| (1.0 - a) * o + a * t)
+                                    .collect(),
+                                _ => target,
+                            };
                             styled = Some(self.stylize(xh.view(), &s)?);
                         }
                         styled.clone().expect("set")
-                    }
-                    Cond::Content => {
-                        if own_style.is_none() {
-                            let s = self.style_vector(xh.view())?;
-                            own_style = Some(self.stylize(xh.view(), &s)?);
-                        }
-                        own_style.clone().expect("set")
                     }
                 };
                 let e = self.schedule.eps_from_x0(zb, x0.view(), t)?;

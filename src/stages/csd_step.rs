@@ -26,7 +26,6 @@
 use super::Threads;
 use crate::artifacts::{read_latents, read_noised_latents, read_views};
 use crate::csd::{self, CsdParams, StepInputs};
-use crate::imageio::Image;
 use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
@@ -144,10 +143,9 @@ pub fn run(a: Args) -> Result<StepReport> {
             format!("meta.timestep: {e}"),
         )
     })?;
-    if !a.style.is_file() {
-        return Err(Error::input(&a.style, "style image not found"));
-    }
-    let style = Image::load(&a.style)?.to_chw().insert_axis(Axis(0));
+    let style = crate::imageio::load_style(&a.style, crate::imageio::MIN_STYLE_SIDE)?
+        .to_chw()
+        .insert_axis(Axis(0));
 
     // The prior.
     let mut prior = crate::timing::load(|| {
@@ -195,6 +193,7 @@ pub fn run(a: Args) -> Result<StepReport> {
                 z_tgt: z_tgt.view(),
                 z_src: z_src.view(),
                 eps: eps.view(),
+                z0_src: None,
                 t,
                 control: control.as_ref().map(|c| c.view()),
             },

@@ -21,6 +21,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 pub mod csd_step;
+pub mod distill;
 pub mod encode_latents;
 pub mod evaluate;
 pub mod make_sample;

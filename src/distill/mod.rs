@@ -1,0 +1,528 @@
+//! Distillation at the scale the method needs (FantasyStyle Sec. 3, the whole loop):
+//! hundreds of iterations, each on a few adjacent views with a fresh timestep and fresh
+//! noise, with one optimizer whose state persists across iterations and checkpoints.
+//!
+//! One iteration `i` (all randomness from `(seed, i)`, so a run split into chunks or
+//! resumed from a checkpoint gives the same bytes as one uninterrupted run):
+//!
+//! 1. a window of N adjacent views along the camera path ([`path`]);
+//! 2. render them with the current colours (frozen-geometry caches) and give the prior
+//!    the object over a fill of its own colours ([`fill`]); encode: z0 (target), and
+//!    the source views' z0_src (encoded once);
+//! 3. t from the model's DDIM set, eps `[N, C, h, w]`, eps' `[C, h, w]`;
+//!    z_src = add_noise(z0_src, eps, t), z_tgt = MVFC(add_noise(z0, eps, t), eps')
+//!    along the path ([`crate::mvfc::mvfc_path`]; "without MVFC" skips it); by default
+//!    z_src goes through the same filter with the same eps' (`mvfc_source`; the paper
+//!    filters the target only, which biases the update: see the field's docs);
+//! 4. the CSD step ([`crate::csd`]): z0' = z0 - lr w(t) (Phi_tgt - Phi_src); the image
+//!    change the prior asks for is Delta = decode(z0') - decode(z0);
+//! 5. targets: the object's colour c (the render un-premultiplied by its alpha) moves to
+//!    c' = c + Delta (with colour preservation: c' keeps the source's chroma and takes
+//!    only the new luminance, Gatys et al. 2016's luminance-only transfer), limited to
+//!    [min(c, 0), max(c, 1)] (a change never pushes a colour out of range; one already
+//!    out of range is left where it is), and the render moves by the alpha-weighted
+//!    change, target = render + a (c' - c), so that the thin fringe of a silhouette
+//!    (small a) asks for a small change only, not for a colour it can reach only by
+//!    blowing up (the "glowing haze" of the first version), and Delta = 0 asks for no
+//!    change at all (the target is then the render, bit for bit);
+//! 6. one Adam step of the SH colours on the window's views towards the targets
+//!    (L1 + D-SSIM, [`crate::optim`]); geometry is frozen.
+//!
+//! Strength is the prior's business (`PriorOptions::strength`; for the stylizer an
+//! interpolation of style vectors), except strength 0, which the stage short-circuits to
+//! "unchanged". Whether f_rest (view-dependent colour) may change is `fit_rest`.
+
+pub mod fill;
+pub mod path;
+
+use crate::csd::{self, CsdParams};
+use crate::mvfc::{MvfcParams, mvfc_path};
+use crate::optim::{ColourFit, FitParams, LossParams, OptimizerState, loss_and_grad};
+use crate::prior::Prior;
+use crate::render::CacheMode;
+use crate::rng::Rng;
+use crate::scheduler::{Schedule, TimestepSet};
+use crate::{Camera, Error, Result, Scene};
+use ndarray::{Array3, Array4, Axis, concatenate, s};
+use path::{ViewPath, Window};
+
+/// Parameters of the loop.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DistillParams {
+    /// Views per iteration (the paper's N adjacent views).
+    pub views_per_iter: usize,
+    /// The distillation gradient (mode, guidance, weighting, step on z0).
+    pub csd: CsdParams,
+    /// MVFC parameters; `None` = the "without MVFC" ablation.
+    pub mvfc: Option<MvfcParams>,
+    /// Filter the source branch's noisy latents with MVFC too (same eps'), not only the
+    /// target's. MVFC scales the low band of the signal by gamma; on the target alone
+    /// that is a bias the CSD difference does not cancel (the scene moves even when the
+    /// style is its own look); on both branches Phi_tgt - Phi_src is 0 at the source.
+    pub mvfc_source: bool,
+    /// Keep the scene's own chroma, change luminance (texture, contrast) only.
+    pub preserve_color: bool,
+    /// Let f_rest (view-dependent colour) change.
+    pub fit_rest: bool,
+    /// Adam learning rate of f_dc (f_rest: lr_dc / 20 when `fit_rest`).
+    pub lr_dc: f32,
+    /// D-SSIM weight of the colour loss. 0 by default: the target differs from the
+    /// render only by the prior's small change, and where that change is 0 the D-SSIM
+    /// gradient is rounding noise, which Adam's per-parameter normalisation (eps 1e-15)
+    /// turns into full-size steps: the scene then drifts with no style asking for it.
+    pub ssim_weight: f32,
+    /// Give the prior the object over a fill of its own colours ([`fill`]).
+    pub fill_background: bool,
+    /// Background colour of the renders (and of the source views).
+    pub background: [f32; 3],
+    /// Seed of every random draw.
+    pub seed: u64,
+}
+
+impl Default for DistillParams {
+    fn default() -> Self {
+        DistillParams {
+            views_per_iter: 4,
+            csd: CsdParams::default(),
+            mvfc: Some(MvfcParams::default()),
+            mvfc_source: true,
+            preserve_color: false,
+            fit_rest: false,
+            lr_dc: 0.01,
+            ssim_weight: 0.0,
+            fill_background: true,
+            background: [0.0; 3],
+            seed: 0,
+        }
+    }
+}
+
+/// The original renders (from the source `views` artifact), one `[H, W, ...]` per view.
+#[derive(Debug, Clone)]
+pub struct SourceViews {
+    pub width: usize,
+    pub height: usize,
+    /// `[H, W, 3]` per view.
+    pub rgb: Vec<Vec<f32>>,
+    /// `[H, W]` per view.
+    pub alpha: Vec<Vec<f32>>,
+    /// `[H, W]` per view (expected depth), for ControlNet priors.
+    pub depth: Vec<Vec<f32>>,
+}
+
+/// What one iteration did, for logs, checkpoints and tests.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct IterReport {
+    pub iteration: u64,
+    pub views: Vec<usize>,
+    pub timestep: usize,
+    /// Mean colour loss over the window before the update.
+    pub loss: f64,
+    /// RMS of the image change the prior asked for, over covered pixels.
+    pub delta_rms: f64,
+    /// Fraction of covered target pixels clipped (<= 0.02 or >= 0.98 in every channel).
+    pub clipped: f64,
+}
+
+/// The last iteration's tensors, written into checkpoints for inspection.
+#[derive(Debug, Clone)]
+pub struct LastIteration {
+    pub report: IterReport,
+    /// `[N, C, h, w]` each.
+    pub z0: Array4<f32>,
+    pub z_tgt: Array4<f32>,
+    pub z_src: Array4<f32>,
+    /// `[N, H, W, 3]`.
+    pub targets: Array4<f32>,
+}
+
+/// The distillation state: the colour fit (scene + optimizer + caches), the prior, the
+/// source views and their latents.
+pub struct Distiller<'a> {
+    fit: ColourFit<'a>,
+    prior: &'a mut dyn Prior,
+    schedule: Schedule,
+    timesteps: TimestepSet,
+    params: DistillParams,
+    source: &'a SourceViews,
+    /// Source chroma/colour per view, un-premultiplied `[H, W, 3]`.
+    source_colour: Vec<Vec<f32>>,
+    /// z0_src per view, `[C, h, w]`.
+    z0_src: Vec<Array3<f32>>,
+    path: ViewPath,
+    iteration: u64,
+    last: Option<LastIteration>,
+}
+
+fn to_chw(img: &[f32], h: usize, w: usize) -> Array3<f32> {
+    Array3::from_shape_fn((3, h, w), |(c, y, x)| img[(y * w + x) * 3 + c])
+}
+
+impl<'a> Distiller<'a> {
+    /// Set up: caches of every view, the source latents. `iteration` is the number of
+    /// iterations already done (0 for a fresh start; a checkpoint's count to resume,
+    /// with its optimizer state given to [`Self::set_optimizer_state`]).
+    pub fn new(
+        scene: &Scene,
+        cameras: &'a [Camera],
+        source: &'a SourceViews,
+        prior: &'a mut dyn Prior,
+        timesteps: TimestepSet,
+        params: DistillParams,
+        iteration: u64,
+    ) -> Result<Self> {
+        let n = cameras.len();
+        if source.rgb.len() != n || source.alpha.len() != n || source.depth.len() != n {
+            return Err(Error::param(format!(
+                "{n} cameras but {} source views",
+                source.rgb.len()
+            )));
+        }
+        if params.views_per_iter == 0 {
+            return Err(Error::param("views per iteration must be at least 1"));
+        }
+        if let Some(m) = &params.mvfc {
+            m.validate()?;
+        }
+        let (h, w) = (source.height, source.width);
+        for c in cameras {
+            if (c.width as usize, c.height as usize) != (w, h) {
+                return Err(Error::param(format!(
+                    "camera {:?} is {}x{}, the source views are {w}x{h}",
+                    c.name, c.width, c.height
+                )));
+            }
+        }
+        let info = prior.info().clone();
+        let f = info.downsample.max(1);
+        if h % f != 0 || w % f != 0 {
+            return Err(Error::param(format!(
+                "views of {w}x{h} do not divide by the prior's downsampling {f}"
+            )));
+        }
+        let schedule = Schedule::new(info.scheduler.clone())?;
+        let fit_params = FitParams {
+            lr_dc: params.lr_dc,
+            lr_rest: if params.fit_rest {
+                params.lr_dc / 20.0
+            } else {
+                0.0
+            },
+            ssim_weight: params.ssim_weight,
+            mask_alpha: false,
+            cache: CacheMode::On,
+            background: params.background,
+            progress: false,
+        };
+        let fit = ColourFit::without_targets(scene, cameras, &fit_params)?;
+        let bg = params.background;
+        let source_colour: Vec<Vec<f32>> = (0..n)
+            .map(|v| fill::unpremultiply(&source.rgb[v], &source.alpha[v], bg))
+            .collect();
+        // The source latents, encoded once, a few views per call.
+        let mut z0_src = Vec::with_capacity(n);
+        for chunk in (0..n)
+            .collect::<Vec<_>>()
+            .chunks(params.views_per_iter.max(1))
+        {
+            let imgs: Vec<Array3<f32>> = chunk
+                .iter()
+                .map(|&v| to_chw(&Self::prior_view(&params, source, &source.rgb[v], v), h, w))
+                .collect();
+            let views: Vec<_> = imgs.iter().map(|a| a.view().insert_axis(Axis(0))).collect();
+            let batch = concatenate(Axis(0), &views).map_err(|e| Error::Other(e.to_string()))?;
+            let z = prior.encode(batch.view())?;
+            for i in 0..chunk.len() {
+                z0_src.push(z.index_axis(Axis(0), i).to_owned());
+            }
+        }
+        Ok(Distiller {
+            fit,
+            prior,
+            schedule,
+            timesteps,
+            params,
+            source,
+            source_colour,
+            z0_src,
+            path: ViewPath::of(cameras),
+            iteration,
+            last: None,
+        })
+    }
+
+    /// The image of view `v` the prior sees: `rgb` as rendered, or the object over a
+    /// fill of its own colours.
+    fn prior_view(p: &DistillParams, source: &SourceViews, rgb: &[f32], v: usize) -> Vec<f32> {
+        if p.fill_background {
+            fill::fill_background(
+                rgb,
+                &source.alpha[v],
+                p.background,
+                source.height,
+                source.width,
+            )
+        } else {
+            rgb.to_vec()
+        }
+    }
+
+    /// Iterations done so far.
+    pub fn iteration(&self) -> u64 {
+        self.iteration
+    }
+
+    pub fn path(&self) -> ViewPath {
+        self.path
+    }
+
+    /// The scene with the current colours.
+    pub fn scene(&self) -> &Scene {
+        self.fit.scene()
+    }
+
+    pub fn optimizer_state(&self) -> OptimizerState {
+        self.fit.optimizer_state()
+    }
+
+    pub fn set_optimizer_state(&mut self, s: OptimizerState) -> Result<()> {
+        self.fit.set_optimizer_state(s)
+    }
+
+    /// The last iteration's tensors (None before the first iteration of this process).
+    pub fn last(&self) -> Option<&LastIteration> {
+        self.last.as_ref()
+    }
+
+    /// Render view `v` with the current colours, `[H, W, 3]`.
+    pub fn render_view(&self, v: usize) -> Vec<f32> {
+        self.fit.render_view(v)
+    }
+
+    /// One iteration (module docs).
+    pub fn iterate(&mut self) -> Result<IterReport> {
+        let it = self.iteration;
+        let p = self.params.clone();
+        let (h, w) = (self.source.height, self.source.width);
+        let mut rng = Rng::derive(p.seed, &format!("distill/{it}"));
+        let Window { views, circular } = self.path.draw(&mut rng, p.views_per_iter);
+        let t = self.timesteps.sample(&mut rng);
+        let n = views.len();
+
+        // Renders, what the prior sees, latents.
+        let renders: Vec<Vec<f32>> = views.iter().map(|&v| self.fit.render_view(v)).collect();
+        let seen: Vec<Array3<f32>> = views
+            .iter()
+            .zip(&renders)
+            .map(|(&v, r)| to_chw(&Self::prior_view(&p, self.source, r, v), h, w))
+            .collect();
+        let stack = |xs: &[Array3<f32>]| -> Result<Array4<f32>> {
+            let v: Vec<_> = xs.iter().map(|a| a.view().insert_axis(Axis(0))).collect();
+            concatenate(Axis(0), &v).map_err(|e| Error::Other(e.to_string()))
+        };
+        let z0 = self.prior.encode(stack(&seen)?.view())?;
+        let z0_src = stack(
+            &views
+                .iter()
+                .map(|&v| self.z0_src[v].clone())
+                .collect::<Vec<_>>(),
+        )?;
+        if z0.shape() != z0_src.shape() {
+            return Err(Error::Other(format!(
+                "prior encoded renders to {:?} but the source to {:?}",
+                z0.shape(),
+                z0_src.shape()
+            )));
+        }
+        let sh = z0.shape().to_vec();
+        let eps = Array4::from_shape_vec((sh[0], sh[1], sh[2], sh[3]), rng.normals_f32(z0.len()))
+            .expect("length matches");
+        let eps_shared = Array3::from_shape_vec(
+            (sh[1], sh[2], sh[3]),
+            rng.normals_f32(sh[1] * sh[2] * sh[3]),
+        )
+        .expect("length matches");
+        let src_noisy = self.schedule.add_noise(z0_src.view(), eps.view(), t)?;
+        let z_noisy = self.schedule.add_noise(z0.view(), eps.view(), t)?;
+        let (z_tgt, z_src) = match &p.mvfc {
+            Some(m) => (
+                mvfc_path(z_noisy.view(), eps_shared.view(), *m, circular)?,
+                if p.mvfc_source {
+                    mvfc_path(src_noisy.view(), eps_shared.view(), *m, circular)?
+                } else {
+                    src_noisy
+                },
+            ),
+            None => (z_noisy, src_noisy),
+        };
+        let control = match self.prior.info().control {
+            // The original render as the prior sees it (over the same fill).
+            Some(crate::prior::ControlKind::Source) => {
+                let imgs: Vec<Array3<f32>> = views
+                    .iter()
+                    .map(|&v| {
+                        to_chw(
+                            &Self::prior_view(&p, self.source, &self.source.rgb[v], v),
+                            h,
+                            w,
+                        )
+                    })
+                    .collect();
+                Some(stack(&imgs)?)
+            }
+            Some(kind) => {
+                let pick = |xs: &Vec<Vec<f32>>, c: usize| -> Array4<f32> {
+                    Array4::from_shape_fn((n, h, w, c), |(i, y, x, k)| {
+                        xs[views[i]][(y * w + x) * c + k]
+                    })
+                };
+                let rgb = pick(&self.source.rgb, 3);
+                let depth = pick(&self.source.depth, 1).remove_axis(Axis(3));
+                let alpha = pick(&self.source.alpha, 1).remove_axis(Axis(3));
+                Some(crate::prior::control_image(
+                    kind,
+                    rgb.view(),
+                    depth.view(),
+                    alpha.view(),
+                )?)
+            }
+            None => None,
+        };
+        let (z1, _g) = csd::step(
+            self.prior,
+            &self.schedule,
+            csd::StepInputs {
+                z0: z0.view(),
+                z_tgt: z_tgt.view(),
+                z_src: z_src.view(),
+                eps: eps.view(),
+                z0_src: Some(z0_src.view()),
+                t,
+                control: control.as_ref().map(|c| c.view()),
+            },
+            &p.csd,
+        )?;
+        let both = concatenate(Axis(0), &[z1.view(), z0.view()])
+            .map_err(|e| Error::Other(e.to_string()))?;
+        let dec = self.prior.decode(both.view())?;
+        if dec.shape() != [2 * n, 3, h, w] {
+            return Err(Error::Other(format!(
+                "decoder returned {:?}, expected [{}, 3, {h}, {w}]",
+                dec.shape(),
+                2 * n
+            )));
+        }
+        let delta = &dec.slice(s![..n, .., .., ..]) - &dec.slice(s![n.., .., .., ..]);
+
+        // Targets: the object's colour moves by Delta, recomposited with alpha.
+        let bg = p.background;
+        let mut targets = Array4::<f32>::zeros((n, h, w, 3));
+        let (mut d2, mut covered, mut clipped) = (0.0f64, 0usize, 0usize);
+        for (i, &v) in views.iter().enumerate() {
+            let alpha = &self.source.alpha[v];
+            let src = &self.source_colour[v];
+            for y in 0..h {
+                for x in 0..w {
+                    let q = y * w + x;
+                    let a = alpha[q];
+                    let rgb = &renders[i][q * 3..q * 3 + 3];
+                    // The object's own colour (un-premultiplied, not clamped).
+                    let c0: [f32; 3] = std::array::from_fn(|k| {
+                        if a >= 1e-4 {
+                            (rgb[k] - (1.0 - a) * bg[k]) / a
+                        } else {
+                            0.0
+                        }
+                    });
+                    let mut c = [0.0f32; 3];
+                    for k in 0..3 {
+                        let d = delta[[i, k, y, x]];
+                        if !d.is_finite() {
+                            return Err(Error::Other(format!(
+                                "prior asked for a non-finite change at t = {t}"
+                            )));
+                        }
+                        c[k] = c0[k] + d;
+                        if a > 0.5 {
+                            d2 += (d * d) as f64;
+                        }
+                    }
+                    if p.preserve_color {
+                        c = keep_chroma(c, [src[q * 3], src[q * 3 + 1], src[q * 3 + 2]]);
+                    }
+                    let c: [f32; 3] =
+                        std::array::from_fn(|k| c[k].clamp(c0[k].min(0.0), c0[k].max(1.0)));
+                    if a > 0.5 {
+                        covered += 1;
+                        if c.iter().all(|v| *v <= 0.02) || c.iter().all(|v| *v >= 0.98) {
+                            clipped += 1;
+                        }
+                    }
+                    for k in 0..3 {
+                        targets[[i, y, x, k]] = rgb[k] + a * (c[k] - c0[k]);
+                    }
+                }
+            }
+        }
+
+        // One colour step on the window.
+        let lp = LossParams {
+            ssim_weight: p.ssim_weight,
+        };
+        let index: std::collections::HashMap<usize, usize> =
+            views.iter().enumerate().map(|(i, &v)| (v, i)).collect();
+        let tg = &targets;
+        let mut loss = |v: usize, rgb: &[f32], _a: Option<&[f32]>| -> Result<(f64, Vec<f32>)> {
+            let i = index[&v];
+            let target = tg.index_axis(Axis(0), i);
+            let target = target.as_slice().expect("standard layout");
+            let (l, g) = loss_and_grad(rgb, target, None, h, w, lp);
+            Ok((l as f64, g))
+        };
+        let loss = self.fit.step_views(&views, &mut loss)?;
+        let report = IterReport {
+            iteration: it,
+            views: views.clone(),
+            timestep: t,
+            loss,
+            delta_rms: (d2 / (3 * covered.max(1)) as f64).sqrt(),
+            clipped: clipped as f64 / covered.max(1) as f64,
+        };
+        self.last = Some(LastIteration {
+            report: report.clone(),
+            z0,
+            z_tgt,
+            z_src,
+            targets,
+        });
+        self.iteration += 1;
+        Ok(report)
+    }
+}
+
+/// Luminance-only transfer (Gatys et al. 2016, "Preserving color in neural artistic
+/// style transfer"): the luminance of `c`, the chroma of `src` (Rec. 601 luma; chroma as
+/// the offset of each channel from the luma).
+pub fn keep_chroma(c: [f32; 3], src: [f32; 3]) -> [f32; 3] {
+    let luma = |v: [f32; 3]| 0.299 * v[0] + 0.587 * v[1] + 0.114 * v[2];
+    let (y, ys) = (luma(c), luma(src));
+    src.map(|s| y + (s - ys))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keep_chroma_takes_luma_from_one_and_chroma_from_the_other() {
+        let c = [0.9, 0.1, 0.2];
+        let src = [0.2, 0.5, 0.3];
+        let out = keep_chroma(c, src);
+        let luma = |v: [f32; 3]| 0.299 * v[0] + 0.587 * v[1] + 0.114 * v[2];
+        assert!((luma(out) - luma(c)).abs() < 1e-6);
+        for k in 0..3 {
+            assert!(((out[k] - luma(out)) - (src[k] - luma(src))).abs() < 1e-6);
+        }
+        assert_eq!(keep_chroma(src, src), src);
+    }
+}

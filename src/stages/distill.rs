@@ -1,0 +1,380 @@
+//! `distill`: K iterations of the whole FantasyStyle loop in one process ([`crate::distill`]:
+//! render N adjacent views, encode, noise, MVFC, CSD, one colour step), from a scene or
+//! from a checkpoint, writing a checkpoint.
+//!
+//! Why in one process: an iteration of the stylizer prior on four 256x256 views takes
+//! well under a second; as five stage processes with artifacts between them it would pay
+//! process start, model loading and artifact hashing every iteration (the first version's
+//! rounds spent about as long outside the computation as in it). The DAG runs chunks of K
+//! iterations (`distill@c1`, `distill@c2`, ...) and every chunk writes a checkpoint, so a
+//! run still resumes after a failure and every intermediate can be inspected.
+//!
+//! A checkpoint is a `scene` artifact (anything that reads a scene reads it) holding
+//! `scene.ply` (and `scene.splat` with `--format splat|both`), the optimizer state
+//! (`adam_dc.npy`, `adam_rest.npy`: Adam's moments; `state.json`: iteration and step
+//! counts), `history.json` (every iteration's timestep, views, loss, clipped fraction) and
+//! the last iteration's tensors for `pipeline inspect`: `last_z0.npy`, `last_z_tgt.npy`,
+//! `last_z_src.npy` `[N, C, h, w]` and `last_targets.npy` `[N, H, W, 3]`. Every draw
+//! depends only on (seed, iteration), so chunks of any size, and a resume after a kill,
+//! give the same bytes as one uninterrupted run.
+
+use crate::artifacts::{
+    CHECKPOINT_ADAM_DC, CHECKPOINT_ADAM_REST, CHECKPOINT_HISTORY, CHECKPOINT_STATE, load_scene,
+    read_checkpoint, read_views,
+};
+use crate::csd::CsdParams;
+use crate::distill::{DistillParams, Distiller, SourceViews};
+use crate::imageio::{MIN_STYLE_SIDE, load_style};
+use crate::mvfc::MvfcParams;
+use crate::optim::OptimizerState;
+use crate::prior::{self, PriorOptions, model_timesteps};
+use crate::scheduler::TimestepSet;
+use crate::{Error, Result, Scene};
+use fantasystyle_schemas::{ArtifactKind, Producer};
+use ndarray::Axis;
+use std::path::PathBuf;
+
+/// Which scene files a checkpoint holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SceneFormat {
+    /// scene.ply (INRIA layout, every SH coefficient).
+    Ply,
+    /// scene.ply and scene.splat (32 bytes per Gaussian, SH degree 0, for web viewers).
+    Both,
+}
+
+/// Distil a 2D prior into a scene's colours: K iterations of render -> encode -> MVFC ->
+/// CSD -> colour step, from a scene (--scene) or a checkpoint (--resume), writing a
+/// checkpoint (a scene artifact with the optimizer state).
+#[derive(clap::Parser, Debug, Clone)]
+#[command(name = "distill", version)]
+pub struct Args {
+    /// Start from this scene (an INRIA .ply, a .splat or a scene artifact) at iteration 0.
+    #[arg(long, required_unless_present = "resume", conflicts_with = "resume")]
+    pub scene: Option<PathBuf>,
+    /// Continue from this checkpoint (written by distill).
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+    /// Views artifact of the ORIGINAL scene (render-views): cameras, the source branch's
+    /// images and the alpha the targets are composited with.
+    #[arg(long)]
+    pub source_views: PathBuf,
+    /// Model directory with model.json (e.g. vendor/models/stylizer).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Style image (PNG or JPEG, shorter side >= 64 px).
+    #[arg(long)]
+    pub style: PathBuf,
+    /// Text prompt (models with text conditioning; ignored by the stylizer).
+    #[arg(long)]
+    pub prompt: Option<String>,
+    /// Iterations to run in this process (0: only write the checkpoint).
+    #[arg(long)]
+    pub iters: u64,
+    /// Adjacent views per iteration (the paper's N).
+    #[arg(long, default_value_t = 4)]
+    pub views_per_iter: usize,
+    /// Style strength in [0, 1]: 0 leaves the scene unchanged, 1 is the full style.
+    #[arg(long, default_value_t = 1.0)]
+    pub strength: f32,
+    /// Keep the scene's own colours (chroma); change luminance (texture, contrast) only.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub preserve_color: bool,
+    /// Let view-dependent colour (f_rest) change too (default: only f_dc).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub fit_rest: bool,
+    #[command(flatten)]
+    pub csd: CsdParams,
+    /// Adam learning rate of the SH DC colours (f_rest: / 20).
+    #[arg(long, default_value_t = 0.01)]
+    pub lr_dc: f32,
+    /// Skip MVFC (the paper's "w/o MVFC" ablation).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub no_mvfc: bool,
+    /// Filter the source branch with MVFC too (false: the target only, as in the paper,
+    /// which moves the scene even when the style is its own look).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub mvfc_source: bool,
+    #[command(flatten)]
+    pub mvfc: MvfcParams,
+    /// Timestep set MIN:MAX:COUNT (default: the model's own set).
+    #[arg(long)]
+    pub timesteps: Option<String>,
+    /// Give the prior the raw render (object over the background) instead of the object
+    /// over a fill of its own colours.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub no_fill: bool,
+    /// Seed of every draw (views, timesteps, noise).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Scene files written into the checkpoint.
+    #[arg(long, value_enum, default_value = "ply")]
+    pub format: SceneFormat,
+    /// Output checkpoint directory (written atomically).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub threads: super::Threads,
+}
+
+fn parse_timesteps(spec: &str, model: &crate::scheduler::SchedulerConfig) -> Result<TimestepSet> {
+    let parts: Vec<&str> = spec.split(':').collect();
+    let nums: Option<Vec<usize>> = parts.iter().map(|p| p.trim().parse().ok()).collect();
+    match nums.as_deref() {
+        Some([a, b, c]) => TimestepSet::new(model, *a, *b, *c),
+        _ => Err(Error::param(format!(
+            "--timesteps `{spec}`: expected MIN:MAX:COUNT, e.g. 20:300:25"
+        ))),
+    }
+}
+
+/// The loop's parameters from the arguments (also recorded in the checkpoint).
+fn params(a: &Args) -> DistillParams {
+    DistillParams {
+        views_per_iter: a.views_per_iter,
+        csd: a.csd,
+        mvfc: (!a.no_mvfc).then_some(a.mvfc),
+        mvfc_source: a.mvfc_source,
+        preserve_color: a.preserve_color,
+        fit_rest: a.fit_rest,
+        lr_dc: a.lr_dc,
+        fill_background: !a.no_fill,
+        seed: a.seed,
+        ..DistillParams::default()
+    }
+}
+
+/// Run the stage.
+pub fn run(a: Args) -> Result<()> {
+    if !(0.0..=1.0).contains(&a.strength) {
+        return Err(Error::param(format!(
+            "--strength must be in [0, 1], got {}",
+            a.strength
+        )));
+    }
+    if !(a.csd.lr.is_finite() && a.csd.lr >= 0.0 && a.lr_dc.is_finite() && a.lr_dc >= 0.0) {
+        return Err(Error::param("--lr and --lr-dc must be finite and >= 0"));
+    }
+    if !a.csd.guidance.is_finite() {
+        return Err(Error::param("--guidance must be finite"));
+    }
+    a.mvfc.validate()?;
+    if a.views_per_iter == 0 {
+        return Err(Error::param("--views-per-iter must be at least 1"));
+    }
+    // Inputs, all checked before the prior is loaded.
+    let (scene, start, state, history, resumed_from) = match (&a.scene, &a.resume) {
+        (_, Some(dir)) => {
+            let c = crate::timing::load(|| read_checkpoint(dir))?;
+            (
+                c.scene,
+                c.iteration,
+                Some(c.state),
+                c.history,
+                Some(dir.clone()),
+            )
+        }
+        (Some(p), None) => (
+            crate::timing::load(|| load_scene(p))?,
+            0,
+            None,
+            Vec::new(),
+            None,
+        ),
+        (None, None) => return Err(Error::param("give --scene or --resume")),
+    };
+    let views = crate::timing::load(|| read_views(&a.source_views))?;
+    let cameras = views.cameras()?;
+    let (n, h, w) = views.dim();
+    if cameras.len() != n {
+        return Err(Error::input(
+            views.art.path("cameras.json"),
+            format!("{} cameras for {n} views", cameras.len()),
+        ));
+    }
+    let style = load_style(&a.style, MIN_STYLE_SIDE)?;
+    let (_, model_set) = model_timesteps(&a.model)?;
+    let plane =
+        |x: &ndarray::Array3<f32>, i: usize| x.index_axis(Axis(0), i).iter().copied().collect();
+    let source = SourceViews {
+        width: w,
+        height: h,
+        rgb: (0..n)
+            .map(|i| views.rgb.index_axis(Axis(0), i).iter().copied().collect())
+            .collect(),
+        alpha: (0..n).map(|i| plane(&views.alpha, i)).collect(),
+        depth: (0..n).map(|i| plane(&views.depth, i)).collect(),
+    };
+    let p = params(&a);
+
+    let mut run_iters = a.iters;
+    let (out_scene, out_state, reports, last) = if a.strength == 0.0 || a.iters == 0 {
+        // Strength 0 is "unchanged" exactly; 0 iterations only re-packages the input.
+        if a.strength == 0.0 && a.iters > 0 {
+            tracing::info!("strength 0: the scene is left unchanged");
+        }
+        run_iters = if a.strength == 0.0 { a.iters } else { 0 };
+        let k = scene.rest_per_channel();
+        let st = state.clone().unwrap_or_else(|| fresh_state(&scene, k));
+        (scene.clone(), st, Vec::new(), None)
+    } else {
+        let mut prior = crate::timing::load(|| {
+            prior::open(
+                &a.model,
+                &PriorOptions {
+                    style_image: Some(style.to_chw().insert_axis(Axis(0))),
+                    prompt: a.prompt.clone(),
+                    threads: a.threads.n,
+                    strength: Some(a.strength),
+                    ..Default::default()
+                },
+            )
+        })?;
+        let set = match &a.timesteps {
+            Some(spec) => parse_timesteps(spec, &prior.info().scheduler)?,
+            None => model_set,
+        };
+        super::with_threads(a.threads.n, || -> Result<_> {
+            let mut d = Distiller::new(
+                &scene,
+                &cameras,
+                &source,
+                prior.as_mut(),
+                set,
+                p.clone(),
+                start,
+            )?;
+            if let Some(s) = state.clone() {
+                d.set_optimizer_state(s)?;
+            }
+            tracing::info!(
+                "distill: iterations {start}..{} on {n} views ({}x{}), {} per iteration, path {}",
+                start + a.iters,
+                w,
+                h,
+                a.views_per_iter.min(n),
+                if d.path().closed { "closed" } else { "open" }
+            );
+            let bar = indicatif::ProgressBar::new(a.iters);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{msg} [{bar:30}] {pos}/{len} iterations {elapsed} (ETA {eta})",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            let mut reports = Vec::with_capacity(a.iters as usize);
+            for _ in 0..a.iters {
+                let r = d.iterate()?;
+                bar.set_message(format!("distill t={:3} loss {:.4}", r.timestep, r.loss));
+                bar.inc(1);
+                reports.push(r);
+            }
+            bar.finish_and_clear();
+            Ok((
+                d.scene().clone(),
+                d.optimizer_state(),
+                reports,
+                d.last().cloned(),
+            ))
+        })??
+    };
+    if let Some(r) = reports.last() {
+        tracing::info!(
+            "distill: iteration {} t = {} loss {:.5}, clipped {:.2}% of covered target pixels",
+            r.iteration,
+            r.timestep,
+            r.loss,
+            100.0 * r.clipped
+        );
+    }
+
+    // The checkpoint.
+    let producer = Producer::new(
+        "distill",
+        crate::VERSION,
+        serde_json::json!({
+            "iters": a.iters, "start": start, "views_per_iter": a.views_per_iter,
+            "strength": a.strength, "preserve_color": a.preserve_color, "fit_rest": a.fit_rest,
+            "csd": a.csd, "lr_dc": a.lr_dc, "mvfc": !a.no_mvfc, "mvfc_source": a.mvfc_source, "gamma": a.mvfc.gamma,
+            "d_s": a.mvfc.d_s, "d_t": a.mvfc.d_t, "timesteps": a.timesteps,
+            "fill": !a.no_fill, "seed": a.seed, "prompt": a.prompt, "format": a.format,
+        }),
+    );
+    let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
+    match (&resumed_from, &a.scene) {
+        (Some(dir), _) => out.add_input("resume", dir)?,
+        (None, Some(p)) => out.add_input("scene", p)?,
+        _ => {}
+    }
+    out.add_input("source-views", &a.source_views)?;
+    out.add_input("style", &a.style)?;
+    let mpath = if a.model.is_file() {
+        a.model.clone()
+    } else {
+        a.model.join("model.json")
+    };
+    out.add_input("model", &mpath)?;
+    write_scene(&mut out, &out_scene, a.format)?;
+    let st = &out_state;
+    let pair = |x: &crate::optim::AdamState| [x.m.clone(), x.v.clone()].concat();
+    out.write_tensor(CHECKPOINT_ADAM_DC, &[2, st.dc.m.len()], &pair(&st.dc))?;
+    out.write_tensor(CHECKPOINT_ADAM_REST, &[2, st.rest.m.len()], &pair(&st.rest))?;
+    let iteration = start + run_iters;
+    out.write_json(
+        CHECKPOINT_STATE,
+        &serde_json::json!({
+            "iteration": iteration,
+            "adam_dc_step": st.dc.t,
+            "adam_rest_step": st.rest.t,
+        }),
+    )?;
+    let mut hist = history;
+    for r in &reports {
+        hist.push(serde_json::to_value(r).map_err(|e| Error::Other(e.to_string()))?);
+    }
+    out.write_json(CHECKPOINT_HISTORY, &hist)?;
+    if let Some(l) = &last {
+        let sh = |x: &ndarray::Array4<f32>| x.shape().to_vec();
+        let flat =
+            |x: &ndarray::Array4<f32>| x.as_standard_layout().iter().copied().collect::<Vec<_>>();
+        out.write_tensor("last_z0.npy", &sh(&l.z0), &flat(&l.z0))?;
+        out.write_tensor("last_z_tgt.npy", &sh(&l.z_tgt), &flat(&l.z_tgt))?;
+        out.write_tensor("last_z_src.npy", &sh(&l.z_src), &flat(&l.z_src))?;
+        out.write_tensor("last_targets.npy", &sh(&l.targets), &flat(&l.targets))?;
+    }
+    out.set_meta(serde_json::json!({
+        "iteration": iteration,
+        "gaussians": out_scene.len(),
+        "sh_degree": out_scene.sh_degree,
+        "last": last.as_ref().map(|l| &l.report),
+    }));
+    crate::timing::io(|| out.commit())?;
+    tracing::info!("wrote {} (iteration {iteration})", a.out.display());
+    Ok(())
+}
+
+/// Adam state of a scene that has not been optimised yet.
+fn fresh_state(scene: &Scene, rest_per_channel: usize) -> OptimizerState {
+    let z = |len: usize| crate::optim::AdamState {
+        m: vec![0.0; len],
+        v: vec![0.0; len],
+        t: 0,
+    };
+    OptimizerState {
+        dc: z(scene.len() * 3),
+        rest: z(scene.len() * 3 * rest_per_channel),
+    }
+}
+
+fn write_scene(
+    out: &mut fantasystyle_schemas::ArtifactWriter,
+    scene: &Scene,
+    format: SceneFormat,
+) -> Result<()> {
+    out.write_bytes("scene.ply", &crate::scene::ply::encode_ply(scene))?;
+    if format == SceneFormat::Both {
+        out.write_bytes("scene.splat", &crate::scene::splat::encode_splat(scene))?;
+    }
+    Ok(())
+}
