@@ -242,7 +242,8 @@ mod tests {
         for deg in [0usize, 2] {
             let scene = random_scene(5000, deg, 70 + deg as u64);
             let mut rng = crate::rng::Rng::new(3);
-            let views: Vec<(Vec<u32>, [f32; 3], Vec<[f32; 3]>, Vec<[f32; 3]>)> = (0..4)
+            type View = (Vec<u32>, [f32; 3], Vec<[f32; 3]>, Vec<[f32; 3]>);
+            let views: Vec<View> = (0..4)
                 .map(|v| {
                     let ids: Vec<u32> = (0..scene.len() as u32)
                         .filter(|i| (i * 7 + v) % 3 != 0)

@@ -418,14 +418,12 @@ fn elem_stride(path: &Path, e: &Element) -> Result<usize> {
     Ok(e.props.iter().map(|(_, t)| t.size()).sum())
 }
 
+/// Vertex rows: their bytes, each property's (offset, type) within a row, the stride.
+type Rows<'b> = (&'b [u8], Vec<(usize, PType)>, usize);
+
 /// The vertex rows of a binary file (checked against the header): their bytes, each
 /// property's (offset, type) within a row, and the row stride.
-fn binary_rows<'b>(
-    path: &Path,
-    bytes: &'b [u8],
-    h: &Header,
-    vi: usize,
-) -> Result<(&'b [u8], Vec<(usize, PType)>, usize)> {
+fn binary_rows<'b>(path: &Path, bytes: &'b [u8], h: &Header, vi: usize) -> Result<Rows<'b>> {
     let mut off = h.body;
     for e in &h.elements[..vi] {
         off = elem_stride(path, e)?
