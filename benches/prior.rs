@@ -107,6 +107,7 @@ fn measure(dir: &Path, threads: usize, reps: usize, layers: usize, clock: Clock)
         &SessionConfig {
             threads,
             optimization: Optimization::All,
+            ..Default::default()
         },
     )
     .expect("bare session");

@@ -35,7 +35,7 @@
 //! All predictions for one latent batch are one [`Prior::predict_eps`] call (target: two
 //! conditionings; source: two), so classifier-free guidance is batched.
 
-use crate::prior::{Cond, Prior};
+use crate::prior::{Cond, Prior, PriorInfo};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
 use ndarray::{Array4, ArrayView4, Zip};
@@ -141,6 +141,24 @@ pub fn conds(mode: Mode) -> (Vec<Cond>, Vec<Cond>) {
     }
 }
 
+/// Refuse `csd` on a prior whose style and content conditionings coincide
+/// ([`crate::prior::PriorInfo::coinciding_style_content`]): there the negative branch
+/// eps(z_tgt, Content) equals the style image's own contribution to eps(z_tgt, PS), so
+/// the target term keeps only text guidance and the "stylization" silently drops the
+/// style image.
+pub fn check_mode(mode: Mode, info: &PriorInfo) -> Result<()> {
+    if let (Mode::Csd, Some(why)) = (mode, &info.coinciding_style_content) {
+        return Err(Error::param(format!(
+            "--mode csd needs distinct style and content conditionings, and model `{}` has \
+             none: {why}. Its negative branch eps(content) would cancel the style image. \
+             Use --mode csd-no-neg or --mode sds with this model, or re-export it with \
+             scripts/export_models.py --ip-adapter (InstantStyle routing, the default)",
+            info.name
+        )));
+    }
+    Ok(())
+}
+
 /// The weighted gradient w(t) g (module docs), `[N, C, h, w]`.
 pub fn gradient(
     prior: &mut dyn Prior,
@@ -148,6 +166,7 @@ pub fn gradient(
     x: StepInputs<'_>,
     p: &CsdParams,
 ) -> Result<Array4<f32>> {
+    check_mode(p.mode, prior.info())?;
     let shape = x.z0.shape();
     for (name, a) in [("z_tgt", x.z_tgt), ("z_src", x.z_src), ("eps", x.eps)] {
         if a.shape() != shape {

@@ -92,12 +92,118 @@ pub enum Optimization {
     All,
 }
 
+/// Where sessions run: onnxruntime's execution providers.
+///
+/// `cpu` is the default and what the set-up library has. `cuda[:N]` (NVIDIA GPU N,
+/// default 0) and `tensorrt[:N]` (TensorRT on GPU N, with CUDA for what TensorRT does not
+/// take) need onnxruntime's GPU build: its `libonnxruntime.so.1.31.1` with
+/// `libonnxruntime_providers_shared.so` and `libonnxruntime_providers_cuda.so` (and
+/// `_tensorrt.so`) beside it, pointed to by `$FANTASYSTYLE_ORT_LIB`, plus the CUDA and
+/// cuDNN (and TensorRT) libraries that build was made for. A provider that the library
+/// lacks, or that cannot start (no device, missing CUDA libraries), is an error, never
+/// a silent fall back to the CPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Device {
+    #[default]
+    Cpu,
+    Cuda(u32),
+    TensorRt(u32),
+}
+
+impl std::str::FromStr for Device {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let (kind, id) = match s.split_once(':') {
+            Some((k, n)) => (
+                k,
+                Some(
+                    n.parse::<u32>()
+                        .map_err(|_| format!("device `{s}`: `{n}` is not a device number"))?,
+                ),
+            ),
+            None => (s, None),
+        };
+        match (kind, id) {
+            ("cpu", None) => Ok(Device::Cpu),
+            ("cuda", id) => Ok(Device::Cuda(id.unwrap_or(0))),
+            ("tensorrt", id) => Ok(Device::TensorRt(id.unwrap_or(0))),
+            _ => Err(format!(
+                "unknown device `{s}`: expected cpu, cuda[:N] or tensorrt[:N]"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Device {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Device::Cpu => write!(f, "cpu"),
+            Device::Cuda(n) => write!(f, "cuda:{n}"),
+            Device::TensorRt(n) => write!(f, "tensorrt:{n}"),
+        }
+    }
+}
+
+/// Register `device`'s execution provider(s) on `b`, or say why it cannot run there.
+fn with_device(
+    b: ort::session::builder::SessionBuilder,
+    device: Device,
+) -> Result<ort::session::builder::SessionBuilder> {
+    use ort::ep::{self, ExecutionProvider};
+    let lib = library_path()
+        .map(|p| p.display().to_string())
+        .unwrap_or_default();
+    let (name, eps) = match device {
+        Device::Cpu => return Ok(b),
+        Device::Cuda(id) => (
+            ep::CUDA::NAME,
+            vec![ep::CUDA::default().with_device_id(id as i32).build()],
+        ),
+        Device::TensorRt(id) => (
+            ep::TensorRT::NAME,
+            vec![
+                ep::TensorRT::default().with_device_id(id as i32).build(),
+                ep::CUDA::default().with_device_id(id as i32).build(),
+            ],
+        ),
+    };
+    let available = |n: &str| match n {
+        _ if n == ep::CUDA::NAME => ep::CUDA::is_available(),
+        _ => ep::TensorRT::is_available(),
+    };
+    for n in std::iter::once(name).chain((name != ep::CUDA::NAME).then_some(ep::CUDA::NAME)) {
+        if !available(n).map_err(|e| Error::Onnx(e.to_string()))? {
+            return Err(Error::Missing(format!(
+                "--device {device}: the onnxruntime library {lib} has no {n} (it is a CPU \
+                 build). Install onnxruntime's GPU build 1.31 (libonnxruntime.so.1.31.1 with \
+                 libonnxruntime_providers_shared.so and libonnxruntime_providers_cuda.so \
+                 beside it) and set FANTASYSTYLE_ORT_LIB to it, or use --device cpu"
+            )));
+        }
+    }
+    let eps: Vec<_> = eps.into_iter().map(|e| e.error_on_failure()).collect();
+    b.with_execution_providers(eps).map_err(|e| {
+        Error::Missing(format!(
+            "--device {device}: onnxruntime ({lib}) could not start {name}: {e} (is there an \
+             NVIDIA GPU {}, and are the CUDA 12 / cuDNN 9 libraries onnxruntime needs on the \
+             library path?)",
+            match device {
+                Device::Cuda(n) | Device::TensorRt(n) => n,
+                Device::Cpu => 0,
+            }
+        ))
+    })
+}
+
 /// How sessions are created.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SessionConfig {
     /// Intra-op threads (0 = onnxruntime's default: one per physical core).
     pub threads: usize,
     pub optimization: Optimization,
+    /// Execution provider.
+    pub device: Device,
 }
 
 /// Load an ONNX graph into a session with `threads` intra-op threads (0 = onnxruntime's
@@ -134,6 +240,7 @@ pub fn load_session_with(path: &Path, cfg: &SessionConfig) -> Result<Session> {
     b = b
         .with_optimization_level(level)
         .map_err(|e| Error::Onnx(e.to_string()))?;
+    b = with_device(b, cfg.device)?;
     b.commit_from_file(path)
         .map_err(|e| Error::input(path, format!("cannot load ONNX graph: {e}")))
 }

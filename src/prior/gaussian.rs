@@ -258,6 +258,7 @@ impl GaussianPrior {
                 downsample: DOWNSAMPLE,
                 scheduler: scheduler.clone(),
                 control: None,
+                coinciding_style_content: None,
             },
             schedule: Schedule::new(scheduler)?,
             null_tokens,

@@ -13,9 +13,13 @@
 //!   its first C channels taken). The prior multiplies by `vae_scaling_factor`.
 //! * VAE decoder: unscaled latents `[B,C,h,w]` -> image `[B,3,fh,fw]` in [-1,1].
 //! * UNet: `sample` `[B,C,h,w]`, `timestep` (int64 or float32, rank 0 or 1),
-//!   `encoder_hidden_states` `[B,L,D]` (text tokens from `.npy` files), optional SDXL
-//!   `text_embeds` `[B,P]` and `time_ids` `[B,6]`, optional IP-Adapter `image_tokens`
-//!   `[B,N,D']`, optional ControlNet residuals; output eps (or v) `[B,C,h,w]`.
+//!   `encoder_hidden_states` `[B,L,D]`, optional SDXL `text_embeds` `[B,P]` and
+//!   `time_ids` `[B,6]`, optional IP-Adapter `image_tokens` `[B,N,D']` with optional
+//!   per-row, per-layer image scales `image_scale` `[B,K]` (see [`ImageConditioning`]),
+//!   optional ControlNet residuals; output eps (or v) `[B,C,h,w]`.
+//! * Text encoder (optional, [`TextEncoderGraph`]): int64 token ids `[B,L]` per
+//!   tokenizer -> hidden states `[B,L,D]` (+ pooled `[B,P]` for SDXL); without it only
+//!   the prompts pre-embedded as `.npy` are available.
 //! * Every floating-point input and output is float32, also for `precision: fp16`
 //!   models (which keep fp16 weights inside and cast at the graph boundary).
 //!
@@ -84,6 +88,10 @@ pub struct UnetGraph {
     /// IP-Adapter image-prompt token input.
     #[serde(default)]
     pub image_tokens: Option<String>,
+    /// Per-row, per-layer IP-Adapter scale input `[B, K]` (K = the layers of
+    /// [`ImageConditioning::layers`]).
+    #[serde(default)]
+    pub image_scale: Option<String>,
     /// ControlNet down-block residual inputs, in the ControlNet's output order.
     #[serde(default)]
     pub down_residuals: Vec<String>,
@@ -140,6 +148,68 @@ pub struct ImageEncoderGraph {
     pub uncond_tokens: Option<String>,
 }
 
+/// Which scheme separates the style image's style from its content.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ConditioningScheme {
+    /// Plain IP-Adapter: the same tokens at the same scale for style and content, so
+    /// the two conditionings coincide (CSD's negative branch would cancel the style).
+    Shared,
+    /// InstantStyle: the tokens enter only the style-carrying attention layers for the
+    /// style conditioning and only the layout-carrying ones for the content
+    /// conditioning (Wang et al. 2024, "InstantStyle", Sec. 3).
+    InstantstyleBlocks,
+}
+
+/// How the image tokens are routed through the UNet's IP-Adapter layers: one scale per
+/// layer for each image conditioning (fed as the UNet's `image_scale` row; the
+/// conditionings without the style image feed zeros).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageConditioning {
+    pub scheme: ConditioningScheme,
+    /// The IP-Adapter attention layers, in the order of the scale vectors.
+    pub layers: Vec<String>,
+    /// Scales of the style conditioning (PromptStyle).
+    pub style: Vec<f32>,
+    /// Scales of the content conditioning (Content).
+    pub content: Vec<f32>,
+    /// The diffusers `set_ip_adapter_scale` dictionaries the vectors were made from
+    /// (informational).
+    #[serde(default)]
+    pub style_blocks: Option<serde_json::Value>,
+    #[serde(default)]
+    pub content_blocks: Option<serde_json::Value>,
+}
+
+/// One tokenizer feeding one input of the text encoder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TokenizerInput {
+    /// The text encoder's input fed with this tokenizer's ids (int64 `[B, max_length]`).
+    pub input: String,
+    /// Hugging Face `tokenizer.json`, relative to the model directory.
+    pub tokenizer: String,
+    /// Sequence length: ids are truncated (keeping the start and end marks) and padded
+    /// to it (77 for CLIP).
+    pub max_length: usize,
+    /// The padding id (CLIP: the end mark; SDXL's second tokenizer: `!`, id 0).
+    pub pad_id: u32,
+}
+
+/// The text encoder graph: token ids in, the UNet's text conditioning out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TextEncoderGraph {
+    pub file: String,
+    pub tokenizers: Vec<TokenizerInput>,
+    /// Hidden states `[B, L, D]` (the UNet's `encoder_hidden_states`).
+    pub hidden_output: String,
+    /// Pooled embedding `[B, P]` (SDXL's `text_embeds`).
+    #[serde(default)]
+    pub pooled_output: Option<String>,
+}
+
 /// A text embedding stored as `.npy`: hidden states `[1,L,D]` and, for SDXL, the pooled
 /// embedding `[1,P]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -160,14 +230,19 @@ pub struct PromptEmbedding {
     pub pooled: Option<String>,
 }
 
-/// The text conditioning available without a text encoder.
+/// The text conditioning: pre-embedded prompts, and optionally the text encoder that
+/// embeds any prompt at run time.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TextConfig {
-    /// The empty prompt (the unconditional branch).
+    /// The unconditional branch (SD 1.x: the empty prompt embedded; SDXL: zeros, as
+    /// diffusers' `force_zeros_for_empty_prompt`).
     pub null: TextEmbedding,
     /// Exported prompts; the first is the default.
     pub prompts: Vec<PromptEmbedding>,
+    /// The text encoder, for prompts not exported.
+    #[serde(default)]
+    pub encoder: Option<TextEncoderGraph>,
 }
 
 /// `model.json`.
@@ -188,6 +263,10 @@ pub struct ModelManifest {
     pub downsample: usize,
     #[serde(default)]
     pub precision: Precision,
+    /// Precision of the VAE's weights when it differs from `precision` (fp16 exports
+    /// keep a VAE that overflows in fp16, such as SDXL's, in fp32).
+    #[serde(default)]
+    pub vae_precision: Option<Precision>,
     pub scheduler: SchedulerConfig,
     #[serde(default)]
     pub vae_encoder: Option<SimpleGraph>,
@@ -199,6 +278,9 @@ pub struct ModelManifest {
     pub controlnet: Option<ControlNetGraph>,
     #[serde(default)]
     pub image_encoder: Option<ImageEncoderGraph>,
+    /// Routing of the image tokens for the style and content conditionings.
+    #[serde(default)]
+    pub image_conditioning: Option<ImageConditioning>,
     #[serde(default)]
     pub text: Option<TextConfig>,
     /// Fields of the `stylizer` family, parsed by the stylizer prior.
@@ -345,6 +427,61 @@ impl ModelManifest {
                 ));
             }
         }
+        let scale_input = self.unet.as_ref().and_then(|u| u.image_scale.as_ref());
+        match (&self.image_conditioning, scale_input) {
+            (None, None) => {}
+            (Some(_), None) | (None, Some(_)) => {
+                return Err(md.err(
+                    "`image_conditioning` and graph `unet`'s image_scale input go together: \
+                     give both or neither",
+                ));
+            }
+            (Some(ic), Some(_)) => {
+                if self.image_encoder.is_none() {
+                    return Err(md.err("`image_conditioning` needs graph `image_encoder`"));
+                }
+                let k = ic.layers.len();
+                if k == 0 || ic.style.len() != k || ic.content.len() != k {
+                    return Err(md.err(format!(
+                        "image_conditioning: {k} layers, {} style and {} content scales; \
+                         they must agree and be at least one",
+                        ic.style.len(),
+                        ic.content.len()
+                    )));
+                }
+                if ic.style.iter().chain(&ic.content).any(|x| !x.is_finite()) {
+                    return Err(md.err("image_conditioning: scales must be finite"));
+                }
+            }
+        }
+        if let Some(enc) = self.text.as_ref().and_then(|t| t.encoder.as_ref()) {
+            check_file(md, "text.encoder", &enc.file)?;
+            if enc.tokenizers.is_empty() {
+                return Err(md.err("text.encoder.tokenizers is empty"));
+            }
+            for t in &enc.tokenizers {
+                check_file(md, "text.encoder.tokenizers", &t.tokenizer)?;
+                if t.max_length < 2 {
+                    return Err(md.err(format!(
+                        "text.encoder.tokenizers: max_length {} leaves no room for the start \
+                         and end marks",
+                        t.max_length
+                    )));
+                }
+            }
+            let unet_pooled = self.unet.as_ref().is_some_and(|u| u.text_embeds.is_some());
+            if unet_pooled != enc.pooled_output.is_some() {
+                return Err(md.err(format!(
+                    "graph `unet` {} text_embeds, graph `text_encoder` {} pooled_output",
+                    if unet_pooled { "takes" } else { "takes no" },
+                    if enc.pooled_output.is_some() {
+                        "names a"
+                    } else {
+                        "names no"
+                    }
+                )));
+            }
+        }
         let text = self
             .text
             .as_ref()
@@ -473,6 +610,54 @@ mod tests {
         std::fs::remove_file(d.path().join(MODEL_FILE)).unwrap();
         let e = ModelManifest::load(d.path()).unwrap_err().to_string();
         assert!(e.contains("not found"), "{e}");
+    }
+
+    #[test]
+    fn image_conditioning_and_text_encoder_are_checked() {
+        let d = tempfile::tempdir().unwrap();
+        let mut v = minimal(d.path());
+        for f in ["i.onnx", "t.onnx", "tok.json"] {
+            std::fs::write(d.path().join(f), b"x").unwrap();
+        }
+        v["image_encoder"] = serde_json::json!({
+            "file": "i.onnx", "input": "image", "size": 224, "mean": [0.5, 0.5, 0.5],
+            "std": [0.5, 0.5, 0.5], "style_output": "tokens", "content_output": "tokens"});
+        v["unet"]["image_tokens"] = "image_tokens".into();
+        v["unet"]["image_scale"] = "ip_scale".into();
+        v["image_conditioning"] = serde_json::json!({
+            "scheme": "instantstyle-blocks", "layers": ["a", "b"],
+            "style": [0.0, 1.0], "content": [1.0, 0.0]});
+        v["text"]["encoder"] = serde_json::json!({
+            "file": "t.onnx", "hidden_output": "hidden_states",
+            "tokenizers": [{"input": "input_ids", "tokenizer": "tok.json",
+                            "max_length": 77, "pad_id": 49407}]});
+        write(d.path(), &v);
+        let md = ModelManifest::load(d.path()).unwrap();
+        let ic = md.manifest.image_conditioning.unwrap();
+        assert_eq!(ic.scheme, ConditioningScheme::InstantstyleBlocks);
+        let check = |v: serde_json::Value, needle: &str| {
+            write(d.path(), &v);
+            let e = ModelManifest::load(d.path()).unwrap_err().to_string();
+            assert!(e.contains(needle) && e.contains("model.json"), "{e}");
+        };
+        let mut bad = v.clone();
+        bad["image_conditioning"]["content"] = serde_json::json!([1.0]);
+        check(bad, "2 layers, 2 style and 1 content scales");
+        let mut bad = v.clone();
+        bad["unet"].as_object_mut().unwrap().remove("image_scale");
+        check(bad, "give both or neither");
+        let mut bad = v.clone();
+        bad["image_conditioning"]["scheme"] = "instruct".into();
+        check(bad, "unknown variant `instruct`");
+        let mut bad = v.clone();
+        bad["text"]["encoder"]["tokenizers"][0]["tokenizer"] = "none.json".into();
+        check(bad, "none.json does not exist");
+        let mut bad = v.clone();
+        bad["text"]["encoder"]["pooled_output"] = "pooled".into();
+        check(bad, "names a pooled_output");
+        let mut bad = v.clone();
+        bad["text"]["encoder"]["tokenizers"][0]["max_length"] = 1.into();
+        check(bad, "max_length 1");
     }
 
     #[test]

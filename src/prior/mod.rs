@@ -18,19 +18,21 @@
 //! stylizer), [`session`] (ONNX sessions and their I/O checks, shared by both),
 //! [`preprocess`] (image-encoder crops, ControlNet control images, shape checks).
 
+pub mod cost;
 pub mod gaussian;
 pub mod manifest;
 pub mod onnx;
 pub mod preprocess;
 pub mod session;
 pub mod stylizer;
+pub mod text;
 
 pub use manifest::model_timesteps;
 pub use onnx::OnnxPrior;
 pub use preprocess::control_image;
 
 use crate::Result;
-use crate::runtime::Optimization;
+use crate::runtime::{Device, Optimization, SessionConfig};
 use crate::scheduler::SchedulerConfig;
 use manifest::{Family, ModelManifest};
 use ndarray::{Array4, ArrayView4};
@@ -43,8 +45,9 @@ pub struct PriorOptions {
     /// The style image `[1, 3, H, W]` in [0, 1], for the image-prompt encoder (needed by
     /// `Cond::PromptStyle` and `Cond::Content`).
     pub style_image: Option<Array4<f32>>,
-    /// Text of an exported prompt (see the manifest's `text.prompts`); `None` = the
-    /// first one. Prompts cannot be encoded here: there is no text encoder at run time.
+    /// The prompt P: an exported prompt's text (the manifest's `text.prompts`, embedded
+    /// at export time), or any text when the model has a text encoder; `None` = the
+    /// first exported prompt.
     pub prompt: Option<String>,
     /// Intra-op threads per session (0 = onnxruntime's default).
     pub threads: usize,
@@ -52,10 +55,27 @@ pub struct PriorOptions {
     pub optimization: Optimization,
     /// Largest VAE batch per call (0 = the whole batch at once).
     pub vae_batch: usize,
+    /// Most UNet (and ControlNet) rows per call, rows = conditionings x latents (0 =
+    /// automatic: as many as keep the first level's attention scores within 2^31 floats,
+    /// see [`onnx::auto_unet_rows`]; all at once at SD's usual sizes up to 32x32 latents).
+    pub unet_batch: usize,
+    /// Execution provider of every session.
+    pub device: Device,
     /// Style strength in [0, 1] (`None` = 1): how far the style conditioning moves from
     /// the content's own style. The stylizer interpolates style vectors
     /// (`(1 - strength) s(content) + strength s(style)`).
     pub strength: Option<f32>,
+}
+
+impl PriorOptions {
+    /// How this prior's sessions are created.
+    pub fn session_config(&self) -> SessionConfig {
+        SessionConfig {
+            threads: self.threads,
+            optimization: self.optimization,
+            device: self.device,
+        }
+    }
 }
 
 /// Open the prior in `model_dir` (a directory with `model.json`), dispatching on the
@@ -68,10 +88,10 @@ pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
         }
         // The MVFC/CSD stages' 2D-stylizer prior plugs in here.
         Family::Stylizer => Ok(Box::new(
-            stylizer::StylizerPrior::open(
+            stylizer::StylizerPrior::open_with(
                 &md.dir,
                 opts.style_image.as_ref().map(|a| a.view()),
-                opts.threads,
+                opts.session_config(),
             )?
             .with_strength(opts.strength.unwrap_or(1.0))?,
         )),
@@ -122,6 +142,11 @@ pub struct PriorInfo {
     /// The control image `predict_eps` wants (`None`: the prior has no ControlNet and
     /// ignores `control`).
     pub control: Option<ControlKind>,
+    /// `Some(why)` when the style conditioning (PromptStyle) and the content conditioning
+    /// (Content) carry the same image information, so that CSD's target term
+    /// beta (eps([P, style]) - eps(content)) would cancel the style image (plain
+    /// IP-Adapter); [`crate::csd::check_mode`] then refuses `csd`.
+    pub coinciding_style_content: Option<String>,
 }
 
 /// A 2D prior. Images are `[B, 3, H, W]` in [0, 1]; latents are `[B, C, H/f, W/f]`

@@ -10,46 +10,136 @@
 //!   With a ControlNet, one ControlNet call on the same batch produces the residuals fed
 //!   to the UNet (times `scale`). A v-prediction output is converted to eps.
 //!
-//! Conditioning (text tokens from `.npy` files, image tokens from the image encoder run
-//! once on the style image at construction):
+//! Conditioning (text from `.npy` files or, for a prompt not exported, the model's text
+//! encoder ([`super::text`]); image tokens from the image encoder run once on the style
+//! image at construction; with `image_conditioning`, per-layer IP-Adapter scales fed as
+//! the UNet's `image_scale` row, InstantStyle's routing):
 //!
-//! | Cond | text | image tokens |
-//! |---|---|---|
-//! | Null | null | "no image" tokens (`uncond_tokens`, else zeros) |
-//! | Prompt | prompt | "no image" tokens |
-//! | PromptStyle | prompt | style tokens |
-//! | Content | null | content tokens |
+//! | Cond | text | image tokens | image scales |
+//! |---|---|---|---|
+//! | Null | null | "no image" tokens (`uncond_tokens`, else zeros) | 0 |
+//! | Prompt | prompt | "no image" tokens | 0 |
+//! | PromptStyle | prompt | style tokens | `image_conditioning.style` |
+//! | Content | null | content tokens | `image_conditioning.content` |
+//!
+//! When the style and content conditionings carry the same tokens at the same scales
+//! (plain IP-Adapter), [`PriorInfo::coinciding_style_content`] says so and CSD refuses
+//! `--mode csd` ([`crate::csd::check_mode`]).
 //!
 //! Loading checks every graph's inputs and outputs against the manifest with
 //! [`super::session::Graph::check`]: each named input exists, ranks and static dimensions
 //! agree with what we feed, floating-point I/O is float32, and the graph has no input we
 //! would not feed. Errors name the file, the graph and the input.
 
-use super::manifest::{Family, ImageEncoderGraph, ModelDir, ModelManifest};
+use super::manifest::{Family, ImageConditioning, ImageEncoderGraph, ModelDir, ModelManifest};
 use super::preprocess::{check_finite, check_images, fit_square};
 use super::session::{Graph, Kind, f32_value, input};
+use super::text::{Text, TextEncoder};
 use super::{Cond, Prior, PriorInfo, PriorOptions};
 use crate::runtime::SessionConfig;
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
 use fantasystyle_schemas::read_npy_f32;
-use ndarray::{Array, Array2, Array3, Array4, ArrayD, ArrayView4, Axis, concatenate};
+use ndarray::{Array, Array1, Array2, Array3, Array4, ArrayD, ArrayView4, Axis, concatenate};
 use ort::value::ValueType;
+use std::ops::Range;
 use std::path::Path;
 
-/// A text conditioning: hidden states `[1,L,D]` and an optional pooled embedding `[1,P]`.
-#[derive(Debug, Clone)]
-struct Text {
-    hidden: Array3<f32>,
-    pooled: Option<Array2<f32>>,
-}
-
-/// Image-prompt tokens `[1,N,D']`.
+/// Image-prompt tokens `[1,N,D']` and, with `image_conditioning`, the per-layer scales
+/// `[1,K]` of each conditioning.
 #[derive(Debug, Clone)]
 struct ImageTokens {
     uncond: Array3<f32>,
     style: Option<Array3<f32>>,
     content: Option<Array3<f32>>,
+    scales: Option<Scales>,
+}
+
+/// What one conditioning feeds: text, image tokens `[1,N,D']`, image scales `[1,K]`.
+struct CondParts<'a> {
+    text: &'a Text,
+    tokens: Option<&'a Array3<f32>>,
+    scales: Option<&'a Array2<f32>>,
+}
+
+/// Every input row of one `predict_eps` call (rows = conditionings x latents), sliced
+/// into UNet calls of at most `unet_batch` rows.
+struct Rows {
+    z: Array4<f32>,
+    ehs: Array3<f32>,
+    pooled: Option<Array2<f32>>,
+    time_ids: Array2<f32>,
+    image_tokens: Option<Array3<f32>>,
+    image_scale: Option<Array2<f32>>,
+    control: Option<Array4<f32>>,
+}
+
+/// Concatenate along axis 0.
+fn cat<A: Clone, D: ndarray::RemoveAxis>(v: &[ndarray::ArrayView<'_, A, D>]) -> Array<A, D> {
+    concatenate(Axis(0), v).expect("same shapes")
+}
+
+/// Rows of `[a..b]` of `x` along axis 0, owned.
+fn rows_of<D: ndarray::RemoveAxis>(x: &Array<f32, D>, r: &Range<usize>) -> Array<f32, D> {
+    x.slice_axis(Axis(0), ndarray::Slice::from(r.clone()))
+        .to_owned()
+}
+
+/// Attention scores per call at which [`PriorOptions::unet_batch`] `0` stops adding rows:
+/// 2^31 floats (8 GiB would be one SD 1.5 call of 16 rows at 64x64 latents).
+pub const AUTO_UNET_SCORES: usize = 1 << 31;
+
+/// Rows per UNet call when not given: as many as keep the first level's self-attention
+/// scores (8 heads, SD's first level, x (h w)^2 per row) within [`AUTO_UNET_SCORES`].
+pub fn auto_unet_rows(h: usize, w: usize) -> usize {
+    let per_row = 8 * (h * w) * (h * w);
+    (AUTO_UNET_SCORES / per_row.max(1)).max(1)
+}
+
+/// Per-layer IP-Adapter scales `[1,K]`: none (no image), style, content.
+#[derive(Debug, Clone)]
+struct Scales {
+    none: Array2<f32>,
+    style: Array2<f32>,
+    content: Array2<f32>,
+}
+
+impl ImageTokens {
+    /// Why the style and content conditionings carry the same image information, if
+    /// they do: the same tokens (as computed from the style image, else the same encoder
+    /// output) at the same per-layer scales.
+    fn coinciding(&self, m: &ModelManifest) -> Option<String> {
+        let ie = m.image_encoder.as_ref()?;
+        let same_tokens = match (&self.style, &self.content) {
+            (Some(s), Some(c)) => s == c,
+            _ => ie.style_output == ie.content_output,
+        };
+        let same_scales = self.scales.as_ref().is_none_or(|s| s.style == s.content);
+        (same_tokens && same_scales).then(|| match &m.image_conditioning {
+            Some(ic) => format!(
+                "its style and content conditionings are the same image tokens at the same \
+                 per-layer scales (image_conditioning scheme `{}`)",
+                serde_json::to_value(ic.scheme)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_string))
+                    .unwrap_or_default()
+            ),
+            None => "its style and content conditionings are the same image tokens (plain \
+                     IP-Adapter, no image_conditioning routing)"
+                .to_string(),
+        })
+    }
+}
+
+impl Scales {
+    fn new(ic: &ImageConditioning) -> Self {
+        let row = |v: &[f32]| Array1::from(v.to_vec()).insert_axis(Axis(0));
+        Scales {
+            none: Array2::zeros((1, ic.layers.len())),
+            style: row(&ic.style),
+            content: row(&ic.content),
+        }
+    }
 }
 
 /// A diffusion prior backed by ONNX graphs.
@@ -59,6 +149,7 @@ pub struct OnnxPrior {
     schedule: Schedule,
     scaling: f32,
     vae_batch: usize,
+    unet_batch: usize,
     vae_encoder: Graph,
     vae_decoder: Graph,
     unet: Graph,
@@ -124,10 +215,7 @@ impl OnnxPrior {
         if m.family == Family::Stylizer {
             return Err(md.err("family `stylizer` is not an ONNX diffusion model"));
         }
-        let cfg = SessionConfig {
-            threads: opts.threads,
-            optimization: opts.optimization,
-        };
+        let cfg = opts.session_config();
         let c = m.latent_channels;
         let (ve, vd, u) = (
             m.vae_encoder.as_ref().expect("validated"),
@@ -147,29 +235,40 @@ impl OnnxPrior {
             })
         };
         let null = read_text(&text_cfg.null.file, &text_cfg.null.pooled, "text.null")?;
-        let entry = match &opts.prompt {
-            None => &text_cfg.prompts[0],
-            Some(want) => text_cfg
-                .prompts
-                .iter()
-                .find(|p| &p.text == want)
-                .ok_or_else(|| {
-                    md.err(format!(
-                    "no embedding for prompt {want:?}; exported prompts: {:?} (export more with \
-                     scripts/export_models.py --prompt)",
-                    text_cfg.prompts.iter().map(|p| &p.text).collect::<Vec<_>>()
-                ))
-                })?,
+        // The prompt: pre-embedded if exported, else through the text encoder.
+        let exported = match &opts.prompt {
+            None => Some(&text_cfg.prompts[0]),
+            Some(want) => text_cfg.prompts.iter().find(|p| &p.text == want),
         };
-        let prompt = read_text(&entry.file, &entry.pooled, "text.prompts")?;
+        let (prompt, source) = match (exported, &opts.prompt, &text_cfg.encoder) {
+            (Some(e), _, _) => (
+                read_text(&e.file, &e.pooled, "text.prompts")?,
+                e.file.clone(),
+            ),
+            (None, Some(want), Some(enc)) => {
+                let mut te = TextEncoder::load(&md, enc, &cfg)?;
+                (te.encode(want)?, enc.file.clone())
+            }
+            (None, want, _) => {
+                return Err(md.err(format!(
+                    "no embedding for prompt {:?} and no text encoder in this model; exported \
+                     prompts: {:?} (re-export with scripts/export_models.py, which adds the text \
+                     encoder, or pass one of these)",
+                    want.as_deref().unwrap_or_default(),
+                    text_cfg.prompts.iter().map(|p| &p.text).collect::<Vec<_>>()
+                )));
+            }
+        };
         if prompt.hidden.shape() != null.hidden.shape()
             || prompt.pooled.as_ref().map(|p| p.dim()) != null.pooled.as_ref().map(|p| p.dim())
         {
             return Err(md.err(format!(
-                "prompt embedding {} has shape {:?}, the null embedding {:?}: they must agree",
-                entry.file,
+                "the prompt embedding from {source} has shape {:?} (pooled {:?}), the null \
+                 embedding {:?} (pooled {:?}): they must agree",
                 prompt.hidden.shape(),
-                null.hidden.shape()
+                prompt.pooled.as_ref().map(|p| p.dim()),
+                null.hidden.shape(),
+                null.pooled.as_ref().map(|p| p.dim()),
             )));
         }
         let (l, d) = (null.hidden.dim().1, null.hidden.dim().2);
@@ -209,6 +308,7 @@ impl OnnxPrior {
             Some(ie) => Some(Self::image_tokens(
                 &md,
                 ie,
+                m.image_conditioning.as_ref(),
                 &cfg,
                 opts.style_image.as_ref(),
             )?),
@@ -240,6 +340,10 @@ impl OnnxPrior {
                 let (_, n, dd) = tok.uncond.dim();
                 unet.check(false, it, Kind::F32(&[3]), &[(1, n), (2, dd)])?;
                 fed.push(it);
+                if let (Some(sc), Some(s)) = (&u.image_scale, &tok.scales) {
+                    unet.check(false, sc, Kind::F32(&[2]), &[(1, s.none.dim().1)])?;
+                    fed.push(sc);
+                }
             }
             (Some(it), None) => {
                 return Err(unet.err(format_args!(
@@ -295,6 +399,7 @@ impl OnnxPrior {
         };
 
         let schedule = Schedule::new(m.scheduler.clone()).map_err(|e| md.err(e.to_string()))?;
+        let coinciding_style_content = image_tokens.as_ref().and_then(|t| t.coinciding(&m));
         Ok(OnnxPrior {
             info: PriorInfo {
                 name: m.name.clone(),
@@ -302,9 +407,11 @@ impl OnnxPrior {
                 downsample: m.downsample,
                 scheduler: m.scheduler.clone(),
                 control: m.controlnet.as_ref().map(|cn| cn.control),
+                coinciding_style_content,
             },
             scaling: m.vae_scaling_factor,
             vae_batch: opts.vae_batch,
+            unet_batch: opts.unet_batch,
             schedule,
             vae_encoder,
             vae_decoder,
@@ -317,10 +424,12 @@ impl OnnxPrior {
         })
     }
 
-    /// Run the image encoder on the style image: (uncond, style, content) tokens.
+    /// Run the image encoder on the style image: (uncond, style, content) tokens, and the
+    /// per-layer scales of `image_conditioning`.
     fn image_tokens(
         md: &ModelDir,
         ie: &ImageEncoderGraph,
+        ic: Option<&ImageConditioning>,
         cfg: &SessionConfig,
         style: Option<&Array4<f32>>,
     ) -> Result<ImageTokens> {
@@ -407,6 +516,7 @@ impl OnnxPrior {
             uncond,
             style: style_t,
             content: content_t,
+            scales: ic.map(Scales::new),
         })
     }
 
@@ -435,8 +545,8 @@ impl OnnxPrior {
         check_finite(z, what)
     }
 
-    /// Text and image tokens of one conditioning.
-    fn cond_parts(&self, cond: Cond) -> Result<(&Text, Option<&Array3<f32>>)> {
+    /// Text, image tokens and image scales of one conditioning.
+    fn cond_parts(&self, cond: Cond) -> Result<CondParts<'_>> {
         let need =
             |pick: fn(&ImageTokens) -> &Option<Array3<f32>>| -> Result<Option<&Array3<f32>>> {
                 match &self.image_tokens {
@@ -454,11 +564,21 @@ impl OnnxPrior {
                 }
             };
         let uncond = self.image_tokens.as_ref().map(|t| &t.uncond);
-        Ok(match cond {
-            Cond::Null => (&self.null, uncond),
-            Cond::Prompt => (&self.prompt, uncond),
-            Cond::PromptStyle => (&self.prompt, need(|t| &t.style)?),
-            Cond::Content => (&self.null, need(|t| &t.content)?),
+        let scales = self.image_tokens.as_ref().and_then(|t| t.scales.as_ref());
+        let (text, tokens, scales) = match cond {
+            Cond::Null => (&self.null, uncond, scales.map(|s| &s.none)),
+            Cond::Prompt => (&self.prompt, uncond, scales.map(|s| &s.none)),
+            Cond::PromptStyle => (&self.prompt, need(|t| &t.style)?, scales.map(|s| &s.style)),
+            Cond::Content => (
+                &self.null,
+                need(|t| &t.content)?,
+                scales.map(|s| &s.content),
+            ),
+        };
+        Ok(CondParts {
+            text,
+            tokens,
+            scales,
         })
     }
 
@@ -466,6 +586,68 @@ impl OnnxPrior {
     fn repeat<D: ndarray::RemoveAxis>(a: &Array<f32, D>, n: usize) -> Array<f32, D> {
         let views: Vec<_> = (0..n).map(|_| a.view()).collect();
         concatenate(Axis(0), &views).expect("same shapes")
+    }
+
+    /// One ControlNet + UNet call on rows `r` of `x`: the raw UNet output `[rows, C, h, w]`.
+    fn run_rows(&mut self, x: &Rows, r: Range<usize>, t: usize) -> Result<Array4<f32>> {
+        let u = self.md.manifest.unet.as_ref().expect("validated");
+        let n = r.len();
+        let z = rows_of(&x.z, &r);
+        let ehs = rows_of(&x.ehs, &r);
+        let pooled = x.pooled.as_ref().map(|p| rows_of(p, &r));
+        let time_ids = rows_of(&x.time_ids, &r);
+        let mut feeds = vec![
+            input(&u.sample, f32_value(z.clone())?),
+            input(&u.timestep, self.unet.timestep_value(&u.timestep, t, n)?),
+            input(&u.encoder_hidden_states, f32_value(ehs.clone())?),
+        ];
+        if let (Some(name), Some(p)) = (&u.text_embeds, &pooled) {
+            feeds.push(input(name, f32_value(p.clone())?));
+        }
+        if let Some(name) = &u.time_ids {
+            feeds.push(input(name, f32_value(time_ids.clone())?));
+        }
+        if let (Some(name), Some(i)) = (&u.image_tokens, &x.image_tokens) {
+            feeds.push(input(name, f32_value(rows_of(i, &r))?));
+        }
+        if let (Some(name), Some(s)) = (&u.image_scale, &x.image_scale) {
+            feeds.push(input(name, f32_value(rows_of(s, &r))?));
+        }
+        if let (Some(cn_graph), Some(cn), Some(ctrl)) = (
+            &mut self.controlnet,
+            &self.md.manifest.controlnet,
+            &x.control,
+        ) {
+            let mut cfeeds = vec![
+                input(&cn.sample, f32_value(z)?),
+                input(&cn.timestep, cn_graph.timestep_value(&cn.timestep, t, n)?),
+                input(&cn.encoder_hidden_states, f32_value(ehs)?),
+                input(&cn.cond, f32_value(rows_of(ctrl, &r))?),
+            ];
+            if let (Some(name), Some(p)) = (&cn.text_embeds, pooled) {
+                cfeeds.push(input(name, f32_value(p)?));
+            }
+            if let Some(name) = &cn.time_ids {
+                cfeeds.push(input(name, f32_value(time_ids)?));
+            }
+            let names: Vec<&str> = cn
+                .down_outputs
+                .iter()
+                .chain([&cn.mid_output])
+                .map(|s| s.as_str())
+                .collect();
+            let res = cn_graph.run(cfeeds, &names)?;
+            let targets = u.down_residuals.iter().chain(u.mid_residual.as_ref());
+            for (name, r) in targets.zip(res) {
+                feeds.push(input(name, f32_value(r.mapv(|v| v * cn.scale))?));
+            }
+        }
+        let out = self.unet.run(feeds, &[&u.output])?;
+        out.into_iter()
+            .next()
+            .expect("one output")
+            .into_dimensionality()
+            .map_err(|e| self.unet.err(format_args!("output `{}`: {e}", u.output)))
     }
 
     fn run_vae(&mut self, encode: bool, x: ArrayView4<'_, f32>) -> Result<Array4<f32>> {
@@ -563,14 +745,18 @@ impl Prior for OnnxPrior {
         let k = conds.len();
         let f = self.info.downsample;
         let (ih, iw) = (h * f, w * f);
-        let u = self.md.manifest.unet.clone().expect("validated");
 
         // Batch: row block i carries conds[i].
         let mut texts = Vec::with_capacity(k);
         let mut pooled = Vec::with_capacity(k);
         let mut imgs = Vec::with_capacity(k);
+        let mut scales = Vec::with_capacity(k);
         for &cd in conds {
-            let (text, img) = self.cond_parts(cd)?;
+            let CondParts {
+                text,
+                tokens: img,
+                scales: scale,
+            } = self.cond_parts(cd)?;
             texts.push(Self::repeat(&text.hidden, b));
             if let Some(p) = &text.pooled {
                 pooled.push(Self::repeat(p, b));
@@ -578,92 +764,54 @@ impl Prior for OnnxPrior {
             if let Some(i) = img {
                 imgs.push(Self::repeat(i, b));
             }
+            if let Some(s) = scale {
+                scales.push(Self::repeat(s, b));
+            }
         }
-        let cat3 = |v: &[Array3<f32>]| -> Array3<f32> {
-            let views: Vec<_> = v.iter().map(|a| a.view()).collect();
-            concatenate(Axis(0), &views).expect("same shapes")
+        let ctrl = match &self.md.manifest.controlnet {
+            None => None,
+            Some(cn) => {
+                let ctrl = control.ok_or_else(|| {
+                    Error::param(format!(
+                        "model `{}` has a ControlNet: predict_eps needs a {:?} control image",
+                        self.info.name, cn.control
+                    ))
+                })?;
+                if ctrl.dim() != (b, 3, ih, iw) {
+                    return Err(Error::param(format!(
+                        "control image has shape {:?}, expected [{b}, 3, {ih}, {iw}]",
+                        ctrl.shape()
+                    )));
+                }
+                check_finite(ctrl, "control image")?;
+                Some(cat(&vec![ctrl; k]))
+            }
         };
-        let ehs = cat3(&texts);
-        let pooled = (!pooled.is_empty()).then(|| {
-            let views: Vec<_> = pooled.iter().map(|a| a.view()).collect();
-            concatenate(Axis(0), &views).expect("same shapes")
-        });
-        let zb = {
-            let views: Vec<_> = (0..k).map(|_| z_t).collect();
-            concatenate(Axis(0), &views).expect("same shapes")
+        let rows = Rows {
+            z: cat(&vec![z_t; k]),
+            ehs: cat(&texts.iter().map(|a| a.view()).collect::<Vec<_>>()),
+            pooled: (!pooled.is_empty())
+                .then(|| cat(&pooled.iter().map(|a| a.view()).collect::<Vec<_>>())),
+            time_ids: Array2::from_shape_fn((k * b, 6), |(_, j)| [ih, iw, 0, 0, ih, iw][j] as f32),
+            image_tokens: (!imgs.is_empty())
+                .then(|| cat(&imgs.iter().map(|a| a.view()).collect::<Vec<_>>())),
+            image_scale: (!scales.is_empty())
+                .then(|| cat(&scales.iter().map(|a| a.view()).collect::<Vec<_>>())),
+            control: ctrl,
         };
-        let time_ids = Array2::from_shape_fn((k * b, 6), |(_, j)| [ih, iw, 0, 0, ih, iw][j] as f32);
-
-        let mut feeds = vec![
-            input(&u.sample, f32_value(zb.clone())?),
-            input(
-                &u.timestep,
-                self.unet.timestep_value(&u.timestep, t, k * b)?,
-            ),
-            input(&u.encoder_hidden_states, f32_value(ehs.clone())?),
-        ];
-        if let (Some(name), Some(p)) = (&u.text_embeds, &pooled) {
-            feeds.push(input(name, f32_value(p.clone())?));
+        // Rows per call: the attention scores of the first UNet level grow with the
+        // square of the latent pixels (SD 1.5 at 64x64 latents: 0.5 GB per row).
+        let per_call = match self.unet_batch {
+            0 => auto_unet_rows(h, w),
+            n => n,
+        };
+        let mut parts = Vec::new();
+        for start in (0..k * b).step_by(per_call) {
+            parts.push(self.run_rows(&rows, start..(start + per_call).min(k * b), t)?);
         }
-        if let Some(name) = &u.time_ids {
-            feeds.push(input(name, f32_value(time_ids.clone())?));
-        }
-        if let Some(name) = &u.image_tokens {
-            feeds.push(input(name, f32_value(cat3(&imgs))?));
-        }
-
-        if let (Some(cn_graph), Some(cn)) = (&mut self.controlnet, &self.md.manifest.controlnet) {
-            let ctrl = control.ok_or_else(|| {
-                Error::param(format!(
-                    "model `{}` has a ControlNet: predict_eps needs a {:?} control image",
-                    self.info.name, cn.control
-                ))
-            })?;
-            if ctrl.dim() != (b, 3, ih, iw) {
-                return Err(Error::param(format!(
-                    "control image has shape {:?}, expected [{b}, 3, {ih}, {iw}]",
-                    ctrl.shape()
-                )));
-            }
-            check_finite(ctrl, "control image")?;
-            let views: Vec<_> = (0..k).map(|_| ctrl).collect();
-            let ctrl_b = concatenate(Axis(0), &views).expect("same shapes");
-            let mut cfeeds = vec![
-                input(&cn.sample, f32_value(zb)?),
-                input(
-                    &cn.timestep,
-                    cn_graph.timestep_value(&cn.timestep, t, k * b)?,
-                ),
-                input(&cn.encoder_hidden_states, f32_value(ehs)?),
-                input(&cn.cond, f32_value(ctrl_b)?),
-            ];
-            if let (Some(name), Some(p)) = (&cn.text_embeds, &pooled) {
-                cfeeds.push(input(name, f32_value(p.clone())?));
-            }
-            if let Some(name) = &cn.time_ids {
-                cfeeds.push(input(name, f32_value(time_ids)?));
-            }
-            let names: Vec<&str> = cn
-                .down_outputs
-                .iter()
-                .chain([&cn.mid_output])
-                .map(|s| s.as_str())
-                .collect();
-            let res = cn_graph.run(cfeeds, &names)?;
-            let targets = u.down_residuals.iter().chain(u.mid_residual.as_ref());
-            for (name, r) in targets.zip(res) {
-                feeds.push(input(name, f32_value(r.mapv(|v| v * cn.scale))?));
-            }
-        }
-
-        let out = self.unet.run(feeds, &[&u.output])?;
-        let out: Array4<f32> = out
-            .into_iter()
-            .next()
-            .expect("one output")
-            .into_dimensionality()
-            .map_err(|e| self.unet.err(format_args!("output `{}`: {e}", u.output)))?;
+        let out = cat(&parts.iter().map(|a| a.view()).collect::<Vec<_>>());
         if out.dim() != (k * b, c, h, w) {
+            let u = self.md.manifest.unet.as_ref().expect("validated");
             return Err(self.unet.err(format_args!(
                 "output `{}` has shape {:?}, expected [{}, {c}, {h}, {w}]",
                 u.output,

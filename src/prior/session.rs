@@ -30,6 +30,8 @@ pub enum Kind {
     F32(&'static [usize]),
     /// The timestep: int64 or float32, rank 0 or 1.
     Timestep,
+    /// Int64 tensor of one of these ranks (token ids).
+    I64(&'static [usize]),
 }
 
 impl Graph {
@@ -102,15 +104,16 @@ impl Graph {
                 matches!(ty, TensorElementType::Int64 | TensorElementType::Float32),
                 &[0, 1],
             ),
+            Kind::I64(r) => (ty == TensorElementType::Int64, r),
         };
         if !ok_ty {
             return Err(self.err(format_args!(
                 "{what} `{name}` has element type {ty:?}; fantasystyle feeds {} (fp16 models \
                  must keep float32 I/O: re-export with scripts/export_models.py)",
-                if matches!(kind, Kind::Timestep) {
-                    "int64 or float32"
-                } else {
-                    "float32"
+                match kind {
+                    Kind::Timestep => "int64 or float32",
+                    Kind::I64(_) => "int64",
+                    Kind::F32(_) => "float32",
                 }
             )));
         }

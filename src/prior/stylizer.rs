@@ -157,6 +157,19 @@ impl StylizerPrior {
     /// `[1, 3, H, W]` in [0, 1] (needed for [`Cond::PromptStyle`]); `threads` intra-op
     /// threads per graph (0 = onnxruntime's default).
     pub fn open(dir: &Path, style: Option<ArrayView4<'_, f32>>, threads: usize) -> Result<Self> {
+        let cfg = SessionConfig {
+            threads,
+            ..Default::default()
+        };
+        Self::open_with(dir, style, cfg)
+    }
+
+    /// [`StylizerPrior::open`] with explicit session options (threads, device).
+    pub fn open_with(
+        dir: &Path,
+        style: Option<ArrayView4<'_, f32>>,
+        cfg: SessionConfig,
+    ) -> Result<Self> {
         let mpath = dir.join("model.json");
         let text = std::fs::read_to_string(&mpath).map_err(|e| Error::io(&mpath, e))?;
         let mj: ModelJson = serde_json::from_str(&text)
@@ -173,10 +186,6 @@ impl StylizerPrior {
         let manifest = mj.stylizer;
         let schedule = Schedule::new(mj.scheduler.clone())
             .map_err(|e| Error::input(&mpath, format!("scheduler: {e}")))?;
-        let cfg = SessionConfig {
-            threads,
-            ..Default::default()
-        };
         let (sp, tr, dim) = (
             &manifest.style_predict,
             &manifest.transform,
@@ -202,6 +211,7 @@ impl StylizerPrior {
             downsample: 1,
             scheduler: mj.scheduler,
             control: Some(ControlKind::Source),
+            coinciding_style_content: None,
         };
         let mut p = StylizerPrior {
             info,

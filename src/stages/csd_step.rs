@@ -23,9 +23,10 @@
 //! `delta.npy` [N, H, W, 3] (target - render, for inspection) and PNG previews; `meta`
 //! records t, the mode and the step's statistics.
 
-use super::Threads;
+use super::{DeviceArg, Threads};
 use crate::artifacts::{read_latents, read_noised_latents, read_views};
 use crate::csd::{self, CsdParams, StepInputs};
+use crate::prior::cost::{CostModel, Plan};
 use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
@@ -58,7 +59,8 @@ pub struct Args {
     /// Style image (PNG or JPEG).
     #[arg(long)]
     pub style: PathBuf,
-    /// Text of one of the model's exported prompts (default: its first); ignored by the stylizer.
+    /// The prompt P: any text for a model with a text encoder (else one of its exported
+    /// prompts); default: the model's first exported prompt. Ignored by the stylizer.
     #[arg(long)]
     pub prompt: Option<String>,
     #[command(flatten)]
@@ -68,6 +70,13 @@ pub struct Args {
     pub out: PathBuf,
     #[command(flatten)]
     pub threads: Threads,
+    #[command(flatten)]
+    pub device: DeviceArg,
+    /// Most UNet rows per call (rows = views x conditionings; 0 = automatic: all, unless
+    /// the first level's attention scores would pass 2^31 floats, as SD 1.5 at 64x64
+    /// latents with more than 4 rows).
+    #[arg(long, default_value_t = 0)]
+    pub unet_batch: usize,
 }
 
 /// Statistics of one step (also written to the artifact's meta).
@@ -155,11 +164,14 @@ pub fn run(a: Args) -> Result<StepReport> {
                 style_image: Some(style),
                 prompt: a.prompt.clone(),
                 threads: a.threads.n,
+                device: a.device.device,
+                unet_batch: a.unet_batch,
                 ..Default::default()
             },
         )
     })?;
     let info = prior.info().clone();
+    csd::check_mode(p.mode, &info)?;
     let f = info.downsample.max(1);
     if z0.shape()[1] != info.latent_channels || h != z0.shape()[2] * f || w != z0.shape()[3] * f {
         return Err(Error::input(
@@ -183,7 +195,28 @@ pub fn run(a: Args) -> Result<StepReport> {
         None => None,
     };
 
+    // What the step will cost (diffusion models), said before it starts.
+    let (tc, sc) = csd::conds(p.mode);
+    let plan = Plan {
+        evaluations: 1,
+        batch: n * (tc.len() + sc.len()),
+        latent: (h / f, w / f),
+        downsample: f,
+        encodes: 0,
+        decodes: 2 * n,
+    };
+    let mut cost = CostModel::for_model(&a.model, a.threads.n, a.device.device)?;
+    if let Some(say) = cost.as_ref().and_then(|c| c.describe(&plan)) {
+        tracing::info!(
+            "csd-step: {n} views x {} conditionings at {}x{} latents: {say}",
+            tc.len() + sc.len(),
+            h / f,
+            w / f
+        );
+    }
+
     // The step.
+    let started = std::time::Instant::now();
     let (z1, g) = a.threads.install(|| {
         csd::step(
             prior.as_mut(),
@@ -200,9 +233,22 @@ pub fn run(a: Args) -> Result<StepReport> {
             &p,
         )
     })??;
+    let step_secs = started.elapsed().as_secs_f64();
     let both =
         concatenate(Axis(0), &[z1.view(), z0.view()]).map_err(|e| Error::Other(e.to_string()))?;
+    let started = std::time::Instant::now();
     let dec = prior.decode(both.view())?;
+    if let Some(c) = cost.as_mut() {
+        c.calibrate_unet(plan.batch, plan.latent, step_secs);
+        c.calibrate_vae(0, 2 * n, h * w, started.elapsed().as_secs_f64());
+        tracing::info!(
+            "csd-step: took {} ({:.3e} UNet and {:.3e} VAE work units/s here; see \
+             prior::cost)",
+            crate::prior::cost::about(c.seconds(&plan)),
+            c.unet_rate,
+            c.vae_rate
+        );
+    }
     if dec.shape() != [2 * n, 3, h, w] {
         return Err(Error::Other(format!(
             "decoder returned {:?}, expected [{}, 3, {h}, {w}]",

@@ -22,11 +22,12 @@ use crate::artifacts::{
     CHECKPOINT_ADAM_DC, CHECKPOINT_ADAM_REST, CHECKPOINT_HISTORY, CHECKPOINT_STATE, load_scene,
     read_checkpoint, read_views,
 };
-use crate::csd::CsdParams;
+use crate::csd::{self, CsdParams};
 use crate::distill::{DistillParams, Distiller, SourceViews};
 use crate::imageio::{MIN_STYLE_SIDE, load_style};
 use crate::mvfc::MvfcParams;
 use crate::optim::OptimizerState;
+use crate::prior::cost::{CostModel, Plan, about};
 use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::TimestepSet;
 use crate::{Error, Result, Scene};
@@ -66,7 +67,9 @@ pub struct Args {
     /// Style image (PNG or JPEG, shorter side >= 64 px).
     #[arg(long)]
     pub style: PathBuf,
-    /// Text prompt (models with text conditioning; ignored by the stylizer).
+    /// The prompt P: any text for a model with a text encoder (else one of its exported
+    /// prompts); empty or absent: the model's first exported prompt. Ignored by the
+    /// stylizer.
     #[arg(long)]
     pub prompt: Option<String>,
     /// Iterations to run in this process (0: only write the checkpoint).
@@ -116,6 +119,12 @@ pub struct Args {
     pub out: PathBuf,
     #[command(flatten)]
     pub threads: super::Threads,
+    #[command(flatten)]
+    pub device: super::DeviceArg,
+    /// Most UNet rows per call (rows = views x conditionings; 0 = automatic, see
+    /// csd-step --unet-batch).
+    #[arg(long, default_value_t = 0)]
+    pub unet_batch: usize,
 }
 
 fn parse_timesteps(spec: &str, model: &crate::scheduler::SchedulerConfig) -> Result<TimestepSet> {
@@ -224,13 +233,41 @@ pub fn run(a: Args) -> Result<()> {
                 &a.model,
                 &PriorOptions {
                     style_image: Some(style.to_chw().insert_axis(Axis(0))),
-                    prompt: a.prompt.clone(),
+                    prompt: a.prompt.clone().filter(|p| !p.is_empty()),
                     threads: a.threads.n,
                     strength: Some(a.strength),
+                    device: a.device.device,
+                    unet_batch: a.unet_batch,
                     ..Default::default()
                 },
             )
         })?;
+        // A model whose style and content conditionings coincide cannot run csd.
+        csd::check_mode(a.csd.mode, prior.info())?;
+        let info = prior.info().clone();
+        let f = info.downsample.max(1);
+        let (tc, sc) = csd::conds(a.csd.mode);
+        let per_iter = a.views_per_iter.min(n);
+        let plan = |iters: u64| Plan {
+            evaluations: iters as usize,
+            batch: per_iter * (tc.len() + sc.len()),
+            latent: (h / f, w / f),
+            downsample: f,
+            encodes: iters as usize * per_iter,
+            decodes: iters as usize * 2 * per_iter,
+        };
+        // What the run will cost (diffusion models), said before it starts.
+        let cost = CostModel::for_model(&a.model, a.threads.n, a.device.device)?;
+        if let Some(say) = cost.as_ref().and_then(|c| c.describe(&plan(a.iters))) {
+            tracing::info!(
+                "distill: {} iterations of {per_iter} views x {} conditionings at {}x{} \
+                 latents: {say}",
+                a.iters,
+                tc.len() + sc.len(),
+                h / f,
+                w / f
+            );
+        }
         let set = match &a.timesteps {
             Some(spec) => parse_timesteps(spec, &prior.info().scheduler)?,
             None => model_set,
@@ -264,8 +301,30 @@ pub fn run(a: Args) -> Result<()> {
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
             );
             let mut reports = Vec::with_capacity(a.iters as usize);
-            for _ in 0..a.iters {
+            for k in 0..a.iters {
+                let started = std::time::Instant::now();
                 let r = d.iterate()?;
+                if k == 0 && a.iters > 1 {
+                    // The estimate, calibrated: the first iteration timed here.
+                    let s = started.elapsed().as_secs_f64();
+                    let model = cost
+                        .as_ref()
+                        .map(|c| {
+                            format!(
+                                " (the graphs' size predicted {} for it)",
+                                about(c.seconds(&plan(1)))
+                            )
+                        })
+                        .unwrap_or_default();
+                    bar.suspend(|| {
+                        tracing::info!(
+                            "distill: the first iteration took {s:.2} s{model}; the other {}: \
+                             {} on this machine",
+                            a.iters - 1,
+                            about(s * (a.iters - 1) as f64)
+                        )
+                    });
+                }
                 bar.set_message(format!("distill t={:3} loss {:.4}", r.timestep, r.loss));
                 bar.inc(1);
                 reports.push(r);
@@ -299,6 +358,7 @@ pub fn run(a: Args) -> Result<()> {
             "csd": a.csd, "lr_dc": a.lr_dc, "mvfc": !a.no_mvfc, "mvfc_source": a.mvfc_source, "gamma": a.mvfc.gamma,
             "d_s": a.mvfc.d_s, "d_t": a.mvfc.d_t, "timesteps": a.timesteps,
             "fill": !a.no_fill, "seed": a.seed, "prompt": a.prompt, "format": a.format,
+            "device": a.device.device.to_string(), "unet_batch": a.unet_batch,
         }),
     );
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;

@@ -7,7 +7,7 @@
 //! artifact: `latents.npy` `[N, C, H/f, W/f]` f32 plus the views' `cameras.json`. The
 //! inputs recorded are the views artifact and the model's `model.json`.
 
-use super::Threads;
+use super::{DeviceArg, Threads};
 use crate::artifacts::read_view_images;
 use crate::prior::manifest::ModelManifest;
 use crate::prior::{self, PriorOptions};
@@ -33,6 +33,8 @@ pub struct Args {
     pub out: PathBuf,
     #[command(flatten)]
     pub threads: Threads,
+    #[command(flatten)]
+    pub device: DeviceArg,
     /// Views per VAE call (0 = all at once; lower it to bound memory with real VAEs).
     #[arg(long, default_value_t = 4)]
     pub batch: usize,
@@ -63,6 +65,7 @@ pub fn run(p: Args) -> Result<[usize; 4]> {
     let opts = PriorOptions {
         threads: p.threads.n,
         optimization: Optimization::All,
+        device: p.device.device,
         ..Default::default()
     };
     let mut prior = crate::timing::load(|| prior::open(&md.dir, &opts))?;

@@ -9,7 +9,7 @@
 //!
 //! Flags several stages share are clap groups flattened into their `Args`:
 //! [`SceneInput`] (`--scene`, `--cameras`), [`Background`] (`--background`) and
-//! [`Threads`] (`--threads`); a stage's own numerics parameters are the library's
+//! [`Threads`] (`--threads`), [`DeviceArg`] (`--device`); a stage's own numerics parameters are the library's
 //! parameter structs flattened the same way (`csd::CsdParams`, `mvfc::MvfcParams`).
 //! A stage never imports another stage: what two stages need lives in the library
 //! (artifact readers in [`crate::artifacts`], model lookup in [`crate::models`], phase
@@ -126,6 +126,15 @@ impl Threads {
     pub fn install<T: Send>(self, f: impl FnOnce() -> T + Send) -> Result<T> {
         with_threads(self.n, f)
     }
+}
+
+/// `--device`: where a model's ONNX graphs run.
+#[derive(clap::Args, Debug, Clone, Copy, Default)]
+pub struct DeviceArg {
+    /// Execution provider of the model's graphs: cpu, cuda[:N] or tensorrt[:N] (GPU N;
+    /// needs onnxruntime's GPU build, see README "Running on a GPU").
+    #[arg(long = "device", value_name = "DEVICE", default_value = "cpu")]
+    pub device: crate::runtime::Device,
 }
 
 /// Run `f` on a rayon pool of `threads` threads (0 = all cores).

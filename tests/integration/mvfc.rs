@@ -369,13 +369,19 @@ fn mvfc_filter_stage_rejects_bad_input() {
 }
 
 /// Build views, latents and noised latents for a csd-step run in `d`.
-fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) -> PathBuf {
+pub(crate) fn csd_inputs(
+    d: &Path,
+    model: &Path,
+    views: &Array4<f32>,
+    style: &Array4<f32>,
+) -> PathBuf {
     write_views(&d.join("views"), views);
     encode_latents::run(encode_latents::Args {
         views: d.join("views"),
         model: model.to_path_buf(),
         out: d.join("lat"),
         threads: Threads::new(1),
+        device: Default::default(),
         batch: 0,
     })
     .unwrap();
@@ -397,7 +403,7 @@ fn csd_inputs(d: &Path, model: &Path, views: &Array4<f32>, style: &Array4<f32>) 
     sp
 }
 
-fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd_step::Args {
+pub(crate) fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd_step::Args {
     csd_step::Args {
         noised: d.join("noised"),
         latents: d.join("lat"),
@@ -413,6 +419,8 @@ fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd_step::Args
         },
         out: d.join("targets"),
         threads: Threads::new(1),
+        device: Default::default(),
+        unet_batch: 0,
     }
 }
 
