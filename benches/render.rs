@@ -207,8 +207,8 @@ fn case_profile(scene_name: &str, size: u32) -> serde_json::Value {
     let ts = 16usize;
     for t in 0..frame.tiles_x * frame.tiles_y {
         let y0 = (t / frame.tiles_x) * ts;
-        for &g in &frame.tile_list[frame.tile_start[t] as usize..frame.tile_start[t + 1] as usize] {
-            let r = frame.splats.rows[g as usize];
+        for &g in frame.tile(t) {
+            let r = frame.splats.recs[g as usize].rows;
             let a = (r[0] as usize).max(y0);
             let b = (r[1] as usize).min(y0 + ts);
             row_evals += b.saturating_sub(a);

@@ -40,6 +40,7 @@ pub mod metrics;
 pub mod models;
 pub mod mvfc;
 pub mod optim;
+pub mod parallel;
 pub mod prior;
 pub mod render;
 pub mod rng;

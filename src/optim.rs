@@ -14,7 +14,7 @@
 //! per-view losses' gradients (divided by the number of views) and updates once; the
 //! loss recorded per step is the mean over views before the update.
 
-use crate::render::backward::{colour_grad_uncached, sh_backward};
+use crate::render::backward::{ViewGrad, colour_grad_uncached, sh_backward_views};
 use crate::render::{
     CacheMode, ViewCache, clamp_colours, composite, project, raw_colours, validate_camera,
     validate_scene,
@@ -40,35 +40,76 @@ fn gauss_window() -> [f32; WIN] {
     k
 }
 
-/// Separable 11-tap Gaussian blur of an `[h, w]` plane with zero padding (same size).
-/// The kernel is symmetric, so this operator is its own transpose.
-fn blur(src: &[f32], h: usize, w: usize, k: &[f32; WIN], tmp: &mut [f32], out: &mut [f32]) {
-    // Horizontal: each row is copied into a zero-padded buffer, then accumulated tap by
-    // tap over the whole row (a loop over x that vectorises).
-    tmp.par_chunks_mut(w).zip(src.par_chunks(w)).for_each_init(
-        || vec![0.0f32; w + 2 * HALF],
-        |pad, (t, s)| {
-            pad[HALF..HALF + w].copy_from_slice(s);
-            t.fill(0.0);
-            for (j, &kv) in k.iter().enumerate() {
-                for (a, b) in t.iter_mut().zip(&pad[j..j + w]) {
-                    *a += kv * b;
+/// Rows per parallel task of the pixel loops (a few thousand pixels per task at
+/// typical sizes; the results do not depend on it).
+const ROWS: usize = 8;
+/// Pixels per chunk of the f64 loss sums: partial sums of fixed chunks, added in chunk
+/// order, so the loss is the same for any thread count.
+const SUM_CHUNK: usize = 1 << 14;
+
+/// Separable 11-tap Gaussian blur of an `[h, w]` plane with zero padding (same size);
+/// row `y` of the source is written by `src(y, row)`, so that products of planes need
+/// no buffer of their own. The kernel is symmetric, so this operator is its own
+/// transpose. Parallel over bands of rows; each output value is computed the same way
+/// whatever the thread count.
+fn blur_with(
+    src: impl Fn(usize, &mut [f32]) + Sync,
+    h: usize,
+    w: usize,
+    k: &[f32; WIN],
+    tmp: &mut [f32],
+    out: &mut [f32],
+) {
+    // Horizontal: each row is written into a zero-padded buffer, then accumulated tap
+    // by tap over the whole row (a loop over x that vectorises).
+    tmp[..h * w]
+        .par_chunks_mut(w * ROWS)
+        .enumerate()
+        .for_each_init(
+            || vec![0.0f32; w + 2 * HALF],
+            |pad, (band, t)| {
+                for (r, t) in t.chunks_mut(w).enumerate() {
+                    src(band * ROWS + r, &mut pad[HALF..HALF + w]);
+                    t.fill(0.0);
+                    for (j, &kv) in k.iter().enumerate() {
+                        for (a, b) in t.iter_mut().zip(&pad[j..j + w]) {
+                            *a += kv * b;
+                        }
+                    }
+                }
+            },
+        );
+    let tmp = &tmp[..h * w];
+    out[..h * w]
+        .par_chunks_mut(w * ROWS)
+        .enumerate()
+        .for_each(|(band, o)| {
+            for (r, o) in o.chunks_mut(w).enumerate() {
+                let y = band * ROWS + r;
+                o.fill(0.0);
+                let lo = y.saturating_sub(HALF);
+                let hi = (y + HALF + 1).min(h);
+                for yy in lo..hi {
+                    let kv = k[yy + HALF - y];
+                    let row = &tmp[yy * w..(yy + 1) * w];
+                    for (a, b) in o.iter_mut().zip(row) {
+                        *a += kv * b;
+                    }
                 }
             }
-        },
+        });
+}
+
+/// [`blur_with`] of a plane.
+fn blur(src: &[f32], h: usize, w: usize, k: &[f32; WIN], tmp: &mut [f32], out: &mut [f32]) {
+    blur_with(
+        |y, row| row.copy_from_slice(&src[y * w..(y + 1) * w]),
+        h,
+        w,
+        k,
+        tmp,
+        out,
     );
-    out.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
-        o.fill(0.0);
-        let lo = y.saturating_sub(HALF);
-        let hi = (y + HALF + 1).min(h);
-        for yy in lo..hi {
-            let kv = k[yy + HALF - y];
-            let row = &tmp[yy * w..(yy + 1) * w];
-            for (a, b) in o.iter_mut().zip(row) {
-                *a += kv * b;
-            }
-        }
-    });
 }
 
 /// Loss weights and options.
@@ -76,6 +117,32 @@ fn blur(src: &[f32], h: usize, w: usize, k: &[f32; WIN], tmp: &mut [f32], out: &
 pub struct LossParams {
     /// lambda of the D-SSIM term, in [0, 1].
     pub ssim_weight: f32,
+}
+
+/// The planes [`loss_and_grad_into`] works in, kept between calls so that a fit does
+/// not fault in fresh memory for every view of every step.
+#[derive(Debug, Default)]
+pub struct LossScratch {
+    /// Masked render and target, planar `[3][h w]`.
+    x: Vec<f32>,
+    y: Vec<f32>,
+    /// dL/d(masked render), planar.
+    gp: Vec<f32>,
+    tmp: Vec<f32>,
+    /// mu_x, mu_y, E[x^2], E[y^2], E[xy]; then the SSIM partials and their blurs.
+    maps: [Vec<f32>; 6],
+}
+
+impl LossScratch {
+    fn resize(&mut self, npix: usize) {
+        for v in [&mut self.x, &mut self.y, &mut self.gp] {
+            v.resize(3 * npix, 0.0);
+        }
+        self.tmp.resize(npix, 0.0);
+        for m in &mut self.maps {
+            m.resize(npix, 0.0);
+        }
+    }
 }
 
 /// `(loss, dL/drender)` for `render` and `target` (`[h, w, 3]`), with an optional
@@ -88,81 +155,169 @@ pub fn loss_and_grad(
     w: usize,
     p: LossParams,
 ) -> (f32, Vec<f32>) {
+    let mut grad = vec![0.0f32; h * w * 3];
+    let loss = loss_and_grad_into(
+        &mut LossScratch::default(),
+        render,
+        target,
+        mask,
+        h,
+        w,
+        p,
+        &mut grad,
+    );
+    (loss, grad)
+}
+
+/// [`loss_and_grad`] with reusable planes, writing the gradient into `grad`
+/// (`[h, w, 3]`, every value overwritten). Parallel over bands of pixels; the same bits
+/// for any thread count.
+pub fn loss_and_grad_into(
+    s: &mut LossScratch,
+    render: &[f32],
+    target: &[f32],
+    mask: Option<&[f32]>,
+    h: usize,
+    w: usize,
+    p: LossParams,
+    grad: &mut [f32],
+) -> f32 {
     let npix = h * w;
     let n = (npix * 3) as f32;
     let lambda = p.ssim_weight;
-    let m = |i: usize| mask.map_or(1.0, |m| m[i / 3]);
-    // Masked images, planar per channel.
-    let mut x = vec![0.0f32; npix * 3];
-    let mut y = vec![0.0f32; npix * 3];
-    for i in 0..npix * 3 {
-        let c = i % 3;
-        let pix = i / 3;
-        x[c * npix + pix] = m(i) * render[i];
-        y[c * npix + pix] = m(i) * target[i];
-    }
-    let mut grad_planar = vec![0.0f32; npix * 3];
-    let mut l1 = 0.0f64;
-    for i in 0..npix * 3 {
-        let d = x[i] - y[i];
-        l1 += d.abs() as f64;
-        grad_planar[i] = (1.0 - lambda) * d.signum() * if d == 0.0 { 0.0 } else { 1.0 } / n;
-    }
+    s.resize(npix);
+    let m = |pix: usize| mask.map_or(1.0, |m| m[pix]);
+    // Masked images, planar per channel; the L1 term and its gradient.
+    let l1: f64 = {
+        let [x0, x1, x2] = planes(&mut s.x, npix);
+        let [y0, y1, y2] = planes(&mut s.y, npix);
+        let [g0, g1, g2] = planes(&mut s.gp, npix);
+        let sums: Vec<f64> = x0
+            .par_chunks_mut(SUM_CHUNK)
+            .zip(x1.par_chunks_mut(SUM_CHUNK))
+            .zip(x2.par_chunks_mut(SUM_CHUNK))
+            .zip(y0.par_chunks_mut(SUM_CHUNK))
+            .zip(y1.par_chunks_mut(SUM_CHUNK))
+            .zip(y2.par_chunks_mut(SUM_CHUNK))
+            .zip(g0.par_chunks_mut(SUM_CHUNK))
+            .zip(g1.par_chunks_mut(SUM_CHUNK))
+            .zip(g2.par_chunks_mut(SUM_CHUNK))
+            .enumerate()
+            .map(|(c, ((((((((x0, x1), x2), y0), y1), y2), g0), g1), g2))| {
+                let (xs, ys, gs) = ([x0, x1, x2], [y0, y1, y2], [g0, g1, g2]);
+                let mut l1 = 0.0f64;
+                let base = c * SUM_CHUNK;
+                for k in 0..xs[0].len() {
+                    let pix = base + k;
+                    let mk = m(pix);
+                    for ch in 0..3 {
+                        let i = pix * 3 + ch;
+                        let (xv, yv) = (mk * render[i], mk * target[i]);
+                        let d = xv - yv;
+                        l1 += d.abs() as f64;
+                        xs[ch][k] = xv;
+                        ys[ch][k] = yv;
+                        gs[ch][k] =
+                            (1.0 - lambda) * d.signum() * if d == 0.0 { 0.0 } else { 1.0 } / n;
+                    }
+                }
+                l1
+            })
+            .collect();
+        sums.iter().sum()
+    };
     let mut ssim_sum = 0.0f64;
     if lambda > 0.0 {
         let k = gauss_window();
-        let mut tmp = vec![0.0f32; npix];
-        let mut maps: Vec<Vec<f32>> = (0..5).map(|_| vec![0.0f32; npix]).collect();
-        let mut prod = vec![0.0f32; npix];
-        let mut d_mx = vec![0.0f32; npix];
-        let mut d_pxx = vec![0.0f32; npix];
-        let mut d_pxy = vec![0.0f32; npix];
         for c in 0..3 {
-            let xs = &x[c * npix..(c + 1) * npix];
-            let ys = &y[c * npix..(c + 1) * npix];
-            let [mx, my, pxx, pyy, pxy] = &mut maps[..] else {
-                unreachable!()
-            };
-            blur(xs, h, w, &k, &mut tmp, mx);
-            blur(ys, h, w, &k, &mut tmp, my);
-            prod.iter_mut().zip(xs).for_each(|(p, a)| *p = a * a);
-            blur(&prod, h, w, &k, &mut tmp, pxx);
-            prod.iter_mut().zip(ys).for_each(|(p, a)| *p = a * a);
-            blur(&prod, h, w, &k, &mut tmp, pyy);
-            prod.iter_mut()
-                .zip(xs.iter().zip(ys))
-                .for_each(|(p, (a, b))| *p = a * b);
-            blur(&prod, h, w, &k, &mut tmp, pxy);
-            // S = A1 A2 / (B1 B2) and its partials w.r.t. mu_x, E[x^2], E[xy].
+            let xs = &s.x[c * npix..(c + 1) * npix];
+            let ys = &s.y[c * npix..(c + 1) * npix];
+            let tmp = &mut s.tmp;
+            let [mx, my, pxx, pyy, pxy, b6] = &mut s.maps;
+            blur(xs, h, w, &k, tmp, mx);
+            blur(ys, h, w, &k, tmp, my);
+            blur_with(
+                |y, r: &mut [f32]| {
+                    for (o, a) in r.iter_mut().zip(&xs[y * w..(y + 1) * w]) {
+                        *o = a * a;
+                    }
+                },
+                h,
+                w,
+                &k,
+                tmp,
+                pxx,
+            );
+            blur_with(
+                |y, r: &mut [f32]| {
+                    for (o, a) in r.iter_mut().zip(&ys[y * w..(y + 1) * w]) {
+                        *o = a * a;
+                    }
+                },
+                h,
+                w,
+                &k,
+                tmp,
+                pyy,
+            );
+            blur_with(
+                |y, r: &mut [f32]| {
+                    let (a, b) = (&xs[y * w..(y + 1) * w], &ys[y * w..(y + 1) * w]);
+                    for (o, (a, b)) in r.iter_mut().zip(a.iter().zip(b)) {
+                        *o = a * b;
+                    }
+                },
+                h,
+                w,
+                &k,
+                tmp,
+                pxy,
+            );
+            // S = A1 A2 / (B1 B2) and its partials w.r.t. mu_x, E[x^2], E[xy], written
+            // over mu_x, E[x^2] and E[xy] (each is read at the same pixel first).
             let g = -lambda / n;
-            let mut s_sum = 0.0f64;
-            for i in 0..npix {
-                let (ux, uy) = (mx[i], my[i]);
-                let a1 = 2.0 * ux * uy + SSIM_C1;
-                let a2 = 2.0 * (pxy[i] - ux * uy) + SSIM_C2;
-                let b1 = ux * ux + uy * uy + SSIM_C1;
-                let b2 = (pxx[i] - ux * ux) + (pyy[i] - uy * uy) + SSIM_C2;
-                let den = b1 * b2;
-                let s = a1 * a2 / den;
-                s_sum += s as f64;
-                d_mx[i] = g
-                    * ((2.0 * uy * a2 - 2.0 * uy * a1) / den - s * 2.0 * ux / b1
-                        + s * 2.0 * ux / b2);
-                d_pxx[i] = g * (-s / b2);
-                d_pxy[i] = g * (2.0 * a1 / den);
-            }
-            ssim_sum += s_sum;
+            let sums: Vec<f64> = mx
+                .par_chunks_mut(SUM_CHUNK)
+                .zip(my.par_chunks(SUM_CHUNK))
+                .zip(pxx.par_chunks_mut(SUM_CHUNK))
+                .zip(pyy.par_chunks(SUM_CHUNK))
+                .zip(pxy.par_chunks_mut(SUM_CHUNK))
+                .map(|((((mx, my), pxx), pyy), pxy)| {
+                    let mut s_sum = 0.0f64;
+                    for i in 0..mx.len() {
+                        let (ux, uy) = (mx[i], my[i]);
+                        let a1 = 2.0 * ux * uy + SSIM_C1;
+                        let a2 = 2.0 * (pxy[i] - ux * uy) + SSIM_C2;
+                        let b1 = ux * ux + uy * uy + SSIM_C1;
+                        let b2 = (pxx[i] - ux * ux) + (pyy[i] - uy * uy) + SSIM_C2;
+                        let den = b1 * b2;
+                        let s = a1 * a2 / den;
+                        s_sum += s as f64;
+                        mx[i] = g
+                            * ((2.0 * uy * a2 - 2.0 * uy * a1) / den - s * 2.0 * ux / b1
+                                + s * 2.0 * ux / b2);
+                        pxx[i] = g * (-s / b2);
+                        pxy[i] = g * (2.0 * a1 / den);
+                    }
+                    s_sum
+                })
+                .collect();
+            ssim_sum += sums.iter().sum::<f64>();
             // Back through the blurs (self-adjoint) and the products.
-            let [bmx, bpxx, bpxy, _, _] = &mut maps[..] else {
-                unreachable!()
-            };
-            blur(&d_mx, h, w, &k, &mut tmp, bmx);
-            blur(&d_pxx, h, w, &k, &mut tmp, bpxx);
-            blur(&d_pxy, h, w, &k, &mut tmp, bpxy);
-            let gp = &mut grad_planar[c * npix..(c + 1) * npix];
-            for i in 0..npix {
-                gp[i] += bmx[i] + 2.0 * xs[i] * bpxx[i] + ys[i] * bpxy[i];
-            }
+            blur(mx, h, w, &k, tmp, my);
+            blur(pxx, h, w, &k, tmp, pyy);
+            blur(pxy, h, w, &k, tmp, b6);
+            let (bmx, bpxx, bpxy) = (&*my, &*pyy, &*b6);
+            s.gp[c * npix..(c + 1) * npix]
+                .par_chunks_mut(SUM_CHUNK)
+                .enumerate()
+                .for_each(|(ci, gp)| {
+                    let o = ci * SUM_CHUNK;
+                    for (j, g) in gp.iter_mut().enumerate() {
+                        let i = o + j;
+                        *g += bmx[i] + 2.0 * xs[i] * bpxx[i] + ys[i] * bpxy[i];
+                    }
+                });
         }
     }
     let ssim = if lambda > 0.0 {
@@ -172,11 +327,27 @@ pub fn loss_and_grad(
     };
     let loss = (1.0 - lambda as f64) * l1 / n as f64 + lambda as f64 * (1.0 - ssim);
     // Back to interleaved, through the mask.
-    let mut grad = vec![0.0f32; npix * 3];
-    for i in 0..npix * 3 {
-        grad[i] = m(i) * grad_planar[(i % 3) * npix + i / 3];
-    }
-    (loss as f32, grad)
+    let gp = &s.gp;
+    grad[..npix * 3]
+        .par_chunks_mut(3 * SUM_CHUNK)
+        .enumerate()
+        .for_each(|(ci, out)| {
+            for (j, px) in out.chunks_mut(3).enumerate() {
+                let pix = ci * SUM_CHUNK + j;
+                let mk = m(pix);
+                for (ch, g) in px.iter_mut().enumerate() {
+                    *g = mk * gp[ch * npix + pix];
+                }
+            }
+        });
+    loss as f32
+}
+
+/// The three `npix` planes of a planar `[3][npix]` buffer.
+fn planes(v: &mut [f32], npix: usize) -> [&mut [f32]; 3] {
+    let (a, rest) = v.split_at_mut(npix);
+    let (b, c) = rest.split_at_mut(npix);
+    [a, b, &mut c[..npix]]
 }
 
 /// Mean SSIM of two `[h, w, 3]` images (3DGS window).
@@ -439,6 +610,58 @@ pub fn fit_colours(
 /// A per-view loss for [`ColourFit::step_with`]: `(view, rgb, alpha) -> (loss, dL/drgb)`.
 pub type ViewLoss<'a> = dyn FnMut(usize, &[f32], Option<&[f32]>) -> Result<(f64, Vec<f32>)> + 'a;
 
+/// A view's loss inside a step: `loss(v, bufs, rgb, alpha)` reads the render from
+/// `rgb`, or from `bufs.rgb` when `rgb` is `None` (cached views render into the
+/// buffers), and leaves dL/drgb in `bufs.grad`.
+type StepLoss<'a> =
+    dyn Fn(usize, &mut ViewBufs, Option<&[f32]>, Option<&[f32]>) -> Result<f64> + Sync + 'a;
+/// The same, called one view at a time.
+type SeqLoss<'a> =
+    dyn FnMut(usize, &mut ViewBufs, Option<&[f32]>, Option<&[f32]>) -> Result<f64> + 'a;
+
+/// How a step calls the per-view loss: on all cores, or view after view in order (a
+/// caller's hook that is not thread-safe).
+enum Losses<'a, 'b> {
+    Parallel(&'a StepLoss<'b>),
+    InOrder(&'a mut SeqLoss<'b>),
+}
+
+/// Image buffers of one view's step: the render (cached views), dL/drgb, the loss planes.
+#[derive(Debug, Default)]
+struct ViewBufs {
+    rgb: Vec<f32>,
+    grad: Vec<f32>,
+    loss: LossScratch,
+}
+
+/// A view's share of a step, until it is added into the SH gradients.
+struct ViewGradOwned<'a> {
+    loss: f64,
+    ids: std::borrow::Cow<'a, [u32]>,
+    centre: [f32; 3],
+    raw: Vec<[f32; 3]>,
+    grad_c: Vec<[f32; 3]>,
+}
+
+/// Buffers handed out to one task at a time and taken back, so that a fit reuses its
+/// memory across views and steps (fresh multi-megabyte buffers fault in new pages every
+/// time). Which buffer a view gets does not matter: every use overwrites it.
+#[derive(Debug, Default)]
+struct Pool<T>(std::sync::Mutex<Vec<T>>);
+
+impl<T: Default> Pool<T> {
+    fn take(&self) -> T {
+        self.0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .pop()
+            .unwrap_or_default()
+    }
+    fn put(&self, t: T) {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).push(t);
+    }
+}
+
 /// The state of a colour fit: per-view caches (or not), Adam moments, the current
 /// scene. [`fit_colours`] drives it; benchmarks time [`ColourFit::step`] alone.
 pub struct ColourFit<'a> {
@@ -452,6 +675,8 @@ pub struct ColourFit<'a> {
     adam_rest: Adam,
     grad_dc: Vec<[f32; 3]>,
     grad_rest: Vec<f32>,
+    /// Per-view image buffers, reused across views and steps.
+    bufs: Pool<ViewBufs>,
     losses: Vec<f32>,
     cached_views: usize,
     cache_bytes: usize,
@@ -489,31 +714,39 @@ impl<'a> ColourFit<'a> {
         let mut states = Vec::with_capacity(cameras.len());
         let mut cache_bytes = 0usize;
         let mut any_visible = false;
-        for cam in cameras {
-            let cache = ViewCache::from_frame(&project(scene, cam));
-            if cache.blends() == 0 {
-                tracing::warn!("camera {:?}: no Gaussian is visible", cam.name);
-            } else {
-                any_visible = true;
-            }
-            let keep = match p.cache {
-                CacheMode::On => true,
-                CacheMode::Off => false,
-                CacheMode::Budget(b) => cache_bytes + cache.bytes() <= b,
-            };
-            if keep {
-                cache_bytes += cache.bytes();
-                let alpha = if p.mask_alpha {
-                    cache.alpha()
+        // Views are projected and composited a window at a time on all cores; which
+        // caches are kept is decided in view order, as before.
+        let window = crate::parallel::window_for(rayon::current_num_threads());
+        for win in cameras.chunks(window) {
+            let caches: Vec<ViewCache> = win
+                .par_iter()
+                .map(|cam| ViewCache::from_frame(&project(scene, cam)))
+                .collect();
+            for (cam, cache) in win.iter().zip(caches) {
+                if cache.blends() == 0 {
+                    tracing::warn!("camera {:?}: no Gaussian is visible", cam.name);
                 } else {
-                    Vec::new()
+                    any_visible = true;
+                }
+                let keep = match p.cache {
+                    CacheMode::On => true,
+                    CacheMode::Off => false,
+                    CacheMode::Budget(b) => cache_bytes + cache.bytes() <= b,
                 };
-                states.push(ViewState::Cached {
-                    cache: Box::new(cache),
-                    alpha,
-                });
-            } else {
-                states.push(ViewState::Uncached);
+                if keep {
+                    cache_bytes += cache.bytes();
+                    let alpha = if p.mask_alpha {
+                        cache.alpha()
+                    } else {
+                        Vec::new()
+                    };
+                    states.push(ViewState::Cached {
+                        cache: Box::new(cache),
+                        alpha,
+                    });
+                } else {
+                    states.push(ViewState::Uncached);
+                }
             }
         }
         if !any_visible {
@@ -548,6 +781,7 @@ impl<'a> ColourFit<'a> {
             adam_rest: Adam::new(n * k * 3, p.lr_rest),
             grad_dc: vec![[0.0; 3]; n],
             grad_rest: vec![0.0; n * k * 3],
+            bufs: Pool::default(),
             losses: Vec::new(),
             cached_views,
             cache_bytes,
@@ -560,6 +794,8 @@ impl<'a> ColourFit<'a> {
     }
 
     /// One Adam step over all views; returns the mean loss over views before the update.
+    /// Views are processed in parallel; losses and gradients are added in view order,
+    /// so the result is the same for any thread count.
     pub fn step(&mut self) -> f32 {
         let lp = LossParams {
             ssim_weight: self.params.ssim_weight,
@@ -568,12 +804,19 @@ impl<'a> ColourFit<'a> {
         let targets = self
             .targets
             .expect("ColourFit::step needs the targets given to ColourFit::new");
-        let mut loss = |v: usize, rgb: &[f32], alpha: Option<&[f32]>| -> Result<(f64, Vec<f32>)> {
+        let loss = |v: usize, b: &mut ViewBufs, rgb: Option<&[f32]>, alpha: Option<&[f32]>| {
             let (h, w) = (cameras[v].height as usize, cameras[v].width as usize);
-            let (l, g) = loss_and_grad(rgb, &targets[v], alpha, h, w, lp);
-            Ok((l as f64, g))
+            let ViewBufs {
+                loss,
+                rgb: own,
+                grad,
+            } = b;
+            let rgb = rgb.unwrap_or(own);
+            grad.resize(h * w * 3, 0.0);
+            Ok(loss_and_grad_into(loss, rgb, &targets[v], alpha, h, w, lp, grad) as f64)
         };
-        self.step_with(&mut loss)
+        let all: Vec<usize> = (0..self.cameras.len()).collect();
+        self.step_over(&all, Losses::Parallel(&loss))
             .expect("the L1 + D-SSIM loss cannot fail") as f32
     }
 
@@ -582,68 +825,150 @@ impl<'a> ColourFit<'a> {
     /// `view_loss(v, rgb, alpha)` gets camera `v`'s render `[H, W, 3]` (and its alpha
     /// when `mask_alpha` is set) and returns the loss and dL/d(rgb); the gradient is
     /// chained through the colour backward pass. Returns the mean loss over views before
-    /// the update; the targets given to [`ColourFit::new`] are not used.
+    /// the update; the targets given to [`ColourFit::new`] are not used. The hook is
+    /// called view after view, in order.
     pub fn step_with(&mut self, view_loss: &mut ViewLoss<'_>) -> Result<f64> {
+        let mut loss = |v: usize, b: &mut ViewBufs, rgb: Option<&[f32]>, alpha: Option<&[f32]>| {
+            let rgb = rgb.unwrap_or(&b.rgb);
+            let (l, g) = view_loss(v, rgb, alpha)?;
+            b.grad = g;
+            Ok(l)
+        };
         let all: Vec<usize> = (0..self.cameras.len()).collect();
-        self.step_views(&all, view_loss)
+        self.step_over(&all, Losses::InOrder(&mut loss))
     }
 
     /// One Adam step over the cameras `views` only (indices into the cameras given to
     /// [`Self::new`]): the per-view losses' gradients are summed, divided by
     /// `views.len()`, and applied once. Returns the mean loss over `views` before the
     /// update. Distillation ([`crate::distill`]) steps on a few adjacent views at a time.
+    /// The hook is called view after view, in the order of `views`.
     pub fn step_views(&mut self, views: &[usize], view_loss: &mut ViewLoss<'_>) -> Result<f64> {
+        let mut loss = |v: usize, b: &mut ViewBufs, rgb: Option<&[f32]>, alpha: Option<&[f32]>| {
+            let rgb = rgb.unwrap_or(&b.rgb);
+            let (l, g) = view_loss(v, rgb, alpha)?;
+            b.grad = g;
+            Ok(l)
+        };
+        self.step_over(views, Losses::InOrder(&mut loss))
+    }
+
+    /// One step: for every view (in parallel or in order, see [`Losses`]), colours,
+    /// render, the loss (which leaves dL/drgb in the buffers' `grad`), colour and SH
+    /// backward; then the Adam update.
+    fn step_over(&mut self, views: &[usize], mut losses: Losses<'_, '_>) -> Result<f64> {
         if views.is_empty() || views.iter().any(|&v| v >= self.cameras.len()) {
             return Err(Error::param(format!(
                 "step_views: views {views:?} for {} cameras",
                 self.cameras.len()
             )));
         }
-        let p = &self.params;
-        let out = &self.scene;
-        let (grad_dc, grad_rest) = (&mut self.grad_dc, &mut self.grad_rest);
-        grad_dc.iter_mut().for_each(|g| *g = [0.0; 3]);
-        grad_rest.iter_mut().for_each(|g| *g = 0.0);
+        let nv = views.len();
+        let mut grad_dc = std::mem::take(&mut self.grad_dc);
+        let mut grad_rest = std::mem::take(&mut self.grad_rest);
+        grad_dc.par_iter_mut().for_each(|g| *g = [0.0; 3]);
+        grad_rest.par_iter_mut().for_each(|g| *g = 0.0);
         let mut loss_sum = 0.0f64;
-        for &v in views {
-            let (cam, state) = (&self.cameras[v], &self.states[v]);
-            let centre = cam.center();
-            match state {
-                ViewState::Cached { cache, alpha } => {
-                    let ids = cache.gaussians();
-                    let raw = raw_colours(out, ids, centre);
-                    let rgb = cache.forward(&clamp_colours(&raw), p.background);
-                    let mask = p.mask_alpha.then_some(&alpha[..]);
-                    let (l, g) = view_loss(v, &rgb, mask)?;
-                    loss_sum += l;
-                    let gc = cache.backward(&g);
-                    sh_backward(out, ids, centre, &raw, &gc, grad_dc, grad_rest);
+        // A window of views at a time: their colour gradients (two floats triples per
+        // visible Gaussian) are held until added, so memory stays bounded.
+        let window = crate::parallel::window_for(rayon::current_num_threads()).max(8);
+        let mut first_err = None;
+        for chunk in views.chunks(window) {
+            let outs: Vec<Result<ViewGradOwned<'_>>> = match &mut losses {
+                Losses::Parallel(f) => chunk
+                    .par_iter()
+                    .map(|&v| self.view_grad(v, &mut |v, b, rgb, alpha| f(v, b, rgb, alpha)))
+                    .collect(),
+                Losses::InOrder(f) => chunk.iter().map(|&v| self.view_grad(v, &mut **f)).collect(),
+            };
+            let outs: Vec<ViewGradOwned<'_>> = match outs.into_iter().collect() {
+                Ok(o) => o,
+                Err(e) => {
+                    first_err = Some(e);
+                    break;
                 }
-                ViewState::Uncached => {
-                    let frame = project(out, cam);
-                    let ids = &frame.splats.ids;
-                    let raw = raw_colours(out, ids, centre);
-                    let r = composite(&frame, &clamp_colours(&raw), p.background);
-                    let mask = p.mask_alpha.then_some(&r.alpha[..]);
-                    let (l, g) = view_loss(v, &r.rgb, mask)?;
-                    loss_sum += l;
-                    let gc = colour_grad_uncached(&frame, &g);
-                    sh_backward(out, ids, centre, &raw, &gc, grad_dc, grad_rest);
-                }
+            };
+            for o in &outs {
+                loss_sum += o.loss;
             }
+            let views: Vec<ViewGrad<'_>> = outs
+                .iter()
+                .map(|o| ViewGrad {
+                    ids: &o.ids,
+                    centre: o.centre,
+                    raw: &o.raw,
+                    grad_c: &o.grad_c,
+                })
+                .collect();
+            sh_backward_views(&self.scene, &views, &mut grad_dc, &mut grad_rest);
         }
-        let nv = views.len() as f32;
-        let gdc: Vec<f32> = grad_dc.iter().flatten().map(|g| g / nv).collect();
-        grad_rest.iter_mut().for_each(|g| *g /= nv);
+        if let Some(e) = first_err {
+            self.grad_dc = grad_dc;
+            self.grad_rest = grad_rest;
+            return Err(e);
+        }
+        let nvf = nv as f32;
+        let gdc: Vec<f32> = grad_dc
+            .par_iter()
+            .flat_map_iter(|g| g.map(|x| x / nvf))
+            .collect();
+        grad_rest.par_iter_mut().for_each(|g| *g /= nvf);
         self.adam_dc.step(&mut self.dc, &gdc);
-        self.adam_rest.step(&mut self.scene.sh_rest, grad_rest);
+        self.adam_rest.step(&mut self.scene.sh_rest, &grad_rest);
         let dc = &self.dc;
-        for (i, c) in self.scene.sh_dc.iter_mut().enumerate() {
-            *c = [dc[i * 3], dc[i * 3 + 1], dc[i * 3 + 2]];
-        }
-        let loss = loss_sum / views.len() as f64;
+        self.scene
+            .sh_dc
+            .par_iter_mut()
+            .zip(dc.par_chunks(3))
+            .for_each(|(c, d)| *c = [d[0], d[1], d[2]]);
+        self.grad_dc = grad_dc;
+        self.grad_rest = grad_rest;
+        let loss = loss_sum / nv as f64;
         self.losses.push(loss as f32);
         Ok(loss)
+    }
+
+    /// Forward, loss and colour backward of view `v`.
+    fn view_grad<'s>(&'s self, v: usize, loss: &mut SeqLoss<'_>) -> Result<ViewGradOwned<'s>> {
+        let p = &self.params;
+        let out = &self.scene;
+        let cam = &self.cameras[v];
+        let centre = cam.center();
+        let mut b = self.bufs.take();
+        let r = match &self.states[v] {
+            ViewState::Cached { cache, alpha } => {
+                let ids = cache.gaussians();
+                let raw = raw_colours(out, ids, centre);
+                b.rgb.resize(cache.width * cache.height * 3, 0.0);
+                cache.forward_into(&clamp_colours(&raw), p.background, &mut b.rgb);
+                let mask = p.mask_alpha.then_some(&alpha[..]);
+                loss(v, &mut b, None, mask).map(|l| ViewGradOwned {
+                    loss: l,
+                    ids: std::borrow::Cow::Borrowed(ids),
+                    centre,
+                    grad_c: cache.backward(&b.grad),
+                    raw,
+                })
+            }
+            ViewState::Uncached => {
+                let frame = project(out, cam);
+                let raw = raw_colours(out, &frame.splats.ids, centre);
+                let r = composite(&frame, &clamp_colours(&raw), p.background);
+                let mask = p.mask_alpha.then_some(&r.alpha[..]);
+                loss(v, &mut b, Some(&r.rgb), mask).map(|l| {
+                    let grad_c = colour_grad_uncached(&frame, &b.grad);
+                    ViewGradOwned {
+                        loss: l,
+                        ids: std::borrow::Cow::Owned(frame.splats.ids),
+                        centre,
+                        grad_c,
+                        raw,
+                    }
+                })
+            }
+        };
+        self.bufs.put(b);
+        r
     }
 
     /// Camera `v`'s render `[H, W, 3]` with the current colours (the cached forward

@@ -446,10 +446,10 @@ fn sample_dag_is_valid() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for s in [
         "source-views",
-        "source-latents",
-        "init-scene",
-        "csd-step@r1",
-        "update-gaussians@r2",
+        "init",
+        "distill@c1",
+        "distill@c4",
+        "final-scene",
         "final-views",
         "evaluate",
     ] {

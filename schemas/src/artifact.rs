@@ -8,28 +8,60 @@
 //! presence of required files and every file's blake3 before anything is read.
 
 use crate::manifest::{FORMAT, canonical_json};
-use crate::npy::{NpyArray, NpyElement, decode_npy, encode_npy};
+use crate::npy::{NpyArray, NpyElement, NpyReader, decode_npy, encode_npy};
 use crate::{
     ArtifactKind, FileEntry, InputRef, MANIFEST_FILE, Manifest, Producer, Result, SchemaError,
 };
 use std::fs;
 use std::path::{Path, PathBuf};
 
-/// blake3 of a file's bytes, as hex.
+/// blake3 of a file's bytes, as hex. Large files are read in 4 MiB pieces, each hashed
+/// on all cores (blake3's tree makes the digest independent of how it is computed).
 pub fn hash_file(path: &Path) -> Result<String> {
+    use std::io::Read;
+    let mut f = fs::File::open(path).map_err(|e| SchemaError::io(path, e))?;
     let mut h = blake3::Hasher::new();
-    h.update_from_file(path)?;
+    let mut buf = vec![0u8; 4 << 20];
+    loop {
+        let n = match f.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(SchemaError::io(path, e)),
+        };
+        hash_update(&mut h, &buf[..n]);
+    }
     Ok(h.finalize().to_hex().to_string())
 }
 
-trait HashFile {
-    fn update_from_file(&mut self, path: &Path) -> Result<()>;
+/// Write `bytes` at byte offset `at` of `file`: on Unix in 1 MiB pieces written in
+/// parallel (positional writes do not move a shared cursor), elsewhere in one piece.
+fn write_at(file: &fs::File, bytes: &[u8], at: u64) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use rayon::prelude::*;
+        use std::os::unix::fs::FileExt;
+        const PIECE: usize = 1 << 20;
+        bytes
+            .par_chunks(PIECE)
+            .enumerate()
+            .try_for_each(|(k, c)| file.write_all_at(c, at + (k * PIECE) as u64))
+    }
+    #[cfg(not(unix))]
+    {
+        use std::io::{Seek, SeekFrom, Write};
+        let mut f = file;
+        f.seek(SeekFrom::Start(at))?;
+        f.write_all(bytes)
+    }
 }
-impl HashFile for blake3::Hasher {
-    fn update_from_file(&mut self, path: &Path) -> Result<()> {
-        let mut f = fs::File::open(path).map_err(|e| SchemaError::io(path, e))?;
-        std::io::copy(&mut f, self).map_err(|e| SchemaError::io(path, e))?;
-        Ok(())
+
+/// Feed `bytes` to `h`, in parallel when they are large enough to pay for it.
+pub(crate) fn hash_update(h: &mut blake3::Hasher, bytes: &[u8]) {
+    if bytes.len() >= 1 << 20 {
+        h.update_rayon(bytes);
+    } else {
+        h.update(bytes);
     }
 }
 
@@ -85,8 +117,80 @@ pub struct ArtifactWriter {
     producer: Producer,
     inputs: Vec<InputRef>,
     files: Vec<FileEntry>,
+    /// Names of tensors being streamed (reserved, not finished yet).
+    streaming: Vec<String>,
     meta: serde_json::Value,
     committed: bool,
+}
+
+/// A tensor written into an artifact piece by piece along its first axis (say view by
+/// view), so that the producer never holds all of it: the header is written when the
+/// stream starts (the shape is known), data is appended in C order, hashed as it goes
+/// and written into the artifact's staging directory, so the artifact stays atomic.
+/// Start with [`ArtifactWriter::stream_tensor`], end with [`ArtifactWriter::finish_stream`];
+/// the bytes are exactly those [`ArtifactWriter::write_tensor`] writes for the whole
+/// tensor, and so is the manifest entry. Each append hashes (on all cores) and writes
+/// (in 1 MiB pieces at their offsets, in parallel, on Unix) at the same time, so that a
+/// producer on many cores is not held up by one thread copying into the page cache.
+#[derive(Debug)]
+pub struct TensorStream<T> {
+    name: String,
+    path: PathBuf,
+    file: fs::File,
+    hasher: blake3::Hasher,
+    shape: Vec<usize>,
+    /// Elements still expected.
+    left: usize,
+    bytes: u64,
+    buf: Vec<u8>,
+    _t: std::marker::PhantomData<T>,
+}
+
+impl<T: NpyElement> TensorStream<T> {
+    /// Append `data` (C order, continuing where the last append stopped).
+    pub fn append(&mut self, data: &[T]) -> Result<()> {
+        let mut buf = std::mem::take(&mut self.buf);
+        buf.clear();
+        T::extend_le(data, &mut buf);
+        let r = self.append_le_bytes(&buf);
+        self.buf = buf;
+        r
+    }
+
+    /// Append elements already encoded as little-endian bytes (see
+    /// [`NpyElement::extend_le`]), e.g. by worker threads.
+    pub fn append_le_bytes(&mut self, bytes: &[u8]) -> Result<()> {
+        let size = T::DTYPE.size();
+        if !bytes.len().is_multiple_of(size) {
+            return Err(SchemaError::invalid(
+                &self.path,
+                format!("{} bytes are not whole {} elements", bytes.len(), T::DTYPE),
+            ));
+        }
+        let n = bytes.len() / size;
+        if n > self.left {
+            return Err(SchemaError::invalid(
+                &self.path,
+                format!(
+                    "{} more elements than shape {:?} holds",
+                    n - self.left,
+                    self.shape
+                ),
+            ));
+        }
+        let (hasher, file, at) = (&mut self.hasher, &self.file, self.bytes);
+        let ((), written) =
+            rayon::join(|| hash_update(hasher, bytes), || write_at(file, bytes, at));
+        written.map_err(|e| SchemaError::io(&self.path, e))?;
+        self.left -= n;
+        self.bytes += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Elements still to append.
+    pub fn remaining(&self) -> usize {
+        self.left
+    }
 }
 
 impl ArtifactWriter {
@@ -123,6 +227,7 @@ impl ArtifactWriter {
             producer,
             inputs: Vec::new(),
             files: Vec::new(),
+            streaming: Vec::new(),
             meta: serde_json::Value::Null,
             committed: false,
         })
@@ -206,13 +311,86 @@ impl ArtifactWriter {
         let bytes = encode_npy(shape, data);
         let p = self.tmp.join(name);
         fs::write(&p, &bytes).map_err(|e| SchemaError::io(&p, e))?;
+        let mut h = blake3::Hasher::new();
+        hash_update(&mut h, &bytes);
         self.files.push(FileEntry {
             name: name.to_string(),
-            blake3: blake3::hash(&bytes).to_hex().to_string(),
+            blake3: h.finalize().to_hex().to_string(),
             bytes: bytes.len() as u64,
             dtype: Some(T::DTYPE),
             shape: Some(shape.to_vec()),
         });
+        Ok(())
+    }
+
+    /// Start streaming a tensor `name` of `shape` (see [`TensorStream`]).
+    pub fn stream_tensor<T: NpyElement>(
+        &mut self,
+        name: &str,
+        shape: &[usize],
+    ) -> Result<TensorStream<T>> {
+        use std::io::Write;
+        self.check_name(name)?;
+        let p = self.tmp.join(name);
+        let left = shape
+            .iter()
+            .try_fold(1usize, |a, &s| a.checked_mul(s))
+            .ok_or_else(|| SchemaError::invalid(&p, format!("shape {shape:?} overflows")))?;
+        let header = crate::npy::npy_header(T::DTYPE, shape);
+        let mut file = fs::File::create(&p).map_err(|e| SchemaError::io(&p, e))?;
+        file.write_all(&header)
+            .map_err(|e| SchemaError::io(&p, e))?;
+        let mut hasher = blake3::Hasher::new();
+        hasher.update(&header);
+        self.streaming.push(name.to_string());
+        // The manifest lists files in the order they were started; the entry is filled
+        // in by `finish_stream`.
+        self.files.push(FileEntry {
+            name: name.to_string(),
+            blake3: String::new(),
+            bytes: 0,
+            dtype: Some(T::DTYPE),
+            shape: Some(shape.to_vec()),
+        });
+        Ok(TensorStream {
+            name: name.to_string(),
+            path: p,
+            file,
+            hasher,
+            shape: shape.to_vec(),
+            left,
+            bytes: header.len() as u64,
+            buf: Vec::new(),
+            _t: std::marker::PhantomData,
+        })
+    }
+
+    /// Finish a stream: every element must have been appended. The file joins the
+    /// manifest with its hash, size, dtype and shape.
+    pub fn finish_stream<T: NpyElement>(&mut self, s: TensorStream<T>) -> Result<()> {
+        let Some(i) = self.streaming.iter().position(|n| *n == s.name) else {
+            return Err(SchemaError::invalid(
+                &s.path,
+                "this stream does not belong to this artifact",
+            ));
+        };
+        if s.left != 0 {
+            return Err(SchemaError::invalid(
+                &s.path,
+                format!(
+                    "stream ended {} elements short of shape {:?}",
+                    s.left, s.shape
+                ),
+            ));
+        }
+        self.streaming.swap_remove(i);
+        let entry = self
+            .files
+            .iter_mut()
+            .find(|f| f.name == s.name)
+            .expect("a started stream has its manifest entry");
+        entry.blake3 = s.hasher.finalize().to_hex().to_string();
+        entry.bytes = s.bytes;
         Ok(())
     }
 
@@ -221,9 +399,11 @@ impl ArtifactWriter {
         self.check_name(name)?;
         let p = self.tmp.join(name);
         fs::write(&p, bytes).map_err(|e| SchemaError::io(&p, e))?;
+        let mut h = blake3::Hasher::new();
+        hash_update(&mut h, bytes);
         self.files.push(FileEntry {
             name: name.to_string(),
-            blake3: blake3::hash(bytes).to_hex().to_string(),
+            blake3: h.finalize().to_hex().to_string(),
             bytes: bytes.len() as u64,
             dtype: None,
             shape: None,
@@ -262,6 +442,12 @@ impl ArtifactWriter {
 
     /// Write the manifest and move the artifact into place, replacing any previous one.
     pub fn commit(mut self) -> Result<Manifest> {
+        if let Some(n) = self.streaming.first() {
+            return Err(SchemaError::invalid(
+                self.tmp.join(n),
+                "tensor stream was started but not finished",
+            ));
+        }
         for req in self.kind.required_files() {
             if !self.files.iter().any(|f| f.name == *req) {
                 return Err(SchemaError::invalid(
@@ -287,12 +473,19 @@ impl ArtifactWriter {
             .map_err(|e| SchemaError::invalid(&mpath, e.to_string()))?;
         b.push(b'\n');
         fs::write(&mpath, &b).map_err(|e| SchemaError::io(&mpath, e))?;
-        // fsync files so that a crash after the rename never exposes empty files.
+        // fsync files so that a crash after the rename never exposes empty files (in
+        // parallel: the device queues the writes of many files at once).
+        let mut paths = Vec::new();
         for f in fs::read_dir(&self.tmp).map_err(|e| SchemaError::io(&self.tmp, e))? {
-            let p = f.map_err(|e| SchemaError::io(&self.tmp, e))?.path();
-            if let Ok(file) = fs::File::open(&p) {
-                let _ = file.sync_all();
-            }
+            paths.push(f.map_err(|e| SchemaError::io(&self.tmp, e))?.path());
+        }
+        {
+            use rayon::prelude::*;
+            paths.par_iter().for_each(|p| {
+                if let Ok(file) = fs::File::open(p) {
+                    let _ = file.sync_all();
+                }
+            });
         }
         let backup = if self.target.exists() {
             let b = crate::atomic::temp_sibling(&self.target, "old");
@@ -443,10 +636,32 @@ impl Artifact {
         Ok(a)
     }
 
+    /// Open tensor `name` for reading item by item along its first axis (see
+    /// [`NpyReader`]), checking its dtype and shape against the manifest.
+    pub fn tensor_reader<T: NpyElement>(&self, name: &str) -> Result<NpyReader<T>> {
+        let p = self.path(name);
+        let entry = self
+            .manifest
+            .file(name)
+            .ok_or_else(|| SchemaError::invalid(&p, "not listed in the artifact's manifest"))?;
+        let r = NpyReader::<T>::open(&p)?;
+        if let Some(shape) = entry.shape.as_ref().filter(|s| s[..] != *r.shape()) {
+            return Err(SchemaError::invalid(
+                &p,
+                format!(
+                    "shape {:?} differs from the manifest's {:?}",
+                    r.shape(),
+                    shape
+                ),
+            ));
+        }
+        Ok(r)
+    }
+
     /// Read an `f32` tensor and refuse NaN or infinity.
     pub fn read_f32(&self, name: &str) -> Result<NpyArray<f32>> {
         let a = self.read_tensor::<f32>(name)?;
-        if let Some(i) = a.data.iter().position(|x| !x.is_finite()) {
+        if let Some(i) = crate::npy::first_non_finite(&a.data) {
             return Err(SchemaError::Npy {
                 path: self.path(name),
                 reason: format!("element {i} is {} (NaN or infinity not allowed)", a.data[i]),
@@ -565,6 +780,75 @@ mod tests {
             ArtifactWriter::create(&d.path().join("v"), ArtifactKind::Views, producer()).unwrap();
         let e = w.commit().unwrap_err().to_string();
         assert!(e.contains("rgb.npy"), "{e}");
+    }
+
+    #[test]
+    fn streamed_tensor_equals_written_tensor() {
+        let d = tempfile::tempdir().unwrap();
+        // Larger than the 1 MiB threshold of the parallel hash.
+        let data: Vec<f32> = (0..3 * 300_000).map(|i| (i as f32).sin()).collect();
+        let whole = d.path().join("whole");
+        let mut w = ArtifactWriter::create(&whole, ArtifactKind::Latents, producer()).unwrap();
+        w.write_tensor("latents.npy", &[3, 300_000], &data).unwrap();
+        let a = w.commit().unwrap();
+        let streamed = d.path().join("streamed");
+        let mut w = ArtifactWriter::create(&streamed, ArtifactKind::Latents, producer()).unwrap();
+        let mut s = w
+            .stream_tensor::<f32>("latents.npy", &[3, 300_000])
+            .unwrap();
+        // Files written while the stream is open are listed after it.
+        w.write_bytes("notes.txt", b"x").unwrap();
+        for piece in data.chunks(400_000) {
+            s.append(piece).unwrap();
+        }
+        assert_eq!(s.remaining(), 0);
+        assert!(
+            s.append(&[1.0])
+                .unwrap_err()
+                .to_string()
+                .contains("1 more elements")
+        );
+        w.finish_stream(s).unwrap();
+        let b = w.commit().unwrap();
+        assert_eq!(a.files[..], b.files[..1]);
+        assert_eq!(b.files[1].name, "notes.txt");
+        assert_eq!(
+            fs::read(whole.join("latents.npy")).unwrap(),
+            fs::read(streamed.join("latents.npy")).unwrap()
+        );
+        assert_eq!(
+            a.files[0].blake3,
+            hash_file(&streamed.join("latents.npy")).unwrap()
+        );
+        let art = Artifact::open(&streamed, ArtifactKind::Latents).unwrap();
+        let mut r = art.tensor_reader::<f32>("latents.npy").unwrap();
+        let mut v = Vec::new();
+        r.read_items(3, &mut v).unwrap();
+        assert_eq!(v, data);
+    }
+
+    #[test]
+    fn unfinished_or_short_streams_are_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let t = d.path().join("lat");
+        let mut w = ArtifactWriter::create(&t, ArtifactKind::Latents, producer()).unwrap();
+        let mut s = w.stream_tensor::<f32>("latents.npy", &[2, 2]).unwrap();
+        // The name is reserved while streaming.
+        assert!(w.write_tensor("latents.npy", &[1], &[0f32]).is_err());
+        s.append(&[1.0, 2.0, 3.0]).unwrap();
+        let e = w.finish_stream(s).unwrap_err().to_string();
+        assert!(
+            e.contains("1 elements short") && e.contains("latents.npy"),
+            "{e}"
+        );
+        let e = w.commit().unwrap_err().to_string();
+        assert!(
+            e.contains("not finished") && e.contains("latents.npy"),
+            "{e}"
+        );
+        // Nothing was put in place, no staging directory is left.
+        assert!(!t.exists());
+        assert_eq!(fs::read_dir(d.path()).unwrap().count(), 0);
     }
 
     #[test]

@@ -4,10 +4,12 @@
 //! ([`Manifest`]) and tensors as NumPy `.npy` files (so anyone can `np.load` an
 //! intermediate latent), plus free-form files such as PNG previews or camera JSON.
 //!
-//! * [`npy`]: reading and writing `.npy` (format 1.0 to 3.0, little-endian, C order).
+//! * [`npy`]: reading and writing `.npy` (format 1.0 to 3.0, little-endian, C order),
+//!   whole or item by item along the first axis ([`NpyReader`]).
 //! * [`manifest`]: the manifest, artifact kinds and their schema versions.
 //! * [`artifact`]: [`ArtifactWriter`] (write into a temporary sibling, then rename into
-//!   place) and [`Artifact`] (open, check kind, version and hashes, read tensors).
+//!   place; tensors whole or streamed piece by piece, [`TensorStream`]) and [`Artifact`]
+//!   (open, check kind, version and hashes, read tensors whole or item by item).
 //! * [`atomic`]: single-file atomic writes (temporary sibling, fsync, rename).
 //!
 //! This crate has no dependency on onnxruntime or on the numerical core, so the DAG
@@ -18,10 +20,10 @@ pub mod atomic;
 pub mod manifest;
 pub mod npy;
 
-pub use artifact::{Artifact, ArtifactWriter, hash_file, hash_path};
+pub use artifact::{Artifact, ArtifactWriter, TensorStream, hash_file, hash_path};
 pub use atomic::{atomic_write, atomic_write_json};
 pub use manifest::{ArtifactKind, FileEntry, InputRef, MANIFEST_FILE, Manifest, Producer};
-pub use npy::{DType, NpyArray, NpyElement, read_npy, read_npy_f32, write_npy};
+pub use npy::{DType, NpyArray, NpyElement, NpyReader, read_npy, read_npy_f32, write_npy};
 
 use std::path::PathBuf;
 

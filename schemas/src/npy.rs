@@ -66,10 +66,15 @@ impl std::fmt::Display for DType {
 }
 
 /// A Rust element type that maps to a NumPy dtype.
-pub trait NpyElement: Copy + Default + 'static {
+pub trait NpyElement: Copy + Default + Send + Sync + 'static {
     const DTYPE: DType;
     fn write_le(self, out: &mut Vec<u8>);
     fn read_le(b: &[u8]) -> Self;
+    /// Append the little-endian bytes of `data` to `out` (a copy on little-endian
+    /// machines: the loop compiles to a memcpy-like move).
+    fn extend_le(data: &[Self], out: &mut Vec<u8>);
+    /// Decode `bytes` (a multiple of the element size) into `out`.
+    fn decode_le(bytes: &[u8], out: &mut Vec<Self>);
 }
 
 macro_rules! elem {
@@ -81,6 +86,22 @@ macro_rules! elem {
             }
             fn read_le(b: &[u8]) -> Self {
                 <$t>::from_le_bytes(b.try_into().expect("slice length equals element size"))
+            }
+            fn extend_le(data: &[Self], out: &mut Vec<u8>) {
+                const S: usize = std::mem::size_of::<$t>();
+                let start = out.len();
+                out.resize(start + data.len() * S, 0);
+                for (b, x) in out[start..].chunks_exact_mut(S).zip(data) {
+                    b.copy_from_slice(&x.to_le_bytes());
+                }
+            }
+            fn decode_le(bytes: &[u8], out: &mut Vec<Self>) {
+                const S: usize = std::mem::size_of::<$t>();
+                out.extend(
+                    bytes
+                        .chunks_exact(S)
+                        .map(|b| <$t>::from_le_bytes(b.try_into().expect("element size"))),
+                );
             }
         }
     };
@@ -110,14 +131,9 @@ impl<T> NpyArray<T> {
 
 const MAGIC: &[u8] = b"\x93NUMPY";
 
-/// Encode a tensor as `.npy` bytes. Panics only if `data.len()` differs from the product
-/// of `shape` (a programming error, not an input error).
-pub fn encode_npy<T: NpyElement>(shape: &[usize], data: &[T]) -> Vec<u8> {
-    assert_eq!(
-        shape.iter().product::<usize>(),
-        data.len(),
-        "npy: data length does not match shape"
-    );
+/// The `.npy` header (magic, version, dictionary, padding) of a tensor of `dtype` and
+/// `shape`; its length is a multiple of 64.
+pub fn npy_header(dtype: DType, shape: &[usize]) -> Vec<u8> {
     let shape_str = match shape.len() {
         0 => "()".to_string(),
         1 => format!("({},)", shape[0]),
@@ -132,7 +148,7 @@ pub fn encode_npy<T: NpyElement>(shape: &[usize], data: &[T]) -> Vec<u8> {
     };
     let dict = format!(
         "{{'descr': '{}', 'fortran_order': False, 'shape': {}, }}",
-        T::DTYPE.descr(),
+        dtype.descr(),
         shape_str
     );
     // Header: magic(6) + version(2) + len(2 or 4) + dict + padding + '\n', total % 64 == 0.
@@ -144,7 +160,7 @@ pub fn encode_npy<T: NpyElement>(shape: &[usize], data: &[T]) -> Vec<u8> {
     let pre = MAGIC.len() + 2 + len_bytes;
     let total = (pre + dict.len() + 1).div_ceil(64) * 64;
     let hlen = total - pre;
-    let mut out = Vec::with_capacity(total + data.len() * T::DTYPE.size());
+    let mut out = Vec::with_capacity(total);
     out.extend_from_slice(MAGIC);
     out.push(major);
     out.push(0);
@@ -156,9 +172,20 @@ pub fn encode_npy<T: NpyElement>(shape: &[usize], data: &[T]) -> Vec<u8> {
     out.extend_from_slice(dict.as_bytes());
     out.resize(total - 1, b' ');
     out.push(b'\n');
-    for &x in data {
-        x.write_le(&mut out);
-    }
+    out
+}
+
+/// Encode a tensor as `.npy` bytes. Panics only if `data.len()` differs from the product
+/// of `shape` (a programming error, not an input error).
+pub fn encode_npy<T: NpyElement>(shape: &[usize], data: &[T]) -> Vec<u8> {
+    assert_eq!(
+        shape.iter().product::<usize>(),
+        data.len(),
+        "npy: data length does not match shape"
+    );
+    let mut out = npy_header(T::DTYPE, shape);
+    out.reserve_exact(data.len() * T::DTYPE.size());
+    T::extend_le(data, &mut out);
     out
 }
 
@@ -279,20 +306,174 @@ pub fn decode_npy<T: NpyElement>(path: &Path, bytes: &[u8]) -> Result<NpyArray<T
             ),
         });
     }
-    let data = body.chunks_exact(sz).map(T::read_le).collect();
-    Ok(NpyArray { shape, data })
+    Ok(NpyArray {
+        shape,
+        data: decode_body::<T>(body),
+    })
+}
+
+/// Decode little-endian elements, in parallel pieces when there are many.
+fn decode_body<T: NpyElement>(body: &[u8]) -> Vec<T> {
+    use rayon::prelude::*;
+    const PIECE: usize = 1 << 16;
+    let sz = T::DTYPE.size();
+    let mut data = vec![T::default(); body.len() / sz];
+    data.par_chunks_mut(PIECE)
+        .zip(body.par_chunks(PIECE * sz))
+        .for_each(|(d, b)| {
+            for (x, c) in d.iter_mut().zip(b.chunks_exact(sz)) {
+                *x = T::read_le(c);
+            }
+        });
+    data
 }
 
 /// Read an `f32` tensor, checking it has no NaN or infinity.
 pub fn read_npy_f32(path: &Path) -> Result<NpyArray<f32>> {
     let a = read_npy::<f32>(path)?;
-    if let Some(i) = a.data.iter().position(|x| !x.is_finite()) {
+    if let Some(i) = first_non_finite(&a.data) {
         return Err(SchemaError::Npy {
             path: path.to_path_buf(),
             reason: format!("element {i} is {} (NaN or infinity not allowed)", a.data[i]),
         });
     }
     Ok(a)
+}
+
+/// Index of the first NaN or infinity (searched in parallel).
+pub(crate) fn first_non_finite(v: &[f32]) -> Option<usize> {
+    use rayon::prelude::*;
+    v.par_iter().position_first(|x| !x.is_finite())
+}
+
+/// A `.npy` file read in pieces along its first axis (say one view of `[N, H, W, 3]`
+/// at a time), so that a reader holds a few items instead of the whole tensor. The
+/// header, dtype and file length are checked on [`NpyReader::open`].
+#[derive(Debug)]
+pub struct NpyReader<T> {
+    path: std::path::PathBuf,
+    file: std::io::BufReader<std::fs::File>,
+    shape: Vec<usize>,
+    item: usize,
+    next: usize,
+    buf: Vec<u8>,
+    _t: std::marker::PhantomData<T>,
+}
+
+impl<T: NpyElement> NpyReader<T> {
+    /// Open `path`, whose dtype must be `T`'s and whose rank must be at least 1.
+    pub fn open(path: &Path) -> Result<Self> {
+        use std::io::Read;
+        let io = |e| SchemaError::io(path, e);
+        let f = std::fs::File::open(path).map_err(io)?;
+        let len = f.metadata().map_err(io)?.len();
+        let mut file = std::io::BufReader::with_capacity(1 << 20, f);
+        // Magic, version and the header length, then the header itself.
+        let mut head = vec![0u8; 12.min(len as usize)];
+        file.read_exact(&mut head).map_err(io)?;
+        let (hlen, start) = match head.get(6) {
+            Some(1) if head.len() >= 10 => (u16::from_le_bytes([head[8], head[9]]) as usize, 10),
+            Some(2 | 3) if head.len() >= 12 => (
+                u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as usize,
+                12,
+            ),
+            _ => (0, 0),
+        };
+        let end = start + hlen;
+        if end > head.len() && (end as u64) <= len {
+            let mut rest = vec![0u8; end - head.len()];
+            file.read_exact(&mut rest).map_err(io)?;
+            head.extend_from_slice(&rest);
+        }
+        let (dtype, shape, off) = parse_header(path, &head)?;
+        if dtype != T::DTYPE {
+            return Err(SchemaError::Npy {
+                path: path.to_path_buf(),
+                reason: format!("dtype is {dtype}, expected {}", T::DTYPE),
+            });
+        }
+        if shape.is_empty() {
+            return Err(SchemaError::Npy {
+                path: path.to_path_buf(),
+                reason: "a scalar cannot be read item by item".into(),
+            });
+        }
+        let n = shape.iter().try_fold(1usize, |a, &s| a.checked_mul(s));
+        let need = n.and_then(|n| n.checked_mul(dtype.size()));
+        let body = len.saturating_sub(off as u64);
+        if need.map(|b| b as u64) != Some(body) {
+            return Err(SchemaError::Npy {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "shape {shape:?} needs {} data bytes, file has {body} (truncated or padded)",
+                    need.map_or("too many".to_string(), |b| b.to_string())
+                ),
+            });
+        }
+        let item = shape[1..].iter().product();
+        Ok(NpyReader {
+            path: path.to_path_buf(),
+            file,
+            shape,
+            item,
+            next: 0,
+            buf: Vec::new(),
+            _t: std::marker::PhantomData,
+        })
+    }
+
+    /// The tensor's shape.
+    pub fn shape(&self) -> &[usize] {
+        &self.shape
+    }
+
+    /// Elements per item (the product of the shape after the first axis).
+    pub fn item_len(&self) -> usize {
+        self.item
+    }
+
+    /// Items not read yet.
+    pub fn remaining(&self) -> usize {
+        self.shape[0] - self.next
+    }
+
+    /// Replace `out` with the next `k` items (at most [`Self::remaining`]).
+    pub fn read_items(&mut self, k: usize, out: &mut Vec<T>) -> Result<()> {
+        use std::io::Read;
+        if k > self.remaining() {
+            return Err(SchemaError::invalid(
+                &self.path,
+                format!("asked for {k} items, {} remain", self.remaining()),
+            ));
+        }
+        self.buf.resize(k * self.item * T::DTYPE.size(), 0);
+        self.file
+            .read_exact(&mut self.buf)
+            .map_err(|e| SchemaError::io(&self.path, e))?;
+        out.clear();
+        T::decode_le(&self.buf, out);
+        self.next += k;
+        Ok(())
+    }
+}
+
+impl NpyReader<f32> {
+    /// [`Self::read_items`], refusing NaN and infinity (naming the element).
+    pub fn read_items_finite(&mut self, k: usize, out: &mut Vec<f32>) -> Result<()> {
+        let first = self.next * self.item;
+        self.read_items(k, out)?;
+        if let Some(i) = out.iter().position(|x| !x.is_finite()) {
+            return Err(SchemaError::Npy {
+                path: self.path.clone(),
+                reason: format!(
+                    "element {} is {} (NaN or infinity not allowed)",
+                    first + i,
+                    out[i]
+                ),
+            });
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]
@@ -350,5 +531,51 @@ mod tests {
         write_npy(&p, &[2], &[1.0f32, f32::NAN]).unwrap();
         let e = read_npy_f32(&p).unwrap_err().to_string();
         assert!(e.contains("NaN"), "{e}");
+    }
+
+    #[test]
+    fn reader_reads_items_in_pieces_and_checks_the_file() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("v.npy");
+        let data: Vec<f32> = (0..5 * 2 * 3).map(|i| i as f32).collect();
+        write_npy(&p, &[5, 2, 3], &data).unwrap();
+        let mut r = NpyReader::<f32>::open(&p).unwrap();
+        assert_eq!(
+            (r.shape(), r.item_len(), r.remaining()),
+            (&[5, 2, 3][..], 6, 5)
+        );
+        let mut got = Vec::new();
+        let mut all = Vec::new();
+        for k in [2, 1, 2] {
+            r.read_items_finite(k, &mut got).unwrap();
+            assert_eq!(got.len(), k * 6);
+            all.extend_from_slice(&got);
+        }
+        assert_eq!(all, data);
+        assert!(
+            r.read_items(1, &mut got)
+                .unwrap_err()
+                .to_string()
+                .contains("0 remain")
+        );
+        // Truncated, wrong dtype, NaN.
+        let mut b = std::fs::read(&p).unwrap();
+        b.truncate(b.len() - 4);
+        std::fs::write(&p, &b).unwrap();
+        let e = NpyReader::<f32>::open(&p).unwrap_err().to_string();
+        assert!(e.contains("v.npy") && e.contains("truncated"), "{e}");
+        write_npy(&p, &[2], &[1.0f64, 2.0]).unwrap();
+        assert!(
+            NpyReader::<f32>::open(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("dtype is f64")
+        );
+        write_npy(&p, &[2, 1], &[1.0f32, f32::NAN]).unwrap();
+        let mut r = NpyReader::<f32>::open(&p).unwrap();
+        let e = r.read_items_finite(2, &mut got).unwrap_err().to_string();
+        assert!(e.contains("element 1") && e.contains("NaN"), "{e}");
+        std::fs::write(&p, b"\x93NUMPY").unwrap();
+        assert!(NpyReader::<f32>::open(&p).is_err());
     }
 }

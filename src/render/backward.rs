@@ -14,7 +14,7 @@
 
 use super::Frame;
 use super::project::TILE;
-use super::raster::{Plane, Sink, TileState, composite_tile};
+use super::raster::{HALF, Plane, Sink, TileState, composite_tile};
 use super::sh;
 use crate::Scene;
 use rayon::prelude::*;
@@ -24,21 +24,32 @@ pub(crate) struct GradSink<'a> {
     /// Tile-local gradient planes dL/dC (R, G, B).
     pub grad: [Plane; 3],
     pub out: &'a mut Vec<(u32, [f32; 3])>,
+    /// The current splat's sum, pixels in row-major order.
+    sum: [f32; 3],
 }
 
 impl Sink for GradSink<'_> {
     #[inline(always)]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
-        let mut s = [0.0f32; 3];
-        for r in r0..r1 {
-            for c in c0..c1 {
-                let wp = w[r][c];
-                s[0] += wp * self.grad[0][r][c];
-                s[1] += wp * self.grad[1][r][c];
-                s[2] += wp * self.grad[2][r][c];
-            }
+    fn begin(&mut self, _local: u32, _slot: usize) {
+        self.sum = [0.0; 3];
+    }
+
+    #[inline(always)]
+    fn half(&mut self, r: usize, h: usize, w: &[f32; HALF]) {
+        // Half rows that are not reported have zero weight; leaving them out of the sum
+        // changes no bit (the sum starts at +0 and the gradients are finite).
+        let s = &mut self.sum;
+        for (c, &wp) in w.iter().enumerate() {
+            let x = h * HALF + c;
+            s[0] += wp * self.grad[0][r][x];
+            s[1] += wp * self.grad[1][r][x];
+            s[2] += wp * self.grad[2][r][x];
         }
-        self.out.push((local, s));
+    }
+
+    #[inline(always)]
+    fn end(&mut self, local: u32, _slot: usize, _any: bool) {
+        self.out.push((local, self.sum));
     }
 }
 
@@ -89,6 +100,7 @@ pub fn colour_grad_uncached(frame: &Frame, grad_rgb: &[f32]) -> Vec<[f32; 3]> {
             let mut sink = GradSink {
                 grad: load_tile(grad_rgb, frame.width, frame.height, t, frame.tiles_x),
                 out: &mut out,
+                sum: [0.0; 3],
             };
             composite_tile(frame, t, st, &mut sink);
             out
@@ -110,34 +122,166 @@ pub fn sh_backward(
     grad_rest: &mut [f32],
 ) {
     let k = scene.rest_per_channel();
-    let deg = scene.sh_degree;
-    let mut basis = [0.0f32; 16];
     for (j, &id) in ids.iter().enumerate() {
         let i = id as usize;
-        let mut g = grad_c[j];
+        sh_backward_one(
+            scene,
+            i,
+            centre,
+            raw[j],
+            grad_c[j],
+            &mut grad_dc[i],
+            &mut grad_rest[i * k * 3..(i + 1) * k * 3],
+        );
+    }
+}
+
+/// One Gaussian's share of [`sh_backward`]; `gr` is its `3 K` slice of `grad_rest`.
+#[inline(always)]
+fn sh_backward_one(
+    scene: &Scene,
+    i: usize,
+    centre: [f32; 3],
+    raw: [f32; 3],
+    mut g: [f32; 3],
+    gdc: &mut [f32; 3],
+    gr: &mut [f32],
+) {
+    let k = scene.rest_per_channel();
+    for ch in 0..3 {
+        if raw[ch] < 0.0 {
+            g[ch] = 0.0;
+        }
+    }
+    if g == [0.0; 3] {
+        return;
+    }
+    for ch in 0..3 {
+        gdc[ch] += sh::C0 * g[ch];
+    }
+    let Some(d) = sh::unit_dir(centre, scene.positions[i]) else {
+        return;
+    };
+    if k == 0 {
+        return;
+    }
+    let mut basis = [0.0f32; 16];
+    sh::sh_basis(scene.sh_degree, d, &mut basis);
+    for kk in 0..k {
+        let b = basis[kk + 1];
         for ch in 0..3 {
-            if raw[j][ch] < 0.0 {
-                g[ch] = 0.0;
+            gr[kk * 3 + ch] += b * g[ch];
+        }
+    }
+}
+
+/// The colour gradients of one view for [`sh_backward_views`]: `ids` ascending (as
+/// [`super::ViewCache::gaussians`] and [`super::Splats::ids`] are), `raw` and `grad_c`
+/// indexed like `ids`.
+#[derive(Debug, Clone, Copy)]
+pub struct ViewGrad<'a> {
+    pub ids: &'a [u32],
+    pub centre: [f32; 3],
+    pub raw: &'a [[f32; 3]],
+    pub grad_c: &'a [[f32; 3]],
+}
+
+/// [`sh_backward`] of several views, in parallel over blocks of Gaussians: within a
+/// Gaussian the views are added in the order given, so the result is bit-identical to
+/// calling [`sh_backward`] view after view, for any thread count.
+pub fn sh_backward_views(
+    scene: &Scene,
+    views: &[ViewGrad<'_>],
+    grad_dc: &mut [[f32; 3]],
+    grad_rest: &mut [f32],
+) {
+    const BLOCK: usize = 2048;
+    let k3 = scene.rest_per_channel() * 3;
+    let block = |b: usize, gdc: &mut [[f32; 3]], gr: &mut [f32]| {
+        let lo = b * BLOCK;
+        let hi = lo + gdc.len();
+        for v in views {
+            let a = v.ids.partition_point(|&i| (i as usize) < lo);
+            let e = v.ids.partition_point(|&i| (i as usize) < hi);
+            for j in a..e {
+                let i = v.ids[j] as usize;
+                let o = i - lo;
+                sh_backward_one(
+                    scene,
+                    i,
+                    v.centre,
+                    v.raw[j],
+                    v.grad_c[j],
+                    &mut gdc[o],
+                    &mut gr[o * k3..(o + 1) * k3],
+                );
             }
         }
-        if g == [0.0; 3] {
-            continue;
-        }
-        for ch in 0..3 {
-            grad_dc[i][ch] += sh::C0 * g[ch];
-        }
-        let Some(d) = sh::unit_dir(centre, scene.positions[i]) else {
-            continue;
-        };
-        if k == 0 {
-            continue;
-        }
-        sh::sh_basis(deg, d, &mut basis);
-        let gr = &mut grad_rest[i * k * 3..(i + 1) * k * 3];
-        for kk in 0..k {
-            let b = basis[kk + 1];
-            for ch in 0..3 {
-                gr[kk * 3 + ch] += b * g[ch];
+    };
+    if k3 == 0 {
+        grad_dc
+            .par_chunks_mut(BLOCK)
+            .enumerate()
+            .for_each(|(b, gdc)| block(b, gdc, &mut []));
+    } else {
+        grad_dc
+            .par_chunks_mut(BLOCK)
+            .zip(grad_rest.par_chunks_mut(BLOCK * k3))
+            .enumerate()
+            .for_each(|(b, (gdc, gr))| block(b, gdc, gr));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::tests::random_scene;
+
+    #[test]
+    fn sh_backward_views_equals_view_after_view() {
+        for deg in [0usize, 2] {
+            let scene = random_scene(5000, deg, 70 + deg as u64);
+            let mut rng = crate::rng::Rng::new(3);
+            type View = (Vec<u32>, [f32; 3], Vec<[f32; 3]>, Vec<[f32; 3]>);
+            let views: Vec<View> = (0..4)
+                .map(|v| {
+                    let ids: Vec<u32> = (0..scene.len() as u32)
+                        .filter(|i| (i * 7 + v) % 3 != 0)
+                        .collect();
+                    let three = |r: &mut crate::rng::Rng| {
+                        let x = r.normals_f32(3);
+                        [x[0], x[1], x[2]]
+                    };
+                    let raw = ids.iter().map(|_| three(&mut rng)).collect();
+                    let gc = ids.iter().map(|_| three(&mut rng)).collect();
+                    (ids, [v as f32, 2.0, -3.0], raw, gc)
+                })
+                .collect();
+            let n = scene.len();
+            let k3 = scene.rest_per_channel() * 3;
+            let (mut dc0, mut rest0) = (vec![[0.0f32; 3]; n], vec![0.0f32; n * k3]);
+            for (ids, c, raw, gc) in &views {
+                sh_backward(&scene, ids, *c, raw, gc, &mut dc0, &mut rest0);
+            }
+            let vg: Vec<ViewGrad> = views
+                .iter()
+                .map(|(ids, c, raw, gc)| ViewGrad {
+                    ids,
+                    centre: *c,
+                    raw,
+                    grad_c: gc,
+                })
+                .collect();
+            for threads in [1, 3] {
+                let (mut dc1, mut rest1) = (vec![[0.0f32; 3]; n], vec![0.0f32; n * k3]);
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap()
+                    .install(|| sh_backward_views(&scene, &vg, &mut dc1, &mut rest1));
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(dc1.as_flattened()), bits(dc0.as_flattened()));
+                assert_eq!(bits(&rest1), bits(&rest0));
             }
         }
     }

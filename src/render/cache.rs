@@ -15,7 +15,7 @@
 
 use super::backward::{load_tile, merge};
 use super::project::TILE;
-use super::raster::{Plane, Sink, TP, TileState, composite_tile};
+use super::raster::{HALF, Sink, TP, TileState, composite_tile};
 use super::{Frame, project, validate_camera, validate_scene};
 use crate::{Camera, Error, Result, Scene};
 use rayon::prelude::*;
@@ -82,22 +82,29 @@ struct TileRecords {
     pix: Vec<u8>,
     weight: Vec<f32>,
     t: Vec<f32>,
+    /// Records before the current splat's.
+    start: usize,
 }
 
 impl Sink for TileRecords {
-    const SKIP_EMPTY: bool = true;
     #[inline(always)]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
-        let before = self.pix.len();
-        for r in r0..r1 {
-            for c in c0..c1 {
-                if w[r][c] != 0.0 {
-                    self.pix.push((r * TILE + c) as u8);
-                    self.weight.push(w[r][c]);
-                }
+    fn begin(&mut self, _local: u32, _slot: usize) {
+        self.start = self.pix.len();
+    }
+
+    #[inline(always)]
+    fn half(&mut self, r: usize, h: usize, w: &[f32; HALF]) {
+        for (c, &wc) in w.iter().enumerate() {
+            if wc != 0.0 {
+                self.pix.push((r * TILE + h * HALF + c) as u8);
+                self.weight.push(wc);
             }
         }
-        let n = self.pix.len() - before;
+    }
+
+    #[inline(always)]
+    fn end(&mut self, local: u32, _slot: usize, _any: bool) {
+        let n = self.pix.len() - self.start;
         if n > 0 {
             self.run_splat.push(local);
             self.run_len.push(n as u32);
@@ -213,8 +220,16 @@ impl ViewCache {
 
     /// RGB `[H, W, 3]` for colours `colours[j]` of `gaussians()[j]` over `background`.
     pub fn forward(&self, colours: &[[f32; 3]], background: [f32; 3]) -> Vec<f32> {
-        let (w, h) = (self.width, self.height);
-        let mut rgb = vec![0.0f32; w * h * 3];
+        let mut rgb = vec![0.0f32; self.width * self.height * 3];
+        self.forward_into(colours, background, &mut rgb);
+        rgb
+    }
+
+    /// [`Self::forward`] into `rgb` (`[H, W, 3]`, every value overwritten), so that a
+    /// caller rendering many steps reuses one buffer.
+    pub fn forward_into(&self, colours: &[[f32; 3]], background: [f32; 3], rgb: &mut [f32]) {
+        let w = self.width;
+        assert_eq!(rgb.len(), w * self.height * 3, "forward_into: buffer size");
         let tiles_x = self.tiles_x;
         rgb.par_chunks_mut(TILE * w * 3)
             .enumerate()
@@ -249,7 +264,6 @@ impl ViewCache {
                     }
                 }
             });
-        rgb
     }
 
     /// `dL/dc` per entry of `gaussians()` given `dL/dC` as an `[H, W, 3]` image.

@@ -4,7 +4,7 @@
 //!
 //! Pipeline of one view ([`render`]):
 //! 1. [`project`]: cull, project means, EWA 2D covariance `J W Sigma W^T J^T + 0.3 I`,
-//!    conic, 3-sigma radius, 16x16 tile binning with a deterministic per-tile depth sort;
+//!    conic, 3-sigma radius; [`bin`]: 16x16 tile lists in a deterministic depth order;
 //! 2. [`sh`]: colour per splat for the view direction, `max(0, SH(d) + 0.5)`;
 //! 3. [`raster`]: per-tile front-to-back compositing (parallel over tile rows with
 //!    rayon, bit-identical for any thread count); outputs RGB over the background,
@@ -20,6 +20,7 @@
 //! image.
 
 pub mod backward;
+pub mod bin;
 pub mod cache;
 pub mod project;
 pub mod raster;
@@ -144,7 +145,7 @@ pub fn raw_colours(scene: &Scene, ids: &[u32], centre: [f32; 3]) -> Vec<[f32; 3]
 
 /// `max(0, raw)` per channel.
 pub fn clamp_colours(raw: &[[f32; 3]]) -> Vec<[f32; 3]> {
-    raw.iter()
+    raw.par_iter()
         .map(|c| [c[0].max(0.0), c[1].max(0.0), c[2].max(0.0)])
         .collect()
 }
@@ -164,62 +165,39 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Result<Re
 struct ForwardSink<'a> {
     /// Colour and depth per splat.
     cz: &'a [[f32; 4]],
+    /// Colour and depth of the current batch.
+    batch: Vec<[f32; 4]>,
+    /// Colour and depth of the current splat.
+    cur: [f32; 4],
     acc: [Plane; 4],
 }
 
 impl Sink for ForwardSink<'_> {
-    const SKIP_EMPTY: bool = true;
     #[inline(always)]
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane) {
-        self.blend_halves(local, r0, r1, c0, c1, w, u32::MAX);
+    fn gather(&mut self, batch: &[u32]) {
+        self.batch.clear();
+        self.batch
+            .extend(batch.iter().map(|&g| self.cz[g as usize]));
     }
 
     #[inline(always)]
-    fn blend_halves(
-        &mut self,
-        local: u32,
-        r0: usize,
-        r1: usize,
-        c0: usize,
-        c1: usize,
-        w: &Plane,
-        computed: u32,
-    ) {
-        let [c0r, c1g, c2b, z] = self.cz[local as usize];
-        let c = [c0r, c1g, c2b];
-        let [ar, ag, ab, ad] = &mut self.acc;
-        // Whole halves of 8 lanes (c0, c1 are multiples of 8) as fixed-size arrays so
-        // that this vectorises.
+    fn begin(&mut self, _local: u32, slot: usize) {
+        self.cur = self.batch[slot];
+    }
+
+    #[inline(always)]
+    fn half(&mut self, r: usize, h: usize, w: &[f32; raster::HALF]) {
         const H: usize = raster::HALF;
-        for r in r0..r1 {
-            for h in (c0..c1).step_by(H) {
-                if computed & (1 << (r * (TILE / H) + h / H)) == 0 {
-                    continue;
-                }
-                let wv: &[f32; H] = half(&w[r][h..h + H]);
-                let a0: &mut [f32; H] = half_mut(&mut ar[r][h..h + H]);
-                let a1: &mut [f32; H] = half_mut(&mut ag[r][h..h + H]);
-                let a2: &mut [f32; H] = half_mut(&mut ab[r][h..h + H]);
-                let a3: &mut [f32; H] = half_mut(&mut ad[r][h..h + H]);
-                for x in 0..H {
-                    a0[x] += wv[x] * c[0];
-                    a1[x] += wv[x] * c[1];
-                    a2[x] += wv[x] * c[2];
-                    a3[x] += wv[x] * z;
-                }
+        let c = self.cur;
+        for (a, cv) in self.acc.iter_mut().zip(c) {
+            let a: &mut [f32; H] = (&mut a[r][h * H..(h + 1) * H])
+                .try_into()
+                .expect("half row");
+            for x in 0..H {
+                a[x] += w[x] * cv;
             }
         }
     }
-}
-
-#[inline(always)]
-fn half(s: &[f32]) -> &[f32; raster::HALF] {
-    s.try_into().expect("half row")
-}
-
-#[inline(always)]
-fn half_mut(s: &mut [f32]) -> &mut [f32; raster::HALF] {
-    s.try_into().expect("half row")
 }
 
 /// Composite a projected frame with per-splat colours (indexed like `frame.splats`).
@@ -229,7 +207,7 @@ pub fn composite(frame: &Frame, colours: &[[f32; 3]], background: [f32; 3]) -> R
     let mut depth = vec![0.0f32; w * h];
     let mut alpha = vec![0.0f32; w * h];
     let cz: Vec<[f32; 4]> = colours
-        .iter()
+        .par_iter()
         .zip(&frame.splats.depth)
         .map(|(c, &z)| [c[0], c[1], c[2], z])
         .collect();
@@ -241,6 +219,8 @@ pub fn composite(frame: &Frame, colours: &[[f32; 3]], background: [f32; 3]) -> R
             let mut st = TileState::new();
             let mut sink = ForwardSink {
                 cz: &cz,
+                batch: Vec::with_capacity(raster::BATCH),
+                cur: [0.0; 4],
                 acc: [[[0.0; TILE]; TILE]; 4],
             };
             for tx in 0..frame.tiles_x {

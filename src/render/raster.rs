@@ -11,14 +11,18 @@
 //! The loop is splat-outer, pixel-inner: for each splat of the tile (front to back) the
 //! 16 pixels of every row it can reach are updated with branch-free selects, so the
 //! compiler vectorises the pixel loop. The blending weights `w = alpha T` of each splat
-//! are handed to a [`Sink`], which turns them into colour (forward), contribution
-//! records (the frozen-geometry cache) or colour gradients (the uncached backward).
+//! are handed to a [`Sink`] half row by half row, which turns them into colour (forward),
+//! contribution records (the frozen-geometry cache) or colour gradients (the uncached
+//! backward).
 //! Half rows whose 8 pixels have all finished, or where `power` stays below the level
-//! at which `alpha < 1/255`, are skipped (they could only receive zero weight), and the tile stops as soon as every half row has finished.
+//! at which `alpha < 1/255`, are skipped (they could only receive zero weight), and the
+//! tile stops as soon as every half row has finished. The splat records of a tile's list
+//! are copied into a small local buffer [`BATCH`] at a time before they are used, so
+//! that the cache misses of fetching them overlap.
 //! Per pixel, the order of operations is the front-to-back order, independent of
 //! threads, so results are bit-identical for any thread count.
 
-use super::project::{ALPHA_MAX, ALPHA_MIN, Frame, T_MIN, TILE};
+use super::project::{ALPHA_MAX, ALPHA_MIN, Frame, SplatRec, T_MIN, TILE};
 
 /// Pixels per tile.
 pub const TP: usize = TILE * TILE;
@@ -26,31 +30,37 @@ pub const TP: usize = TILE * TILE;
 /// A per-pixel tile plane, row-major rows of [`TILE`] pixels.
 pub type Plane = [[f32; TILE]; TILE];
 
-/// Receives the blending weights of each splat of a tile, in front-to-back order.
-pub trait Sink {
-    /// When true, a splat whose weights are all zero in this tile is not reported.
-    const SKIP_EMPTY: bool = false;
-    /// Splat `local` (index into [`Frame::splats`]) blends with weight `w[r][c]` into
-    /// tile pixel `(r, c)` for rows `r0..r1` and columns `c0..c1` (tile-local); `w` is
-    /// zero where it does not blend inside that window and stale outside it.
-    fn blend(&mut self, local: u32, r0: usize, r1: usize, c0: usize, c1: usize, w: &Plane);
+/// Splats of a tile list gathered into a local buffer at a time.
+pub const BATCH: usize = 32;
 
-    /// As [`Self::blend`], with bit `2 r + c / HALF` of `computed` set for the half rows
-    /// that were evaluated; the others have zero weight and may be skipped.
+/// Receives the blending weights of each splat of a tile, in front-to-back order: for
+/// every splat of the tile's list, [`Self::begin`], then [`Self::half`] for each half row
+/// that was evaluated (row-major order), then [`Self::end`].
+pub trait Sink {
+    /// Called with the next (at most [`BATCH`]) splats of the tile's list before any of
+    /// them is blended; `slot` in the other calls indexes this batch. A sink that reads
+    /// per-splat data gathers it here (one tight loop of independent loads) instead of
+    /// missing the cache once per splat.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    fn blend_halves(
-        &mut self,
-        local: u32,
-        r0: usize,
-        r1: usize,
-        c0: usize,
-        c1: usize,
-        w: &Plane,
-        computed: u32,
-    ) {
-        let _ = computed;
-        self.blend(local, r0, r1, c0, c1, w);
+    fn gather(&mut self, batch: &[u32]) {
+        let _ = batch;
+    }
+
+    /// Splat `local` (index into [`Frame::splats`], `slot` in the current batch) starts.
+    #[inline(always)]
+    fn begin(&mut self, local: u32, slot: usize) {
+        let _ = (local, slot);
+    }
+
+    /// The splat blends with weights `w` into half `h` (pixels `h * HALF..(h + 1) *
+    /// HALF`) of tile row `r`; `w` is zero at the pixels where it does not blend. Half
+    /// rows that are not reported have zero weight.
+    fn half(&mut self, r: usize, h: usize, w: &[f32; HALF]);
+
+    /// The splat ends; `any` says whether any half row was reported.
+    #[inline(always)]
+    fn end(&mut self, local: u32, slot: usize, any: bool) {
+        let _ = (local, slot, any);
     }
 }
 
@@ -82,19 +92,20 @@ fn as_half(s: &mut [f32]) -> &mut [f32; HALF] {
     s.try_into().expect("half row")
 }
 
-/// Per-tile compositing state.
+/// Per-tile compositing state (one per worker; reused across tiles).
 pub struct TileState {
     /// Transmittance per pixel, stored negated once the pixel has finished (and -1
     /// outside the image), so that one array carries both; see [`Self::transmittance`].
     t: Plane,
-    w: Plane,
+    /// The current batch of splat records.
+    recs: Vec<SplatRec>,
 }
 
 impl TileState {
     pub fn new() -> Box<TileState> {
         Box::new(TileState {
             t: [[1.0; TILE]; TILE],
-            w: [[0.0; TILE]; TILE],
+            recs: Vec::with_capacity(BATCH),
         })
     }
 
@@ -108,38 +119,29 @@ impl TileState {
 /// Pixels per half row: the unit of work along x (one AVX2 register).
 pub const HALF: usize = TILE / 2;
 
-/// Whether any pixel of a half row can reach `power >= floor`, with `power` computed
-/// exactly as in [`blend_half`]; branch-free so that it vectorises.
+/// `power` of a splat at the 8 pixel centres of a half row; returns whether any of
+/// them reaches `floor`. Branch-free so that it vectorises.
 #[inline(always)]
-fn may_blend(dx0: f32, dy: f32, conic: [f32; 3], floor: f32) -> bool {
+fn half_power(dx0: f32, dy: f32, conic: [f32; 3], floor: f32, power: &mut [f32; HALF]) -> bool {
     let [ca, cb, cc] = conic;
     let cdy = cc * dy * dy;
     let bdy = cb * dy;
     let mut any = false;
     for c in 0..HALF {
         let dx = dx0 - c as f32;
-        let power = -0.5 * (ca * dx * dx + cdy) - bdy * dx;
-        any |= power >= floor;
+        let p = -0.5 * (ca * dx * dx + cdy) - bdy * dx;
+        power[c] = p;
+        any |= p >= floor;
     }
     any
 }
 
-/// One splat over half a row (8 pixels): branch-free so that it vectorises.
+/// One splat over half a row (8 pixels) from its `power` there: branch-free so that it
+/// vectorises. Returns whether a pixel of the half is still open.
 #[inline(always)]
-fn blend_half(
-    dx0: f32,
-    dy: f32,
-    conic: [f32; 3],
-    op: f32,
-    t: &mut [f32; HALF],
-    w: &mut [f32; HALF],
-) -> bool {
-    let [ca, cb, cc] = conic;
-    let cdy = cc * dy * dy;
-    let bdy = cb * dy;
+fn blend_half(power: &[f32; HALF], op: f32, t: &mut [f32; HALF], w: &mut [f32; HALF]) -> bool {
     for c in 0..HALF {
-        let dx = dx0 - c as f32;
-        let power = -0.5 * (ca * dx * dx + cdy) - bdy * dx;
+        let power = power[c];
         let alpha = (op * exp_neg(power)).min(ALPHA_MAX);
         let tc = t[c];
         let next = tc * (1.0 - alpha);
@@ -193,8 +195,8 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
     let cols = (frame.width - px0).min(TILE);
     let rows = (frame.height - py0).min(TILE);
     // `open[r][h]`: half `h` of row `r` still has a pixel with transmittance > 0. A
-    // closed half would get zero weight from every later splat, so it is skipped (its
-    // weights are zeroed for the sink); when no half is open the tile is finished.
+    // closed half would get zero weight from every later splat, so it is skipped; when
+    // no half is open the tile is finished.
     let mut open = [[false; TILE / HALF]; TILE];
     let mut n_open = 0usize;
     for r in 0..TILE {
@@ -206,63 +208,61 @@ fn composite_tile_impl<S: Sink>(frame: &Frame, tile: usize, st: &mut TileState, 
             n_open += *o as usize;
         }
     }
-    let s = &frame.splats;
-    let list =
-        &frame.tile_list[frame.tile_start[tile] as usize..frame.tile_start[tile + 1] as usize];
-    for &g in list {
+    let all = &frame.splats.recs;
+    let mut power = [0.0f32; HALF];
+    let mut w = [0.0f32; HALF];
+    for batch in frame.tile(tile).chunks(BATCH) {
         if n_open == 0 {
             break;
         }
-        let gi = g as usize;
-        let rr = s.rows[gi];
-        let r0 = (rr[0] as usize).max(py0) - py0;
-        let r1 = (rr[1] as usize).min(py0 + rows).saturating_sub(py0);
-        if r1 <= r0 {
-            continue;
-        }
-        let cc = s.cols[gi];
-        let c0 = (cc[0] as usize).max(px0) - px0;
-        let c1 = (cc[1] as usize).min(px0 + cols).saturating_sub(px0);
-        if c1 <= c0 {
-            continue;
-        }
-        // Whole halves only, so the kernel has a fixed width.
-        let h0 = c0 / HALF;
-        let h1 = c1.div_ceil(HALF);
-        let conic = [s.conic_a[gi], s.conic_b[gi], s.conic_c[gi]];
-        let op = s.opacity[gi];
-        // A half row entirely below `floor` blends nothing (see `Splats::power_floor`).
-        let floor = s.power_floor[gi];
-        let mut computed = 0u32;
-        // Offsets from the mean to pixel centres.
-        let dx0 = s.mean_x[gi] - (px0 as f32 + 0.5);
-        let dy0 = s.mean_y[gi] - (py0 as f32 + 0.5);
-        for r in r0..r1 {
-            for h in h0..h1 {
-                let lanes = h * HALF..(h + 1) * HALF;
-                let dxh = dx0 - (h * HALF) as f32;
+        st.recs.clear();
+        st.recs.extend(batch.iter().map(|&g| all[g as usize]));
+        sink.gather(batch);
+        for (slot, (&g, s)) in batch.iter().zip(&st.recs).enumerate() {
+            if n_open == 0 {
+                break;
+            }
+            let r0 = (s.rows[0] as usize).max(py0) - py0;
+            let r1 = (s.rows[1] as usize).min(py0 + rows).saturating_sub(py0);
+            let c0 = (s.cols[0] as usize).max(px0) - px0;
+            let c1 = (s.cols[1] as usize).min(px0 + cols).saturating_sub(px0);
+            if r1 <= r0 || c1 <= c0 {
+                continue;
+            }
+            // Whole halves only, so the kernel has a fixed width.
+            let h0 = c0 / HALF;
+            let h1 = c1.div_ceil(HALF);
+            sink.begin(g, slot);
+            let mut any = false;
+            // Offsets from the mean to pixel centres.
+            let dx0 = s.mean[0] - (px0 as f32 + 0.5);
+            let dy0 = s.mean[1] - (py0 as f32 + 0.5);
+            for r in r0..r1 {
                 let dy = dy0 - r as f32;
-                if !(open[r][h] && may_blend(dxh, dy, conic, floor)) {
-                    st.w[r][lanes].fill(0.0);
-                    continue;
-                }
-                computed |= 1 << (r * (TILE / HALF) + h);
-                let still = blend_half(
-                    dxh,
-                    dy,
-                    conic,
-                    op,
-                    as_half(&mut st.t[r][lanes.clone()]),
-                    as_half(&mut st.w[r][lanes]),
-                );
-                if !still {
-                    open[r][h] = false;
-                    n_open -= 1;
+                for h in h0..h1 {
+                    if !open[r][h] {
+                        continue;
+                    }
+                    // A half row entirely below `power_floor` blends nothing.
+                    let dxh = dx0 - (h * HALF) as f32;
+                    if !half_power(dxh, dy, s.conic, s.power_floor, &mut power) {
+                        continue;
+                    }
+                    any = true;
+                    let still = blend_half(
+                        &power,
+                        s.opacity,
+                        as_half(&mut st.t[r][h * HALF..(h + 1) * HALF]),
+                        &mut w,
+                    );
+                    sink.half(r, h, &w);
+                    if !still {
+                        open[r][h] = false;
+                        n_open -= 1;
+                    }
                 }
             }
-        }
-        if computed != 0 || !S::SKIP_EMPTY {
-            sink.blend_halves(g, r0, r1, h0 * HALF, h1 * HALF, &st.w, computed);
+            sink.end(g, slot, any);
         }
     }
 }

@@ -16,6 +16,7 @@ pub mod splat;
 
 use crate::geometry::Bounds;
 use crate::{Error, Result};
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Largest accepted natural-log scale: exp(20) is about 5e8 scene units, far beyond any
@@ -111,44 +112,16 @@ impl Scene {
                 self.sh_degree
             ));
         }
-        for i in 0..n {
-            let p = self.positions[i];
-            if p.iter().any(|v| !v.is_finite()) {
-                return bad(format!("Gaussian {i}: position {p:?} is not finite"));
-            }
-            let q = self.rotations[i];
-            if q.iter().any(|v| !v.is_finite()) {
-                return bad(format!(
-                    "Gaussian {i}: rotation quaternion {q:?} is not finite"
-                ));
-            }
-            let qn = q.iter().map(|v| (*v as f64) * (*v as f64)).sum::<f64>();
-            if qn < 1e-20 {
-                return bad(format!(
-                    "Gaussian {i}: rotation quaternion {q:?} is zero (no rotation can be derived)"
-                ));
-            }
-            let s = self.log_scales[i];
-            if s.iter().any(|v| !v.is_finite()) {
-                return bad(format!("Gaussian {i}: log-scale {s:?} is not finite"));
-            }
-            if s.iter().any(|v| *v > MAX_LOG_SCALE) {
-                return bad(format!(
-                    "Gaussian {i}: log-scale {s:?} is absurdly large (> {MAX_LOG_SCALE}, \
-                     scale > {:.3e}); is this a linear scale or a corrupt file?",
-                    MAX_LOG_SCALE.exp()
-                ));
-            }
-            let o = self.opacity_logits[i];
-            if !o.is_finite() {
-                return bad(format!("Gaussian {i}: opacity logit {o} is not finite"));
-            }
-            let c = self.sh_dc[i];
-            if c.iter().any(|v| !v.is_finite()) {
-                return bad(format!("Gaussian {i}: f_dc {c:?} is not finite"));
-            }
+        // In parallel; the first bad Gaussian (by index) is the one reported.
+        if let Some(msg) = (0..n)
+            .into_par_iter()
+            .map(|i| self.check_gaussian(i))
+            .find_first(Option::is_some)
+            .flatten()
+        {
+            return bad(msg);
         }
-        if let Some(j) = self.sh_rest.iter().position(|v| !v.is_finite()) {
+        if let Some(j) = self.sh_rest.par_iter().position_first(|v| !v.is_finite()) {
             let per = (self.rest_per_channel() * 3).max(1);
             return bad(format!(
                 "Gaussian {}: f_rest coefficient {} is not finite",
@@ -157,6 +130,46 @@ impl Scene {
             ));
         }
         Ok(())
+    }
+
+    /// What is wrong with Gaussian `i`, if anything (see [`Self::validate`]).
+    fn check_gaussian(&self, i: usize) -> Option<String> {
+        let p = self.positions[i];
+        if p.iter().any(|v| !v.is_finite()) {
+            return Some(format!("Gaussian {i}: position {p:?} is not finite"));
+        }
+        let q = self.rotations[i];
+        if q.iter().any(|v| !v.is_finite()) {
+            return Some(format!(
+                "Gaussian {i}: rotation quaternion {q:?} is not finite"
+            ));
+        }
+        let qn = q.iter().map(|v| (*v as f64) * (*v as f64)).sum::<f64>();
+        if qn < 1e-20 {
+            return Some(format!(
+                "Gaussian {i}: rotation quaternion {q:?} is zero (no rotation can be derived)"
+            ));
+        }
+        let s = self.log_scales[i];
+        if s.iter().any(|v| !v.is_finite()) {
+            return Some(format!("Gaussian {i}: log-scale {s:?} is not finite"));
+        }
+        if s.iter().any(|v| *v > MAX_LOG_SCALE) {
+            return Some(format!(
+                "Gaussian {i}: log-scale {s:?} is absurdly large (> {MAX_LOG_SCALE}, \
+                 scale > {:.3e}); is this a linear scale or a corrupt file?",
+                MAX_LOG_SCALE.exp()
+            ));
+        }
+        let o = self.opacity_logits[i];
+        if !o.is_finite() {
+            return Some(format!("Gaussian {i}: opacity logit {o} is not finite"));
+        }
+        let c = self.sh_dc[i];
+        if c.iter().any(|v| !v.is_finite()) {
+            return Some(format!("Gaussian {i}: f_dc {c:?} is not finite"));
+        }
+        None
     }
 }
 

@@ -7,7 +7,7 @@ use crate::{Error, Result};
 use std::path::PathBuf;
 
 /// The speed-accuracy sweep: run the stylization DAG at each point of a sweep spec
-/// (params overrides: resolution, views per MVFC group, rounds, timestep range, ...),
+/// (params overrides: resolution, iterations, views per iteration, MVFC off, ...),
 /// record wall time and the evaluate metrics, and write OUT/sweep.json, sweep.md (table)
 /// and sweep.html (table and wall-time-vs-metric plots).
 #[derive(clap::Parser, Debug, Clone)]

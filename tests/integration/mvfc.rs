@@ -662,7 +662,9 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
 }
 
 /// The stylizer's eps under Null inverts to its clean estimate (eps = (z - sqrt(ab) x0) /
-/// sqrt(1-ab)), Prompt equals Null (no text), and PromptStyle/Content differ from it.
+/// sqrt(1-ab)); Content equals Null (both the identity: unstyled); Prompt (the image
+/// redrawn with its own style) and PromptStyle (with the style image's) differ from it
+/// and from each other.
 #[test]
 fn stylizer_eps_is_the_x0_parameterisation() {
     let style = style_image(64);
@@ -692,14 +694,15 @@ fn stylizer_eps_is_the_x0_parameterisation() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
     assert!(err < 1e-4, "{err}");
-    assert_eq!(e[0], e[1]);
-    let diff = |a: &Array4<f32>| {
+    assert_eq!(e[0], e[3]);
+    let diff = |a: &Array4<f32>, b: &Array4<f32>| {
         a.iter()
-            .zip(e[0].iter())
+            .zip(b.iter())
             .map(|(p, q)| (p - q).abs())
             .fold(0.0f32, f32::max)
     };
-    assert!(diff(&e[2]) > 1e-2 && diff(&e[3]) > 1e-2);
+    assert!(diff(&e[1], &e[0]) > 1e-2 && diff(&e[2], &e[0]) > 1e-2);
+    assert!(diff(&e[2], &e[1]) > 1e-2);
     // The clean estimate is closer to the clean image than z / sqrt(ab) is.
     let ab = sched.alpha_bar(t).unwrap() as f32;
     let naive: f32 = z

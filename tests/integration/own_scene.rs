@@ -3,12 +3,8 @@
 //! directory, every output under `--workdir`, `data-sample/` untouched, and one `--set`
 //! change rerunning exactly its downstream.
 //!
-//! LEAD: RE-CHECK AFTER THE SAMPLE DAG REWRITE (issue 11). This test is written against
-//! `data-sample/stylize.toml`'s vars `scene`, `cameras` and `style` and its params keys
-//! `rounds`, `render.width` and `render.height`. While `init-scene` is still
-//! `pipeline wrap --kind scene ... ${scene}` (which needs a `scene.ply`), it runs only the
-//! source branch (`source-latents` and upstream); once that stage reads a `.splat`, it
-//! runs the whole DAG and checks the `[result]` lines.
+//! Sizes are kept small through the params keys `render.width`, `render.height`,
+//! `distill.chunks` and `distill.chunk`.
 
 use crate::harness;
 use std::collections::BTreeMap;
@@ -62,9 +58,6 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
     let root = harness::repo_root();
     let ds = root.join("data-sample");
     let dag = ds.join("stylize.toml");
-    let whole_dag = !std::fs::read_to_string(&dag)
-        .unwrap()
-        .contains("pipeline wrap --kind scene --out runs/r0/scene ${scene}");
     let before = sample_state(&ds);
     let t = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(t.path().join("art")).unwrap();
@@ -86,16 +79,13 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
         "--set",
         "render.height=48",
         "--set",
-        "rounds=1",
+        "distill.chunks=1",
+        "--set",
+        "distill.chunk=2",
     ]
     .iter()
     .map(|s| s.to_string())
     .collect();
-    let targets: Vec<String> = if whole_dag {
-        vec![]
-    } else {
-        vec!["source-latents".into()]
-    };
     let pipeline = |cmd: &str, args: &[String]| {
         let o = Command::new(&bin)
             .arg(cmd)
@@ -109,7 +99,7 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
             String::from_utf8_lossy(&o.stderr).into_owned(),
         )
     };
-    let run_args = |a: &[String]| [a, &targets[..]].concat();
+    let run_args = |a: &[String]| a.to_vec();
 
     let (rc, out, err) = pipeline("run", &run_args(&args));
     assert_eq!(rc, Some(0), "{out}\n{err}");
@@ -119,18 +109,16 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
         views.manifest.file("rgb.npy").unwrap().shape.as_deref(),
         Some(&[6usize, 48, 48, 3][..])
     );
-    assert!(w.join("runs/source/latents/manifest.json").is_file());
+    assert!(w.join("runs/c1/manifest.json").is_file());
     assert!(w.join("stylize.lock").is_file() && w.join(".pipeline/logs").is_dir());
-    if whole_dag {
-        assert!(
-            out.contains("result  scene    out/bob/runs/final/"),
-            "{out}"
-        );
-        assert!(
-            out.contains("result  report   out/bob/runs/eval/report.html"),
-            "{out}"
-        );
-    }
+    assert!(
+        out.contains("result  scene    out/bob/runs/final/"),
+        "{out}"
+    );
+    assert!(
+        out.contains("result  report   out/bob/runs/eval/report.html"),
+        "{out}"
+    );
     // Outputs only under the work directory: the temp dir holds art/ and out/ only.
     let mut top: Vec<String> = std::fs::read_dir(t.path())
         .unwrap()
@@ -158,10 +146,8 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
     let (rc, out, err) = pipeline("run", &run_args(&args));
     assert_eq!(rc, Some(0), "{out}\n{err}");
     let ran = done(&out);
-    if whole_dag {
-        assert!(ran.contains(&"source-views".to_string()), "{out}");
-    } else {
-        assert_eq!(ran, ["source-latents", "source-views"], "{out}");
-    }
+    // The cameras feed source-views and everything downstream of it: every stage.
+    assert_eq!(ran.len(), 6, "{out}");
+    assert!(ran.contains(&"source-views".to_string()), "{out}");
     assert!(sample_state(&ds) == before, "data-sample/ changed");
 }

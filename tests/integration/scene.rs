@@ -965,3 +965,42 @@ fn camera_and_scene_do_not_import_each_other() {
         }
     }
 }
+
+/// A written `.splat` renders like the scene it came from (SH degree 0, base colours in
+/// [0, 1]): the measured differences on the sample scene against the bounds the writer
+/// states (`SPLAT_RENDER_MAX`, `SPLAT_RENDER_MEAN`). Here, not beside the writer, because
+/// it needs cameras, which `scene` does not import.
+#[test]
+fn written_splat_renders_like_the_scene() {
+    use fantasystyle::render::{RenderOptions, render};
+    use fantasystyle::scene::SH_C0;
+    use fantasystyle::scene::splat::{
+        SPLAT_RENDER_MAX, SPLAT_RENDER_MEAN, encode_splat, parse_splat,
+    };
+    let root = harness::repo_root();
+    let mut s = fantasystyle::artifacts::load_scene(&root.join("data-sample/scene.ply")).unwrap();
+    s.sh_degree = 0;
+    s.sh_rest.clear();
+    for c in &mut s.sh_dc {
+        *c = c.map(|d| d.clamp(-0.5 / SH_C0, 0.5 / SH_C0));
+    }
+    let r = parse_splat(std::path::Path::new("w.splat"), &encode_splat(&s)).unwrap();
+    let cams = fantasystyle::camera::load_cameras("orbit:4", &s.bounds(), 128, 128).unwrap();
+    let (mut worst, mut sum, mut cnt) = (0.0f32, 0.0f64, 0usize);
+    for c in &cams {
+        let a = render(&s, c, &RenderOptions::default()).unwrap();
+        let b = render(&r, c, &RenderOptions::default()).unwrap();
+        for (x, y) in a.rgb.iter().zip(&b.rgb) {
+            let d = (x.clamp(0.0, 1.0) - y.clamp(0.0, 1.0)).abs();
+            worst = worst.max(d);
+            sum += d as f64;
+            cnt += 1;
+        }
+    }
+    let mean = sum / cnt as f64;
+    eprintln!("splat vs scene renders: max {worst:.4}, mean {mean:.2e}");
+    assert!(
+        worst < SPLAT_RENDER_MAX && mean < SPLAT_RENDER_MEAN,
+        "max {worst}, mean {mean}"
+    );
+}

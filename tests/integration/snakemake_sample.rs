@@ -2,9 +2,8 @@
 //! binaries, at a small size, gives byte-identical outputs to `pipeline run`, and a
 //! second Snakemake run does nothing. (The matrix DAG, `--set` reruns, kills and
 //! refusals are tested on fake stages in pipeline/tests/snakemake.rs.)
-//!
-//! LEAD: RE-CHECK AFTER THE SAMPLE DAG REWRITE (issue 11): the sizes are set with the
-//! params keys `render.width`, `render.height` and `rounds` of data-sample/params.toml.
+//! The sizes are set with the params keys `render.width`, `render.height`,
+//! `distill.chunks` and `distill.chunk` of data-sample/params.toml.
 
 use crate::harness;
 use std::collections::BTreeMap;
@@ -69,7 +68,9 @@ fn sample_dag_under_snakemake_matches_pipeline_run() {
         "--set",
         "render.height=40",
         "--set",
-        "rounds=1",
+        "distill.chunks=1",
+        "--set",
+        "distill.chunk=2",
     ]
     .iter()
     .map(|s| s.to_string())
