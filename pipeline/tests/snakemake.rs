@@ -268,10 +268,8 @@ fn killed_snakemake_rerun_incomplete_matches_pipeline_run() {
             .process_group(0)
             .spawn()
             .unwrap();
-        // Kill points spread over the middle of a run (its start is Snakemake's own
-        // startup; later points miss when this run is faster than the timed one, as
-        // under a changing machine load).
-        std::thread::sleep(whole.mul_f64(0.35 + 0.12 * k as f64));
+        // Kill points spread over the second half of a run (the first is startup).
+        std::thread::sleep(whole.mul_f64(0.45 + 0.15 * k as f64));
         let pg = format!("-{}", child.id());
         let _ = Command::new("kill").args(["-KILL", "--", &pg]).status();
         if !child.wait().unwrap().success() {
