@@ -28,12 +28,14 @@ use crate::{Error, Result};
 use std::path::Path;
 
 /// UNet work units (bytes x latent pixels x rows) per second on one CPU thread: the
-/// full-size SD 1.5 UNet (random weights, fp32) at 32x32 latents, batch 4, onnxruntime
-/// 1.31 with all graph optimisations (BENCHMARKS.md, "Diffusion path").
+/// full-size SD 1.5 UNet + depth ControlNet (random weights, fp32), batch 4, onnxruntime
+/// 1.31 with all graph optimisations, measured 1.03e12 at 16x16 latents and 1.45e12 at
+/// 32x32 (BENCHMARKS.md, "Diffusion path").
 pub const NOMINAL_UNET_RATE: f64 = 1.2e12;
 /// VAE work units (bytes x image pixels x images) per second on one CPU thread: SD 1.5's
-/// VAE decoder at 256x256 (BENCHMARKS.md, "Diffusion path").
-pub const NOMINAL_VAE_RATE: f64 = 1.0e12;
+/// VAE decoder, measured 1.41e12 at both 128x128 and 256x256 (BENCHMARKS.md,
+/// "Diffusion path"; the encoder is assumed to run at the same rate).
+pub const NOMINAL_VAE_RATE: f64 = 1.4e12;
 /// Speed-up from `n` threads is n^THREAD_EXPONENT.
 pub const THREAD_EXPONENT: f64 = 0.7;
 

@@ -304,24 +304,25 @@ pub fn run(a: Args) -> Result<()> {
             for k in 0..a.iters {
                 let started = std::time::Instant::now();
                 let r = d.iterate()?;
-                if k == 0 && a.iters > 1 {
-                    // The estimate, calibrated: the first iteration timed here.
+                let left = a.iters - 1 - k;
+                if k < 2 && left > 0 {
+                    // The estimate, calibrated: the first iteration timed here, and again
+                    // the second (the first pays the graphs' warm-up: about a third more
+                    // for SD 1.5 on a CPU, BENCHMARKS.md "Diffusion path").
                     let s = started.elapsed().as_secs_f64();
-                    let model = cost
-                        .as_ref()
-                        .map(|c| {
-                            format!(
-                                " (the graphs' size predicted {} for it)",
-                                about(c.seconds(&plan(1)))
-                            )
-                        })
-                        .unwrap_or_default();
+                    let model = match (k, cost.as_ref()) {
+                        (0, Some(c)) => format!(
+                            " (the graphs' size predicted {} for it)",
+                            about(c.seconds(&plan(1)))
+                        ),
+                        _ => String::new(),
+                    };
                     bar.suspend(|| {
                         tracing::info!(
-                            "distill: the first iteration took {s:.2} s{model}; the other {}: \
-                             {} on this machine",
-                            a.iters - 1,
-                            about(s * (a.iters - 1) as f64)
+                            "distill: iteration {} took {s:.2} s{model}; the other {left}: {} \
+                             on this machine",
+                            start + k,
+                            about(s * left as f64)
                         )
                     });
                 }

@@ -8,6 +8,21 @@ pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The runner binary `pipeline` (another package of the workspace, so Cargo gives it no
+/// `CARGO_BIN_EXE_` here): beside the stage binaries, built by `cargo test --workspace`.
+pub fn pipeline_bin() -> PathBuf {
+    let p = std::path::Path::new(env!("CARGO_BIN_EXE_render-views"))
+        .parent()
+        .unwrap()
+        .join("pipeline");
+    assert!(
+        p.is_file(),
+        "{} is missing: build every binary first (cargo build --workspace --bins)",
+        p.display()
+    );
+    p
+}
+
 /// The shared scene `NAME`, looked up in `$FANTASYSTYLE_SHARED/data/scenes/`, then
 /// `../shared/data/scenes/` beside the repository, then `/work/shared/data/scenes/` (for
 /// worktrees outside the main checkout); `None` (and a SKIPPED message) if absent.

@@ -8,21 +8,8 @@
 
 use crate::harness;
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-
-fn pipeline_bin() -> PathBuf {
-    let p = Path::new(env!("CARGO_BIN_EXE_render-views"))
-        .parent()
-        .unwrap()
-        .join("pipeline");
-    assert!(
-        p.is_file(),
-        "{} is missing: build every binary first (cargo build --workspace --bins)",
-        p.display()
-    );
-    p
-}
 
 /// The tracked files of data-sample/ and whether the runner's own files exist there.
 fn sample_state(ds: &Path) -> BTreeMap<String, Vec<u8>> {
@@ -62,7 +49,7 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
     let t = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(t.path().join("art")).unwrap();
     std::fs::copy(ds.join("style.png"), t.path().join("art/wave.png")).unwrap();
-    let bin = pipeline_bin();
+    let bin = harness::pipeline_bin();
     let mut args: Vec<String> = [
         "--dag",
         dag.to_str().unwrap(),

@@ -49,15 +49,7 @@ fn tree(dir: &Path) -> BTreeMap<String, String> {
 #[test]
 fn sample_dag_under_snakemake_matches_pipeline_run() {
     let Some(smk) = snakemake() else { return };
-    let pipeline = Path::new(env!("CARGO_BIN_EXE_render-views"))
-        .parent()
-        .unwrap()
-        .join("pipeline");
-    assert!(
-        pipeline.is_file(),
-        "{} is missing: cargo build --workspace --bins",
-        pipeline.display()
-    );
+    let pipeline = harness::pipeline_bin();
     let dag = harness::repo_root().join("data-sample/stylize.toml");
     let t = tempfile::tempdir().unwrap();
     let common: Vec<String> = [
