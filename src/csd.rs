@@ -38,7 +38,7 @@
 use crate::prior::{Cond, Prior, PriorInfo};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
-use ndarray::{Array4, ArrayView4, Zip};
+use ndarray::{Array4, ArrayView4, Axis, Zip, concatenate, s};
 use serde::{Deserialize, Serialize};
 
 /// Which distillation gradient.
@@ -303,6 +303,28 @@ pub fn step(
     let lr = p.lr;
     let z = Zip::from(x.z0).and(&g).map_collect(|&z, &g| z - lr * g);
     Ok((z, g))
+}
+
+/// The image change a CSD step asks for, `decode(z1) - decode(z0)` `[N, 3, H, W]` (both
+/// decoded in one call), for views of `h` x `w`.
+pub fn image_change(
+    prior: &mut dyn Prior,
+    z1: ArrayView4<'_, f32>,
+    z0: ArrayView4<'_, f32>,
+    h: usize,
+    w: usize,
+) -> Result<Array4<f32>> {
+    let n = z0.shape()[0];
+    let both = concatenate(Axis(0), &[z1, z0]).map_err(|e| Error::Other(e.to_string()))?;
+    let dec = prior.decode(both.view())?;
+    if dec.shape() != [2 * n, 3, h, w] {
+        return Err(Error::Other(format!(
+            "decoder returned {:?}, expected [{}, 3, {h}, {w}]",
+            dec.shape(),
+            2 * n
+        )));
+    }
+    Ok(&dec.slice(s![..n, .., .., ..]) - &dec.slice(s![n.., .., .., ..]))
 }
 
 #[cfg(test)]

@@ -43,7 +43,7 @@ use crate::render::CacheMode;
 use crate::rng::Rng;
 use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Camera, Error, Result, Scene};
-use ndarray::{Array3, Array4, Axis, concatenate, s};
+use ndarray::{Array3, Array4, Axis, concatenate};
 use path::{ViewPath, Window};
 
 /// Parameters of the loop.
@@ -147,6 +147,9 @@ pub struct Distiller<'a> {
     source: &'a SourceViews,
     /// Source chroma/colour per view, un-premultiplied `[H, W, 3]`.
     source_colour: Vec<Vec<f32>>,
+    /// The source views as the prior sees them, `[3, H, W]` per view (the encoder's
+    /// input for z0_src, and the control image of a `ControlKind::Source` prior).
+    source_seen: Vec<Array3<f32>>,
     /// z0_src per view, `[C, h, w]`.
     z0_src: Vec<Array3<f32>>,
     path: ViewPath,
@@ -219,17 +222,16 @@ impl<'a> Distiller<'a> {
         let source_colour: Vec<Vec<f32>> = (0..n)
             .map(|v| fill::unpremultiply(&source.rgb[v], &source.alpha[v], bg))
             .collect();
+        let source_seen: Vec<Array3<f32>> = (0..n)
+            .map(|v| to_chw(&Self::prior_view(&params, source, &source.rgb[v], v), h, w))
+            .collect();
         // The source latents, encoded once, a few views per call.
         let mut z0_src = Vec::with_capacity(n);
-        for chunk in (0..n)
-            .collect::<Vec<_>>()
-            .chunks(params.views_per_iter.max(1))
-        {
-            let imgs: Vec<Array3<f32>> = chunk
+        for chunk in source_seen.chunks(params.views_per_iter.max(1)) {
+            let views: Vec<_> = chunk
                 .iter()
-                .map(|&v| to_chw(&Self::prior_view(&params, source, &source.rgb[v], v), h, w))
+                .map(|a| a.view().insert_axis(Axis(0)))
                 .collect();
-            let views: Vec<_> = imgs.iter().map(|a| a.view().insert_axis(Axis(0))).collect();
             let batch = concatenate(Axis(0), &views).map_err(|e| Error::Other(e.to_string()))?;
             let z = prior.encode(batch.view())?;
             for i in 0..chunk.len() {
@@ -244,6 +246,7 @@ impl<'a> Distiller<'a> {
             params,
             source,
             source_colour,
+            source_seen,
             z0_src,
             path: ViewPath::of(cameras),
             iteration,
@@ -358,16 +361,8 @@ impl<'a> Distiller<'a> {
         let control = match self.prior.info().control {
             // The original render as the prior sees it (over the same fill).
             Some(crate::prior::ControlKind::Source) => {
-                let imgs: Vec<Array3<f32>> = views
-                    .iter()
-                    .map(|&v| {
-                        to_chw(
-                            &Self::prior_view(&p, self.source, &self.source.rgb[v], v),
-                            h,
-                            w,
-                        )
-                    })
-                    .collect();
+                let imgs: Vec<Array3<f32>> =
+                    views.iter().map(|&v| self.source_seen[v].clone()).collect();
                 Some(stack(&imgs)?)
             }
             Some(kind) => {
@@ -402,17 +397,7 @@ impl<'a> Distiller<'a> {
             },
             &p.csd,
         )?;
-        let both = concatenate(Axis(0), &[z1.view(), z0.view()])
-            .map_err(|e| Error::Other(e.to_string()))?;
-        let dec = self.prior.decode(both.view())?;
-        if dec.shape() != [2 * n, 3, h, w] {
-            return Err(Error::Other(format!(
-                "decoder returned {:?}, expected [{}, 3, {h}, {w}]",
-                dec.shape(),
-                2 * n
-            )));
-        }
-        let delta = &dec.slice(s![..n, .., .., ..]) - &dec.slice(s![n.., .., .., ..]);
+        let delta = csd::image_change(self.prior, z1.view(), z0.view(), h, w)?;
 
         // Targets: the object's colour moves by Delta, recomposited with alpha.
         let bg = p.background;

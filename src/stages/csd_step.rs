@@ -31,7 +31,7 @@ use crate::prior::{self, PriorOptions, model_timesteps};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
-use ndarray::{Array4, Axis, concatenate, s};
+use ndarray::{Array4, Axis};
 use std::path::PathBuf;
 
 /// One controllable stylized distillation (CSD) step: from noised latents (mvfc-filter),
@@ -234,10 +234,8 @@ pub fn run(a: Args) -> Result<StepReport> {
         )
     })??;
     let step_secs = started.elapsed().as_secs_f64();
-    let both =
-        concatenate(Axis(0), &[z1.view(), z0.view()]).map_err(|e| Error::Other(e.to_string()))?;
     let started = std::time::Instant::now();
-    let dec = prior.decode(both.view())?;
+    let delta = crate::csd::image_change(prior.as_mut(), z1.view(), z0.view(), h, w)?;
     if let Some(c) = cost.as_mut() {
         c.calibrate_unet(plan.batch, plan.latent, step_secs);
         c.calibrate_vae(0, 2 * n, h * w, started.elapsed().as_secs_f64());
@@ -249,14 +247,6 @@ pub fn run(a: Args) -> Result<StepReport> {
             c.vae_rate
         );
     }
-    if dec.shape() != [2 * n, 3, h, w] {
-        return Err(Error::Other(format!(
-            "decoder returned {:?}, expected [{}, 3, {h}, {w}]",
-            dec.shape(),
-            2 * n
-        )));
-    }
-    let delta = &dec.slice(s![..n, .., .., ..]) - &dec.slice(s![n.., .., .., ..]);
     let delta_nhwc = delta.permuted_axes([0, 2, 3, 1]);
     let raw = &views.rgb + &delta_nhwc;
     let clamped = raw.iter().filter(|v| !(0.0..=1.0).contains(*v)).count();
