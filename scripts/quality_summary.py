@@ -26,6 +26,8 @@ import zlib
 
 import numpy as np
 
+from make_styles import write_png
+
 METHODS = ["ours", "nomvfc", "gram"]
 T95 = {1: 12.71, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
        9: 2.262, 10: 2.228, 11: 2.201, 12: 2.179, 15: 2.131, 20: 2.086, 30: 2.042}
@@ -71,19 +73,6 @@ def read_png(path):
                 cur[i] = (line[i] + p) % 256
         out[y] = cur
     return out.reshape(h, w, ch)[..., :3] / 255.0
-
-
-def write_png(path, img):
-    img = np.ascontiguousarray((np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8))
-    h, w, _ = img.shape
-    raw = b"".join(b"\x00" + img[y].tobytes() for y in range(h))
-
-    def chunk(t, d):
-        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
-
-    with open(path, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-                + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
 
 
 def stats_distance(pix, style):
@@ -192,7 +181,7 @@ def main():
                     rows.append(np.concatenate([cases[me]["views"][1][c] for c in cols], 1))
         if rows:
             out = os.path.join(runs, "sheets", sc + ".png")
-            write_png(out, np.concatenate(rows, 0))
+            write_png(out, np.concatenate(rows, 0) * 255.0 + 0.5)
             print(f"\ncontact sheet: {out} (per style: style, original, {', '.join(METHODS)})", file=sys.stderr)
 
 
