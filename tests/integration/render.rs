@@ -161,21 +161,18 @@ fn run_stage(bin: &str, args: &[&str]) -> (i32, String) {
 const UPDATE: &str = env!("CARGO_BIN_EXE_update-gaussians");
 const RENDER: &str = env!("CARGO_BIN_EXE_render-views");
 
-/// `update-gaussians` end to end on the sample: targets rendered by `render-views`
-/// from a recoloured scene; the output keeps every non-colour field bit-identical,
-/// changes colours, and records a decreasing loss per step.
-#[test]
-fn update_gaussians_fits_and_keeps_geometry() {
-    let d = tempfile::tempdir().unwrap();
-    let sample = repo_root().join("data-sample/scene.ply");
+/// The sample scene with its base colours shifted by `shift`, rendered from `orbit:4`
+/// at 48x48 into `dir/views`: targets for a colour fit that starts from the sample.
+fn tinted_views(dir: &std::path::Path, shift: [f32; 3]) -> std::path::PathBuf {
     let mut tinted = sample_scene();
     for c in tinted.sh_dc.iter_mut() {
-        c[0] += 0.8;
-        c[2] -= 0.5;
+        for k in 0..3 {
+            c[k] += shift[k];
+        }
     }
-    let tinted_path = d.path().join("tinted.ply");
+    let tinted_path = dir.join("tinted.ply");
     fantasystyle::scene::ply::write_ply(&tinted_path, &tinted).unwrap();
-    let views = d.path().join("views");
+    let views = dir.join("views");
     let (code, err) = run_stage(
         RENDER,
         &[
@@ -192,6 +189,17 @@ fn update_gaussians_fits_and_keeps_geometry() {
         ],
     );
     assert_eq!(code, 0, "{err}");
+    views
+}
+
+/// `update-gaussians` end to end on the sample: targets rendered by `render-views`
+/// from a recoloured scene; the output keeps every non-colour field bit-identical,
+/// changes colours, and records a decreasing loss per step.
+#[test]
+fn update_gaussians_fits_and_keeps_geometry() {
+    let d = tempfile::tempdir().unwrap();
+    let sample = repo_root().join("data-sample/scene.ply");
+    let views = tinted_views(d.path(), [0.8, 0.0, -0.5]);
     let out = d.path().join("fitted");
     let base = [
         "--scene",
@@ -304,25 +312,7 @@ fn update_gaussians_help_documents_every_flag() {
 fn update_gaussians_default_rate_converges_in_a_hundred_steps() {
     let d = tempfile::tempdir().unwrap();
     let sample = repo_root().join("data-sample/scene.ply");
-    let mut tinted = sample_scene();
-    for c in tinted.sh_dc.iter_mut() {
-        c[0] += 0.6;
-        c[1] -= 0.4;
-    }
-    let tinted_path = d.path().join("tinted.ply");
-    fantasystyle::scene::ply::write_ply(&tinted_path, &tinted).unwrap();
-    let views = d.path().join("views");
-    let size = ["--width", "48", "--height", "48"];
-    let mut args = vec![
-        "--scene",
-        tinted_path.to_str().unwrap(),
-        "--cameras",
-        "orbit:4",
-    ];
-    args.extend(size);
-    args.extend(["--out", views.to_str().unwrap()]);
-    let (code, err) = run_stage(RENDER, &args);
-    assert_eq!(code, 0, "{err}");
+    let views = tinted_views(d.path(), [0.6, -0.4, 0.0]);
     let psnr_after = |lr: Option<&str>| -> f64 {
         let out = d.path().join(format!("fit-{}", lr.unwrap_or("default")));
         let mut args = vec![
