@@ -253,6 +253,24 @@ fn bin(name: &str) -> Command {
     Command::new(exe)
 }
 
+/// `render-views` of `scene` from `cameras` at `size` x `size` into `out`.
+fn render_source(scene: &Path, cameras: &str, size: u32, out: &Path) {
+    let size = size.to_string();
+    ok(bin("render-views")
+        .arg("--scene")
+        .arg(scene)
+        .args([
+            "--cameras",
+            cameras,
+            "--width",
+            &size,
+            "--height",
+            &size,
+            "--out",
+        ])
+        .arg(out));
+}
+
 fn ok(c: &mut Command) {
     let out = c.output().unwrap();
     assert!(
@@ -312,18 +330,7 @@ fn chunks_resume_and_kill_give_the_same_bytes() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let scene = repo_root().join("data-sample/scene.ply");
-    ok(bin("render-views")
-        .args(["--scene", &scene.to_string_lossy()])
-        .args([
-            "--cameras",
-            "orbit:5,elev=30,radius=2.4",
-            "--width",
-            "64",
-            "--height",
-            "64",
-            "--out",
-        ])
-        .arg(d.join("views")));
+    render_source(&scene, "orbit:5,elev=30,radius=2.4", 64, &d.join("views"));
     let base = distill_args(d, &stylizer);
     let start = std::time::Instant::now();
     ok(bin("distill")
@@ -401,18 +408,7 @@ fn distill_bad_input_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let scene = repo_root().join("data-sample/scene.ply");
-    ok(bin("render-views")
-        .args(["--scene", &scene.to_string_lossy()])
-        .args([
-            "--cameras",
-            "orbit:3",
-            "--width",
-            "32",
-            "--height",
-            "32",
-            "--out",
-        ])
-        .arg(d.join("views")));
+    render_source(&scene, "orbit:3", 32, &d.join("views"));
     image::save_buffer(
         d.join("tiny.png"),
         &[200, 10, 10],
