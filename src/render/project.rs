@@ -145,7 +145,13 @@ pub struct One {
 /// error about 2e-7. NaN in gives an unspecified value (callers mask such lanes).
 #[inline(always)]
 pub fn exp_f32(x: f32) -> f32 {
-    let x = x.clamp(-87.0, 88.0);
+    exp_poly(x.clamp(-87.0, 88.0))
+}
+
+/// The polynomial behind [`exp_f32`] and the rasterizer's `exp_neg`, for `x` in
+/// [-87, 88] (the callers clamp to the part of that range they need).
+#[inline(always)]
+pub(crate) fn exp_poly(x: f32) -> f32 {
     let magic = 12_582_912.0f32;
     let kf = x * std::f32::consts::LOG2_E + magic;
     let k = kf - magic;

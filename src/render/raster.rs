@@ -68,22 +68,7 @@ pub trait Sink {
 /// from plain float ops so that the pixel loop vectorises; the libm call does not.
 #[inline(always)]
 pub fn exp_neg(x: f32) -> f32 {
-    let x = x.max(-87.0);
-    // Round x / ln2 to nearest with the 1.5 * 2^23 trick.
-    let magic = 12_582_912.0f32;
-    let kf = x * std::f32::consts::LOG2_E + magic;
-    let k = kf - magic;
-    let r = x - k * 0.693_359_4 - k * -2.121_944_4e-4;
-    let mut p = 1.987_569_1e-4f32;
-    p = p * r + 1.398_2e-3;
-    p = p * r + 8.333_452e-3;
-    p = p * r + 4.166_579_6e-2;
-    p = p * r + 1.666_666_5e-1;
-    p = p * r + 0.5;
-    let e = p * r * r + r + 1.0;
-    // 2^k from the exponent bits; k is in [-126, 0] after the clamp above.
-    let bits = ((kf.to_bits() as i32 - magic.to_bits() as i32 + 127) as u32) << 23;
-    e * f32::from_bits(bits)
+    super::project::exp_poly(x.max(-87.0))
 }
 
 #[inline(always)]
