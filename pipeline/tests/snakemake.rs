@@ -275,6 +275,10 @@ fn killed_snakemake_rerun_incomplete_matches_pipeline_run() {
         if !child.wait().unwrap().success() {
             interrupted += 1;
         }
+        // A killed Snakemake leaves its directory lock; `--unlock` is its documented
+        // recovery before a rerun (it does nothing when no lock is left).
+        let (ok, _, log) = smk(&bin, root, &["--unlock"]);
+        assert!(ok, "kill point {k}, --unlock: {log}");
         let (ok, _, log) = smk(&bin, root, &["--rerun-incomplete"]);
         assert!(ok, "kill point {k}: {log}");
         assert!(
