@@ -856,7 +856,35 @@ impl<'a> ColourFit<'a> {
     /// One step: for every view (in parallel or in order, see [`Losses`]), colours,
     /// render, the loss (which leaves dL/drgb in the buffers' `grad`), colour and SH
     /// backward; then the Adam update.
-    fn step_over(&mut self, views: &[usize], mut losses: Losses<'_, '_>) -> Result<f64> {
+    fn step_over(&mut self, views: &[usize], losses: Losses<'_, '_>) -> Result<f64> {
+        Ok(self.grad_or_step(views, losses, true)?.0)
+    }
+
+    /// The gradient of the mean loss over `views` w.r.t. the DC coefficients (`[N * 3]`,
+    /// what [`Self::step_views`] hands to Adam), without changing anything: for plain
+    /// gradient steps and for tests of the gradient itself.
+    pub fn gradient_views(
+        &mut self,
+        views: &[usize],
+        view_loss: &mut ViewLoss<'_>,
+    ) -> Result<(f64, Vec<f32>)> {
+        let mut loss = |v: usize, b: &mut ViewBufs, rgb: Option<&[f32]>, alpha: Option<&[f32]>| {
+            let rgb = rgb.unwrap_or(&b.rgb);
+            let (l, g) = view_loss(v, rgb, alpha)?;
+            b.grad = g;
+            Ok(l)
+        };
+        self.grad_or_step(views, Losses::InOrder(&mut loss), false)
+    }
+
+    /// The gradient over `views`, then (with `apply`) the Adam update; returns the mean
+    /// loss and the DC gradient.
+    fn grad_or_step(
+        &mut self,
+        views: &[usize],
+        mut losses: Losses<'_, '_>,
+        apply: bool,
+    ) -> Result<(f64, Vec<f32>)> {
         if views.is_empty() || views.iter().any(|&v| v >= self.cameras.len()) {
             return Err(Error::param(format!(
                 "step_views: views {views:?} for {} cameras",
@@ -913,6 +941,11 @@ impl<'a> ColourFit<'a> {
             .flat_map_iter(|g| g.map(|x| x / nvf))
             .collect();
         grad_rest.par_iter_mut().for_each(|g| *g /= nvf);
+        if !apply {
+            self.grad_dc = grad_dc;
+            self.grad_rest = grad_rest;
+            return Ok((loss_sum / nv as f64, gdc));
+        }
         self.adam_dc.step(&mut self.dc, &gdc);
         self.adam_rest.step(&mut self.scene.sh_rest, &grad_rest);
         let dc = &self.dc;
@@ -925,7 +958,7 @@ impl<'a> ColourFit<'a> {
         self.grad_rest = grad_rest;
         let loss = loss_sum / nv as f64;
         self.losses.push(loss as f32);
-        Ok(loss)
+        Ok((loss, gdc))
     }
 
     /// Forward, loss and colour backward of view `v`.

@@ -34,6 +34,7 @@
 
 pub mod fill;
 pub mod path;
+pub mod texture;
 
 use crate::csd::{self, CsdParams};
 use crate::mvfc::{MvfcParams, mvfc_path};
@@ -75,8 +76,53 @@ pub struct DistillParams {
     pub fill_background: bool,
     /// Background colour of the renders (and of the source views).
     pub background: [f32; 3],
+    /// How the prior's change reaches the colours ([`ColourLoss`]).
+    pub colour_loss: ColourLoss,
+    /// How the timestep of an iteration is drawn ([`TimestepSchedule`]).
+    pub t_schedule: TimestepSchedule,
     /// Seed of every random draw.
     pub seed: u64,
+}
+
+/// The colour step's loss against the targets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ColourLoss {
+    /// L1: each pixel passes only the sign of the change the prior asks for.
+    L1,
+    /// Half the squared distance: dL/drender = render - target = -a (c' - c), the
+    /// alpha-weighted image change itself, so the render's vector-Jacobian product
+    /// carries the paper's gradient w(t) (Phi_tgt - Phi_src) with its magnitude (the
+    /// MSE-to-a-detached-target form of score distillation).
+    L2,
+}
+
+/// How an iteration's timestep is drawn from the model's set.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub enum TimestepSchedule {
+    /// Uniformly from the whole set, every iteration (the paper).
+    Random,
+    /// Coarse to fine: at iteration i of `total` the draw is uniform over the smallest
+    /// timesteps of the set up to t_max(i), which falls linearly from the set's largest
+    /// to its smallest (threestudio's annealed maximum step; DreamTime's monotone
+    /// schedule in its stochastic form).
+    Anneal { total: u64 },
+}
+
+impl TimestepSchedule {
+    /// The timestep of iteration `it`.
+    pub fn draw(&self, set: &TimestepSet, it: u64, rng: &mut Rng) -> usize {
+        match *self {
+            TimestepSchedule::Random => set.sample(rng),
+            TimestepSchedule::Anneal { total } => {
+                let steps = set.steps();
+                let f = (it as f64 / total.max(1) as f64).min(1.0);
+                let top = ((1.0 - f) * (steps.len() - 1) as f64).round() as usize;
+                let i = ((rng.uniform() * (top + 1) as f64) as usize).min(top);
+                steps[i]
+            }
+        }
+    }
 }
 
 impl Default for DistillParams {
@@ -92,6 +138,8 @@ impl Default for DistillParams {
             ssim_weight: 0.0,
             fill_background: true,
             background: [0.0; 3],
+            colour_loss: ColourLoss::L1,
+            t_schedule: TimestepSchedule::Random,
             seed: 0,
         }
     }
@@ -118,6 +166,8 @@ pub struct IterReport {
     pub timestep: usize,
     /// Mean colour loss over the window before the update.
     pub loss: f64,
+    /// Mean texture loss over the window before the update (0 without the term).
+    pub texture_loss: f64,
     /// RMS of the image change the prior asked for, over covered pixels.
     pub delta_rms: f64,
     /// Fraction of covered target pixels clipped (<= 0.02 or >= 0.98 in every channel).
@@ -155,6 +205,8 @@ pub struct Distiller<'a> {
     path: ViewPath,
     iteration: u64,
     last: Option<LastIteration>,
+    /// The low-layer texture term added to the colour step ([`texture`]), if any.
+    texture: Option<texture::TextureTerm>,
 }
 
 fn to_chw(img: &[f32], h: usize, w: usize) -> Array3<f32> {
@@ -251,6 +303,7 @@ impl<'a> Distiller<'a> {
             path: ViewPath::of(cameras),
             iteration,
             last: None,
+            texture: None,
         })
     }
 
@@ -268,6 +321,12 @@ impl<'a> Distiller<'a> {
         } else {
             rgb.to_vec()
         }
+    }
+
+    /// Add the low-layer texture term to every colour step.
+    pub fn with_texture(mut self, term: texture::TextureTerm) -> Self {
+        self.texture = Some(term);
+        self
     }
 
     /// Iterations done so far.
@@ -309,7 +368,7 @@ impl<'a> Distiller<'a> {
         let (h, w) = (self.source.height, self.source.width);
         let mut rng = Rng::derive(p.seed, &format!("distill/{it}"));
         let Window { views, circular } = self.path.draw(&mut rng, p.views_per_iter);
-        let t = self.timesteps.sample(&mut rng);
+        let t = p.t_schedule.draw(&self.timesteps, it, &mut rng);
         let n = views.len();
 
         // Renders, what the prior sees, latents.
@@ -457,12 +516,29 @@ impl<'a> Distiller<'a> {
         let index: std::collections::HashMap<usize, usize> =
             views.iter().enumerate().map(|(i, &v)| (v, i)).collect();
         let tg = &targets;
+        let tex = self.texture.as_ref();
+        let source = self.source;
+        let mut tex_loss = 0.0f64;
         let mut loss = |v: usize, rgb: &[f32], _a: Option<&[f32]>| -> Result<(f64, Vec<f32>)> {
             let i = index[&v];
             let target = tg.index_axis(Axis(0), i);
             let target = target.as_slice().expect("standard layout");
-            let (l, g) = loss_and_grad(rgb, target, None, h, w, lp);
-            Ok((l as f64, g))
+            let (l, mut g) = match p.colour_loss {
+                ColourLoss::L1 => {
+                    let (l, g) = loss_and_grad(rgb, target, None, h, w, lp);
+                    (l as f64, g)
+                }
+                ColourLoss::L2 => half_squared_distance(rgb, target),
+            };
+            if let Some(t) = tex.filter(|t| t.weight > 0.0) {
+                let seen = Self::prior_view(&p, source, rgb, v);
+                let tg = t.view_grad(&seen, &source.alpha[v], h, w)?;
+                tex_loss += tg.loss / n as f64;
+                for (a, b) in g.iter_mut().zip(&tg.grad) {
+                    *a += t.weight * b;
+                }
+            }
+            Ok((l, g))
         };
         let loss = self.fit.step_views(&views, &mut loss)?;
         let report = IterReport {
@@ -470,6 +546,7 @@ impl<'a> Distiller<'a> {
             views: views.clone(),
             timestep: t,
             loss,
+            texture_loss: tex_loss,
             delta_rms: (d2 / (3 * covered.max(1)) as f64).sqrt(),
             clipped: clipped as f64 / covered.max(1) as f64,
         };
@@ -485,6 +562,23 @@ impl<'a> Distiller<'a> {
     }
 }
 
+/// `(sum 0.5 (x - y)^2 / n, (x - y) / n)` over the `n` values of a view: the gradient is
+/// the difference itself, scaled like the L1 loss's (1/n per value).
+pub fn half_squared_distance(render: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
+    let n = render.len().max(1) as f32;
+    let mut loss = 0.0f64;
+    let g = render
+        .iter()
+        .zip(target)
+        .map(|(x, y)| {
+            let d = x - y;
+            loss += 0.5 * (d as f64) * (d as f64);
+            d / n
+        })
+        .collect();
+    (loss / n as f64, g)
+}
+
 /// Luminance-only transfer (Gatys et al. 2016, "Preserving color in neural artistic
 /// style transfer"): the luminance of `c`, the chroma of `src` (Rec. 601 luma; chroma as
 /// the offset of each channel from the luma).
@@ -495,19 +589,4 @@ pub fn keep_chroma(c: [f32; 3], src: [f32; 3]) -> [f32; 3] {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn keep_chroma_takes_luma_from_one_and_chroma_from_the_other() {
-        let c = [0.9, 0.1, 0.2];
-        let src = [0.2, 0.5, 0.3];
-        let out = keep_chroma(c, src);
-        let luma = |v: [f32; 3]| 0.299 * v[0] + 0.587 * v[1] + 0.114 * v[2];
-        assert!((luma(out) - luma(c)).abs() < 1e-6);
-        for k in 0..3 {
-            assert!(((out[k] - luma(out)) - (src[k] - luma(src))).abs() < 1e-6);
-        }
-        assert_eq!(keep_chroma(src, src), src);
-    }
-}
+mod tests;

@@ -65,6 +65,11 @@ pub struct PriorOptions {
     /// the content's own style. The stylizer interpolates style vectors
     /// (`(1 - strength) s(content) + strength s(style)`).
     pub strength: Option<f32>,
+    /// Motif scale of a pixel-space stylizer (`None` = 1): the image is enlarged by this
+    /// factor before the network sees it and reduced after, so the network's strokes and
+    /// motifs, whose size in network pixels is fixed, come out this many times smaller on
+    /// the object (StylizedGS's scale control). Diffusion priors ignore it.
+    pub motif_scale: Option<f32>,
 }
 
 impl PriorOptions {
@@ -93,7 +98,8 @@ pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
                 opts.style_image.as_ref().map(|a| a.view()),
                 opts.session_config(),
             )?
-            .with_strength(opts.strength.unwrap_or(1.0))?,
+            .with_strength(opts.strength.unwrap_or(1.0))?
+            .with_motif_scale(opts.motif_scale.unwrap_or(1.0))?,
         )),
     }
 }

@@ -139,6 +139,8 @@ pub struct StylizerPrior {
     transform: LazyGraph,
     style: Option<Vec<f32>>,
     strength: f32,
+    /// Motif scale (>= 1), see `PriorOptions::motif_scale`.
+    motif_scale: f32,
     /// Style vectors of control images seen before, by the blake3 of their pixels (the
     /// same source view comes back every few iterations).
     own_styles: std::collections::HashMap<[u8; 32], Vec<f32>>,
@@ -221,6 +223,7 @@ impl StylizerPrior {
             transform,
             style: None,
             strength: 1.0,
+            motif_scale: 1.0,
             own_styles: Default::default(),
         };
         if let Some(s) = style {
@@ -258,6 +261,18 @@ impl StylizerPrior {
             )));
         }
         self.strength = strength;
+        Ok(self)
+    }
+
+    /// Set the motif scale (>= 1: the image is enlarged by this factor before the
+    /// transfer network and reduced after; see `PriorOptions::motif_scale`).
+    pub fn with_motif_scale(mut self, scale: f32) -> Result<Self> {
+        if !(scale.is_finite() && (1.0..=4.0).contains(&scale)) {
+            return Err(Error::param(format!(
+                "motif scale must be in [1, 4], got {scale}"
+            )));
+        }
+        self.motif_scale = scale;
         Ok(self)
     }
 
@@ -301,9 +316,37 @@ impl StylizerPrior {
     /// the transfer size are scaled down (aspect kept) and back up; smaller sides are
     /// mirror-padded to the transfer size and cropped after.
     pub fn stylize(&mut self, img: ArrayView3<'_, f32>, s: &[f32]) -> Result<Array3<f32>> {
+        if self.motif_scale != 1.0 {
+            // Enlarged before the network, reduced after (area average).
+            let (h, w) = (img.shape()[1], img.shape()[2]);
+            let (bh, bw) = (
+                ((h as f32 * self.motif_scale).round() as usize).max(1),
+                ((w as f32 * self.motif_scale).round() as usize).max(1),
+            );
+            let big = resize(img, bh, bw);
+            let out = self.stylize_at(big.view(), s, self.motif_scale)?;
+            return Ok(resize(out.view(), h, w));
+        }
+        self.stylize_at(img, s, 1.0)
+    }
+
+    /// [`Self::stylize`] at the image's own scale; `zoom` enlarges the largest side
+    /// processed as it is.
+    fn stylize_at(
+        &mut self,
+        img: ArrayView3<'_, f32>,
+        s: &[f32],
+        zoom: f32,
+    ) -> Result<Array3<f32>> {
         let (h, w) = (img.shape()[1], img.shape()[2]);
+        // A dynamic graph processes up to `size x zoom` as it is; a fixed one only `size`.
         let size = self.manifest.transform.size;
-        let scale = (size as f64 / h.max(w) as f64).min(1.0);
+        let limit = if self.manifest.transform.dynamic {
+            (size as f32 * zoom).round() as usize
+        } else {
+            size
+        };
+        let scale = (limit as f64 / h.max(w) as f64).min(1.0);
         let (sh, sw) = (
             ((h as f64 * scale).round() as usize).max(1),
             ((w as f64 * scale).round() as usize).max(1),

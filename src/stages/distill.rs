@@ -104,6 +104,32 @@ pub struct Args {
     /// Timestep set MIN:MAX:COUNT (default: the model's own set).
     #[arg(long)]
     pub timesteps: Option<String>,
+    /// The colour step's loss: l2 passes the prior's change with its magnitude (the
+    /// paper's gradient), l1 only its sign.
+    #[arg(long, value_enum, default_value = "l1")]
+    pub colour_loss: crate::distill::ColourLoss,
+    /// Anneal the timestep from coarse to fine over this many iterations in total (the
+    /// whole run, all chunks: t_max falls linearly to the set's smallest); 0 = draw
+    /// uniformly from the whole set every iteration.
+    #[arg(long, default_value_t = 0)]
+    pub anneal_iters: u64,
+    /// Motif scale of the stylizer prior: the render is enlarged this many times before
+    /// the network and reduced after, so strokes and motifs come out this much smaller
+    /// on the object (1 = as the network draws them at the render's size).
+    #[arg(long, default_value_t = 1.0)]
+    pub motif_scale: f32,
+    /// Weight of the low-layer texture term in the colour step (masked VGG16 Gram loss
+    /// at relu1_2 and relu2_2 of the object crop against the style image; not part of
+    /// FantasyStyle, see src/distill/texture.rs); 0 = off.
+    #[arg(long, default_value_t = 0.0)]
+    pub texture_weight: f32,
+    /// The style image is resized so its shorter side is this many pixels for the
+    /// texture term (sets the motif scale against the render's pixels).
+    #[arg(long, default_value_t = 256)]
+    pub texture_style_size: usize,
+    /// VGG16 weights for the texture term (default: lpips/vgg16 in the models directory).
+    #[arg(long)]
+    pub texture_vgg: Option<PathBuf>,
     /// Give the prior the raw render (object over the background) instead of the object
     /// over a fill of its own colours.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
@@ -149,6 +175,14 @@ fn params(a: &Args) -> DistillParams {
         fit_rest: a.fit_rest,
         lr_dc: a.lr_dc,
         fill_background: !a.no_fill,
+        colour_loss: a.colour_loss,
+        t_schedule: if a.anneal_iters > 0 {
+            crate::distill::TimestepSchedule::Anneal {
+                total: a.anneal_iters,
+            }
+        } else {
+            crate::distill::TimestepSchedule::Random
+        },
         seed: a.seed,
         ..DistillParams::default()
     }
@@ -236,6 +270,7 @@ pub fn run(a: Args) -> Result<()> {
                     prompt: a.prompt.clone().filter(|p| !p.is_empty()),
                     threads: a.threads.n,
                     strength: Some(a.strength),
+                    motif_scale: Some(a.motif_scale),
                     device: a.device.device,
                     unet_batch: a.unet_batch,
                     ..Default::default()
@@ -284,6 +319,9 @@ pub fn run(a: Args) -> Result<()> {
             )?;
             if let Some(s) = state.clone() {
                 d.set_optimizer_state(s)?;
+            }
+            if a.texture_weight > 0.0 {
+                d = d.with_texture(texture_term(&a)?);
             }
             tracing::info!(
                 "distill: iterations {start}..{} on {n} views ({}x{}), {} per iteration, path {}",
@@ -358,7 +396,9 @@ pub fn run(a: Args) -> Result<()> {
             "strength": a.strength, "preserve_color": a.preserve_color, "fit_rest": a.fit_rest,
             "csd": a.csd, "lr_dc": a.lr_dc, "mvfc": !a.no_mvfc, "mvfc_source": a.mvfc_source, "gamma": a.mvfc.gamma,
             "d_s": a.mvfc.d_s, "d_t": a.mvfc.d_t, "timesteps": a.timesteps,
-            "fill": !a.no_fill, "seed": a.seed, "prompt": a.prompt, "format": a.format,
+            "fill": !a.no_fill, "seed": a.seed,
+            "colour_loss": a.colour_loss, "texture_weight": a.texture_weight,
+            "texture_style_size": a.texture_style_size, "anneal_iters": a.anneal_iters, "motif_scale": a.motif_scale, "prompt": a.prompt, "format": a.format,
             "device": a.device.device.to_string(), "unet_batch": a.unet_batch,
         }),
     );
@@ -413,6 +453,25 @@ pub fn run(a: Args) -> Result<()> {
     crate::timing::io(|| out.commit())?;
     tracing::info!("wrote {} (iteration {iteration})", a.out.display());
     Ok(())
+}
+
+/// The texture term of `--texture-weight` (VGG from `--texture-vgg` or the models
+/// directory; the style image at `--texture-style-size`).
+fn texture_term(a: &Args) -> Result<crate::distill::texture::TextureTerm> {
+    use crate::vgg::{Layer, Vgg16};
+    let dir = match &a.texture_vgg {
+        Some(p) => p.clone(),
+        None => crate::models::model_path("lpips/vgg16")?,
+    };
+    let vgg = Vgg16::load(&dir)?;
+    let style = crate::imageio::read_rgb(&a.style)?;
+    let style = crate::baselines::prepare_style(&style, a.texture_style_size, &a.style)?;
+    crate::distill::texture::TextureTerm::new(
+        vgg,
+        &style,
+        &[Layer::Relu1_2, Layer::Relu2_2],
+        a.texture_weight,
+    )
 }
 
 /// Adam state of a scene that has not been optimised yet.
