@@ -138,7 +138,7 @@ impl Default for DistillParams {
             ssim_weight: 0.0,
             fill_background: true,
             background: [0.0; 3],
-            colour_loss: ColourLoss::L1,
+            colour_loss: ColourLoss::L2,
             t_schedule: TimestepSchedule::Random,
             seed: 0,
         }

@@ -106,7 +106,7 @@ pub struct Args {
     pub timesteps: Option<String>,
     /// The colour step's loss: l2 passes the prior's change with its magnitude (the
     /// paper's gradient), l1 only its sign.
-    #[arg(long, value_enum, default_value = "l1")]
+    #[arg(long, value_enum, default_value = "l2")]
     pub colour_loss: crate::distill::ColourLoss,
     /// Anneal the timestep from coarse to fine over this many iterations in total (the
     /// whole run, all chunks: t_max falls linearly to the set's smallest); 0 = draw
@@ -120,8 +120,8 @@ pub struct Args {
     pub motif_scale: f32,
     /// Weight of the low-layer texture term in the colour step (masked VGG16 Gram loss
     /// at relu1_2 and relu2_2 of the object crop against the style image; not part of
-    /// FantasyStyle, see src/distill/texture.rs); 0 = off.
-    #[arg(long, default_value_t = 0.0)]
+    /// FantasyStyle, see src/distill/texture.rs); 0 = off, the paper's method alone.
+    #[arg(long, default_value_t = 1.0)]
     pub texture_weight: f32,
     /// The style image is resized so its shorter side is this many pixels for the
     /// texture term (sets the motif scale against the render's pixels).

@@ -10,3 +10,4 @@ mod render;
 mod runtime;
 mod scene;
 mod snakemake_sample;
+mod texture;
