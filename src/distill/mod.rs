@@ -25,8 +25,18 @@
 //!    (small a) asks for a small change only, not for a colour it can reach only by
 //!    blowing up (the "glowing haze" of the first version), and Delta = 0 asks for no
 //!    change at all (the target is then the render, bit for bit);
-//! 6. one Adam step of the SH colours on the window's views towards the targets
-//!    (L1 + D-SSIM, [`crate::optim`]); geometry is frozen.
+//! 6. one Adam step of the SH colours on the window's views towards the targets;
+//!    geometry is frozen. With the L2 loss ([`ColourLoss::L2`], the default) the
+//!    gradient at the render is -a (c' - c), the prior's change with its magnitude, and
+//!    the rasterizer's vector-Jacobian product carries the paper's w(t) (Phi_tgt -
+//!    Phi_src) into the colours (the MSE-to-a-detached-target form of score
+//!    distillation); L1 passes only its sign. Optionally ([`texture`], on in the stage's
+//!    defaults) a low-layer VGG Gram term of the object is added to the same step: it is
+//!    not part of FantasyStyle, and it is what carries a style's motifs with the CPU
+//!    stylizer prior (BENCHMARKS.md "Texture").
+//!
+//! The timestep is drawn uniformly from the set every iteration (the paper), or annealed
+//! from coarse to fine ([`TimestepSchedule::Anneal`]).
 //!
 //! Strength is the prior's business (`PriorOptions::strength`; for the stylizer an
 //! interpolation of style vectors), except strength 0, which the stage short-circuits to

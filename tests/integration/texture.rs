@@ -2,35 +2,35 @@
 //! with the stylizer prior and the low-layer texture term after an image of vertical
 //! stripes, shows the stripes in every view (a peak of the luminance spectrum across
 //! the image at the stripes' frequency, absent before), and they are the same stripes
-//! seen from each view (the renders agree after depth reprojection).
+//! seen from each view (adjacent renders agree after depth reprojection).
 
 use fantasystyle::Camera;
 use fantasystyle::Scene;
+use fantasystyle::camera::load_cameras;
 use fantasystyle::distill::texture::TextureTerm;
 use fantasystyle::distill::{ColourLoss, DistillParams, Distiller, SourceViews};
 use fantasystyle::imageio::Image;
-use fantasystyle::metrics::warp::{look_at, surface_depth, warp_into};
+use fantasystyle::metrics::warp::{surface_depth, warp_into};
 use fantasystyle::prior::{self, PriorOptions};
 use fantasystyle::render::{RenderOptions, render};
 use fantasystyle::rng::Rng;
 use fantasystyle::vgg::{Layer, Vgg16};
-use ndarray::Array4;
 
 /// Side of the renders; stripes of the style: period in pixels.
 const SIZE: usize = 64;
 const PERIOD: usize = 8;
 
-/// A 48 x 48 grid of small Gaussians on the plane x = 0 (|y|, |z| <= 1), grey with a
+/// A 48 x 48 grid of small Gaussians on the plane z = 0 (|x|, |y| <= 1), grey with a
 /// little random jitter (so the texture has something to grow from).
 fn plane() -> Scene {
     let mut rng = Rng::new(3);
     let mut s = Scene::default();
     let n = 48;
     for iy in 0..n {
-        for iz in 0..n {
+        for ix in 0..n {
+            let x = -1.0 + 2.0 * (ix as f32 + 0.5) / n as f32;
             let y = -1.0 + 2.0 * (iy as f32 + 0.5) / n as f32;
-            let z = -1.0 + 2.0 * (iz as f32 + 0.5) / n as f32;
-            s.positions.push([0.0, y, z]);
+            s.positions.push([x, y, 0.0]);
             s.log_scales.push([(0.025f32).ln(); 3]);
             s.rotations.push([1.0, 0.0, 0.0, 0.0]);
             s.opacity_logits.push(4.0);
@@ -41,23 +41,21 @@ fn plane() -> Scene {
     s
 }
 
-/// Four views of the plane from 3 units away, 8 degrees apart, image x along world -y.
-fn cameras() -> Vec<Camera> {
-    [-12.0f64, -4.0, 4.0, 12.0]
-        .iter()
-        .enumerate()
-        .map(|(i, deg)| {
-            let t = deg.to_radians();
-            look_at(
-                &format!("v{i}"),
-                [-3.0 * t.cos(), 3.0 * t.sin(), 0.0],
-                [0.0, 0.0, 0.0],
-                SIZE as u32,
-                SIZE as u32,
-                80.0,
-            )
-        })
-        .collect()
+/// Four views of a 45-view orbit (8 degrees apart) around the plane, from its
+/// -z side, 3 units away, filling most of the frame.
+fn cameras(scene: &Scene) -> Vec<Camera> {
+    let mut c = load_cameras(
+        "orbit:45,elev=0,radius=3,fov=40",
+        &scene.bounds(),
+        SIZE as u32,
+        SIZE as u32,
+    )
+    .unwrap();
+    // Views 1..=4 (8 to 32 degrees). View 0 looks at the plane exactly head-on, where
+    // the depth reprojection of metrics::warp disagrees with the renders (even the
+    // source views' jitter correlates only 0.6 from view 0 to view 1, 0.98 between
+    // views 1 and 2): a known gap of the warp, not of the texture.
+    c.drain(1..5).collect()
 }
 
 /// Vertical stripes, `PERIOD` px, warm light / dark blue, 128 x 128.
@@ -129,7 +127,7 @@ fn a_plane_styled_with_stripes_shows_them_in_every_view() {
         return;
     };
     let scene = plane();
-    let cams = cameras();
+    let cams = cameras(&scene);
     let mut src = SourceViews {
         width: SIZE,
         height: SIZE,
@@ -191,31 +189,44 @@ fn a_plane_styled_with_stripes_shows_them_in_every_view() {
             "view {v}: no stripes at {expected} cycles / 32 px (peak at {k}, {ratio:.1}x the rest)"
         );
     }
-    // The same stripes from every view: view 0 warped into each other view agrees with
-    // that view's render (luminance correlation over valid pixels, each mean removed).
-    let depth0 = surface_depth(&src.depth[0], &src.alpha[0]);
-    let img0 = Image {
-        width: SIZE,
-        height: SIZE,
-        data: renders[0].clone(),
-    };
+    // The same stripes from each view: each view warped into the next (8 degrees apart)
+    // agrees with that view's render (luminance correlation over the valid pixels).
     for v in 1..cams.len() {
-        let dz = surface_depth(&src.depth[v], &src.alpha[v]);
-        let w = warp_into(&cams[v], &dz, &cams[0], &depth0, &img0);
-        let idx: Vec<usize> = (0..SIZE * SIZE).filter(|&p| w.mask[p] > 0.5).collect();
-        assert!(
-            idx.len() > SIZE * SIZE / 3,
-            "view {v}: too few valid pixels"
+        let (corr, n) = warped_correlation(&cams, &src, &renders, v - 1, v);
+        eprintln!(
+            "view {} -> view {v}: luminance correlation {corr:.3} over {n} px",
+            v - 1
         );
-        let a: Vec<f64> = idx.iter().map(|&p| luma(&w.image.data, p)).collect();
-        let b: Vec<f64> = idx.iter().map(|&p| luma(&renders[v], p)).collect();
-        let corr = correlation(&a, &b);
-        eprintln!("view 0 -> view {v}: luminance correlation {corr:.3}");
+        assert!(n > SIZE * SIZE / 3, "view {v}: only {n} valid pixels");
         assert!(
-            corr > 0.6,
-            "view 0 warped into view {v} correlates {corr:.3}"
+            corr > 0.8,
+            "view {} warped into view {v} correlates {corr:.3}",
+            v - 1
         );
     }
+}
+
+/// Correlation of view `a`'s render warped into view `b` (depth reprojection with the
+/// source views' depth) with view `b`'s render, and the number of valid pixels.
+fn warped_correlation(
+    cams: &[Camera],
+    src: &SourceViews,
+    renders: &[Vec<f32>],
+    a: usize,
+    b: usize,
+) -> (f64, usize) {
+    let za = surface_depth(&src.depth[a], &src.alpha[a]);
+    let zb = surface_depth(&src.depth[b], &src.alpha[b]);
+    let img = Image {
+        width: SIZE,
+        height: SIZE,
+        data: renders[a].clone(),
+    };
+    let w = warp_into(&cams[b], &zb, &cams[a], &za, &img);
+    let idx: Vec<usize> = (0..SIZE * SIZE).filter(|&p| w.mask[p] > 0.5).collect();
+    let x: Vec<f64> = idx.iter().map(|&p| luma(&w.image.data, p)).collect();
+    let y: Vec<f64> = idx.iter().map(|&p| luma(&renders[b], p)).collect();
+    (correlation(&x, &y), idx.len())
 }
 
 fn correlation(a: &[f64], b: &[f64]) -> f64 {
