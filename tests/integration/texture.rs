@@ -63,7 +63,7 @@ fn stripes() -> Image {
     let mut data = Vec::with_capacity(128 * 128 * 3);
     for _y in 0..128 {
         for x in 0..128 {
-            let c = if (x / (PERIOD / 2)) % 2 == 0 {
+            let c = if (x / (PERIOD / 2)).is_multiple_of(2) {
                 [0.95, 0.8, 0.3]
             } else {
                 [0.1, 0.15, 0.45]
