@@ -504,7 +504,7 @@ mod stage {
         );
         assert!(m1 < 0.015 && m0 > 3.0 * m1, "mean {m0} -> {m1}");
         assert!(
-            c1 < 0.25 * norm && c0 > 2.0 * c1,
+            c1 < 0.1 * norm && c0 > 3.0 * c1,
             "cov {c0} -> {c1} (norm {norm})"
         );
         let log: serde_json::Value =
