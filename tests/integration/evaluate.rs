@@ -149,7 +149,11 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
     assert_eq!(t.gram_object.len(), 4);
     for l in &t.gram_object {
         assert_eq!(l.stylized_per_view.len(), 7, "{}", l.layer);
-        assert!(l.stylized.unwrap() > 0.0 && l.original.unwrap() > 0.0, "{}", l.layer);
+        assert!(
+            l.stylized.unwrap() > 0.0 && l.original.unwrap() > 0.0,
+            "{}",
+            l.layer
+        );
     }
     let kid = json["kid_style"]["value"].as_f64().unwrap();
     assert!((t.kid_style.value.unwrap() - kid).abs() <= 1e-9 * kid.abs().max(1.0));
@@ -157,7 +161,13 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
     assert!(lo < kid && kid < hi && !t.kid_style.reliable);
     assert!(t.spectrum.distance_original.is_some() && t.spectrum.peak_style.is_some());
     assert!(t.object.clipped_stylized.is_some() && t.object.stats_distance_stylized.is_some());
-    assert!(json["texture"]["spectrum"]["style"].as_array().unwrap().len() == 24);
+    assert_eq!(
+        json["texture"]["spectrum"]["style"]
+            .as_array()
+            .unwrap()
+            .len(),
+        24
+    );
 
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(html.contains("<h2>Texture</h2>") && html.contains("Radially averaged luminance"));
