@@ -1,12 +1,20 @@
 #!/usr/bin/env python3
-"""Procedural style images for quality benchmarks (numpy only; deterministic).
+"""Style images for quality benchmarks (numpy only; deterministic).
 
-    make_styles.py OUT_DIR [SIZE]
+    make_styles.py OUT_DIR [SIZE] [--skimage-wheel WHEEL]
 
-Writes three styles far from the sample's style and from each other:
+Writes three procedural styles far from the sample's style and from each other:
   painting.png  swirling brush strokes along a curl flow field, night-sky palette
   opart.png     concentric zig-zag rings, black / white / red, hard edges
   mosaic.png    stained glass: Voronoi cells in a warm palette with dark leading
+and one photographic texture:
+  brick.png     scikit-image's `brick` (a brick-wall photo, CC0, see
+                benches/quality/styles/CREDITS.md), 512x512 grayscale box-averaged to SIZE
+                and written as RGB. Read from the scikit-image package's data directory
+                without importing it (no pooch download: the file ships in the wheel): from
+                an installed scikit-image, or from a wheel file given with --skimage-wheel
+                (`pip download --no-deps scikit-image==0.26.0` fetches one). Skipped with a
+                message when neither is available.
 """
 import os
 import struct
@@ -88,15 +96,95 @@ def mosaic(size, seed=1):
     return img
 
 
+def read_png_gray8(data):
+    """An 8-bit grayscale, non-interlaced PNG (scikit-image's textures) as uint8 [H, W]."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat = 8, b""
+    while pos < len(data):
+        n = struct.unpack(">I", data[pos:pos + 4])[0]
+        t, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
+        if t == b"IHDR":
+            w, h, depth, ctype, _, _, interlace = struct.unpack(">IIBBBBB", body)
+            if (depth, ctype, interlace) != (8, 0, 0):
+                raise ValueError(f"expected 8-bit grayscale, non-interlaced; got depth {depth} type {ctype}")
+        elif t == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w)
+    out = np.zeros((h, w), np.int64)
+    for y in range(h):
+        f, line = raw[y, 0], raw[y, 1:].astype(np.int64)
+        prev = out[y - 1] if y else np.zeros(w, np.int64)
+        if f == 0:
+            cur = line
+        elif f == 2:
+            cur = (line + prev) % 256
+        else:
+            cur = np.zeros(w, np.int64)
+            for i in range(w):
+                a = cur[i - 1] if i else 0
+                b = prev[i]
+                c = prev[i - 1] if i else 0
+                if f == 1:
+                    p = a
+                elif f == 3:
+                    p = (a + b) // 2
+                else:
+                    pa, pb, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
+                    p = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
+                cur[i] = (line[i] + p) % 256
+        out[y] = cur
+    return out.astype(np.uint8)
+
+
+def skimage_file(name, wheel):
+    """Bytes of skimage/data/NAME from a wheel or an installed scikit-image, else None."""
+    if wheel:
+        import zipfile
+        with zipfile.ZipFile(wheel) as z:
+            return z.read("skimage/data/" + name)
+    import importlib.util
+    spec = importlib.util.find_spec("skimage")  # finds the package without importing it
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    path = os.path.join(list(spec.submodule_search_locations)[0], "data", name)
+    return open(path, "rb").read() if os.path.isfile(path) else None
+
+
+def photo_texture(name, size, wheel):
+    data = skimage_file(name, wheel)
+    if data is None:
+        return None
+    g = read_png_gray8(data).astype(np.float64)
+    f = g.shape[0] // size
+    g = g[: size * f, : size * f].reshape(size, f, size, f).mean((1, 3))
+    return np.repeat(g[..., None], 3, -1)
+
+
 def main():
-    if len(sys.argv) not in (2, 3):
+    args = sys.argv[1:]
+    wheel = None
+    if "--skimage-wheel" in args:
+        i = args.index("--skimage-wheel")
+        if i + 1 >= len(args):
+            sys.exit(__doc__)
+        wheel = args[i + 1]
+        del args[i:i + 2]
+    if len(args) not in (1, 2):
         sys.exit(__doc__)
-    out = sys.argv[1]
-    size = int(sys.argv[2]) if len(sys.argv) == 3 else 256
+    out = args[0]
+    size = int(args[1]) if len(args) == 2 else 256
     os.makedirs(out, exist_ok=True)
     for name, f in [("painting", painting), ("opart", opart), ("mosaic", mosaic)]:
         path = os.path.join(out, name + ".png")
         write_png(path, f(size))
+        print("wrote", path)
+    brick = photo_texture("brick.png", size, wheel)
+    path = os.path.join(out, "brick.png")
+    if brick is None:
+        print(f"skipped {path}: scikit-image's data not found (give --skimage-wheel WHEEL)")
+    else:
+        write_png(path, brick + 0.5)
         print("wrote", path)
 
 

@@ -1,23 +1,31 @@
 #!/usr/bin/env python3
 """Summary of the quality benchmark (benches/quality/quality.toml).
 
-    quality_summary.py RUNS_DIR [STYLES_DIR]
+    quality_summary.py RUNS_DIR [--styles DIR] [--lock FILE] [--plot PNG]
 
-Reads, for every scene/style/method under RUNS_DIR, what `evaluate` wrote (metrics.json)
-and the rendered views (rgb.npy, alpha.npy), and prints a Markdown report:
+Reads, for every scene/style/method under RUNS_DIR, what `evaluate` wrote
+(metrics.json, whose `texture` section holds the texture and object measures), the
+method's wall time (its stage's `duration_s` in the pipeline lock, default
+RUNS_DIR/../quality.lock) and, for the budgeted baselines, their timing.json (steps done).
+Prints a Markdown report:
 
-* per case: Gram distance to the style (stylized / original, lower = closer), LPIPS to
-  the original (content change), short-range LPIPS between neighbouring views (lower =
-  more consistent; the original's own value beside it), ArtFID, the distance of the
-  object's RGB statistics from the style image's (|mean diff| + Frobenius |cov diff|,
-  original -> stylized), clipped object pixels, and the brightness change of the faint
-  silhouette fringe (alpha 0.02-0.5; the "glowing haze" of issue 11);
+* per case and method: Gram distance over the object per VGG layer (relu1_2, relu2_2,
+  relu3_3, relu4_3) as stylized / original (below 1 = closer to the style than the
+  original), KID_style (± 1.96 jackknife se), the luminance-spectrum distance to the style
+  (stylized / original) and the spectrum's peak period, LPIPS to the original, short- and
+  long-range consistency (LPIPS after warping; the original's own value is the floor),
+  clipped object pixels, silhouette-fringe brightening, wall time (and steps);
 * per method: mean and 95% confidence interval (Student t over cases);
-* how many cases our method beats the Gram baseline on each measure.
+* per baseline: in how many cases ours is lower (better) on relu1_2 / relu2_2 / KID;
+* with RUNS_DIR/speed present, the speed-accuracy table (ours by iterations, the VGG
+  baselines by steps) and, when matplotlib is importable, its plot (--plot, default
+  RUNS_DIR/speed/speed_accuracy.png).
 
-It also writes one contact sheet per scene, RUNS_DIR/sheets/<scene>.png: per style,
-rows = style image, original, then each method; columns = every other view.
+It also writes one contact sheet per case, RUNS_DIR/sheets/<scene>.<style>.png: rows =
+style, original, per-view 2D stylizer (the refit baseline's targets), ours, gram, nnfm,
+then the other methods (nomvfc, sds, colour, refit); columns = views 0, 4, 8, 12.
 """
+import argparse
 import json
 import os
 import struct
@@ -28,13 +36,15 @@ import numpy as np
 
 from make_styles import write_png
 
-METHODS = ["ours", "nomvfc", "gram"]
+METHODS = ["ours", "nomvfc", "sds", "colour", "gram", "nnfm", "refit"]
+SHEET_ROWS = ["ours", "gram", "nnfm", "nomvfc", "sds", "colour", "refit"]
+LAYERS = ["relu1_2", "relu2_2", "relu3_3", "relu4_3"]
 T95 = {1: 12.71, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
        9: 2.262, 10: 2.228, 11: 2.201, 12: 2.179, 15: 2.131, 20: 2.086, 30: 2.042}
 
 
 def read_png(path):
-    """8-bit RGB/RGBA PNG, any filter (enough for the style images)."""
+    """8-bit RGB/RGBA PNG, any filter (style images, the refit's targets)."""
     data = open(path, "rb").read()
     assert data[:8] == b"\x89PNG\r\n\x1a\n", path
     pos, idat, w = 8, b"", None
@@ -57,15 +67,17 @@ def read_png(path):
             cur = line
         elif f == 2:
             cur = (line + prev) % 256
+        elif f == 1:
+            cur = np.zeros(w * ch, np.int32)
+            for c in range(ch):
+                cur[c::ch] = np.cumsum(line[c::ch]) % 256
         else:
             cur = np.zeros(w * ch, np.int32)
             for i in range(w * ch):
                 a = cur[i - ch] if i >= ch else 0
                 b = prev[i]
                 c = prev[i - ch] if i >= ch else 0
-                if f == 1:
-                    p = a
-                elif f == 3:
+                if f == 3:
                     p = (a + b) // 2
                 else:
                     pa, pb, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
@@ -75,114 +87,246 @@ def read_png(path):
     return out.reshape(h, w, ch)[..., :3] / 255.0
 
 
-def stats_distance(pix, style):
-    mu = np.abs(pix.mean(0) - style.mean(0))
-    cov = np.cov(pix.T) - np.cov(style.T)
-    return float(np.linalg.norm(mu) + np.linalg.norm(cov))
+def load_json(path):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
 
 
-def case(runs, scene, style_img, method):
-    src = os.path.join(runs, scene, "source")
-    rgb0, alpha = np.load(os.path.join(src, "rgb.npy")), np.load(os.path.join(src, "alpha.npy"))
-    base = os.path.join(runs, scene, style_img[0])
-    m = json.load(open(os.path.join(base, method + "-eval", "metrics.json")))
-    rgb1 = np.load(os.path.join(base, method + "-views", "rgb.npy"))
-    a = alpha[..., 0] if alpha.ndim == 4 else alpha
-    cov_ = a > 0.5
-    un0 = rgb0[cov_] / a[cov_][:, None]
-    un1 = rgb1[cov_] / a[cov_][:, None]
-    st = style_img[1].reshape(-1, 3)
-    fringe = (a > 0.02) & (a < 0.5)
-    clip = lambda u: float(np.mean(np.all(u <= 0.02, 1) | np.all(u >= 0.98, 1)))
-    return {
-        "gram_ratio": m["gram_style"] / m["gram_style_original"],
+def stage_seconds(lock, name):
+    e = (lock or {}).get("stages", {}).get(name)
+    return e["duration_s"] if e and e.get("status") == "ok" else None
+
+
+def case(runs, scene, style, method, lock):
+    base = os.path.join(runs, scene, style)
+    m = load_json(os.path.join(base, method + "-eval", "metrics.json"))
+    if m is None or "texture" not in m:
+        return None
+    t = m["texture"]
+    g = {l["layer"]: l for l in t["gram_object"]}
+    timing = load_json(os.path.join(base, method, "timing.json")) or {}
+    r = {f"gram_{k}": g[k]["ratio"] for k in LAYERS}
+    kid = t["kid_style"]
+    sp, ob = t["spectrum"], t["object"]
+    r.update({
+        "kid": kid["value"], "kid_se": kid["se"],
+        "spec": sp["distance_stylized"], "spec_ratio": sp["distance_ratio"],
+        "peak": sp["peak_stylized"], "peak_style": sp["peak_style"],
         "lpips_content": m["lpips_content"],
-        "short_range": m["short_range"]["lpips_mean"],
-        "short_range_orig": m["short_range"]["original_lpips_mean"],
-        "artfid": m["artfid"],
-        "stats0": stats_distance(np.clip(un0, 0, 1), st),
-        "stats1": stats_distance(np.clip(un1, 0, 1), st),
-        "clip0": clip(un0),
-        "clip1": clip(un1),
-        "fringe": float((rgb1[fringe] - rgb0[fringe]).mean()) if fringe.any() else 0.0,
-        "views": (rgb0, rgb1),
-    }
+        "short": m["short_range"]["lpips_mean"], "short_orig": m["short_range"]["original_lpips_mean"],
+        "long": m["long_range"]["lpips_mean"], "long_orig": m["long_range"]["original_lpips_mean"],
+        "clip": ob["clipped_stylized"], "clip_orig": ob["clipped_original"],
+        "fringe": ob["fringe_brightening"],
+        "stats": ob["stats_distance_stylized"], "stats_orig": ob["stats_distance_original"],
+        "gram_whole": m["gram_style"] / m["gram_style_original"] if m.get("gram_style_original") else None,
+        "wall": stage_seconds(lock, f"{method}@{scene}.{style}"),
+        "steps": timing.get("steps_done"),
+        "views_n": m["views"],
+    })
+    return r
 
 
-def ci(xs):
-    xs = np.asarray(xs, float)
+def fmt(v, d=3):
+    return "-" if v is None else f"{v:.{d}f}"
+
+
+def ci(xs, d=3):
+    xs = np.asarray([x for x in xs if x is not None], float)
+    if len(xs) == 0:
+        return "-"
     if len(xs) < 2:
-        return f"{xs.mean():.3f}"
+        return f"{xs.mean():.{d}f}"
     t = T95.get(len(xs) - 1, 2.0)
-    return f"{xs.mean():.3f} ± {t * xs.std(ddof=1) / np.sqrt(len(xs)):.3f}"
+    return f"{xs.mean():.{d}f} ± {t * xs.std(ddof=1) / np.sqrt(len(xs)):.{d}f}"
 
 
-def main():
-    if len(sys.argv) not in (2, 3):
-        sys.exit(__doc__)
-    runs = sys.argv[1]
-    styles_dir = sys.argv[2] if len(sys.argv) == 3 else os.path.join(os.path.dirname(runs.rstrip("/")), "styles")
-    scenes = sorted(d for d in os.listdir(runs) if os.path.isdir(os.path.join(runs, d, "source")))
-    styles = sorted(f[:-4] for f in os.listdir(styles_dir) if f.endswith(".png"))
-    res = {}
-    for sc in scenes:
-        for sty in styles:
-            img = read_png(os.path.join(styles_dir, sty + ".png"))
-            for me in METHODS:
-                if os.path.isfile(os.path.join(runs, sc, sty, me + "-eval", "metrics.json")):
-                    res[(sc, sty, me)] = case(runs, sc, (sty, img), me)
-    keys = [("gram_ratio", "Gram to style (stylized/original)"), ("lpips_content", "LPIPS content"),
-            ("short_range", "short-range LPIPS"), ("artfid", "ArtFID"),
-            ("stats1", "RGB stats distance to style"), ("clip1", "clipped object px"),
-            ("fringe", "fringe brightening")]
-    print("| scene | style | method | " + " | ".join(k[1] for k in keys) + " |")
-    print("|---" * (3 + len(keys)) + "|")
-    for (sc, sty, me), r in sorted(res.items()):
-        vals = [f"{r['gram_ratio']:.3f}", f"{r['lpips_content']:.3f}",
-                f"{r['short_range']:.3f} (orig {r['short_range_orig']:.3f})", f"{r['artfid']:.1f}",
-                f"{r['stats0']:.3f} -> {r['stats1']:.3f}", f"{100 * r['clip0']:.1f}% -> {100 * r['clip1']:.1f}%",
-                f"{r['fringe']:+.4f}"]
+COLUMNS = [("gram_relu1_2", "Gram relu1_2 (s/o)", 3), ("gram_relu2_2", "Gram relu2_2 (s/o)", 3),
+           ("gram_relu3_3", "Gram relu3_3 (s/o)", 3), ("gram_relu4_3", "Gram relu4_3 (s/o)", 3),
+           ("kid", "KID_style", 4), ("spec_ratio", "spectrum dist. (s/o)", 3),
+           ("lpips_content", "LPIPS content", 3), ("short", "short-range LPIPS", 4),
+           ("long", "long-range LPIPS", 4), ("clip", "clipped obj. px", 3),
+           ("fringe", "fringe brightening", 4), ("wall", "wall s", 1)]
+
+
+def case_table(res):
+    print("| scene | style | method | " + " | ".join(c[1] for c in COLUMNS) + " | steps | spectrum peak period px (style) |")
+    print("|---" * (3 + len(COLUMNS) + 2) + "|")
+    for (sc, sty, me), r in sorted(res.items(), key=lambda kv: (kv[0][0], kv[0][1], METHODS.index(kv[0][2]))):
+        vals = []
+        for k, _, d in COLUMNS:
+            if k == "kid" and r["kid"] is not None and r["kid_se"] is not None:
+                vals.append(f"{r['kid']:.4f} ± {1.96 * r['kid_se']:.4f}")
+            elif k == "short":
+                vals.append(f"{fmt(r['short'], 4)} (orig {fmt(r['short_orig'], 4)})")
+            elif k == "clip":
+                vals.append(f"{100 * (r['clip_orig'] or 0):.1f}% -> {100 * (r['clip'] or 0):.1f}%")
+            elif k == "fringe":
+                vals.append("-" if r["fringe"] is None else f"{r['fringe']:+.4f}")
+            else:
+                vals.append(fmt(r[k], d))
+        per = lambda p: "-" if not p else f"{1 / p:.1f}"
+        vals.append("-" if r["steps"] is None else str(r["steps"]))
+        vals.append(f"{per(r['peak'])} ({per(r['peak_style'])})")
         print(f"| {sc} | {sty} | {me} | " + " | ".join(vals) + " |")
-    print()
+
+
+def method_table(res):
     print("Mean ± 95% CI over cases (Student t):")
     print()
-    print("| method | cases | " + " | ".join(k[1] for k in keys) + " |")
-    print("|---" * (2 + len(keys)) + "|")
+    print("| method | cases | " + " | ".join(c[1] for c in COLUMNS) + " |")
+    print("|---" * (2 + len(COLUMNS)) + "|")
     for me in METHODS:
         rs = [r for (_, _, m), r in res.items() if m == me]
         if rs:
-            print(f"| {me} | {len(rs)} | " + " | ".join(ci([r[k] for r in rs]) for k, _ in keys) + " |")
+            print(f"| {me} | {len(rs)} | " + " | ".join(ci([r[k] for r in rs], d) for k, _, d in COLUMNS) + " |")
+
+
+def wins(res, cases):
+    keys = [("gram_relu1_2", "Gram relu1_2"), ("gram_relu2_2", "Gram relu2_2"), ("kid", "KID_style"),
+            ("spec", "spectrum distance"), ("short", "short-range LPIPS")]
+    for other in ["colour", "gram", "nnfm", "refit", "nomvfc", "sds"]:
+        pairs = [(res[(sc, sty, "ours")], res[(sc, sty, other)]) for sc, sty in cases
+                 if (sc, sty, "ours") in res and (sc, sty, other) in res]
+        if not pairs:
+            continue
+        s = ", ".join(f"{name} {sum(o[k] is not None and b[k] is not None and o[k] < b[k] for o, b in pairs)}/{len(pairs)}"
+                      for k, name in keys)
+        print(f"- ours lower (better) than {other}: {s}")
+
+
+def fit_rows(img, hh, ww):
+    yi = (np.arange(hh) * img.shape[0] / hh).astype(int)
+    xi = (np.arange(ww) * img.shape[1] / ww).astype(int)
+    return img[yi][:, xi]
+
+
+def sheet(runs, styles_dir, sc, sty, present):
+    src = np.load(os.path.join(runs, sc, "source", "rgb.npy"))
+    cols = list(range(0, src.shape[0], max(1, src.shape[0] // 4)))[:4]
+    hh, ww = src.shape[1:3]
+    style = read_png(os.path.join(styles_dir, sty + ".png"))
+    rows = [np.concatenate([fit_rows(style, hh, ww)] * len(cols), 1),
+            np.concatenate([src[c] for c in cols], 1)]
+    names = ["style", "original"]
+    refit = os.path.join(runs, sc, sty, "refit")
+    if os.path.isfile(os.path.join(refit, "target_000.png")):
+        rows.append(np.concatenate([read_png(os.path.join(refit, f"target_{c:03}.png")) for c in cols], 1))
+        names.append("2D stylizer per view")
+    for me in SHEET_ROWS:
+        p = os.path.join(runs, sc, sty, me + "-views", "rgb.npy")
+        if me in present and os.path.isfile(p):
+            v = np.load(p)
+            rows.append(np.concatenate([v[c] for c in cols], 1))
+            names.append(me)
+    out = os.path.join(runs, "sheets", f"{sc}.{sty}.png")
+    write_png(out, np.concatenate(rows, 0) * 255.0 + 0.5)
+    print(f"contact sheet: {out} (rows: {', '.join(names)}; views {cols})", file=sys.stderr)
+
+
+def speed(runs, lock, plot):
+    d = os.path.join(runs, "speed")
+    if not os.path.isdir(d):
+        return
+    pts = []
+    t = stage_seconds(lock, "speed-init") or 0.0
+    k = 1
+    while os.path.isdir(os.path.join(d, f"ours-c{k}")):
+        s = stage_seconds(lock, f"speed-ours@c{k}")
+        st = load_json(os.path.join(d, f"ours-c{k}", "state.json")) or {}
+        t = None if s is None or t is None else t + s
+        m = load_json(os.path.join(d, f"ours-c{k}-eval", "metrics.json"))
+        if m and "texture" in m:
+            pts.append(("ours", st.get("iteration", k), t, m))
+        k += 1
+    for me in ["gram", "nnfm"]:
+        tm = load_json(os.path.join(d, me, "timing.json"))
+        if not tm:
+            continue
+        for c in tm["checkpoints"]:
+            m = load_json(os.path.join(d, f"{me}-s{c['step']}-eval", "metrics.json"))
+            if m and "texture" in m:
+                pts.append((me, c["step"], c["elapsed_s"], m))
+    if not pts:
+        return
     print()
-    better = {"gram_ratio": 1, "lpips_content": 1, "short_range": 1, "artfid": 1, "stats1": 1}
-    pairs = [(res[(sc, sty, "ours")], res[(sc, sty, "gram")]) for sc in scenes for sty in styles
-             if (sc, sty, "ours") in res and (sc, sty, "gram") in res]
-    if pairs:
-        wins = ", ".join(f"{name} {sum(o[k] < g[k] for o, g in pairs)}/{len(pairs)}"
-                         for k, name in keys if k in better)
-        print(f"Cases where ours is lower (better) than gram: {wins}.")
-    os.makedirs(os.path.join(runs, "sheets"), exist_ok=True)
+    print("Speed-accuracy (one case; ours by iterations, the VGG baselines by steps; wall s from "
+          "the stage start, ours summed over its resumed chunks):")
+    print()
+    print("| method | iterations / steps | wall s | Gram relu1_2 (s/o) | Gram relu2_2 (s/o) | KID_style | spectrum dist. (s/o) | LPIPS content | short-range LPIPS |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    for me, n, t, m in pts:
+        tx = m["texture"]
+        g = {l["layer"]: l["ratio"] for l in tx["gram_object"]}
+        r = dict(method=me, n=n, t=t, g1=g["relu1_2"], g2=g["relu2_2"], kid=tx["kid_style"]["value"],
+                 spec=tx["spectrum"]["distance_ratio"])
+        rows.append(r)
+        print(f"| {me} | {n} | {fmt(t, 1)} | {fmt(r['g1'])} | {fmt(r['g2'])} | {fmt(r['kid'], 4)} | "
+              f"{fmt(r['spec'])} | {fmt(m['lpips_content'])} | {fmt(m['short_range']['lpips_mean'], 4)} |")
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print(f"\n(no plot: matplotlib is not importable; `vendor/venv/bin/pip install matplotlib`)", file=sys.stderr)
+        return
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.6))
+    for ax, (key, label) in zip(axes, [("g1", "Gram relu1_2, stylized / original"),
+                                       ("g2", "Gram relu2_2, stylized / original"),
+                                       ("kid", "KID_style"), ("spec", "spectrum distance, stylized / original")]):
+        for me, colour in [("ours", "tab:blue"), ("gram", "tab:red"), ("nnfm", "tab:green")]:
+            xs = [(r["t"], r[key], r["n"]) for r in rows if r["method"] == me and r["t"] is not None and r[key] is not None]
+            if xs:
+                xs.sort()
+                ax.plot([x[0] for x in xs], [x[1] for x in xs], "o-", color=colour, label=me)
+                for x, y, n in xs:
+                    ax.annotate(str(n), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlabel("wall time (s)")
+        ax.set_title(label, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(plot, dpi=110)
+    print(f"speed-accuracy plot: {plot}", file=sys.stderr)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs")
+    p.add_argument("--styles")
+    p.add_argument("--lock")
+    p.add_argument("--plot")
+    a = p.parse_args()
+    runs = a.runs.rstrip("/")
+    parent = os.path.dirname(os.path.abspath(runs))
+    styles_dir = a.styles or os.path.join(parent, "styles")
+    lock = load_json(a.lock or os.path.join(parent, "quality.lock"))
+    if lock is None:
+        print("note: no pipeline lock found: wall times are unknown", file=sys.stderr)
+    scenes = sorted(d for d in os.listdir(runs) if os.path.isdir(os.path.join(runs, d, "source")))
+    res = {}
     for sc in scenes:
-        rows = []
-        for sty in styles:
-            cases = {me: res.get((sc, sty, me)) for me in METHODS}
-            if not any(cases.values()):
+        for sty in sorted(os.listdir(os.path.join(runs, sc))):
+            if not os.path.isdir(os.path.join(runs, sc, sty)):
                 continue
-            any_case = next(c for c in cases.values() if c)
-            v0 = any_case["views"][0]
-            cols = list(range(0, v0.shape[0], 2))
-            hh, ww = v0.shape[1:3]
-            img = read_png(os.path.join(styles_dir, sty + ".png"))
-            yi = (np.arange(hh) * img.shape[0] / hh).astype(int)
-            xi = (np.arange(ww) * img.shape[1] / ww).astype(int)
-            rows.append(np.concatenate([img[yi][:, xi]] * len(cols), 1))
-            rows.append(np.concatenate([v0[c] for c in cols], 1))
             for me in METHODS:
-                if cases[me]:
-                    rows.append(np.concatenate([cases[me]["views"][1][c] for c in cols], 1))
-        if rows:
-            out = os.path.join(runs, "sheets", sc + ".png")
-            write_png(out, np.concatenate(rows, 0) * 255.0 + 0.5)
-            print(f"\ncontact sheet: {out} (per style: style, original, {', '.join(METHODS)})", file=sys.stderr)
+                r = case(runs, sc, sty, me, lock)
+                if r is not None:
+                    res[(sc, sty, me)] = r
+    cases = sorted({(sc, sty) for sc, sty, _ in res})
+    if res:
+        case_table(res)
+        print()
+        method_table(res)
+        print()
+        wins(res, cases)
+    os.makedirs(os.path.join(runs, "sheets"), exist_ok=True)
+    for sc, sty in cases:
+        sheet(runs, styles_dir, sc, sty, {me for (s, t, me) in res if (s, t) == (sc, sty)})
+    speed(runs, lock, a.plot or os.path.join(runs, "speed", "speed_accuracy.png"))
 
 
 if __name__ == "__main__":

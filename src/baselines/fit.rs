@@ -18,11 +18,85 @@ use crate::{Camera, Error, Result, Scene};
 /// Settings of the colour fit.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FitOptions {
+    /// Most steps (a step callback may stop the fit earlier, e.g. at a time budget).
     pub steps: usize,
     /// Learning rates, background, cache mode of the underlying colour fit.
     pub fit: FitParams,
     /// Evaluate the monitor (e.g. Gram distance) every this many steps (and at the ends).
     pub monitor_every: usize,
+    /// Views per step: `None` (or at least the number of views) = every view, in order,
+    /// each step; `Some(k)` = `k` distinct views per step, drawn from seeded shuffles of
+    /// all views (one shuffle per pass, so every view is visited equally often), as ARF
+    /// and SGSST sample views.
+    pub views_per_step: Option<usize>,
+    /// Seed of the view draws.
+    pub seed: u64,
+}
+
+impl FitOptions {
+    /// All views per step, seed 0.
+    pub fn new(steps: usize, fit: FitParams, monitor_every: usize) -> FitOptions {
+        FitOptions {
+            steps,
+            fit,
+            monitor_every,
+            views_per_step: None,
+            seed: 0,
+        }
+    }
+}
+
+/// The views of successive steps: all of them in order, or `k` distinct ones per step
+/// from seeded per-pass shuffles (see [`FitOptions::views_per_step`]).
+#[derive(Debug)]
+pub struct ViewSchedule {
+    n: usize,
+    k: usize,
+    rng: crate::rng::Rng,
+    queue: std::collections::VecDeque<usize>,
+}
+
+impl ViewSchedule {
+    pub fn new(n: usize, k: Option<usize>, seed: u64) -> ViewSchedule {
+        ViewSchedule {
+            n,
+            k: k.map_or(n, |k| k.clamp(1, n.max(1))),
+            rng: crate::rng::Rng::derive(seed, "baseline-view-schedule"),
+            queue: Default::default(),
+        }
+    }
+
+    /// The views of the next step.
+    pub fn next_views(&mut self) -> Vec<usize> {
+        if self.k >= self.n {
+            return (0..self.n).collect();
+        }
+        let mut out: Vec<usize> = Vec::with_capacity(self.k);
+        while out.len() < self.k {
+            if self.queue.is_empty() {
+                let mut perm: Vec<usize> = (0..self.n).collect();
+                for i in (1..self.n).rev() {
+                    let j = (self.rng.next_u64() % (i as u64 + 1)) as usize;
+                    perm.swap(i, j);
+                }
+                self.queue.extend(perm);
+            }
+            // A view already drawn this step waits for the next step.
+            let pos = self.queue.iter().position(|v| !out.contains(v));
+            match pos {
+                Some(p) => out.push(self.queue.remove(p).expect("in range")),
+                None => {
+                    let mut perm: Vec<usize> = (0..self.n).collect();
+                    for i in (1..self.n).rev() {
+                        let j = (self.rng.next_u64() % (i as u64 + 1)) as usize;
+                        perm.swap(i, j);
+                    }
+                    self.queue.extend(perm);
+                }
+            }
+        }
+        out
+    }
 }
 
 /// One line of `loss.json`: the objective before the update of step `step`, and the
@@ -60,7 +134,10 @@ fn render_all(scene: &Scene, cameras: &[Camera], background: [f32; 3]) -> Result
 /// `None`, fit `targets` with the L1 + D-SSIM loss; with an objective `targets` only has
 /// to match the cameras' sizes, e.g. the original renders). `monitor` maps the current
 /// renders to a number logged as `gram_distance` (every `monitor_every` steps and at the
-/// first and last entries). `on_step` is called after each step (progress bars).
+/// first and last entries); with a monitor the last entry is the final scene's loss over
+/// every view, without one the log ends with the last step's. `on_step(steps_done,
+/// scene)` is called after each step (progress bars, checkpoints, a time budget) and
+/// stops the fit early by returning `false`.
 pub fn fit_objective(
     scene: &Scene,
     cameras: &[Camera],
@@ -68,7 +145,7 @@ pub fn fit_objective(
     obj: Option<&dyn Objective>,
     opts: &FitOptions,
     monitor: Option<Monitor<'_>>,
-    on_step: &mut dyn FnMut(usize),
+    on_step: &mut dyn FnMut(usize, &Scene) -> Result<bool>,
 ) -> Result<(Scene, Vec<StepLog>)> {
     if cameras.is_empty() {
         return Err(Error::param("the view set is empty: nothing to stylize"));
@@ -76,10 +153,12 @@ pub fn fit_objective(
     let nv = cameras.len() as f64;
     let mut fit = ColourFit::new(scene, cameras, targets, &opts.fit)?;
     let mut log = Vec::with_capacity(opts.steps + 1);
+    let mut schedule = ViewSchedule::new(cameras.len(), opts.views_per_step, opts.seed);
+    let mut stopped = false;
     for step in 0..=opts.steps {
-        let want_monitor = step == 0
-            || step == opts.steps
-            || (opts.monitor_every > 0 && step % opts.monitor_every == 0);
+        let last = step == opts.steps || stopped;
+        let want_monitor =
+            step == 0 || last || (opts.monitor_every > 0 && step % opts.monitor_every == 0);
         let gram_distance = match monitor {
             Some(m) if want_monitor => {
                 Some(m(&render_all(fit.scene(), cameras, opts.fit.background)?)?)
@@ -93,7 +172,10 @@ pub fn fit_objective(
             content: 0.0,
             gram_distance,
         };
-        if step == opts.steps {
+        if last && monitor.is_none() {
+            break;
+        }
+        if last {
             // The final scene's loss, without an update.
             let imgs = render_all(fit.scene(), cameras, opts.fit.background)?;
             for (v, img) in imgs.iter().enumerate() {
@@ -125,6 +207,8 @@ pub fn fit_objective(
             log.push(entry);
             break;
         }
+        let views = schedule.next_views();
+        let nv = views.len() as f64;
         match obj {
             Some(o) => {
                 let (mut style, mut content) = (0.0, 0.0);
@@ -146,17 +230,30 @@ pub fn fit_objective(
                     content += t.content / nv;
                     Ok((t.total, t.grad))
                 };
-                entry.total = fit.step_with(&mut hook)?;
+                entry.total = fit.step_views(&views, &mut hook)?;
                 entry.style = style;
                 entry.content = content;
             }
-            None => {
+            None if views.len() == cameras.len() => {
                 let l = fit.step() as f64;
+                (entry.total, entry.style) = (l, l);
+            }
+            None => {
+                let lp = crate::optim::LossParams {
+                    ssim_weight: opts.fit.ssim_weight,
+                };
+                let mut hook = |v: usize, rgb: &[f32], alpha: Option<&[f32]>| {
+                    let cam = &cameras[v];
+                    let (h, w) = (cam.height as usize, cam.width as usize);
+                    let (l, g) = crate::optim::loss_and_grad(rgb, &targets[v], alpha, h, w, lp);
+                    Ok((l as f64, g))
+                };
+                let l = fit.step_views(&views, &mut hook)?;
                 (entry.total, entry.style) = (l, l);
             }
         }
         log.push(entry);
-        on_step(step + 1);
+        stopped = !on_step(step + 1, fit.scene())?;
     }
     Ok((fit.finish().0, log))
 }
@@ -168,12 +265,43 @@ mod tests {
     #[test]
     fn empty_view_set_is_an_error() {
         let scene = Scene::default();
-        let opts = FitOptions {
-            steps: 1,
-            fit: FitParams::default(),
-            monitor_every: 0,
-        };
-        let e = fit_objective(&scene, &[], &[], None, &opts, None, &mut |_| {}).unwrap_err();
+        let opts = FitOptions::new(1, FitParams::default(), 0);
+        let e =
+            fit_objective(&scene, &[], &[], None, &opts, None, &mut |_, _| Ok(true)).unwrap_err();
         assert!(e.to_string().contains("empty"), "{e}");
+    }
+
+    /// Subsets: k distinct views per step, every view equally often over whole passes,
+    /// the same draws for the same seed; all views (in order) without a subset.
+    #[test]
+    fn view_schedule_visits_views_evenly() {
+        let mut all = ViewSchedule::new(5, None, 1);
+        assert_eq!(all.next_views(), vec![0, 1, 2, 3, 4]);
+        assert_eq!(
+            ViewSchedule::new(5, Some(9), 1).next_views(),
+            vec![0, 1, 2, 3, 4]
+        );
+        for k in [1, 2, 3] {
+            let mut s = ViewSchedule::new(6, Some(k), 4);
+            let mut count = [0usize; 6];
+            let mut draws = Vec::new();
+            for _ in 0..(6 * 10 / k) {
+                let v = s.next_views();
+                assert_eq!(v.len(), k);
+                let mut u = v.clone();
+                u.sort();
+                u.dedup();
+                assert_eq!(u.len(), k, "{v:?}");
+                v.iter().for_each(|&i| count[i] += 1);
+                draws.push(v);
+            }
+            // Over 10 passes each view is drawn 10 times, give or take the pass boundaries.
+            assert!(
+                count.iter().all(|&c| (9..=11).contains(&c)),
+                "k {k}: {count:?}"
+            );
+            let mut again = ViewSchedule::new(6, Some(k), 4);
+            assert_eq!(again.next_views(), draws[0]);
+        }
     }
 }

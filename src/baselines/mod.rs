@@ -10,6 +10,8 @@
 //! * per-view 2D stylize + refit (in the stage): each original view is stylized by the
 //!   2D stylizer on its own, then colours are fitted to those images; no MVFC, no
 //!   distillation.
+//! * [`colour`]: the object's colour mean and covariance moved onto the style image's
+//!   (linear Monge-Kantorovich map on the SH colours), no texture, no optimisation.
 //!
 //! The VGG losses are image-space objectives ([`Objective`]): per view they return the
 //! loss and dL/d(rgb) as an `[H, W, 3]` image, which the colour fit chains through the
@@ -21,6 +23,7 @@
 //! field of relu4_3 (92 px): a smaller image cannot fill even one deepest-layer unit, so
 //! its "style" at that layer would be the zero padding's.
 
+pub mod colour;
 pub mod fit;
 pub mod gram;
 pub mod nnfm;

@@ -18,6 +18,7 @@ use super::fid::{self, FeatureSet};
 use super::gram;
 use super::lpips;
 use super::nets::{Inception, LpipsModel, LpipsNet};
+use super::texture::{self, TextureMetrics};
 use super::views::ViewSet;
 use super::warp::Warped;
 use crate::imageio::{Filter, Image};
@@ -113,6 +114,8 @@ pub struct Metrics {
     pub gram_style_per_view: Vec<f64>,
     pub style_crops: String,
     pub warnings: Vec<String>,
+    /// Measures that see texture ([`super::texture`]).
+    pub texture: TextureMetrics,
 }
 
 /// What ArtFID means here (written beside the value).
@@ -294,8 +297,10 @@ pub fn evaluate(
     let gs = gram::grams(&vgg.features(&[&style_small])?[0]);
     let mut gram_per_view = Vec::with_capacity(n);
     let mut gram_orig = Vec::with_capacity(n);
+    let mut object_gram = texture::ObjectGram::new(&gs);
     for i in 0..n {
         let f = vgg.features(&[&styl.images[i], &orig.images[i]])?;
+        object_gram.add_view(&f[0], &f[1], orig.geometry(i).1, w, h);
         gram_per_view.push(gram::gram_distance(&gram::grams(&f[0]), &gs));
         gram_orig.push(gram::gram_distance(&gram::grams(&f[1]), &gs));
     }
@@ -313,6 +318,13 @@ pub fn evaluate(
     pb.inc(1);
     let (fid_style, kid_style) = set_distances(&fs, &fc, "FID_style", &mut warnings);
     let (fid_content, kid_content) = set_distances(&fs, &fo, "FID_content", &mut warnings);
+    let texture = TextureMetrics {
+        gram_object: object_gram.finish(),
+        kid_style: texture::kid_interval(&fs, &fc),
+        spectrum: texture::spectrum_metrics(orig, styl, &style_small),
+        object: texture::object_colour(orig, styl, style),
+        notes: texture::NOTES.to_vec(),
+    };
     let artfid = match (lpips_content, fid_style.value) {
         (Some(l), Some(f)) => Some(fid::artfid(l, f)),
         _ => None,
@@ -348,6 +360,7 @@ pub fn evaluate(
             p.seed
         ),
         warnings,
+        texture,
     };
     pb.finish_and_clear();
     Ok(Evaluation {

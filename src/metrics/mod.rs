@@ -10,6 +10,8 @@
 //! | [`warp`] | depth reprojection of one view into another with occlusion test |
 //! | [`consistency`] | short/long-range consistency: LPIPS and RMSE after warping |
 //! | [`gram`] | Gram-matrix style distance on VGG16 features |
+//! | [`spectrum`] | radially averaged luminance power spectrum (the motif scale) |
+//! | [`texture`] | measures that see texture: per-layer object Gram, KID interval, spectrum, object colour |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
 //! | [`report`] | the self-contained `report.html` of an evaluation |
@@ -22,5 +24,7 @@ pub mod linalg;
 pub mod lpips;
 pub mod nets;
 pub mod report;
+pub mod spectrum;
+pub mod texture;
 pub mod views;
 pub mod warp;

@@ -572,6 +572,7 @@ pub fn evaluation_report(
         ],
     ];
     p.section("Metrics", &table(&["metric", "value", "notes"], &rows));
+    p.section("Texture", &super::texture::html(&m.texture));
 
     let mut imgs = String::from("<p>Style image:</p>");
     imgs.push_str(&figure(style, 256, "style"));

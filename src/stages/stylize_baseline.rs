@@ -5,16 +5,31 @@
 //! * `gram`: Gram-matrix style loss over VGG16 layers and two scales + content loss;
 //! * `nnfm`: ARF's nearest-neighbour feature matching on the relu3 block + content loss;
 //! * `refit`: stylize each original view with the 2D stylizer on its own, then fit colours
-//!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation.
+//!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation;
+//! * `colour-transfer`: the object's colour mean and covariance moved onto the style
+//!   image's by the linear Monge-Kantorovich map, written into the SH colours
+//!   ([`crate::baselines::colour`]); no steps.
 //!
 //! Output (schema `scene` v1): `scene.ply` (geometry bit-identical to the input, colours
 //! changed), `loss.json` (`method`, and per step the objective, its style and content
 //! terms, and every `--monitor-every` steps the Gram distance to the style, mean over
-//! views: relu1_2..relu4_3, scale 1), for `refit` also `target_000.png`.. (the stylized
-//! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
-//! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
+//! views: relu1_2..relu4_3, scale 1; for `colour-transfer` the map and both statistics),
+//! for `refit` also `target_000.png`.. (the stylized views it fitted), with `--save-at`
+//! also `scene_step10.ply`.. (the scene after those steps). Style image handling:
+//! grayscale expanded to RGB, alpha dropped, shorter side at least 92 px (relu4_3's
+//! receptive field), resized to `--style-size`.
+//!
+//! **Time budget.** `--budget-s S` (or `--budget-from FILE`, a JSON object with
+//! `budget_s`, e.g. another method's measured wall time) stops after the step during
+//! which the stage's wall time, counted from its start (loading, rendering the originals
+//! and the refit's 2D stylization included), reaches `S`; `--steps` stays the most steps.
+//! Then, or with `--record-time`, `timing.json` records the wall time, the steps done
+//! and the time of each saved checkpoint. Timing makes the artifact's bytes depend on the
+//! machine, so it is written only when asked for (or implied by a budget); a budget
+//! run's `steps_done` given back as `--steps` reproduces its scene bit for bit.
 
 use super::{Background, SceneInput, Threads};
+use crate::baselines::colour;
 use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
@@ -23,11 +38,12 @@ use crate::imageio::Image;
 use crate::vgg::Vgg16;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 /// Which baseline to run.
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 pub enum Method {
     /// Gram-matrix style loss (Gatys; SGSST-like), relu1_2..relu4_3 at 1x and 0.5x.
     Gram,
@@ -35,10 +51,14 @@ pub enum Method {
     Nnfm,
     /// Per-view 2D stylization with the stylizer, then a colour refit to those images.
     Refit,
+    /// The object's colour mean and covariance moved onto the style image's (linear
+    /// Monge-Kantorovich map on the SH colours; no steps).
+    ColourTransfer,
 }
 
-/// Restyle a scene's colours with a baseline (VGG Gram, VGG NNFM, or per-view 2D
-/// stylize + refit); geometry stays frozen. Writes a scene artifact (scene.ply, loss.json).
+/// Restyle a scene's colours with a baseline (VGG Gram, VGG NNFM, per-view 2D stylize +
+/// refit, or a colour-statistics transfer); geometry stays frozen. Writes a scene artifact
+/// (scene.ply, loss.json).
 #[derive(clap::Parser, Debug, Clone)]
 #[command(name = "stylize-baseline", version)]
 pub struct Args {
@@ -50,9 +70,33 @@ pub struct Args {
     /// Style image (PNG/JPEG; grayscale expanded, alpha dropped; shorter side >= 92 px).
     #[arg(long)]
     pub style: PathBuf,
-    /// Optimisation steps (each: every view rendered, one Adam step).
+    /// Optimisation steps (each: the step's views rendered, one Adam step); with a time
+    /// budget, the most steps. Ignored by colour-transfer.
     #[arg(long)]
     pub steps: usize,
+    /// Views per step (0: every view each step). Fewer: that many distinct views per
+    /// step from seeded shuffles of all views (every view equally often), as ARF and SGSST
+    /// sample one view per iteration; more steps for the same time.
+    #[arg(long, default_value_t = 0)]
+    pub views_per_step: usize,
+    /// Seed of the view draws (with --views-per-step).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Wall-time budget in seconds from the stage's start: stop after the step during
+    /// which it runs out (writes timing.json).
+    #[arg(long, conflicts_with = "budget_from")]
+    pub budget_s: Option<f64>,
+    /// Read the budget from a JSON file with a number `budget_s` (e.g. the quality
+    /// benchmark's measured wall time of our method on the same case).
+    #[arg(long)]
+    pub budget_from: Option<PathBuf>,
+    /// Also write the scene after these step counts (comma-separated, e.g. 5,10,20) as
+    /// scene_stepN.ply, for speed-accuracy curves.
+    #[arg(long, value_delimiter = ',')]
+    pub save_at: Vec<usize>,
+    /// Write timing.json (wall time, steps done, checkpoint times) even without a budget.
+    #[arg(long, default_value_t = false)]
+    pub record_time: bool,
     /// Output artifact directory (written atomically).
     #[arg(long)]
     pub out: PathBuf,
@@ -82,6 +126,10 @@ pub struct Args {
     /// Log the Gram distance to the style every this many steps (0: first and last only).
     #[arg(long, default_value_t = 10)]
     pub monitor_every: usize,
+    /// No Gram-distance monitor (it renders and runs VGG on every view, which a timed run
+    /// should not pay); the log then ends with the last step's loss.
+    #[arg(long, default_value_t = false)]
+    pub no_monitor: bool,
     /// VGG16 weights directory (conv{i}_weight.npy, made by scripts/setup.sh); default:
     /// lpips/vgg16 in the models directory ($FANTASYSTYLE_MODELS, else the nearest
     /// vendor/models above the executable or the current directory).
@@ -103,6 +151,78 @@ pub struct LossLog {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub targets_gram_distance: Option<f64>,
     pub steps: Vec<crate::baselines::fit::StepLog>,
+    /// `colour-transfer` only: the map and the statistics it matched.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub colour_map: Option<ColourMapLog>,
+}
+
+/// What `colour-transfer` did (`loss.json`).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ColourMapLog {
+    /// `c' = T c + b`, T row-major.
+    pub t: [f64; 9],
+    pub b: [f64; 3],
+    pub source_mean: [f64; 3],
+    pub source_cov: [f64; 9],
+    pub style_mean: [f64; 3],
+    pub style_cov: [f64; 9],
+}
+
+/// `timing.json`: when a run's steps ended (only with a budget or --record-time).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct TimingLog {
+    pub budget_s: Option<f64>,
+    /// Seconds from the stage's start to the end of the last step (before writing).
+    pub wall_s: f64,
+    pub steps_done: usize,
+    /// Seconds from the stage's start to the end of the originals' rendering (and, for
+    /// refit, the 2D stylization): the fixed cost before the first step.
+    pub setup_s: f64,
+    pub checkpoints: Vec<CheckpointTime>,
+}
+
+/// A saved intermediate scene.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct CheckpointTime {
+    pub step: usize,
+    pub elapsed_s: f64,
+    pub file: String,
+}
+
+/// The scene after some steps, kept until the artifact is written.
+struct Checkpoint {
+    step: usize,
+    elapsed_s: f64,
+    ply: Vec<u8>,
+}
+
+fn checkpoint_name(step: usize) -> String {
+    format!("scene_step{step}.ply")
+}
+
+/// The budget from `--budget-s` or `--budget-from` (finite, > 0).
+fn budget(a: &Args) -> Result<Option<f64>> {
+    let b = match (&a.budget_s, &a.budget_from) {
+        (Some(b), _) => Some(*b),
+        (None, Some(p)) => Some(read_budget(p)?),
+        (None, None) => None,
+    };
+    match b {
+        Some(v) if !(v.is_finite() && v > 0.0) => Err(Error::param(format!(
+            "the time budget must be a positive number of seconds, got {v}"
+        ))),
+        b => Ok(b),
+    }
+}
+
+/// `budget_s` of a JSON object in `p`.
+fn read_budget(p: &Path) -> Result<f64> {
+    let text = std::fs::read_to_string(p).map_err(|e| Error::io(p, e))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::input(p, format!("not JSON: {e}")))?;
+    v.get("budget_s")
+        .and_then(|x| x.as_f64())
+        .ok_or_else(|| Error::input(p, "no number `budget_s` in this JSON object"))
 }
 
 /// Stylize every view on its own with the 2D stylizer (the refit baseline's targets).
@@ -127,6 +247,8 @@ fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Resul
 
 /// The stage: load, optimise, write the artifact.
 pub fn run(a: Args) -> Result<()> {
+    let t0 = Instant::now();
+    let budget_s = budget(&a)?;
     if a.width < 16 || a.height < 16 {
         return Err(Error::param(format!(
             "image size {}x{}: the baselines need at least 16x16",
@@ -142,18 +264,48 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let raw_style = crate::imageio::read_rgb(&a.style)?;
-    let style = prepare_style(&raw_style, a.style_size, &a.style)?;
-    let vgg_dir = match &a.vgg {
-        Some(p) => p.clone(),
-        None => crate::models::model_path("lpips/vgg16")?,
+    let transfer = a.method == Method::ColourTransfer;
+    let style = if transfer {
+        raw_style
+    } else {
+        prepare_style(&raw_style, a.style_size, &a.style)?
     };
-    let vgg = Vgg16::load(&vgg_dir)?;
-    let params = serde_json::json!({
+    let vgg = if transfer {
+        None
+    } else {
+        let vgg_dir = match &a.vgg {
+            Some(p) => p.clone(),
+            None => crate::models::model_path("lpips/vgg16")?,
+        };
+        Some(Vgg16::load(&vgg_dir)?)
+    };
+    let mut params = serde_json::json!({
         "method": a.method, "cameras": a.input.cameras, "steps": a.steps, "width": a.width,
         "height": a.height, "background": a.background.rgb, "lr_dc": a.lr_dc,
         "lr_rest": a.lr_rest, "style_size": a.style_size, "style_weight": a.style_weight,
         "content_weight": a.content_weight, "monitor_every": a.monitor_every,
     });
+    // Recorded only when used, so artifacts of runs without them keep their hashes.
+    let extra = [
+        (
+            "views_per_step",
+            serde_json::json!(a.views_per_step),
+            a.views_per_step > 0,
+        ),
+        ("seed", serde_json::json!(a.seed), a.views_per_step > 0),
+        ("budget_s", serde_json::json!(budget_s), budget_s.is_some()),
+        (
+            "save_at",
+            serde_json::json!(a.save_at),
+            !a.save_at.is_empty(),
+        ),
+        ("no_monitor", serde_json::json!(true), a.no_monitor),
+    ];
+    for (k, v, used) in extra {
+        if used {
+            params[k] = v;
+        }
+    }
     let producer = Producer::new("stylize-baseline", crate::VERSION, params);
     let mut w = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
     a.input.add_inputs(&mut w)?;
@@ -167,9 +319,17 @@ pub fn run(a: Args) -> Result<()> {
         a.height,
         a.steps
     );
-    let (scene, log, targets) = a
-        .threads
-        .install(|| optimise(&a, scene, &cams, &vgg, &style))??;
+    let out = a.threads.install(|| match &vgg {
+        Some(vgg) => optimise(&a, scene, &cams, vgg, &style, t0, budget_s),
+        None => transfer_colours(&a, scene, &cams, &style, t0),
+    })??;
+    let Outcome {
+        scene,
+        log,
+        targets,
+        checkpoints,
+        mut timing,
+    } = out;
     w.write_bytes("scene.ply", &crate::scene::ply::encode_ply(&scene))?;
     w.write_json("loss.json", &log)?;
     for (i, t) in targets.iter().enumerate() {
@@ -177,6 +337,19 @@ pub fn run(a: Args) -> Result<()> {
             &format!("target_{i:03}.png"),
             &crate::imageio::encode_png_rgb(&t.data, t.width, t.height)?,
         )?;
+    }
+    for c in &checkpoints {
+        w.write_bytes(&checkpoint_name(c.step), &c.ply)?;
+    }
+    if budget_s.is_some() || a.record_time {
+        timing.budget_s = budget_s;
+        w.write_json("timing.json", &timing)?;
+        tracing::info!(
+            "{} steps in {:.1} s (budget {:?} s)",
+            timing.steps_done,
+            timing.wall_s,
+            budget_s
+        );
     }
     let first = log.steps.first().and_then(|s| s.gram_distance);
     let last = log.steps.last().and_then(|s| s.gram_distance);
@@ -194,6 +367,77 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
+/// What a method produced.
+struct Outcome {
+    scene: crate::Scene,
+    log: LossLog,
+    targets: Vec<Image>,
+    checkpoints: Vec<Checkpoint>,
+    timing: TimingLog,
+}
+
+/// The original renders (rgb, alpha) of every camera.
+fn render_originals(
+    a: &Args,
+    scene: &crate::Scene,
+    cams: &[crate::Camera],
+) -> Result<Vec<crate::render::RenderOutput>> {
+    let ropts = crate::render::RenderOptions {
+        background: a.background.rgb,
+    };
+    cams.iter()
+        .map(|c| crate::render::render(scene, c, &ropts))
+        .collect()
+}
+
+/// `colour-transfer`: the statistics of the object in the original renders, the map onto
+/// the style image's, applied to the SH colours.
+fn transfer_colours(
+    a: &Args,
+    scene: crate::Scene,
+    cams: &[crate::Camera],
+    style: &Image,
+    t0: Instant,
+) -> Result<Outcome> {
+    let renders = render_originals(a, &scene, cams)?;
+    let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
+    let src = colour::object_stats(&views, a.background.rgb)?;
+    let dst = colour::image_stats(style);
+    let (t, b) = colour::monge_kantorovich(&src, &dst);
+    tracing::info!(
+        "colour transfer: object mean {:.3?} -> style mean {:.3?}",
+        src.mean,
+        dst.mean
+    );
+    let out = colour::apply_to_scene(&scene, &t, &b);
+    let wall = t0.elapsed().as_secs_f64();
+    Ok(Outcome {
+        scene: out,
+        log: LossLog {
+            method: a.method,
+            targets_gram_distance: None,
+            steps: Vec::new(),
+            colour_map: Some(ColourMapLog {
+                t,
+                b,
+                source_mean: src.mean,
+                source_cov: src.cov,
+                style_mean: dst.mean,
+                style_cov: dst.cov,
+            }),
+        },
+        targets: Vec::new(),
+        checkpoints: Vec::new(),
+        timing: TimingLog {
+            budget_s: None,
+            wall_s: wall,
+            steps_done: 0,
+            setup_s: wall,
+            checkpoints: Vec::new(),
+        },
+    })
+}
+
 /// Render the originals, build the objective and the monitor, and run the fit.
 fn optimise(
     a: &Args,
@@ -201,21 +445,17 @@ fn optimise(
     cams: &[crate::Camera],
     vgg: &Vgg16,
     style: &Image,
-) -> Result<(crate::Scene, LossLog, Vec<Image>)> {
-    let ropts = crate::render::RenderOptions {
-        background: a.background.rgb,
-    };
-    let originals = cams
-        .iter()
-        .map(|c| {
-            let r = crate::render::render(&scene, c, &ropts)?;
-            Ok(Image {
-                width: r.width,
-                height: r.height,
-                data: r.rgb,
-            })
+    t0: Instant,
+    budget_s: Option<f64>,
+) -> Result<Outcome> {
+    let originals: Vec<Image> = render_originals(a, &scene, cams)?
+        .into_iter()
+        .map(|r| Image {
+            width: r.width,
+            height: r.height,
+            data: r.rgb,
         })
-        .collect::<Result<Vec<_>>>()?;
+        .collect();
     crate::baselines::check_views(&originals)?;
     let gram_cfg = GramConfig::default();
     let monitor_targets = GramTargets::new(vgg, style, &gram_cfg.layers, &[1])?;
@@ -229,6 +469,11 @@ fn optimise(
     let mut targets = Vec::new();
     let mut targets_gram = None;
     let obj: Option<Box<dyn Objective + '_>> = match a.method {
+        Method::ColourTransfer => {
+            return Err(Error::Other(
+                "colour-transfer has no objective to optimise".into(),
+            ));
+        }
         Method::Gram => Some(Box::new(GramObjective::new(
             vgg,
             GramConfig {
@@ -257,9 +502,11 @@ fn optimise(
                 None => crate::models::model_path("stylizer")?,
             };
             targets = stylize_views(&dir, style, &originals)?;
-            let d = monitor(&targets)?;
-            tracing::info!("refit targets: Gram distance to the style {d:.4}");
-            targets_gram = Some(d);
+            if !a.no_monitor {
+                let d = monitor(&targets)?;
+                tracing::info!("refit targets: Gram distance to the style {d:.4}");
+                targets_gram = Some(d);
+            }
             None
         }
     };
@@ -277,30 +524,65 @@ fn optimise(
             ..crate::optim::FitParams::default()
         },
         monitor_every: a.monitor_every,
+        views_per_step: (a.views_per_step > 0).then_some(a.views_per_step),
+        seed: a.seed,
     };
+    let setup_s = t0.elapsed().as_secs_f64();
     let bar = indicatif::ProgressBar::new(a.steps as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps {elapsed}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     bar.set_message("stylize-baseline");
+    let mut checkpoints = Vec::new();
+    let mut steps_done = 0;
+    let mut wall_s = setup_s;
     let (scene, steps) = fit_objective(
         &scene,
         cams,
         &fit_targets,
         obj.as_deref(),
         &opts,
-        Some(&monitor),
-        &mut |s| bar.set_position(s as u64),
+        (!a.no_monitor).then_some(&monitor as &dyn Fn(&[Image]) -> Result<f64>),
+        &mut |s, sc| {
+            bar.set_position(s as u64);
+            steps_done = s;
+            wall_s = t0.elapsed().as_secs_f64();
+            if a.save_at.contains(&s) {
+                checkpoints.push(Checkpoint {
+                    step: s,
+                    elapsed_s: wall_s,
+                    ply: crate::scene::ply::encode_ply(sc),
+                });
+            }
+            Ok(budget_s.is_none_or(|b| wall_s < b))
+        },
     )?;
     bar.finish_and_clear();
-    Ok((
+    let timing = TimingLog {
+        budget_s,
+        wall_s,
+        steps_done,
+        setup_s,
+        checkpoints: checkpoints
+            .iter()
+            .map(|c| CheckpointTime {
+                step: c.step,
+                elapsed_s: c.elapsed_s,
+                file: checkpoint_name(c.step),
+            })
+            .collect(),
+    };
+    Ok(Outcome {
         scene,
-        LossLog {
+        log: LossLog {
             method: a.method,
             targets_gram_distance: targets_gram,
             steps,
+            colour_map: None,
         },
         targets,
-    ))
+        checkpoints,
+        timing,
+    })
 }

@@ -143,8 +143,34 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
     );
     assert!(m.gram_style.unwrap() > 0.0 && m.gram_style_per_view.len() == 7);
     assert!(m.warnings.iter().any(|w| w.contains("biased")));
+    // The texture measures: four layers with a value per view, KID's interval around
+    // the same KID as kid_style, the spectra, the object measures; and their section.
+    let t = &m.texture;
+    assert_eq!(t.gram_object.len(), 4);
+    for l in &t.gram_object {
+        assert_eq!(l.stylized_per_view.len(), 7, "{}", l.layer);
+        assert!(
+            l.stylized.unwrap() > 0.0 && l.original.unwrap() > 0.0,
+            "{}",
+            l.layer
+        );
+    }
+    let kid = json["kid_style"]["value"].as_f64().unwrap();
+    assert!((t.kid_style.value.unwrap() - kid).abs() <= 1e-9 * kid.abs().max(1.0));
+    let [lo, hi] = t.kid_style.ci95.unwrap();
+    assert!(lo < kid && kid < hi && !t.kid_style.reliable);
+    assert!(t.spectrum.distance_original.is_some() && t.spectrum.peak_style.is_some());
+    assert!(t.object.clipped_stylized.is_some() && t.object.stats_distance_stylized.is_some());
+    assert_eq!(
+        json["texture"]["spectrum"]["style"]
+            .as_array()
+            .unwrap()
+            .len(),
+        24
+    );
 
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("<h2>Texture</h2>") && html.contains("Radially averaged luminance"));
     assert!(html.contains("ArtFID") && html.contains("standard FID Inception"));
     assert!(html.contains("<svg") && html.contains("short range: LPIPS per view pair"));
     // style + 7 originals + 7 stylized + 2 x 4 consistency examples + 7 crops

@@ -1,0 +1,267 @@
+//! Colour-statistics transfer (issue 21's "colour transfer" baseline): the object's
+//! colour mean and covariance moved onto the style image's by the linear Monge-Kantorovich
+//! map, written into the Gaussians' SH colours. No texture, no optimisation: seconds.
+//!
+//! **Statistics.** Source: over every pixel of the source views with alpha above 1e-3,
+//! the un-premultiplied colour `c = (rgb - (1 - a) bg) / a`, weighted by `a`
+//! (`mu = sum a c / sum a`, `S = sum a (c - mu)(c - mu)^T / sum a`), so the fringe counts
+//! as much as it covers. Style: every pixel of the style image, equally weighted.
+//!
+//! **Map** (Pitié & Kokaram 2007, the linear Monge-Kantorovich solution; Reinhard et al.
+//! 2001 is its diagonal special case): `c' = T (c - mu_s) + mu_t` with
+//! `T = S_s^-1/2 (S_s^1/2 S_t S_s^1/2)^1/2 S_s^-1/2`, the symmetric map that sends
+//! `N(mu_s, S_s)` to `N(mu_t, S_t)` with the least mean squared displacement. `S_s` gets
+//! `1e-5 I` added (a standard deviation of 0.003) so a grey or flat object stays
+//! invertible.
+//!
+//! **Into the scene.** A render's un-premultiplied colour is a convex combination of the
+//! visible Gaussians' colours (the blending weights over a pixel sum to its alpha), and
+//! each Gaussian's colour is `0.5 + C0 f_dc + sum_k Y_k(d) f_rest_k`, affine in the
+//! coefficients. So mapping every Gaussian's DC colour `0.5 + C0 f_dc` by the affine map
+//! and every higher-order coefficient `f_rest_k` by its linear part `T` maps every
+//! rendered colour by exactly the same affine map (up to the renderer's clamp of negative
+//! colours to 0): the views' colour statistics become the style's. View-dependent colour
+//! is kept, transformed like the rest.
+
+use crate::imageio::Image;
+use crate::metrics::linalg::{matmul, reconstruct, sym_eig};
+use crate::render::sh::C0;
+use crate::{Error, Result, Scene};
+
+/// Mean and covariance of a colour distribution (row-major 3x3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColourStats {
+    pub mean: [f64; 3],
+    pub cov: [f64; 9],
+}
+
+/// Regulariser added to the source covariance's diagonal.
+pub const COV_EPS: f64 = 1e-5;
+
+/// Alpha-weighted statistics of the object's un-premultiplied colours over `views`
+/// (`(rgb [H W 3], alpha [H W])` each), rendered over `background`.
+pub fn object_stats(views: &[(&[f32], &[f32])], background: [f32; 3]) -> Result<ColourStats> {
+    let (mut sw, mut s1) = (0.0f64, [0.0f64; 3]);
+    let un = |rgb: &[f32], p: usize, a: f64| -> [f64; 3] {
+        std::array::from_fn(|c| (rgb[p * 3 + c] as f64 - (1.0 - a) * background[c] as f64) / a)
+    };
+    for (rgb, alpha) in views {
+        for (p, &a) in alpha.iter().enumerate() {
+            let a = a as f64;
+            if a > 1e-3 {
+                let c = un(rgb, p, a);
+                sw += a;
+                (0..3).for_each(|k| s1[k] += a * c[k]);
+            }
+        }
+    }
+    if sw < 1.0 {
+        return Err(Error::param(
+            "colour transfer: the object covers no pixel of the source views",
+        ));
+    }
+    let mean = s1.map(|v| v / sw);
+    let mut cov = [0.0f64; 9];
+    for (rgb, alpha) in views {
+        for (p, &a) in alpha.iter().enumerate() {
+            let a = a as f64;
+            if a > 1e-3 {
+                let c = un(rgb, p, a);
+                for i in 0..3 {
+                    for j in 0..3 {
+                        cov[i * 3 + j] += a * (c[i] - mean[i]) * (c[j] - mean[j]);
+                    }
+                }
+            }
+        }
+    }
+    cov.iter_mut().for_each(|v| *v /= sw);
+    Ok(ColourStats { mean, cov })
+}
+
+/// Statistics of every pixel of an image.
+pub fn image_stats(img: &Image) -> ColourStats {
+    let n = (img.width * img.height).max(1) as f64;
+    let mut mean = [0.0f64; 3];
+    for p in img.data.chunks_exact(3) {
+        (0..3).for_each(|c| mean[c] += p[c] as f64 / n);
+    }
+    let mut cov = [0.0f64; 9];
+    for p in img.data.chunks_exact(3) {
+        for i in 0..3 {
+            for j in 0..3 {
+                cov[i * 3 + j] += (p[i] as f64 - mean[i]) * (p[j] as f64 - mean[j]) / n;
+            }
+        }
+    }
+    ColourStats { mean, cov }
+}
+
+/// The affine map `c -> T c + b` taking `src` to `dst` (see module docs): `(T, b)`.
+pub fn monge_kantorovich(src: &ColourStats, dst: &ColourStats) -> ([f64; 9], [f64; 3]) {
+    let mut ss = src.cov;
+    for i in 0..3 {
+        ss[i * 4] += COV_EPS;
+    }
+    let e = sym_eig(&ss, 3);
+    let sh = reconstruct(&e, |x| x.max(0.0).sqrt());
+    let sih = reconstruct(&e, |x| 1.0 / x.max(1e-12).sqrt());
+    let mid = matmul(&matmul(&sh, &dst.cov, 3, 3, 3), &sh, 3, 3, 3);
+    let mid_h = reconstruct(&sym_eig(&mid, 3), |x| x.max(0.0).sqrt());
+    let t = matmul(&matmul(&sih, &mid_h, 3, 3, 3), &sih, 3, 3, 3);
+    let tv: [f64; 9] = std::array::from_fn(|k| t[k]);
+    let b = std::array::from_fn(|i| {
+        dst.mean[i] - (0..3).map(|j| tv[i * 3 + j] * src.mean[j]).sum::<f64>()
+    });
+    (tv, b)
+}
+
+/// The scene with every Gaussian's colour mapped by `c -> T c + b` (DC) and every
+/// higher-order SH coefficient by `T` (see module docs). Geometry is untouched.
+pub fn apply_to_scene(scene: &Scene, t: &[f64; 9], b: &[f64; 3]) -> Scene {
+    let mut out = scene.clone();
+    let c0 = C0 as f64;
+    let lin = |v: [f64; 3]| -> [f64; 3] {
+        std::array::from_fn(|i| (0..3).map(|j| t[i * 3 + j] * v[j]).sum())
+    };
+    for dc in out.sh_dc.iter_mut() {
+        let c: [f64; 3] = std::array::from_fn(|k| 0.5 + c0 * dc[k] as f64);
+        let m = lin(c);
+        *dc = std::array::from_fn(|k| ((m[k] + b[k] - 0.5) / c0) as f32);
+    }
+    for coeff in out.sh_rest.chunks_exact_mut(3) {
+        let m = lin([coeff[0] as f64, coeff[1] as f64, coeff[2] as f64]);
+        coeff.iter_mut().zip(m).for_each(|(x, v)| *x = v as f32);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    fn apply(t: &[f64; 9], b: &[f64; 3], c: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|i| (0..3).map(|j| t[i * 3 + j] * c[j]).sum::<f64>() + b[i])
+    }
+
+    fn stats_of(v: &[[f64; 3]]) -> ColourStats {
+        let n = v.len() as f64;
+        let mut mean = [0.0; 3];
+        v.iter()
+            .for_each(|p| (0..3).for_each(|c| mean[c] += p[c] / n));
+        let mut cov = [0.0; 9];
+        for p in v {
+            for i in 0..3 {
+                for j in 0..3 {
+                    cov[i * 3 + j] += (p[i] - mean[i]) * (p[j] - mean[j]) / n;
+                }
+            }
+        }
+        ColourStats { mean, cov }
+    }
+
+    /// The map sends the source's samples to samples with the target's mean and
+    /// covariance (up to the regulariser), and T is symmetric positive definite.
+    #[test]
+    fn map_matches_moments() {
+        let mut r = Rng::new(3);
+        let src: Vec<[f64; 3]> = (0..4000)
+            .map(|_| {
+                let (x, y, z) = (r.normal(), r.normal(), r.normal());
+                [0.4 + 0.1 * x, 0.3 + 0.05 * x + 0.08 * y, 0.2 + 0.06 * z]
+            })
+            .collect();
+        let dst = ColourStats {
+            mean: [0.6, 0.2, 0.5],
+            cov: [0.02, 0.005, 0.0, 0.005, 0.01, -0.002, 0.0, -0.002, 0.03],
+        };
+        let s = stats_of(&src);
+        let (t, b) = monge_kantorovich(&s, &dst);
+        let mapped: Vec<[f64; 3]> = src.iter().map(|&c| apply(&t, &b, c)).collect();
+        let m = stats_of(&mapped);
+        for k in 0..3 {
+            assert!((m.mean[k] - dst.mean[k]).abs() < 1e-9, "mean {k}");
+        }
+        for k in 0..9 {
+            // S_s + eps I was matched, so S_t is reached up to about eps T^2 (< 1e-4 here).
+            assert!(
+                (m.cov[k] - dst.cov[k]).abs() < 1e-4,
+                "cov {k}: {} vs {}",
+                m.cov[k],
+                dst.cov[k]
+            );
+        }
+        for i in 0..3 {
+            for j in 0..3 {
+                assert!((t[i * 3 + j] - t[j * 3 + i]).abs() < 1e-9);
+            }
+        }
+        // Identity when the statistics already agree (up to the regulariser).
+        let (t, b) = monge_kantorovich(&s, &s);
+        for i in 0..3 {
+            assert!((t[i * 4] - 1.0).abs() < 0.1 && b[i].abs() < 0.1);
+        }
+    }
+
+    /// Mapping the scene's SH coefficients maps each Gaussian's raw colour (any view
+    /// direction) by the same affine map.
+    #[test]
+    fn scene_colours_map_affinely() {
+        let mut r = Rng::new(9);
+        let n = 5;
+        let k = 3; // SH degree 1
+        let scene = Scene {
+            positions: (0..n).map(|i| [i as f32, 0.0, 1.0]).collect(),
+            log_scales: vec![[0.0; 3]; n],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
+            opacity_logits: vec![0.0; n],
+            sh_degree: 1,
+            sh_dc: (0..n)
+                .map(|_| [r.normal() as f32, r.normal() as f32, r.normal() as f32])
+                .collect(),
+            sh_rest: (0..n * k * 3).map(|_| 0.3 * r.normal() as f32).collect(),
+        };
+        let t = [1.2, 0.1, 0.0, 0.1, 0.8, 0.05, 0.0, 0.05, 0.5];
+        let b = [0.1, -0.2, 0.3];
+        let out = apply_to_scene(&scene, &t, &b);
+        let ids: Vec<u32> = (0..n as u32).collect();
+        for centre in [[0.0, 0.0, -3.0], [2.0, 5.0, 1.0]] {
+            let before = crate::render::raw_colours(&scene, &ids, centre);
+            let after = crate::render::raw_colours(&out, &ids, centre);
+            for (x, y) in before.iter().zip(&after) {
+                let want = apply(&t, &b, [x[0] as f64, x[1] as f64, x[2] as f64]);
+                for c in 0..3 {
+                    assert!((y[c] as f64 - want[c]).abs() < 1e-5, "{y:?} vs {want:?}");
+                }
+            }
+        }
+        assert_eq!(out.positions, scene.positions);
+        assert_eq!(out.opacity_logits, scene.opacity_logits);
+    }
+
+    #[test]
+    fn object_stats_unpremultiply_and_weight() {
+        // Two pixels of colour (0.8, 0.4, 0.2): one at alpha 1, one at alpha 0.5 over a
+        // grey background; one empty pixel. Mean is that colour, covariance 0.
+        let bg = [0.5f32; 3];
+        let rgb = [
+            0.8,
+            0.4,
+            0.2, //
+            0.5 * 0.8 + 0.25,
+            0.5 * 0.4 + 0.25,
+            0.5 * 0.2 + 0.25, //
+            0.5,
+            0.5,
+            0.5,
+        ];
+        let alpha = [1.0, 0.5, 0.0];
+        let s = object_stats(&[(&rgb, &alpha)], bg).unwrap();
+        for (m, w) in s.mean.iter().zip([0.8, 0.4, 0.2]) {
+            assert!((m - w).abs() < 1e-6);
+        }
+        assert!(s.cov.iter().all(|v| v.abs() < 1e-10));
+        assert!(object_stats(&[(&rgb[6..], &alpha[2..])], bg).is_err());
+    }
+}
