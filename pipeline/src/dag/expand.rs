@@ -1,11 +1,12 @@
 //! Phase 2 of loading a DAG: `foreach` expansion and `${...}` substitution. Each raw
 //! stage becomes one [`Stage`] (or one per `foreach` item, named `NAME@ITEM`) with its
-//! `cmd`, `deps` and `outs` substituted and its tracked params collected; problems go
-//! into the diagnostics with their lines.
+//! `cmd` (split into arguments first, then substituted per argument: [`super::words`]),
+//! `deps` and `outs` substituted and its tracked params collected; problems go into the
+//! diagnostics with their lines.
 
 use super::locate::is_value_dep;
 use super::parse::{Lines, Parsed};
-use super::{Diag, Stage, normalize};
+use super::{Diag, Stage, normalize, words};
 use std::collections::{BTreeSet, HashMap};
 use toml::Spanned;
 
@@ -128,7 +129,7 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                 None => base.clone(),
             };
             let mut tracked: BTreeSet<String> = BTreeSet::new();
-            let mut sub = |s: &Spanned<String>, what: &str, diags: &mut Vec<Diag>| {
+            let mut sub = |text: &str, line: usize, what: &str, diags: &mut Vec<Diag>| {
                 let look = |n: &str| -> Option<String> {
                     if let Some(it) = &item {
                         if n == "item" {
@@ -152,7 +153,7 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                     tracked.insert(n.to_string());
                     Some(v.clone())
                 };
-                match substitute(s.get_ref(), look) {
+                match substitute(text, look) {
                     Ok(v) => Some(v),
                     Err(e) => {
                         let hint = if e == SubstError::Undefined("prev".into()) && item.is_some() {
@@ -161,16 +162,44 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                             ""
                         };
                         diags.push(Diag {
-                            line: Some(lines.line(s.span().start)),
+                            line: Some(line),
                             msg: format!("stage `{name}`: {what}: {e}{hint}"),
                         });
                         None
                     }
                 }
             };
-            let cmd = sub(&st.cmd, "cmd", diags);
-            let deps: Vec<_> = st.deps.iter().map(|d| sub(d, "deps", diags)).collect();
-            let outs: Vec<_> = st.outs.iter().map(|d| sub(d, "outs", diags)).collect();
+            // The command: split into words once, then each word substituted, so that a
+            // value stays one argument (`words`).
+            let cmd_line = lines.line(st.cmd.span().start);
+            let argv: Option<Vec<String>> = match words::split(st.cmd.get_ref())
+                .and_then(|w| words::check_shell_script(&w).map(|()| w))
+            {
+                Ok(ws) => ws
+                    .iter()
+                    .map(|w| sub(w, cmd_line, "cmd", diags))
+                    .collect::<Vec<_>>()
+                    .into_iter()
+                    .collect(),
+                Err(m) => {
+                    diags.push(Diag {
+                        line: Some(cmd_line),
+                        msg: format!("stage `{name}`: cmd: {m}"),
+                    });
+                    None
+                }
+            };
+            let span_line = |d: &Spanned<String>| lines.line(d.span().start);
+            let deps: Vec<_> = st
+                .deps
+                .iter()
+                .map(|d| sub(d.get_ref(), span_line(d), "deps", diags))
+                .collect();
+            let outs: Vec<_> = st
+                .outs
+                .iter()
+                .map(|d| sub(d.get_ref(), span_line(d), "outs", diags))
+                .collect();
             for k in &st.params {
                 if p.params.contains_key(k.get_ref()) {
                     tracked.insert(k.get_ref().clone());
@@ -189,8 +218,8 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                     });
                 }
             }
-            let (Some(cmd), Some(deps), Some(outs)) = (
-                cmd,
+            let (Some(argv), Some(deps), Some(outs)) = (
+                argv,
                 deps.into_iter().collect::<Option<Vec<_>>>(),
                 outs.into_iter().collect::<Option<Vec<_>>>(),
             ) else {
@@ -201,7 +230,7 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                     name,
                     base: base.clone(),
                     desc: st.desc.clone(),
-                    cmd,
+                    argv,
                     deps: deps
                         .iter()
                         .map(|d| {
