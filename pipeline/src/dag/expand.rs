@@ -57,6 +57,8 @@ pub enum ForeachError {
     EmptyRange { from: i64, to: i64 },
     #[error("range {from}..={to} is too long")]
     TooLong { from: i64, to: i64 },
+    #[error("the matrix makes {0} combinations; at most {MAX_INSTANCES} instances per stage")]
+    MatrixTooLarge(u128),
     #[error("expected a list of items or a range table {{ from, to, prefix }}, found {0}")]
     Shape(&'static str),
 }
@@ -278,6 +280,9 @@ struct Item {
     fields: Vec<(String, String)>,
 }
 
+/// Most instances one `foreach` stage may expand to (a range or a matrix).
+pub const MAX_INSTANCES: usize = 10_000;
+
 /// `{ matrix = { axis = [labels], ... } }`: one item per combination, axes in key
 /// order, labelled `a.b` (the values joined by `.`), `${item.axis}` each value.
 fn matrix_items(m: &toml::Value) -> Result<Vec<Item>, ForeachError> {
@@ -286,6 +291,13 @@ fn matrix_items(m: &toml::Value) -> Result<Vec<Item>, ForeachError> {
     };
     if t.is_empty() {
         return Err(ForeachError::Matrix("matrix".into()));
+    }
+    // The number of combinations, before building any (it grows as a product).
+    let total = t.values().fold(1u128, |acc, v| {
+        acc.saturating_mul(v.as_array().map_or(1, |a| a.len().max(1)) as u128)
+    });
+    if total > MAX_INSTANCES as u128 {
+        return Err(ForeachError::MatrixTooLarge(total));
     }
     let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
     for (axis, v) in t {
@@ -419,14 +431,17 @@ fn foreach_items(
             if to < from {
                 return Err(ForeachError::EmptyRange { from, to });
             }
-            if to - from >= 10_000 {
+            if to
+                .checked_sub(from)
+                .is_none_or(|n| n >= MAX_INSTANCES as i64)
+            {
                 return Err(ForeachError::TooLong { from, to });
             }
             Ok((from..=to)
                 .map(|n| Item {
                     label: format!("{prefix}{n}"),
                     value: n.to_string(),
-                    prev: Some((n - 1).to_string()),
+                    prev: n.checked_sub(1).map(|p| p.to_string()),
                     fields: Vec::new(),
                 })
                 .collect())

@@ -56,6 +56,8 @@
 //! and cycles (named stage by stage).
 
 mod expand;
+#[cfg(test)]
+mod fuzz;
 mod graph;
 mod locate;
 mod parse;
