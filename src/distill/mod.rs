@@ -33,6 +33,7 @@
 //! "unchanged". Whether f_rest (view-dependent colour) may change is `fit_rest`.
 
 pub mod fill;
+pub mod guard;
 pub mod path;
 
 use crate::csd::{self, CsdParams};
@@ -302,8 +303,9 @@ impl<'a> Distiller<'a> {
         self.fit.render_view(v)
     }
 
-    /// One iteration (module docs).
-    pub fn iterate(&mut self) -> Result<IterReport> {
+    /// One iteration (module docs), unchecked: [`Self::iterate`] (in [`guard`]) names
+    /// the iteration in errors and refuses a non-finite result.
+    fn iterate_unguarded(&mut self) -> Result<IterReport> {
         let it = self.iteration;
         let p = self.params.clone();
         let (h, w) = (self.source.height, self.source.width);

@@ -4,6 +4,7 @@ mod csd_golden;
 mod diffusion;
 mod distill;
 mod evaluate;
+mod extremes;
 mod fuzz;
 mod harness;
 mod mvfc;
