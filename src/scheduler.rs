@@ -49,6 +49,9 @@ pub struct SchedulerConfig {
     pub prediction_type: PredictionType,
 }
 
+/// Most training timesteps a schedule may have (diffusion models use 1000).
+pub const MAX_TRAIN_TIMESTEPS: usize = 100_000;
+
 impl SchedulerConfig {
     /// Stable Diffusion 1.x / 2.x / XL: 1000 steps, scaled-linear 0.00085..0.012.
     pub fn stable_diffusion() -> Self {
@@ -92,6 +95,14 @@ impl SchedulerConfig {
         if self.num_train_timesteps < 2 {
             return Err(Error::param(format!(
                 "scheduler: num_train_timesteps is {}, need at least 2",
+                self.num_train_timesteps
+            )));
+        }
+        // Before the table is built: a manifest claiming 4e9 steps must not allocate
+        // 32 GB (found by fuzzing model.json; real models train with 1000).
+        if self.num_train_timesteps > MAX_TRAIN_TIMESTEPS {
+            return Err(Error::param(format!(
+                "scheduler: num_train_timesteps is {}, at most {MAX_TRAIN_TIMESTEPS}",
                 self.num_train_timesteps
             )));
         }
@@ -342,6 +353,18 @@ mod tests {
 
     fn sched() -> Schedule {
         Schedule::new(SchedulerConfig::stable_diffusion()).unwrap()
+    }
+
+    /// Fuzzing regression: a model.json claiming 4e9 training timesteps made
+    /// `validate` build a 32 GB alphas table; now refused before any table is built.
+    #[test]
+    fn absurd_timestep_counts_are_refused_before_allocating() {
+        let cfg = SchedulerConfig {
+            num_train_timesteps: 4_000_000_000,
+            ..SchedulerConfig::stable_diffusion()
+        };
+        let e = Schedule::new(cfg).unwrap_err().to_string();
+        assert!(e.contains("4000000000") && e.contains("at most"), "{e}");
     }
 
     fn randn(n: usize, seed: u64) -> Array1<f32> {

@@ -1,10 +1,12 @@
 //! Running a DAG: stale stages in topological order, independent ones in parallel.
 //!
-//! Each stage runs as `sh -c CMD` in the work directory (`--workdir`, default the
-//! DAG's directory), with the `pipeline` executable's own directory first on PATH (so
-//! sibling stage binaries are found), its stdout and stderr going to
-//! `.pipeline/logs/NAME.log` in the work directory. At the end of a successful run the
-//! DAG's `[result]` paths are printed.
+//! Each stage runs its command's arguments directly, without a shell (values are
+//! arguments, never shell code: [`crate::dag::words`]), in the work directory
+//! (`--workdir`, default the DAG's directory), with the `pipeline` executable's own
+//! directory first on PATH (so sibling stage binaries are found; the program is
+//! resolved on that PATH, the same executable whose hash the lock records), its stdout
+//! and stderr going to `.pipeline/logs/NAME.log` in the work directory. At the end of a
+//! successful run the DAG's `[result]` paths are printed.
 //!
 //! Resume semantics (what makes an interrupted run safe to restart):
 //! * A stage counts as done only when the lock records it `ok`, which the runner writes
@@ -315,7 +317,7 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
             spawn_stage(
                 i,
                 s.name.clone(),
-                s.cmd.clone(),
+                s.argv.clone(),
                 dag.workdir.clone(),
                 env,
                 log,
@@ -566,7 +568,7 @@ fn append_log(p: &Path, line: &str) {
 fn spawn_stage(
     i: usize,
     name: String,
-    cmd: String,
+    argv: Vec<String>,
     dir: PathBuf,
     env: Vec<(String, std::ffi::OsString)>,
     log: PathBuf,
@@ -576,19 +578,42 @@ fn spawn_stage(
         let t = Instant::now();
         let res = (|| -> Result<std::process::ExitStatus> {
             let mut f = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
-            writeln!(f, "# stage {name}\n# cmd: {cmd}\n# cwd: {}", dir.display())
-                .map_err(|e| Error::io(&log, e))?;
+            writeln!(
+                f,
+                "# stage {name}\n# cmd: {}\n# cwd: {}",
+                crate::dag::words::join(&argv),
+                dir.display()
+            )
+            .map_err(|e| Error::io(&log, e))?;
+            let program = argv.first().map_or("", String::as_str);
+            let path_env = env
+                .iter()
+                .find(|(k, _)| k == "PATH")
+                .map(|(_, v)| v.clone())
+                .unwrap_or_default();
+            let Some(exe) = crate::state::resolve(&dir, program, &path_env) else {
+                let why = format!(
+                    "program `{program}` not found{}",
+                    if program.contains('/') {
+                        format!(" (looked for {})", dir.join(program).display())
+                    } else {
+                        " on PATH (the pipeline executable's directory, then $PATH)".into()
+                    }
+                );
+                let _ = writeln!(f, "pipeline: {why}");
+                return Err(Error::Usage(why));
+            };
             let err = f.try_clone().map_err(|e| Error::io(&log, e))?;
-            let status = Command::new("sh")
-                .arg("-c")
-                .arg(&cmd)
+            // No shell: the program and its arguments exactly as substituted.
+            let status = Command::new(&exe)
+                .args(&argv[1..])
                 .current_dir(&dir)
                 .envs(env)
                 .stdin(Stdio::null())
                 .stdout(f)
                 .stderr(err)
                 .status()
-                .map_err(|e| Error::io("sh", e))?;
+                .map_err(|e| Error::io(&exe, e))?;
             Ok(status)
         })();
         let duration = t.elapsed().as_secs_f64();

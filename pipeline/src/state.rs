@@ -114,16 +114,17 @@ impl Hasher {
             })
             .collect();
         Fingerprint {
-            cmd: stage.cmd.clone(),
-            binary: self.binary(&dag.workdir, &stage.cmd),
+            cmd: stage.cmd(),
+            binary: self.binary(&dag.workdir, stage.argv.first().map_or("", String::as_str)),
             deps,
             params,
         }
     }
 
-    /// The executable the command's first word resolves to, and its hash.
-    pub fn binary(&mut self, dir: &Path, cmd: &str) -> Binary {
-        let word = first_word(cmd);
+    /// The executable the command's program (its first argument) resolves to, and its
+    /// hash.
+    pub fn binary(&mut self, dir: &Path, program: &str) -> Binary {
+        let word = program.to_string();
         let Some(path) = resolve(dir, &word, &self.path_env) else {
             return Binary {
                 path: word,
@@ -246,16 +247,9 @@ pub fn stage_path_env() -> OsString {
     std::env::join_paths(dirs).unwrap_or_default()
 }
 
-/// First word of a shell command, skipping `VAR=value` assignments and quotes.
-fn first_word(cmd: &str) -> String {
-    cmd.split_whitespace()
-        .find(|w| !(w.contains('=') && !w.starts_with('=') && !w.contains('/')))
-        .unwrap_or("")
-        .trim_matches(|c| c == '\'' || c == '"')
-        .to_string()
-}
-
-fn resolve(dir: &Path, word: &str, path_env: &OsString) -> Option<PathBuf> {
+/// The executable `word` names: a path (with a `/`, relative to `dir`) or the first
+/// executable of that name on `path_env`.
+pub fn resolve(dir: &Path, word: &str, path_env: &OsString) -> Option<PathBuf> {
     if word.is_empty() {
         return None;
     }
@@ -328,18 +322,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn first_word_skips_assignments_and_quotes() {
-        assert_eq!(first_word("A=1 B=2 'render-views' --x=3"), "render-views");
-        assert_eq!(first_word("./bin/x --a=b"), "./bin/x");
-        assert_eq!(first_word("sh"), "sh");
-    }
-
-    #[test]
     fn resolves_sh_on_path_and_hashes_it() {
         let mut h = Hasher::new(std::env::var_os("PATH").unwrap());
-        let b = h.binary(Path::new("."), "sh -c true");
+        let b = h.binary(Path::new("."), "sh");
         assert!(b.path.ends_with("/sh") && b.blake3.len() == 64, "{b:?}");
-        let b = h.binary(Path::new("."), "no-such-binary-xyz --a");
+        let b = h.binary(Path::new("."), "no-such-binary-xyz");
         assert_eq!(b.blake3, "unresolved");
     }
 }

@@ -582,3 +582,108 @@ fn kill_one_stage_at_many_points_then_rerun_is_byte_identical() {
         "only {killed} of 12 kill points hit a running stage"
     );
 }
+
+/// Every file name under `dir`, recursively.
+fn names(dir: &Path) -> Vec<String> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        v.push(e.file_name().to_string_lossy().into_owned());
+        if e.path().is_dir() {
+            v.extend(names(&e.path()));
+        }
+    }
+    v
+}
+
+/// Values are values: a scene path with spaces, an apostrophe, `$`, backticks and
+/// non-ASCII letters, and a prompt that tries to close a quote and run a command, reach
+/// the stage as exactly one argument each, unchanged; nothing else runs. The stage
+/// (`args.sh`) records the arguments it got, NUL-separated.
+#[test]
+fn values_reach_the_stage_as_single_arguments_and_run_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let tool = d.path().join("args.sh");
+    std::fs::write(
+        &tool,
+        "#!/bin/sh\nout=\"$1\"\nshift\nprintf '%s\\0' \"$@\" > \"$out\"\n",
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&tool, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let scene_dir = "my captures/it's $HOME `touch pwned2` ünïcødé";
+    let scene = format!("{scene_dir}/cat's $(touch pwned3).splat");
+    std::fs::create_dir_all(d.path().join(scene_dir)).unwrap();
+    std::fs::write(d.path().join(&scene), "scene").unwrap();
+    std::fs::write(
+        d.path().join("dag.toml"),
+        "[vars]\nprompt = \"\"\nscene = \"none\"\n[stages.a]\n\
+         cmd = \"./args.sh got.bin --prompt ${prompt} --scene ${scene} --both=${prompt}\"\n\
+         deps = [\"${scene}\"]\nouts = [\"got.bin\"]\n",
+    )
+    .unwrap();
+    let prompt = "it's; touch pwned; echo '";
+    let set_p = format!("prompt={prompt}");
+    let set_s = format!("scene={scene}");
+    let (rc, out, err) = run(d.path(), &["--set", &set_p, "--set", &set_s]);
+    assert_eq!(rc, 0, "{out}\n{err}");
+    let got = std::fs::read(d.path().join("got.bin")).unwrap();
+    let got: Vec<&str> = std::str::from_utf8(&got)
+        .unwrap()
+        .split_terminator('\0')
+        .collect();
+    let both = format!("--both={prompt}");
+    assert_eq!(got, ["--prompt", prompt, "--scene", &scene, &both]);
+    let all = names(d.path());
+    assert!(
+        !all.iter().any(|n| n.starts_with("pwned")),
+        "a value ran as a command: {all:?}"
+    );
+    // The same values again: up to date (the lock's command line is stable).
+    let (rc, out, _) = run(d.path(), &["--set", &set_p, "--set", &set_s]);
+    assert_eq!(rc, 0);
+    assert!(out.contains("nothing to run"), "{out}");
+    // The log shows the command as a shell would need it quoted.
+    let log = std::fs::read_to_string(d.path().join(".pipeline/logs/a.log")).unwrap();
+    let line = log.lines().find_map(|l| l.strip_prefix("# cmd: ")).unwrap();
+    assert_eq!(
+        shlex::split(line).unwrap(),
+        [
+            "./args.sh",
+            "got.bin",
+            "--prompt",
+            prompt,
+            "--scene",
+            &scene,
+            &both
+        ]
+    );
+}
+
+/// Shell syntax in a `cmd` is refused before anything runs (no shell would interpret
+/// it), with the line and the way out.
+#[test]
+fn shell_syntax_in_cmd_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    for (cmd, what) in [
+        ("mkdir -p o && touch o/x", "`&&`"),
+        ("echo hi > o", "`>`"),
+        ("A=1 prog", "env A=1"),
+        ("sh -c 'echo ${v}'", "`sh -c` contains"),
+    ] {
+        std::fs::write(
+            d.path().join("dag.toml"),
+            format!(
+                "[vars]\nv = \"x\"\n[stages.a]\ncmd = \"{}\"\nouts = [\"o\"]\n",
+                cmd.replace('"', "\\\"")
+            ),
+        )
+        .unwrap();
+        let (rc, out, err) = run(d.path(), &[]);
+        assert_eq!(rc, 2, "{cmd}: {out}\n{err}");
+        assert!(
+            err.contains("dag.toml:4: stage `a`: cmd:") && err.contains(what),
+            "{cmd}: {err}"
+        );
+        assert!(!d.path().join("o").exists());
+    }
+}

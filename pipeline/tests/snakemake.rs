@@ -43,7 +43,8 @@ fn snakemake() -> Option<PathBuf> {
     if p.is_file() {
         return Some(p);
     }
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
+    // The integration harness's rule (tests/integration/harness.rs `ci`).
+    if std::env::var("CI").is_ok_and(|v| !matches!(v.trim(), "" | "0" | "false")) {
         panic!(
             "{} is missing: scripts/setup.sh installs it (scripts/setup/40_snakemake.sh)",
             p.display()
@@ -328,4 +329,79 @@ fn export_refuses_what_snakemake_cannot_express() {
     );
     assert_eq!(rc, 2);
     assert!(err.contains("--snakemake"), "{err}");
+}
+
+/// The Snakemake export quotes every argument as `pipeline run` passes it: a scene path
+/// with spaces, apostrophes, `$`, backticks, `$(...)` and non-ASCII letters, and a prompt
+/// that tries to close a quote and run a command (with braces, which Snakemake formats),
+/// reach the stage unchanged under Snakemake's shell, and nothing else runs. A brace in a
+/// file path is refused (Snakemake would read a wildcard).
+#[test]
+fn snakemake_export_passes_values_as_single_arguments() {
+    let Some(bin) = snakemake() else { return };
+    let d = tempfile::tempdir().unwrap();
+    let root = d.path();
+    let p = root.join("proj");
+    std::fs::create_dir_all(&p).unwrap();
+    let tool = p.join("args.sh");
+    std::fs::write(
+        &tool,
+        "#!/bin/sh\nout=\"$1\"\nshift\nmkdir -p \"$(dirname \"$out\")\"\nprintf '%s\\0' \"$@\" > \"$out\"\n",
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&tool, std::fs::Permissions::from_mode(0o755)).unwrap();
+    std::fs::write(
+        p.join("dag.toml"),
+        "[vars]\nprompt = \"\"\nscene = \"none\"\n[stages.a]\n\
+         cmd = \"./args.sh runs/got.bin --prompt ${prompt} --scene ${scene}\"\n\
+         deps = [\"${scene}\"]\nouts = [\"runs/got.bin\"]\n",
+    )
+    .unwrap();
+    let dir = "my captures/it's $HOME `touch pwned` ünï";
+    let scene = format!("{dir}/cat's $(touch pwned).splat");
+    std::fs::create_dir_all(p.join(dir)).unwrap();
+    std::fs::write(p.join(&scene), "s").unwrap();
+    let prompt = "it's; touch pwned; echo '{wildcards}";
+    let sets = [format!("prompt={prompt}"), format!("scene=proj/{scene}")];
+    let set_refs: Vec<&str> = sets.iter().map(String::as_str).collect();
+    export(root, "proj", &set_refs);
+    let (ok, rules, log) = smk(&bin, root, &[]);
+    assert!(ok && rules == ["a"], "{log}");
+    let got = std::fs::read(p.join("runs/got.bin")).unwrap();
+    let got: Vec<&str> = std::str::from_utf8(&got)
+        .unwrap()
+        .split_terminator('\0')
+        .collect();
+    assert_eq!(got, ["--prompt", prompt, "--scene", &scene]);
+    // A brace in a file path: Snakemake would read a wildcard; refused, with the reason.
+    std::fs::write(p.join("a{x}.splat"), "s").unwrap();
+    let (rc, _, err) = pipeline(
+        root,
+        &[
+            "export",
+            "--snakemake",
+            "--dag",
+            "proj/dag.toml",
+            "--workdir",
+            "proj",
+            "--out",
+            "S2",
+            "--set",
+            "scene=proj/a{x}.splat",
+        ],
+    );
+    assert!(
+        rc == 2 && err.contains("`a{x}.splat`") && err.contains("wildcard"),
+        "{err}"
+    );
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(x) = stack.pop() {
+        for e in std::fs::read_dir(&x).unwrap().flatten() {
+            assert_ne!(e.file_name(), "pwned", "a value ran as a command");
+            if e.path().is_dir() {
+                stack.push(e.path());
+            }
+        }
+    }
 }

@@ -15,7 +15,7 @@ const DAG: &str = r#"params = "params.toml"
 input = "in.txt"
 cameras = "orbit:4"
 [stages.copy]
-cmd = "mkdir -p runs/copy && cp ${input} runs/copy/in.txt && echo ${cameras} > runs/copy/cams.txt"
+cmd = '''sh -c 'mkdir -p runs/copy && cp "$1" runs/copy/in.txt && echo "$2" > runs/copy/cams.txt' sh ${input} ${cameras}'''
 deps = ["${input}", "${cameras}"]
 outs = ["runs/copy"]
 [stages.gen]
@@ -26,7 +26,7 @@ cmd = "pipeline test-stage --input runs/gen --out runs/mid --seed 2 --value ${b.
 deps = ["runs/gen", "runs/copy"]
 outs = ["runs/mid"]
 [stages.lit]
-cmd = "mkdir -p runs/lit && cp notes.txt runs/lit/notes.txt"
+cmd = '''sh -c 'mkdir -p runs/lit && cp "$1" runs/lit/notes.txt' sh notes.txt'''
 deps = ["notes.txt"]
 outs = ["runs/lit"]
 [stages.last]
@@ -142,7 +142,7 @@ fn workdir_holds_every_output_and_set_reruns_exactly_downstream() {
         "orbit:4\n"
     );
     let log = std::fs::read_to_string(w.join(".pipeline/logs/copy.log")).unwrap();
-    assert!(log.contains("cp ../../mine.txt runs/copy/in.txt"), "{log}");
+    assert!(log.contains(" sh ../../mine.txt orbit:4\n"), "{log}");
     // The end of the run names the [result] paths as seen from the current directory.
     assert!(out.contains("result  final    out/w/runs/last"), "{out}");
 

@@ -287,21 +287,22 @@ pub fn decode_npy<T: NpyElement>(path: &Path, bytes: &[u8]) -> Result<NpyArray<T
             reason: format!("dtype is {dtype}, expected {}", T::DTYPE),
         });
     }
-    let n = shape
+    // The byte count, checked: a shape whose elements fit in usize may still need more
+    // bytes than usize holds (found by fuzzing: `(4611686018427387904,)` of `<f4`).
+    let need = shape
         .iter()
         .try_fold(1usize, |a, &s| a.checked_mul(s))
+        .and_then(|n| n.checked_mul(dtype.size()))
         .ok_or_else(|| SchemaError::Npy {
             path: path.to_path_buf(),
             reason: format!("shape {shape:?} overflows"),
         })?;
-    let sz = dtype.size();
     let body = &bytes[off..];
-    if body.len() != n * sz {
+    if body.len() != need {
         return Err(SchemaError::Npy {
             path: path.to_path_buf(),
             reason: format!(
-                "shape {shape:?} needs {} data bytes, file has {} (truncated or padded)",
-                n * sz,
+                "shape {shape:?} needs {need} data bytes, file has {} (truncated or padded)",
                 body.len()
             ),
         });
@@ -410,7 +411,16 @@ impl<T: NpyElement> NpyReader<T> {
                 ),
             });
         }
-        let item = shape[1..].iter().product();
+        // The body's size matched, so the item's element count fits unless the first
+        // axis is 0 (found by fuzzing: `(0, 2^40, 2^40)` overflowed the product).
+        let item = shape[1..]
+            .iter()
+            .try_fold(1usize, |a, &s| a.checked_mul(s))
+            .filter(|i| i.checked_mul(dtype.size()).is_some())
+            .ok_or_else(|| SchemaError::Npy {
+                path: path.to_path_buf(),
+                reason: format!("shape {shape:?} overflows"),
+            })?;
         Ok(NpyReader {
             path: path.to_path_buf(),
             file,
@@ -479,6 +489,22 @@ impl NpyReader<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Fuzzing regressions (tests/integration/fuzz.rs): shapes whose byte count or
+    /// per-item element count overflows usize are errors, not overflow panics.
+    #[test]
+    fn overflowing_shapes_are_errors() {
+        let p = Path::new("big.npy");
+        let mut b = npy_header(DType::F32, &[4_611_686_018_427_387_904]);
+        b.extend_from_slice(&[0; 16]);
+        let e = decode_npy::<f32>(p, &b).unwrap_err().to_string();
+        assert!(e.contains("big.npy") && e.contains("overflows"), "{e}");
+        let d = tempfile::tempdir().unwrap();
+        let f = d.path().join("zero.npy");
+        std::fs::write(&f, npy_header(DType::F32, &[0, 1 << 40, 1 << 40])).unwrap();
+        let e = NpyReader::<f32>::open(&f).err().unwrap().to_string();
+        assert!(e.contains("zero.npy") && e.contains("overflows"), "{e}");
+    }
 
     #[test]
     fn round_trip_all_dtypes_and_ranks() {

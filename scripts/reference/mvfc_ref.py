@@ -11,7 +11,9 @@ Unlike the Rust code it does not use the linearity shortcut and transforms both 
     python scripts/reference/mvfc_ref.py tests/golden/mvfc   # (re)write the golden files
 
 Each case writes CASE_z.npy [N,C,h,w], CASE_eps.npy [C,h,w], CASE_out.npy and a line in
-cases.json with gamma, d_s, d_t.
+cases.json with gamma, d_s, d_t. The NOISE_FREE cases have eps' = 0, so their output is
+the filter's action on z alone, (H + gamma L) z: the mvfc-filter stage test takes the
+difference of two runs that share eps' (MVFC is linear) and compares it with them.
 """
 import json
 import os
@@ -60,6 +62,12 @@ CASES = [
     ("strong_mix", (6, 4, 12, 10), 0.0, 0.5, 1.0),
 ]
 
+# eps' = 0 (after CASES, so that their random draws stay as they were). stage_4v: the
+# shape and default parameters of the mvfc-filter stage test.
+NOISE_FREE = [
+    ("stage_4v", (4, 4, 8, 6), 0.9, 0.25, 0.25),
+]
+
 
 def main(out_dir):
     os.makedirs(out_dir, exist_ok=True)
@@ -73,6 +81,14 @@ def main(out_dir):
         np.save(os.path.join(out_dir, f"{name}_eps.npy"), eps)
         np.save(os.path.join(out_dir, f"{name}_out.npy"), out)
         meta[name] = {"gamma": gamma, "d_s": d_s, "d_t": d_t}
+    for name, shape, gamma, d_s, d_t in NOISE_FREE:
+        z = rng.standard_normal(shape).astype(np.float32)
+        eps = np.zeros(shape[1:], dtype=np.float32)
+        out = mvfc(z, eps, gamma, d_s, d_t).astype(np.float32)
+        np.save(os.path.join(out_dir, f"{name}_z.npy"), z)
+        np.save(os.path.join(out_dir, f"{name}_eps.npy"), eps)
+        np.save(os.path.join(out_dir, f"{name}_out.npy"), out)
+        meta[name] = {"gamma": gamma, "d_s": d_s, "d_t": d_t, "noise_free": True}
     with open(os.path.join(out_dir, "cases.json"), "w") as f:
         json.dump(meta, f, indent=1, sort_keys=True)
         f.write("\n")

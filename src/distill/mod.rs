@@ -43,6 +43,7 @@
 //! "unchanged". Whether f_rest (view-dependent colour) may change is `fit_rest`.
 
 pub mod fill;
+pub mod guard;
 pub mod path;
 pub mod texture;
 
@@ -371,8 +372,9 @@ impl<'a> Distiller<'a> {
         self.fit.render_view(v)
     }
 
-    /// One iteration (module docs).
-    pub fn iterate(&mut self) -> Result<IterReport> {
+    /// One iteration (module docs), unchecked: [`Self::iterate`] (in [`guard`]) names
+    /// the iteration in errors and refuses a non-finite result.
+    fn iterate_unguarded(&mut self) -> Result<IterReport> {
         let it = self.iteration;
         let p = self.params.clone();
         let (h, w) = (self.source.height, self.source.width);

@@ -402,6 +402,7 @@ pub fn run(a: Args) -> Result<()> {
             "device": a.device.device.to_string(), "unet_batch": a.unet_batch,
         }),
     );
+    crate::distill::guard::checkpoint(&out_scene, &out_state)?;
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
     match (&resumed_from, &a.scene) {
         (Some(dir), _) => out.add_input("resume", dir)?,

@@ -43,13 +43,12 @@ fn vgg_forward_matches_numpy_golden() {
 
 #[test]
 fn vgg_real_weights_match_numpy_if_present() {
-    let w = repo_root().join("vendor/models/lpips/vgg16");
-    let g = repo_root().join("vendor/models/lpips/vgg16-golden");
-    if !g.join("relu4_3.npy").is_file() {
-        eprintln!("SKIPPED: {} is absent (run scripts/setup.sh)", g.display());
+    let Some(g) = crate::harness::model_file("lpips/vgg16-golden", "relu4_3.npy") else {
         return;
-    }
-    check_golden(&w, &g);
+    };
+    let g = g.parent().unwrap();
+    let w = g.parent().unwrap().join("vgg16");
+    check_golden(&w, g);
 }
 
 #[test]
@@ -193,11 +192,7 @@ mod stage {
 
     #[test]
     fn refit_lowers_gram_distance_geometry_frozen() {
-        if !repo_root()
-            .join("vendor/models/stylizer/model.json")
-            .is_file()
-        {
-            eprintln!("SKIPPED: vendor/models/stylizer is absent (run scripts/setup.sh)");
+        if crate::harness::model("stylizer").is_none() {
             return;
         }
         check_method(Method::Refit, 150);
@@ -268,11 +263,7 @@ mod stage {
     /// depends on the current directory); `FANTASYSTYLE_MODELS` overrides the search.
     #[test]
     fn models_are_found_from_any_directory_and_the_env_var_wins() {
-        if !repo_root()
-            .join("vendor/models/lpips/vgg16/conv9_weight.npy")
-            .is_file()
-        {
-            eprintln!("SKIPPED: vendor/models/lpips/vgg16 is absent (run scripts/setup.sh)");
+        if crate::harness::model_file("lpips/vgg16", "conv9_weight.npy").is_none() {
             return;
         }
         let bin = env!("CARGO_BIN_EXE_stylize-baseline");

@@ -18,10 +18,10 @@ use fantasystyle::runtime::{Device, SessionConfig};
 use ndarray::{Array3, Array4, ArrayD, IxDyn};
 use std::path::{Path, PathBuf};
 
-/// The committed fixture, or `None` (with a message) without onnxruntime.
+/// The committed fixture, or `None` without onnxruntime ([`crate::harness::need`]: a
+/// failure under CI).
 pub fn tiny_sd15() -> Option<PathBuf> {
-    if fantasystyle::runtime::library_path().is_err() {
-        eprintln!("SKIPPED: onnxruntime missing (scripts/setup.sh)");
+    if !crate::harness::onnxruntime() {
         return None;
     }
     Some(repo_root().join("tests/fixtures/tiny-sd15"))
@@ -207,7 +207,11 @@ fn tiny_sd15_export_agrees_with_eager_diffusers() {
 #[test]
 fn exported_model_agrees_with_eager_diffusers() {
     let Ok(dir) = std::env::var("FANTASYSTYLE_EXPORTED_MODEL") else {
-        eprintln!("SKIPPED: set FANTASYSTYLE_EXPORTED_MODEL to an export_models.py --tiny export");
+        // Opt-in (a user's own export, not installed by set-up): a skip, also under CI.
+        eprintln!(
+            "SKIPPED (opt-in, not a set-up item): set FANTASYSTYLE_EXPORTED_MODEL to an \
+             export_models.py --tiny export"
+        );
         return;
     };
     check_agreement(Path::new(&dir));
@@ -301,9 +305,32 @@ fn csd_refuses_coinciding_style_and_content() {
         let g = csd::gradient(&mut q, &schedule, x, &step(mode)).unwrap();
         assert!(g.iter().all(|v| v.is_finite()));
     }
-    // The routed model runs csd.
+    // The routed model runs csd, and its negative content branch is really there:
+    // csd - csd-no-neg = w(t) beta (e(Null) - e(Content)) (src/csd.rs), not 0.
     let mut p = open(&dir, None);
-    assert!(csd::gradient(&mut p, &schedule, x, &step(Mode::Csd)).is_ok());
+    let g = csd::gradient(&mut p, &schedule, x, &step(Mode::Csd)).unwrap();
+    let g_nn = csd::gradient(&mut p, &schedule, x, &step(Mode::CsdNoNeg)).unwrap();
+    let e = p
+        .predict_eps(
+            z.view(),
+            321,
+            &[Cond::Null, Cond::Content],
+            Some(ctrl.view()),
+        )
+        .unwrap();
+    let p0 = CsdParams::default();
+    let wb = (p0.weighting.weight(schedule.alpha_bar(321).unwrap()) as f32) * p0.guidance;
+    let want = (&e[0] - &e[1]).mapv(|v| wb * v);
+    let scale = want.iter().map(|v| v.abs()).fold(0.0f32, f32::max);
+    let off = (&(&g - &g_nn) - &want)
+        .iter()
+        .map(|v| v.abs())
+        .fold(0.0f32, f32::max);
+    assert!(scale > 1e-3, "routed content guidance vanishes: {scale}");
+    assert!(
+        off <= 1e-4 * scale,
+        "csd - csd-no-neg off by {off} (scale {scale})"
+    );
 }
 
 #[test]
@@ -326,17 +353,45 @@ fn unknown_prompt_without_text_encoder_names_the_exported_ones() {
         e.contains("no text encoder") && e.contains("a painting in the style"),
         "{e}"
     );
-    // The exported prompt still works without the encoder.
-    assert!(
-        OnnxPrior::open(
-            m.path(),
-            &PriorOptions {
-                prompt: Some("a painting in the style of the reference image".into()),
-                threads: 1,
-                ..Default::default()
-            }
+    // The exported prompt still works without the encoder: naming it selects its
+    // stored embedding, the same one the model uses by default.
+    let mut named = OnnxPrior::open(
+        m.path(),
+        &PriorOptions {
+            prompt: Some("a painting in the style of the reference image".into()),
+            threads: 1,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut default = OnnxPrior::open(
+        m.path(),
+        &PriorOptions {
+            threads: 1,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let z = npy4(&dir, "z.npy");
+    let ctrl = npy4(&dir, "control.npy");
+    let a = named
+        .predict_eps(
+            z.view(),
+            321,
+            &[Cond::Prompt, Cond::Null],
+            Some(ctrl.view()),
         )
-        .is_ok()
+        .unwrap();
+    let b = default
+        .predict_eps(z.view(), 321, &[Cond::Prompt], Some(ctrl.view()))
+        .unwrap();
+    assert_eq!(
+        a[0], b[0],
+        "the named exported prompt is not the stored one"
+    );
+    assert!(
+        a[0] != a[1],
+        "the prompt makes no difference to the prediction"
     );
 }
 
@@ -430,8 +485,23 @@ fn csd_step_stage_runs_the_fixture_and_refuses_shared_conditioning() {
     // The routed model, a run-time prompt, --mode csd: targets written.
     let mut a = crate::mvfc::step_args(d.path(), &dir, &sp, Mode::Csd);
     a.prompt = Some("an ink drawing of a stone bridge".into());
+    let lr = a.params.lr as f64;
     let rep = fantasystyle::stages::csd_step::run(a).unwrap();
-    assert!(rep.grad_rms > 0.0 && rep.grad_rms.is_finite(), "{rep:?}");
+    // z0' - z0 = -lr w g exactly: the two reported RMS agree, and the step is not nil.
+    assert!(rep.grad_rms > 1e-4, "{rep:?}");
+    assert!(
+        (rep.latent_step_rms - lr * rep.grad_rms).abs() <= 1e-3 * lr * rep.grad_rms,
+        "{rep:?}"
+    );
+    // The run-time prompt reaches the gradient: another prompt, other targets.
+    let mut b = crate::mvfc::step_args(d.path(), &dir, &sp, Mode::Csd);
+    b.prompt = Some("a watercolour of a lighthouse".into());
+    b.out = d.path().join("targets-other-prompt");
+    let rep_b = fantasystyle::stages::csd_step::run(b).unwrap();
+    assert!(
+        (rep_b.grad_rms - rep.grad_rms).abs() > 1e-6 * rep.grad_rms,
+        "the prompt changed nothing: {rep:?} {rep_b:?}"
+    );
     // Plain IP-Adapter routing: --mode csd refused (exit code 2 from the binary),
     // --mode csd-no-neg accepted.
     let shared = shared_copy(&dir);
@@ -539,7 +609,14 @@ fn distill_runs_the_fixture_end_to_end_with_a_runtime_prompt() {
         .zip(out.sh_dc.iter().flatten())
         .map(|(x, y)| (x - y).abs())
         .fold(0f32, f32::max);
-    assert!(moved > 0.0 && moved.is_finite(), "{moved}");
+    // Two Adam steps of lr_dc = 0.01 (the default): each moves a colour by at most
+    // lr (1 + 1.3e-3) (|m^ / sqrt(v^)| <= 1.0013 at t <= 2), and a colour with a
+    // gradient moves by lr at the first step.
+    let lr = 0.01f32;
+    assert!(
+        (0.5 * lr..=2.0 * 1.0014 * lr).contains(&moved),
+        "largest colour change {moved}, Adam with lr {lr} over 2 steps"
+    );
     let (rc, err) = distill(&dir, &d.join("b"), &["--mode", "csd"]);
     assert_eq!(rc, Some(0), "{err}");
     assert_ne!(

@@ -17,19 +17,10 @@ use ndarray::Array4;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The installed stylizer model; under CI its absence is a failure, elsewhere a skip.
+/// The installed stylizer model ([`crate::harness::model`]: a failure under CI, else a
+/// skip).
 fn stylizer_dir() -> Option<PathBuf> {
-    let dir = fantasystyle::models::model_path("stylizer").ok()?;
-    if dir.join("model.json").is_file() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var("CI").is_err(),
-        "the stylizer model is missing under CI ({}); scripts/setup.sh installs it",
-        dir.display()
-    );
-    eprintln!("SKIPPED: no stylizer model at {}", dir.display());
-    None
+    crate::harness::model("stylizer")
 }
 
 fn sample_scene() -> Scene {

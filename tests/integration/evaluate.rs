@@ -70,14 +70,16 @@ fn style_png(dir: &Path) -> PathBuf {
     p
 }
 
+/// onnxruntime and the metric networks ([`crate::harness::need`]: a failure under CI).
 fn ready() -> bool {
-    if fantasystyle::runtime::library_path().is_err()
-        || !models_dir().is_ok_and(|m| m.join("metrics").is_dir())
-    {
-        eprintln!("SKIPPED: onnxruntime or metric networks not set up (scripts/setup.sh)");
-        return false;
-    }
-    true
+    crate::harness::onnxruntime()
+        && match models_dir() {
+            Ok(m) => crate::harness::need(
+                format_args!("the metric networks {}", m.join("metrics").display()),
+                m.join("metrics").is_dir(),
+            ),
+            Err(e) => crate::harness::need(format_args!("the models directory ({e})"), false),
+        }
 }
 
 fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
@@ -193,11 +195,10 @@ fn chromium_check(report: &Path) {
         })
     else {
         // CI installs it (scripts/setup/05_chromium.sh): there, its absence is a failure.
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "chromium is required under CI (scripts/setup/05_chromium.sh installs it)"
+        crate::harness::need(
+            "chromium (scripts/setup/05_chromium.sh, or apt-get install -y chromium)",
+            false,
         );
-        eprintln!("SKIPPED: chromium not installed (apt-get install -y chromium)");
         return;
     };
     let html = std::fs::read_to_string(report).unwrap();

@@ -23,9 +23,65 @@ pub fn pipeline_bin() -> PathBuf {
     p
 }
 
+/// Whether this is a CI run (`CI` set, and not to `""`, `0` or `false`): there, set-up
+/// has installed everything, and a test that needs something set-up installs must fail
+/// when it is missing, not skip.
+pub fn ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| !matches!(v.trim(), "" | "0" | "false"))
+}
+
+/// The one rule for "this test needs something set-up installs" (a model, onnxruntime,
+/// Chromium, a shared scene): `true` when `present`; otherwise under CI ([`ci`]) the test
+/// fails with a message naming `what` is missing (a broken set-up must not pass as a
+/// green run), and elsewhere it prints `SKIPPED: ...` and gets `false`, to return early.
+///
+/// Only opt-in tests that need a user's own export, and cases that cannot run at all
+/// here (as root), skip without it, and say so in their message.
+pub fn need(what: impl std::fmt::Display, present: bool) -> bool {
+    if present {
+        return true;
+    }
+    assert!(
+        !ci(),
+        "missing under CI: {what} (scripts/setup.sh installs it; this test does not skip \
+         under CI)"
+    );
+    eprintln!("SKIPPED: missing {what} (run scripts/setup.sh)");
+    false
+}
+
+/// The installed model `name` (a directory with `model.json` under the models
+/// directory, [`fantasystyle::models`]: `$FANTASYSTYLE_MODELS` or `vendor/models`), or
+/// `None` after [`need`].
+pub fn model(name: &str) -> Option<PathBuf> {
+    model_file(name, "model.json").map(|f| f.parent().unwrap().to_path_buf())
+}
+
+/// `rel` (a file) inside the installed model directory `name`, or `None` after [`need`].
+pub fn model_file(name: &str, rel: &str) -> Option<PathBuf> {
+    match fantasystyle::models::model_path(name) {
+        Ok(d) => {
+            let f = d.join(rel);
+            need(format_args!("model file {}", f.display()), f.is_file()).then_some(f)
+        }
+        Err(e) => {
+            need(format_args!("the models directory ({e})"), false);
+            None
+        }
+    }
+}
+
+/// Whether the onnxruntime shared library is found ([`need`]).
+pub fn onnxruntime() -> bool {
+    match fantasystyle::runtime::library_path() {
+        Ok(_) => true,
+        Err(e) => need(format_args!("onnxruntime ({e})"), false),
+    }
+}
+
 /// The shared scene `NAME`, looked up in `$FANTASYSTYLE_SHARED/data/scenes/`, then
 /// `../shared/data/scenes/` beside the repository, then `/work/shared/data/scenes/` (for
-/// worktrees outside the main checkout); `None` (and a SKIPPED message) if absent.
+/// worktrees outside the main checkout); `None` after [`need`] if absent.
 pub fn shared_scene(name: &str) -> Option<PathBuf> {
     let mut roots = Vec::new();
     if let Ok(s) = std::env::var("FANTASYSTYLE_SHARED") {
@@ -39,7 +95,10 @@ pub fn shared_scene(name: &str) -> Option<PathBuf> {
             return Some(p);
         }
     }
-    eprintln!("SKIPPED: shared scene {name} is absent (looked in {roots:?})");
+    need(
+        format_args!("shared scene {name} (looked in {roots:?}; set FANTASYSTYLE_SHARED)"),
+        false,
+    );
     None
 }
 

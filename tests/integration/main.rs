@@ -1,8 +1,11 @@
 //! The integration test binary: one binary, one harness (`harness`), one module per area.
 mod baselines;
+mod csd_golden;
 mod diffusion;
 mod distill;
 mod evaluate;
+mod extremes;
+mod fuzz;
 mod harness;
 mod mvfc;
 mod own_scene;

@@ -1,6 +1,8 @@
 //! Issue 13: "stylize your own scene" through the real binaries: the sample DAG run on a
-//! shared `.splat` scene with an `orbit:` camera spec and a style from the current
-//! directory, every output under `--workdir`, `data-sample/` untouched, and one `--set`
+//! shared `.splat` scene (copied under a path with spaces, apostrophes, `$`, backticks
+//! and non-ASCII letters, issue 22) with an `orbit:` camera spec, a style from the
+//! current directory and a prompt that tries shell injection, every output under
+//! `--workdir`, nothing run but the stages, `data-sample/` untouched, and one `--set`
 //! change rerunning exactly its downstream.
 //!
 //! Sizes are kept small through the params keys `render.width`, `render.height`,
@@ -27,6 +29,18 @@ fn sample_state(ds: &Path) -> BTreeMap<String, Vec<u8>> {
     m
 }
 
+/// Every file and directory name under `dir`, recursively.
+fn names(dir: &Path) -> Vec<String> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        v.push(e.file_name().to_string_lossy().into_owned());
+        if e.path().is_dir() {
+            v.extend(names(&e.path()));
+        }
+    }
+    v
+}
+
 fn done(stdout: &str) -> Vec<String> {
     let mut v: Vec<String> = stdout
         .lines()
@@ -49,6 +63,13 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
     let t = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(t.path().join("art")).unwrap();
     std::fs::copy(ds.join("style.png"), t.path().join("art/wave.png")).unwrap();
+    // The scene under a name a shell would mangle: spaces, apostrophes, `$`, backticks,
+    // `$(...)`, non-ASCII letters; and a prompt that tries to close a quote and run a
+    // command. Both must reach the stages as they are, and nothing else may run.
+    let captures = "my captures/it's $HOME `touch pwned` ünïcødé";
+    let scene = format!("{captures}/bob's $(touch pwned) scene.splat");
+    std::fs::create_dir_all(t.path().join(captures)).unwrap();
+    std::fs::copy(&splat, t.path().join(&scene)).unwrap();
     let bin = harness::pipeline_bin();
     let mut args: Vec<String> = [
         "--dag",
@@ -56,7 +77,9 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
         "--workdir",
         "out/bob",
         "--set",
-        &format!("scene={}", splat.display()),
+        &format!("scene={scene}"),
+        "--set",
+        "prompt=it's; touch pwned; echo '",
         "--set",
         "style=art/wave.png",
         "--set",
@@ -106,13 +129,28 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
         out.contains("result  report   out/bob/runs/eval/report.html"),
         "{out}"
     );
-    // Outputs only under the work directory: the temp dir holds art/ and out/ only.
+    // Outputs only under the work directory: the temp dir holds art/, the captures and
+    // out/ only; no value ran as a command (no `pwned` anywhere).
     let mut top: Vec<String> = std::fs::read_dir(t.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     top.sort();
-    assert_eq!(top, ["art", "out"]);
+    assert_eq!(top, ["art", "my captures", "out"]);
+    let all = names(t.path());
+    assert!(
+        !all.iter().any(|n| n == "pwned"),
+        "a value ran as a command: {all:?}"
+    );
+    // The scene reached render-views as one argument: its log's command line names it.
+    let log = std::fs::read_to_string(w.join(".pipeline/logs/source-views.log")).unwrap();
+    let cmd = log.lines().find_map(|l| l.strip_prefix("# cmd: ")).unwrap();
+    let argv = shlex::split(cmd).unwrap();
+    let i = argv.iter().position(|a| a == "--scene").unwrap();
+    assert!(
+        argv[i + 1].ends_with("bob's $(touch pwned) scene.splat"),
+        "{argv:?}"
+    );
     assert!(sample_state(&ds) == before, "data-sample/ changed");
 
     // Nothing to do the second time.

@@ -239,6 +239,7 @@ fn update_gaussians_fits_and_keeps_geometry() {
     assert!(l[7] < l[0], "{l:?}");
 
     // Bad input: steps = 0, camera count mismatch, NaN targets, unknown cache mode.
+    let before = fantasystyle_schemas::hash_path(&out).unwrap();
     let mut args = base.to_vec();
     args.extend(["--steps", "0"]);
     let (code, err) = run_stage(UPDATE, &args);
@@ -274,8 +275,11 @@ fn update_gaussians_fits_and_keeps_geometry() {
     let (code, err) = run_stage(UPDATE, &args);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("rgb.npy") && err.contains("NaN"), "{err}");
-    // The earlier output is still intact after the failed runs.
-    assert!(fantasystyle::artifacts::read_scene(&out).is_ok());
+    // The earlier output is still intact after the failed runs: the same bytes (the
+    // manifest's hash covers every file's), and still a valid scene.
+    assert_eq!(fantasystyle_schemas::hash_path(&out).unwrap(), before);
+    let again = fantasystyle::artifacts::read_scene(&out).unwrap();
+    assert_eq!(b(&again.sh_dc), b(&fitted.sh_dc));
 }
 
 #[test]

@@ -1,7 +1,6 @@
 //! Diffusion runtime: the Gaussian prior's ONNX graphs against the Rust closed form,
 //! manifest validation against real sessions, `encode-latents`.
 
-use crate::harness::repo_root;
 use fantasystyle::prior::gaussian::{self, GaussianPrior};
 use fantasystyle::prior::{Cond, OnnxPrior, Prior, PriorOptions};
 use fantasystyle::rng::Rng;
@@ -9,15 +8,13 @@ use fantasystyle_schemas::{Artifact, ArtifactKind};
 use ndarray::Array4;
 use std::path::{Path, PathBuf};
 
-/// `vendor/models/gaussian-prior` (made by scripts/setup.sh), or `None` with a message.
+/// The installed `gaussian-prior` model (made by scripts/setup.sh) and onnxruntime, or
+/// `None` ([`crate::harness::need`]: a failure under CI).
 fn gaussian_dir() -> Option<PathBuf> {
-    let d = repo_root().join("vendor/models/gaussian-prior");
-    if d.join("model.json").is_file() && fantasystyle::runtime::library_path().is_ok() {
-        Some(d)
-    } else {
-        eprintln!("SKIPPED: run scripts/setup.sh (gaussian prior / onnxruntime missing)");
-        None
+    if !crate::harness::onnxruntime() {
+        return None;
     }
+    crate::harness::model("gaussian-prior")
 }
 
 fn rand(shape: (usize, usize, usize, usize), seed: u64, scale: f32, offset: f32) -> Array4<f32> {

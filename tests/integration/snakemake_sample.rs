@@ -15,17 +15,11 @@ fn snakemake() -> Option<PathBuf> {
         Some(s) => PathBuf::from(s),
         None => harness::repo_root().join("vendor/venv/bin/snakemake"),
     };
-    if p.is_file() {
-        return Some(p);
-    }
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("{} is missing: scripts/setup.sh installs it", p.display());
-    }
-    eprintln!(
-        "SKIPPED: no Snakemake at {} (run scripts/setup.sh or set SNAKEMAKE)",
-        p.display()
-    );
-    None
+    harness::need(
+        format_args!("Snakemake at {} (or set SNAKEMAKE)", p.display()),
+        p.is_file(),
+    )
+    .then_some(p)
 }
 
 /// blake3 of every file under `dir/runs` but Snakemake's `.snakemake_timestamp`.

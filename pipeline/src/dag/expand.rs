@@ -1,11 +1,12 @@
 //! Phase 2 of loading a DAG: `foreach` expansion and `${...}` substitution. Each raw
 //! stage becomes one [`Stage`] (or one per `foreach` item, named `NAME@ITEM`) with its
-//! `cmd`, `deps` and `outs` substituted and its tracked params collected; problems go
-//! into the diagnostics with their lines.
+//! `cmd` (split into arguments first, then substituted per argument: [`super::words`]),
+//! `deps` and `outs` substituted and its tracked params collected; problems go into the
+//! diagnostics with their lines.
 
 use super::locate::is_value_dep;
 use super::parse::{Lines, Parsed};
-use super::{Diag, Stage, normalize};
+use super::{Diag, Stage, normalize, words};
 use std::collections::{BTreeSet, HashMap};
 use toml::Spanned;
 
@@ -56,6 +57,8 @@ pub enum ForeachError {
     EmptyRange { from: i64, to: i64 },
     #[error("range {from}..={to} is too long")]
     TooLong { from: i64, to: i64 },
+    #[error("the matrix makes {0} combinations; at most {MAX_INSTANCES} instances per stage")]
+    MatrixTooLarge(u128),
     #[error("expected a list of items or a range table {{ from, to, prefix }}, found {0}")]
     Shape(&'static str),
 }
@@ -128,7 +131,7 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                 None => base.clone(),
             };
             let mut tracked: BTreeSet<String> = BTreeSet::new();
-            let mut sub = |s: &Spanned<String>, what: &str, diags: &mut Vec<Diag>| {
+            let mut sub = |text: &str, line: usize, what: &str, diags: &mut Vec<Diag>| {
                 let look = |n: &str| -> Option<String> {
                     if let Some(it) = &item {
                         if n == "item" {
@@ -152,7 +155,7 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                     tracked.insert(n.to_string());
                     Some(v.clone())
                 };
-                match substitute(s.get_ref(), look) {
+                match substitute(text, look) {
                     Ok(v) => Some(v),
                     Err(e) => {
                         let hint = if e == SubstError::Undefined("prev".into()) && item.is_some() {
@@ -161,16 +164,44 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                             ""
                         };
                         diags.push(Diag {
-                            line: Some(lines.line(s.span().start)),
+                            line: Some(line),
                             msg: format!("stage `{name}`: {what}: {e}{hint}"),
                         });
                         None
                     }
                 }
             };
-            let cmd = sub(&st.cmd, "cmd", diags);
-            let deps: Vec<_> = st.deps.iter().map(|d| sub(d, "deps", diags)).collect();
-            let outs: Vec<_> = st.outs.iter().map(|d| sub(d, "outs", diags)).collect();
+            // The command: split into words once, then each word substituted, so that a
+            // value stays one argument (`words`).
+            let cmd_line = lines.line(st.cmd.span().start);
+            let argv: Option<Vec<String>> = match words::split(st.cmd.get_ref())
+                .and_then(|w| words::check_shell_script(&w).map(|()| w))
+            {
+                Ok(ws) => ws
+                    .iter()
+                    .map(|w| sub(w, cmd_line, "cmd", diags))
+                    .collect::<Vec<_>>()
+                    .into_iter()
+                    .collect(),
+                Err(m) => {
+                    diags.push(Diag {
+                        line: Some(cmd_line),
+                        msg: format!("stage `{name}`: cmd: {m}"),
+                    });
+                    None
+                }
+            };
+            let span_line = |d: &Spanned<String>| lines.line(d.span().start);
+            let deps: Vec<_> = st
+                .deps
+                .iter()
+                .map(|d| sub(d.get_ref(), span_line(d), "deps", diags))
+                .collect();
+            let outs: Vec<_> = st
+                .outs
+                .iter()
+                .map(|d| sub(d.get_ref(), span_line(d), "outs", diags))
+                .collect();
             for k in &st.params {
                 if p.params.contains_key(k.get_ref()) {
                     tracked.insert(k.get_ref().clone());
@@ -189,8 +220,8 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                     });
                 }
             }
-            let (Some(cmd), Some(deps), Some(outs)) = (
-                cmd,
+            let (Some(argv), Some(deps), Some(outs)) = (
+                argv,
                 deps.into_iter().collect::<Option<Vec<_>>>(),
                 outs.into_iter().collect::<Option<Vec<_>>>(),
             ) else {
@@ -201,7 +232,7 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                     name,
                     base: base.clone(),
                     desc: st.desc.clone(),
-                    cmd,
+                    argv,
                     deps: deps
                         .iter()
                         .map(|d| {
@@ -249,6 +280,9 @@ struct Item {
     fields: Vec<(String, String)>,
 }
 
+/// Most instances one `foreach` stage may expand to (a range or a matrix).
+pub const MAX_INSTANCES: usize = 10_000;
+
 /// `{ matrix = { axis = [labels], ... } }`: one item per combination, axes in key
 /// order, labelled `a.b` (the values joined by `.`), `${item.axis}` each value.
 fn matrix_items(m: &toml::Value) -> Result<Vec<Item>, ForeachError> {
@@ -257,6 +291,13 @@ fn matrix_items(m: &toml::Value) -> Result<Vec<Item>, ForeachError> {
     };
     if t.is_empty() {
         return Err(ForeachError::Matrix("matrix".into()));
+    }
+    // The number of combinations, before building any (it grows as a product).
+    let total = t.values().fold(1u128, |acc, v| {
+        acc.saturating_mul(v.as_array().map_or(1, |a| a.len().max(1)) as u128)
+    });
+    if total > MAX_INSTANCES as u128 {
+        return Err(ForeachError::MatrixTooLarge(total));
     }
     let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
     for (axis, v) in t {
@@ -390,14 +431,17 @@ fn foreach_items(
             if to < from {
                 return Err(ForeachError::EmptyRange { from, to });
             }
-            if to - from >= 10_000 {
+            if to
+                .checked_sub(from)
+                .is_none_or(|n| n >= MAX_INSTANCES as i64)
+            {
                 return Err(ForeachError::TooLong { from, to });
             }
             Ok((from..=to)
                 .map(|n| Item {
                     label: format!("{prefix}{n}"),
                     value: n.to_string(),
-                    prev: Some((n - 1).to_string()),
+                    prev: n.checked_sub(1).map(|p| p.to_string()),
                     fields: Vec::new(),
                 })
                 .collect())

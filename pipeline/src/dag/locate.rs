@@ -76,8 +76,8 @@ pub(super) fn produced(p: &str, stages: &[Expanded]) -> bool {
 
 /// Literal deps of the DAG file that name existing paths relative to the DAG's
 /// directory (and that no stage produces), and a relative executable as the command's
-/// first word, rewritten as seen from the work directory, in `deps` and in `cmd`
-/// (as a whole word or after `=`).
+/// program, rewritten as seen from the work directory, in `deps` and in the command's
+/// arguments (an argument equal to the dep, or `NAME=` followed by it).
 pub(super) fn relocate_literals(stages: &mut [Expanded], places: &Places) {
     if !places.moved() {
         return;
@@ -97,38 +97,39 @@ pub(super) fn relocate_literals(stages: &mut [Expanded], places: &Places) {
     for (i, k, r) in todo {
         let s = &mut stages[i].stage;
         let d = std::mem::replace(&mut s.deps[k], r.clone());
-        s.cmd = replace_word(&s.cmd, &d, &r);
+        for a in s.argv.iter_mut() {
+            if let Some(new) = replace_arg(a, &d, &r) {
+                *a = new;
+            }
+        }
     }
     for e in stages.iter_mut() {
         let s = &mut e.stage;
-        let first = s.cmd.split(' ').find(|w| !w.is_empty()).unwrap_or("");
+        let Some(first) = s.argv.first_mut() else {
+            continue;
+        };
         if first.contains('/')
             && !first.contains('=')
             && let Some(r) = places.from_dag(first)
         {
-            let first = first.to_string();
-            s.cmd = s.cmd.replacen(&first, &r, 1);
+            *first = r;
         }
     }
 }
 
-/// Replace the shell word `from` (also written `./from`, or after `=`) by `to`.
-fn replace_word(cmd: &str, from: &str, to: &str) -> String {
+/// The argument `arg` with the path `from` (also written `./from`, or after `NAME=`)
+/// replaced by `to`; `None` when it is not that path.
+fn replace_arg(arg: &str, from: &str, to: &str) -> Option<String> {
     let dotted = format!("./{from}");
-    cmd.split(' ')
-        .map(|w| {
-            if w == from || w == dotted {
-                return to.to_string();
-            }
-            if let Some((head, tail)) = w.split_once('=')
-                && (tail == from || tail == dotted)
-            {
-                return format!("{head}={to}");
-            }
-            w.to_string()
-        })
-        .collect::<Vec<_>>()
-        .join(" ")
+    if arg == from || arg == dotted {
+        return Some(to.to_string());
+    }
+    if let Some((head, tail)) = arg.split_once('=')
+        && (tail == from || tail == dotted)
+    {
+        return Some(format!("{head}={to}"));
+    }
+    None
 }
 
 /// A dep that is a value, not a path: `scheme:rest` with a scheme of two or more
@@ -221,14 +222,11 @@ mod tests {
         assert!(is_value_dep("orbit:16") && is_value_dep("orbit:8,elev=30,radius=2.4"));
         assert!(!is_value_dep("runs/a:b") && !is_value_dep("c:x") && !is_value_dep("a.ply"));
         assert_eq!(lexical(Path::new("/a/./b/../c")), PathBuf::from("/a/c"));
-        assert_eq!(
-            replace_word(
-                "x --c cameras.json --d=./cameras.json  cameras.jsonx",
-                "cameras.json",
-                "../c.json"
-            ),
-            "x --c ../c.json --d=../c.json  cameras.jsonx"
-        );
+        let rep = |a: &str| replace_arg(a, "cameras.json", "../c.json");
+        assert_eq!(rep("cameras.json").as_deref(), Some("../c.json"));
+        assert_eq!(rep("--d=./cameras.json").as_deref(), Some("--d=../c.json"));
+        assert_eq!(rep("cameras.jsonx"), None);
+        assert_eq!(rep("my cameras.json"), None);
     }
 
     #[test]

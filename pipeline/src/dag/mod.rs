@@ -24,6 +24,9 @@
 //! a params-file value (dotted key, e.g. `${csd.guidance}`; such a reference also adds
 //! the key to the stage's tracked params), or, inside a `foreach` stage, `${item}`
 //! and `${prev}`. `$${` writes a literal `${`. Anything else after `${` is an error.
+//! `cmd` is split into arguments first (shell quoting rules) and substituted per
+//! argument; stages run without a shell, so a value is always one argument (or part of
+//! the one word it is written in), never shell code ([`words`]).
 //!
 //! `foreach` expands a stage into one stage per item, named `NAME@ITEM`:
 //! * a list of strings or integers: `${item}` is the item, `${prev}` the previous item
@@ -53,10 +56,13 @@
 //! and cycles (named stage by stage).
 
 mod expand;
+#[cfg(test)]
+mod fuzz;
 mod graph;
 mod locate;
 mod parse;
 mod validate;
+pub mod words;
 
 pub use locate::{Places, absolute, is_value_dep, lexical, relative};
 
@@ -106,7 +112,9 @@ pub struct Stage {
     /// The `[stages.NAME]` key.
     pub base: String,
     pub desc: Option<String>,
-    pub cmd: String,
+    /// The command's arguments after substitution (program first); run without a shell
+    /// ([`words`]).
+    pub argv: Vec<String>,
     /// Normalised paths relative to the work directory (or absolute), or values
     /// (`orbit:16`, see [`is_value_dep`]).
     pub deps: Vec<String>,
@@ -175,6 +183,14 @@ pub struct LoadOptions {
     /// `--workdir` (relative to the current directory); `None`: the DAG's directory.
     pub workdir: Option<PathBuf>,
     pub sets: Vec<Set>,
+}
+
+impl Stage {
+    /// The command as one shell-quoted line ([`words::join`]): what the lock records and
+    /// the logs, `status` and the Snakemake export show.
+    pub fn cmd(&self) -> String {
+        words::join(&self.argv)
+    }
 }
 
 impl Dag {
@@ -417,7 +433,10 @@ outs = ["runs/r0/"]
         .unwrap();
         let names: Vec<_> = dag.stages.iter().map(|s| s.name.as_str()).collect();
         assert_eq!(names, ["init", "step@r1", "step@r2", "step@r3"]);
-        assert_eq!(dag.stages[2].cmd, "step --in runs/r1 --out runs/r2 --g 7.5");
+        assert_eq!(
+            dag.stages[2].cmd(),
+            "step --in runs/r1 --out runs/r2 --g 7.5"
+        );
         assert_eq!(dag.stages[2].params, ["csd.guidance"]);
         assert_eq!(dag.stages[0].params, ["seed"]);
         assert_eq!(dag.stages[0].deps, ["in.txt"]);
@@ -449,7 +468,7 @@ outs = ["o/${item}"]
         )
         .unwrap();
         assert_eq!(dag.stages[1].name, "a@y");
-        assert_eq!(dag.stages[1].cmd, "echo ${HOME} $$ y");
+        assert_eq!(dag.stages[1].argv, ["echo", "${HOME}", "$$", "y"]);
     }
 
     #[test]
@@ -482,7 +501,7 @@ outs = ["runs/${item.scene}/${item.style}"]
         );
         let s = &dag.stages[dag.index("sty@fish.ink").unwrap()];
         assert_eq!(
-            s.cmd,
+            s.cmd(),
             "sty --in runs/fish/src --style ink --out runs/fish/ink"
         );
         assert_eq!(s.upstream, [1]);
@@ -646,6 +665,101 @@ outs = ["b.out"]
                 "{o}: {e}"
             );
         }
+    }
+
+    /// Values are arguments: whatever a `[vars]` value, a params value or a `--set`
+    /// holds, it is one argument of the command (or part of the one word it is written
+    /// in), and the lock's command line quotes it so that a shell would read it back the
+    /// same.
+    #[test]
+    fn values_are_single_arguments() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join("p.toml"), "[x]\nname = \"a b\"\n").unwrap();
+        let text = "params = \"p.toml\"\n[vars]\nprompt = \"\"\nscene = \"s.ply\"\n[stages.a]\n\
+                    cmd = \"prog --prompt '${prompt}' --scene ${scene} --name=${x.name} --n x${x.name}y\"\n\
+                    outs = [\"o\"]\n";
+        let places = Places {
+            dir: d.path().to_path_buf(),
+            workdir: d.path().to_path_buf(),
+            cwd: d.path().to_path_buf(),
+        };
+        let nasty = [
+            "it's; touch pwned; echo '",
+            "my captures/cat's $HOME `id` $(id) \"q\" ünïcødé.splat",
+            "a\nb\tc\\d",
+            "",
+            "--flag",
+            "*",
+        ];
+        for v in nasty {
+            let sets = [
+                Set {
+                    name: "prompt".into(),
+                    value: v.into(),
+                },
+                Set {
+                    name: "scene".into(),
+                    value: v.into(),
+                },
+                Set {
+                    name: "x.name".into(),
+                    value: v.into(),
+                },
+            ];
+            let dag = parse_with(text, Path::new("dag.toml"), &places, &sets).unwrap();
+            let s = &dag.stages[0];
+            let want = [
+                "prog".to_string(),
+                "--prompt".into(),
+                v.into(),
+                "--scene".into(),
+                v.into(),
+                format!("--name={v}"),
+                "--n".into(),
+                format!("x{v}y"),
+            ];
+            assert_eq!(s.argv, want, "{v:?}");
+            assert_eq!(shlex::split(&s.cmd()).unwrap(), want, "{v:?}");
+            // The tracked params key is still tracked.
+            assert_eq!(s.params, ["x.name"]);
+        }
+    }
+
+    /// The sample DAG: the prompt reaches `distill` as one argument, and the scene path
+    /// as one, whatever they hold.
+    #[test]
+    fn sample_dag_passes_prompt_and_scene_as_single_arguments() {
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data-sample/stylize.toml");
+        let prompt = "it's; touch pwned; echo '";
+        let scene = "/tmp/my captures/cat's `x` $y.splat";
+        let dag = load_with(
+            &file,
+            &LoadOptions {
+                workdir: None,
+                sets: vec![
+                    format!("prompt={prompt}").parse().unwrap(),
+                    format!("scene={scene}").parse().unwrap(),
+                ],
+            },
+        );
+        // The scene does not exist: the DAG names it as a missing dep, which is the
+        // only complaint.
+        let e = dag.unwrap_err().to_string();
+        assert!(
+            e.contains("cat's `x` $y.splat") && !e.contains("cmd"),
+            "{e}"
+        );
+        let dag = load_with(
+            &file,
+            &LoadOptions {
+                workdir: None,
+                sets: vec![format!("prompt={prompt}").parse().unwrap()],
+            },
+        )
+        .unwrap();
+        let s = &dag.stages[dag.index("distill@c1").unwrap()];
+        let i = s.argv.iter().position(|a| a == "--prompt").unwrap();
+        assert_eq!(s.argv[i + 1], prompt);
     }
 
     #[test]

@@ -1,0 +1,451 @@
+//! CSD against the independent numpy reference `scripts/reference/csd_ref.py` (issue
+//! 22): the golden files in `tests/golden/csd/` hold inputs and the expected gradients,
+//! steps and targets, computed in float64 from the formulas, never by the Rust code.
+//!
+//! * The default prior (the 2D stylizer) through `csd::step`, with its exact ("oracle")
+//!   unconditional branches and the source's clean latents z0_src: once with a test
+//!   double that returns the recorded network outputs (no model needed, so CSD's algebra
+//!   is always tested), once with the installed stylizer itself.
+//! * The `csd-step` stage on the Gaussian prior's ONNX graphs, every mode.
+//!
+//! Tolerances: gradients and steps 1e-4 relative to their largest entry (f32 against
+//! float64; the oracle divides by sqrt(1 - ab) ~ 0.4 at t = 160), clean estimates 1e-5
+//! (a blur in f32), targets 1e-4 absolute.
+
+use crate::harness::{self, repo_root};
+use fantasystyle::csd::{self, CsdParams, Mode, StepInputs, Weighting};
+use fantasystyle::prior::{Cond, ControlKind, Prior, PriorInfo};
+use fantasystyle::scheduler::{Schedule, SchedulerConfig};
+use fantasystyle_schemas::{read_npy, read_npy_f32};
+use ndarray::{Array3, Array4, ArrayView4, Axis};
+use std::path::{Path, PathBuf};
+
+fn dir() -> PathBuf {
+    repo_root().join("tests/golden/csd")
+}
+
+fn g4(name: &str) -> Array4<f32> {
+    let a = read_npy_f32(&dir().join(name)).unwrap();
+    let s = &a.shape;
+    Array4::from_shape_vec((s[0], s[1], s[2], s[3]), a.data).unwrap()
+}
+
+/// A `[64, 64, 3]` u8 image as `[1, 3, 64, 64]` in [0, 1].
+fn style(name: &str) -> (Vec<u8>, Array4<f32>) {
+    let a = read_npy::<u8>(&dir().join(name)).unwrap();
+    assert_eq!(a.shape, [64, 64, 3]);
+    let img = Array4::from_shape_fn((1, 3, 64, 64), |(_, c, y, x)| {
+        a.data[(y * 64 + x) * 3 + c] as f32 / 255.0
+    });
+    (a.data, img)
+}
+
+fn cases() -> serde_json::Map<String, serde_json::Value> {
+    let text = std::fs::read_to_string(dir().join("cases.json")).unwrap();
+    serde_json::from_str::<serde_json::Value>(&text)
+        .unwrap()
+        .as_object()
+        .unwrap()
+        .clone()
+}
+
+fn params(c: &serde_json::Value) -> CsdParams {
+    let weighting: Weighting = serde_json::from_value(c["weighting"].clone()).unwrap();
+    let mode: Mode = serde_json::from_value(c["mode"].clone()).unwrap();
+    CsdParams {
+        mode,
+        guidance: c["guidance"].as_f64().unwrap() as f32,
+        weighting,
+        lr: c["lr"].as_f64().unwrap() as f32,
+    }
+}
+
+/// Largest |a - b| and largest |b|.
+fn err(a: ArrayView4<'_, f32>, b: ArrayView4<'_, f32>) -> (f32, f32) {
+    assert_eq!(a.shape(), b.shape());
+    let e = a
+        .iter()
+        .zip(b.iter())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    (e, b.iter().map(|v| v.abs()).fold(0.0f32, f32::max))
+}
+
+/// The stylizer case's inputs.
+struct StylizerCase {
+    z0: Array4<f32>,
+    z0_src: Array4<f32>,
+    eps: Array4<f32>,
+    z_src: Array4<f32>,
+    z_tgt: Array4<f32>,
+    style: Array4<f32>,
+}
+
+fn stylizer_case() -> StylizerCase {
+    StylizerCase {
+        z0: g4("stylizer_z0.npy"),
+        z0_src: g4("stylizer_z0_src.npy"),
+        eps: g4("stylizer_eps.npy"),
+        z_src: g4("stylizer_z_src.npy"),
+        z_tgt: g4("stylizer_z_tgt.npy"),
+        style: style("stylizer_style.npy").1,
+    }
+}
+
+/// Run every stylizer case of cases.json through `csd::step` with `prior` and compare
+/// gradient and step with the reference.
+fn check_stylizer_cases(prior: &mut dyn Prior) {
+    let x = stylizer_case();
+    let sched = Schedule::new(prior.info().scheduler.clone()).unwrap();
+    let mut n = 0;
+    for (name, c) in cases() {
+        if c["prior"] != "stylizer" {
+            continue;
+        }
+        let p = params(&c);
+        let with_src = c["z0_src"].as_bool().unwrap();
+        let (z1, g) = csd::step(
+            prior,
+            &sched,
+            StepInputs {
+                z0: x.z0.view(),
+                z_tgt: x.z_tgt.view(),
+                z_src: x.z_src.view(),
+                eps: x.eps.view(),
+                z0_src: with_src.then_some(x.z0_src.view()),
+                t: c["timestep"].as_u64().unwrap() as usize,
+                control: Some(x.z0_src.view()),
+            },
+            &p,
+        )
+        .unwrap();
+        let (eg, sg) = err(g.view(), g4(&format!("{name}_grad.npy")).view());
+        let (ez, sz) = err(z1.view(), g4(&format!("{name}_z1.npy")).view());
+        eprintln!("{name}: |grad - ref| {eg:.2e} (max |grad| {sg:.3}), |z1 - ref| {ez:.2e}");
+        assert!(
+            sg > 0.1,
+            "{name}: a vanishing reference gradient tests little ({sg})"
+        );
+        assert!(eg <= 1e-4 * sg, "{name}: gradient off by {eg} (max {sg})");
+        assert!(ez <= 1e-4 * sz.max(1.0), "{name}: step off by {ez}");
+        n += 1;
+    }
+    assert_eq!(n, 5, "stylizer cases in cases.json");
+}
+
+/// A test double for the stylizer: its network outputs are the recorded ones, and its
+/// eps is the x0-parameterisation written out here, (z - sqrt(ab) x0) / sqrt(1 - ab),
+/// with ab from the reference's own alphas_cumprod.npy. The unconditional branches
+/// (Null, Content) must never be asked of it: CSD gives them exactly.
+struct RecordedStylizer {
+    info: PriorInfo,
+    alphas: Vec<f64>,
+    /// T(x^_tgt, s_style), T(x^_src, s_own): `[N, 3, H, W]`.
+    t_ps: Array4<f32>,
+    t_p: Array4<f32>,
+}
+
+impl Prior for RecordedStylizer {
+    fn info(&self) -> &PriorInfo {
+        &self.info
+    }
+    fn unconditional_is_identity(&self) -> bool {
+        true
+    }
+    fn encode(&mut self, images: ArrayView4<'_, f32>) -> fantasystyle::Result<Array4<f32>> {
+        Ok(images.to_owned())
+    }
+    fn decode(&mut self, latents: ArrayView4<'_, f32>) -> fantasystyle::Result<Array4<f32>> {
+        Ok(latents.to_owned())
+    }
+    fn predict_eps(
+        &mut self,
+        z: ArrayView4<'_, f32>,
+        t: usize,
+        conds: &[Cond],
+        _control: Option<ArrayView4<'_, f32>>,
+    ) -> fantasystyle::Result<Vec<Array4<f32>>> {
+        let ab = self.alphas[t];
+        let (sa, sb) = (ab.sqrt(), (1.0 - ab).sqrt());
+        Ok(conds
+            .iter()
+            .map(|c| {
+                let x0 = match c {
+                    Cond::PromptStyle => &self.t_ps,
+                    Cond::Prompt => &self.t_p,
+                    other => panic!("CSD asked the prior for {other:?}, which it gives exactly"),
+                };
+                ndarray::Zip::from(z)
+                    .and(x0)
+                    .map_collect(|&z, &x| ((z as f64 - sa * x as f64) / sb) as f32)
+            })
+            .collect())
+    }
+}
+
+fn recorded_t() -> Option<(Array4<f32>, Array4<f32>)> {
+    let (a, b) = (
+        dir().join("stylizer_T_ps_tgt.npy"),
+        dir().join("stylizer_T_p_src.npy"),
+    );
+    assert!(
+        a.is_file() && b.is_file(),
+        "the stylizer's T recordings are missing from tests/golden/csd (see \
+         scripts/reference/csd_ref.py)"
+    );
+    Some((g4("stylizer_T_ps_tgt.npy"), g4("stylizer_T_p_src.npy")))
+}
+
+/// CSD's algebra for the default prior, with no model: the recorded network outputs
+/// through a test double, the oracle Null/Content branches (with and without z0_src),
+/// the weightings and the step, against numpy.
+#[test]
+fn csd_oracle_branches_match_numpy_reference() {
+    let (t_ps, t_p) = recorded_t().unwrap();
+    let alphas = read_npy::<f64>(&dir().join("alphas_cumprod.npy"))
+        .unwrap()
+        .data;
+    let mut prior = RecordedStylizer {
+        info: PriorInfo {
+            name: "recorded-stylizer".into(),
+            latent_channels: 3,
+            downsample: 1,
+            scheduler: SchedulerConfig::stable_diffusion(),
+            control: Some(ControlKind::Source),
+            coinciding_style_content: None,
+        },
+        alphas,
+        t_ps,
+        t_p,
+    };
+    check_stylizer_cases(&mut prior);
+}
+
+/// The installed stylizer: its clean estimate x^ equals numpy's (blur and clamp), its
+/// network still gives the recorded outputs, and `csd::step` with it gives the
+/// reference's gradient and step.
+#[test]
+fn stylizer_csd_matches_numpy_reference() {
+    let Some(model) = harness::model("stylizer") else {
+        return;
+    };
+    let x = stylizer_case();
+    let mut prior =
+        fantasystyle::prior::stylizer::StylizerPrior::open(&model, Some(x.style.view()), 2)
+            .unwrap();
+    let t = 160;
+    for (z, name) in [(&x.z_tgt, "tgt"), (&x.z_src, "src")] {
+        let want = g4(&format!("stylizer_xhat_{name}.npy"));
+        for b in 0..z.shape()[0] {
+            let got = prior.clean_estimate(z.index_axis(Axis(0), b), t).unwrap();
+            let w = want.index_axis(Axis(0), b);
+            let e = got
+                .iter()
+                .zip(w.iter())
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(e < 1e-5, "x^ of z_{name}[{b}]: off by {e}");
+        }
+    }
+    let (t_ps, t_p) = recorded_t().unwrap();
+    let (ps_now, p_now) = transfer(&mut prior, &x, t);
+    let (e1, _) = err(ps_now.view(), t_ps.view());
+    let (e2, _) = err(p_now.view(), t_p.view());
+    assert!(
+        e1 < 1e-4 && e2 < 1e-4,
+        "the stylizer no longer gives the recorded outputs ({e1}, {e2}): re-record them \
+         (scripts/reference/csd_ref.py) if the model or its preprocessing changed on purpose"
+    );
+    check_stylizer_cases(&mut prior);
+}
+
+/// T(x^_tgt, s_style) and T(x^_src, s_own(control)) with the installed network.
+fn transfer(
+    prior: &mut fantasystyle::prior::stylizer::StylizerPrior,
+    x: &StylizerCase,
+    t: usize,
+) -> (Array4<f32>, Array4<f32>) {
+    let s_style = prior.style_vector(x.style.index_axis(Axis(0), 0)).unwrap();
+    let mut ps = Array4::zeros(x.z0.raw_dim());
+    let mut p = Array4::zeros(x.z0.raw_dim());
+    for b in 0..x.z0.shape()[0] {
+        let xh = prior
+            .clean_estimate(x.z_tgt.index_axis(Axis(0), b), t)
+            .unwrap();
+        let out: Array3<f32> = prior.stylize(xh.view(), &s_style).unwrap();
+        ps.index_axis_mut(Axis(0), b).assign(&out);
+        let s_own = prior.style_vector(x.z0_src.index_axis(Axis(0), b)).unwrap();
+        let xh = prior
+            .clean_estimate(x.z_src.index_axis(Axis(0), b), t)
+            .unwrap();
+        p.index_axis_mut(Axis(0), b)
+            .assign(&prior.stylize(xh.view(), &s_own).unwrap());
+    }
+    (ps, p)
+}
+
+/// Records the installed stylizer's network outputs for the numpy reference (run by
+/// hand: `cargo test --test integration record_stylizer_transfer -- --ignored`, then
+/// `python scripts/reference/csd_ref.py`).
+#[test]
+#[ignore]
+fn record_stylizer_transfer() {
+    let model = harness::model("stylizer").expect("the stylizer model");
+    let x = stylizer_case();
+    let mut prior =
+        fantasystyle::prior::stylizer::StylizerPrior::open(&model, Some(x.style.view()), 2)
+            .unwrap();
+    let (ps, p) = transfer(&mut prior, &x, 160);
+    for (name, a) in [("stylizer_T_ps_tgt.npy", ps), ("stylizer_T_p_src.npy", p)] {
+        fantasystyle_schemas::write_npy(&dir().join(name), a.shape(), a.as_slice().unwrap())
+            .unwrap();
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// The csd-step stage on the Gaussian prior's ONNX graphs.
+
+use fantasystyle::stages::{Threads, csd_step, encode_latents};
+use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+
+fn write_tensors(
+    dir: &Path,
+    kind: ArtifactKind,
+    t: &[(&str, &Array4<f32>)],
+    meta: serde_json::Value,
+) {
+    let mut w =
+        ArtifactWriter::create(dir, kind, Producer::new("test", "0", serde_json::json!({})))
+            .unwrap();
+    for (name, a) in t {
+        w.write_tensor(name, a.shape(), a.as_standard_layout().as_slice().unwrap())
+            .unwrap();
+    }
+    if kind == ArtifactKind::NoisedLatents {
+        let s = t[0].1.shape();
+        w.write_tensor(
+            "eps_shared.npy",
+            &[s[1], s[2], s[3]],
+            &vec![0.0f32; s[1] * s[2] * s[3]],
+        )
+        .unwrap();
+    }
+    w.set_meta(meta);
+    w.commit().unwrap();
+}
+
+/// `csd-step` with the Gaussian prior's ONNX graphs, every case of the reference (csd
+/// with two weightings, sds, dds, csd-no-neg): the targets equal numpy's
+/// clamp(render + decode(z0') - decode(z0), 0, 1) within 1e-4, the reported gradient
+/// RMS equals the reference gradient's within 1e-4 relative, cameras are copied; and
+/// `encode-latents` of the views gives numpy's latents.
+#[test]
+fn csd_step_stage_matches_numpy_targets() {
+    if !harness::onnxruntime() {
+        return;
+    }
+    let Some(model) = harness::model("gaussian-prior") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let views = g4("gaussian_views.npy"); // [N, H, W, 3]
+    let (n, h, w) = (views.shape()[0], views.shape()[1], views.shape()[2]);
+    let cams = b"[{\"id\": 0, \"note\": \"golden\"}]\n";
+    harness::write_views(
+        &dp.join("views"),
+        [n, h, w],
+        views.as_slice().unwrap(),
+        &vec![2.0f32; n * h * w],
+        &vec![1.0f32; n * h * w],
+        cams,
+    );
+    // encode-latents: numpy's 8x8-pool + ENC encoder.
+    encode_latents::run(encode_latents::Args {
+        views: dp.join("views"),
+        model: model.clone(),
+        out: dp.join("lat-enc"),
+        threads: Threads::new(1),
+        device: Default::default(),
+        batch: 0,
+    })
+    .unwrap();
+    let z0 = g4("gaussian_z0.npy");
+    let enc = fantasystyle::artifacts::read_latents(&dp.join("lat-enc")).unwrap();
+    let (e, _) = err(enc.view(), z0.view());
+    assert!(e < 1e-5, "encode-latents vs numpy: {e}");
+
+    let (style_u8, _) = style("gaussian_style.npy");
+    let sp = dp.join("style.png");
+    image::save_buffer(&sp, &style_u8, 64, 64, image::ColorType::Rgb8).unwrap();
+    write_tensors(
+        &dp.join("lat"),
+        ArtifactKind::Latents,
+        &[("latents.npy", &z0)],
+        serde_json::json!({}),
+    );
+    let mut checked = 0;
+    for (name, c) in cases() {
+        if c["prior"] != "gaussian" {
+            continue;
+        }
+        let t = c["timestep"].as_u64().unwrap();
+        let nd = dp.join(format!("noised-{name}"));
+        write_tensors(
+            &nd,
+            ArtifactKind::NoisedLatents,
+            &[
+                ("z_src.npy", &g4("gaussian_z_src.npy")),
+                ("z_tgt.npy", &g4("gaussian_z_tgt.npy")),
+                ("eps.npy", &g4("gaussian_eps.npy")),
+            ],
+            serde_json::json!({ "timestep": t }),
+        );
+        let out = dp.join(format!("targets-{name}"));
+        let report = csd_step::run(csd_step::Args {
+            noised: nd,
+            latents: dp.join("lat"),
+            views: dp.join("views"),
+            source_views: dp.join("views"),
+            model: model.clone(),
+            style: sp.clone(),
+            prompt: None,
+            params: params(&c),
+            out: out.clone(),
+            threads: Threads::new(1),
+            device: Default::default(),
+            unet_batch: 0,
+        })
+        .unwrap();
+        assert_eq!(report.timestep as u64, t);
+        let got = fantasystyle::artifacts::read_targets(&out).unwrap().rgb;
+        let want = g4(&format!("{name}_raw.npy")).mapv(|v| v.clamp(0.0, 1.0));
+        let (e, _) = err(got.view(), want.view());
+        // How much the step changes the images: the comparison is not of two renders.
+        let moved = want
+            .iter()
+            .zip(views.iter())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        let g = g4(&format!("{name}_grad.npy"));
+        let rms = (g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>() / g.len() as f64).sqrt();
+        eprintln!(
+            "{name}: targets off by {e:.2e} (they move the views by up to {moved:.3}); \
+             grad RMS {:.5} vs numpy {rms:.5}",
+            report.grad_rms
+        );
+        assert!(
+            moved > 0.01,
+            "{name}: the step barely changes the views ({moved})"
+        );
+        assert!(e < 1e-4, "{name}: targets off by {e}");
+        assert!(
+            (report.grad_rms - rms).abs() <= 1e-4 * rms,
+            "{name}: grad RMS {} vs {rms}",
+            report.grad_rms
+        );
+        assert_eq!(std::fs::read(out.join("cameras.json")).unwrap(), cams);
+        checked += 1;
+    }
+    assert_eq!(checked, 5, "gaussian cases in cases.json");
+}
