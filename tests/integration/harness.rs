@@ -102,22 +102,6 @@ pub fn shared_scene(name: &str) -> Option<PathBuf> {
     None
 }
 
-/// The installed model directory `rel` under the models directory (`stylizer`,
-/// `lpips/vgg16`, ...): under CI (`CI` set) its absence fails the test, naming it;
-/// elsewhere the test prints SKIPPED and gets `None`.
-pub fn installed_model(rel: &str) -> Option<PathBuf> {
-    let dir = fantasystyle::models::model_path(rel).ok();
-    if let Some(d) = dir.as_ref().filter(|d| d.is_dir()) {
-        return Some(d.clone());
-    }
-    assert!(
-        std::env::var("CI").is_err(),
-        "the model {rel} is missing under CI ({dir:?}); scripts/setup.sh installs it"
-    );
-    eprintln!("SKIPPED: the model {rel} is not installed ({dir:?})");
-    None
-}
-
 /// Write a `views` artifact at `dir` from `[n, h, w, 3]` RGB, `[n, h, w]` depth and
 /// alpha, and the bytes of its `cameras.json`.
 pub fn write_views(

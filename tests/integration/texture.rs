@@ -121,8 +121,9 @@ fn peak(power: &[f64]) -> (usize, f64) {
 #[test]
 fn a_plane_styled_with_stripes_shows_them_in_every_view() {
     let (Some(stylizer), Some(vgg_dir)) = (
-        crate::harness::installed_model("stylizer"),
-        crate::harness::installed_model("lpips/vgg16"),
+        crate::harness::model("stylizer"),
+        crate::harness::model_file("lpips/vgg16", "conv0_weight.npy")
+            .map(|f| f.parent().unwrap().to_path_buf()),
     ) else {
         return;
     };
