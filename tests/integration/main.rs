@@ -10,3 +10,5 @@ mod render;
 mod runtime;
 mod scene;
 mod snakemake_sample;
+mod spz;
+mod viewer;
