@@ -52,6 +52,14 @@ pub fn model_path(rel: impl AsRef<Path>) -> Result<PathBuf> {
 
 /// The `vendor/models` directories searched when `$FANTASYSTYLE_MODELS` is not set.
 fn candidates() -> Vec<PathBuf> {
+    vendor_candidates("models")
+}
+
+/// `vendor/SUB` in every ancestor of the running executable, then of the current
+/// directory, then of the source tree, in that order (the search of the module docs,
+/// also used for other installed assets such as `vendor/viewer`).
+pub fn vendor_candidates(sub: &str) -> Vec<PathBuf> {
+    let rel = Path::new("vendor").join(sub);
     let mut v = Vec::new();
     let mut push = |p: PathBuf| {
         if !v.contains(&p) {
@@ -60,15 +68,15 @@ fn candidates() -> Vec<PathBuf> {
     };
     if let Ok(exe) = std::env::current_exe() {
         for anc in exe.ancestors().skip(1) {
-            push(anc.join("vendor/models"));
+            push(anc.join(&rel));
         }
     }
     if let Ok(cwd) = std::env::current_dir() {
         for anc in cwd.ancestors() {
-            push(anc.join("vendor/models"));
+            push(anc.join(&rel));
         }
     }
-    push(Path::new(env!("CARGO_MANIFEST_DIR")).join("vendor/models"));
+    push(Path::new(env!("CARGO_MANIFEST_DIR")).join(&rel));
     v
 }
 

@@ -15,6 +15,7 @@
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
 //! | [`report`] | the self-contained `report.html` of an evaluation |
+//! | [`viewer`] | the report's interactive side-by-side 3D viewer (Spark, embedded `.spz`) |
 
 pub mod consistency;
 pub mod evaluate;
@@ -26,5 +27,6 @@ pub mod nets;
 pub mod report;
 pub mod spectrum;
 pub mod texture;
+pub mod viewer;
 pub mod views;
 pub mod warp;

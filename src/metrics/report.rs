@@ -452,7 +452,8 @@ pub struct ReportPaths<'a> {
     pub style: &'a Path,
 }
 
-/// The evaluation's `report.html`: the metrics table, original / stylized views, the
+/// The evaluation's `report.html`: the interactive 3D viewer when given
+/// ([`super::viewer::section_html`]), the metrics table, original / stylized views, the
 /// consistency plots with a warped example, the style crops, an optional section of
 /// extra HTML (e.g. the speed-accuracy sweep's table, [`crate::sweep::Sweep::html`]),
 /// and the caveats.
@@ -463,6 +464,7 @@ pub fn evaluation_report(
     styl: &ViewSet,
     style: &Image,
     sweep_html: Option<&str>,
+    viewer_html: Option<&str>,
 ) -> String {
     let m = &ev.metrics;
     let (crops, short_warps, long_warps) = (&ev.crops, &ev.short_warps, &ev.long_warps);
@@ -476,6 +478,9 @@ pub fn evaluation_report(
         m.width,
         m.height
     ));
+    if let Some(v) = viewer_html {
+        p.section("Original / stylized in 3D", v);
+    }
     if !m.warnings.is_empty() {
         let items: String = m
             .warnings

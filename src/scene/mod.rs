@@ -5,14 +5,17 @@
 //! so that reading and writing a `.ply` round-trips every field bit-exactly.
 //! Only colour (`sh_dc`, `sh_rest`) changes during stylization; geometry is frozen.
 //!
-//! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout).
+//! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout),
+//! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3).
 //! [`read_scene_file`] picks the reader from the path (stages read their `--scene`
 //! through [`crate::artifacts::load_scene`], which also takes scene artifacts); every reader ends with
 //! [`Scene::validate`]. Scenes know nothing of cameras: [`Scene::bounds`] is what a
-//! generated orbit needs ([`crate::camera::orbit`]).
+//! generated orbit needs ([`crate::camera::orbit`]). [`encode_files`] gives the files a
+//! scene is written as (`scene.ply`, and on request `scene.splat` and `scene.spz`).
 
 pub mod ply;
 pub mod splat;
+pub mod spz;
 
 use crate::geometry::Bounds;
 use crate::{Error, Result};
@@ -173,8 +176,8 @@ impl Scene {
     }
 }
 
-/// Load a scene from `path`: a `.ply` (INRIA), a `.splat`, or a plain directory holding
-/// a `scene.ply`.
+/// Load a scene from `path`: a `.ply` (INRIA), a `.splat`, a `.spz`, or a plain directory
+/// holding a `scene.ply`.
 pub fn read_scene_file(path: &Path) -> Result<Scene> {
     if path.is_dir() {
         let p = path.join("scene.ply");
@@ -196,11 +199,44 @@ pub fn read_scene_file(path: &Path) -> Result<Scene> {
     match ext.as_str() {
         "ply" => ply::read_ply(path),
         "splat" => splat::read_splat(path),
+        "spz" => spz::read_spz(path),
         _ => Err(Error::input(
             path,
-            "unknown scene format (expected a .ply, a .splat or a scene artifact directory)",
+            "unknown scene format (expected a .ply, a .splat, a .spz or a scene artifact \
+             directory)",
         )),
     }
+}
+
+/// Which files [`encode_files`] writes besides `scene.ply` (always written: it keeps
+/// every coefficient and is what the stages read back).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ExtraFormats {
+    /// `scene.splat` (32 bytes per Gaussian, base colours only; [`splat`]).
+    pub splat: bool,
+    /// `scene.spz` (Niantic's compressed format, version 3; [`spz`]).
+    pub spz: bool,
+}
+
+/// The files a scene is written as, `(file name, bytes)`: `scene.ply`, then
+/// `scene.splat` and `scene.spz` as `extra` asks. `path` names the scene in errors (a
+/// scene `.spz` cannot hold: coordinates beyond its 24-bit range).
+pub fn encode_files(
+    path: &Path,
+    scene: &Scene,
+    extra: ExtraFormats,
+) -> Result<Vec<(&'static str, Vec<u8>)>> {
+    let mut files = vec![("scene.ply", ply::encode_ply(scene))];
+    if extra.splat {
+        files.push(("scene.splat", splat::encode_splat(scene)));
+    }
+    if extra.spz {
+        files.push((
+            "scene.spz",
+            spz::encode_spz(&path.join("scene.spz"), scene)?,
+        ));
+    }
+    Ok(files)
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@
 //! run still resumes after a failure and every intermediate can be inspected.
 //!
 //! A checkpoint is a `scene` artifact (anything that reads a scene reads it) holding
-//! `scene.ply` (and `scene.splat` with `--format splat|both`), the optimizer state
+//! `scene.ply` (and `scene.splat`, `scene.spz` with `--format ply,splat,spz`), the optimizer state
 //! (`adam_dc.npy`, `adam_rest.npy`: Adam's moments; `state.json`: iteration and step
 //! counts), `history.json` (every iteration's timestep, views, loss, clipped fraction) and
 //! the last iteration's tensors for `pipeline inspect`: `last_z0.npy`, `last_z_tgt.npy`,
@@ -35,13 +35,17 @@ use fantasystyle_schemas::{ArtifactKind, Producer};
 use ndarray::Axis;
 use std::path::PathBuf;
 
-/// Which scene files a checkpoint holds.
+/// Which scene files a checkpoint holds (`--format ply,splat,spz`; scene.ply always).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SceneFormat {
     /// scene.ply (INRIA layout, every SH coefficient).
     Ply,
-    /// scene.ply and scene.splat (32 bytes per Gaussian, SH degree 0, for web viewers).
+    /// scene.splat too (32 bytes per Gaussian, SH degree 0, for web viewers).
+    Splat,
+    /// scene.spz too (Niantic's compressed format, version 3).
+    Spz,
+    /// scene.ply and scene.splat (the same as `ply,splat`).
     Both,
 }
 
@@ -137,9 +141,9 @@ pub struct Args {
     /// Seed of every draw (views, timesteps, noise).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Scene files written into the checkpoint.
-    #[arg(long, value_enum, default_value = "ply")]
-    pub format: SceneFormat,
+    /// Scene files written into the checkpoint, comma-separated (scene.ply always).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "ply")]
+    pub format: Vec<SceneFormat>,
     /// Output checkpoint directory (written atomically).
     #[arg(long)]
     pub out: PathBuf,
@@ -417,7 +421,7 @@ pub fn run(a: Args) -> Result<()> {
         a.model.join("model.json")
     };
     out.add_input("model", &mpath)?;
-    write_scene(&mut out, &out_scene, a.format)?;
+    write_scene(&mut out, &out_scene, &a.format, &a.out)?;
     let st = &out_state;
     let pair = |x: &crate::optim::AdamState| [x.m.clone(), x.v.clone()].concat();
     out.write_tensor(CHECKPOINT_ADAM_DC, &[2, st.dc.m.len()], &pair(&st.dc))?;
@@ -491,11 +495,16 @@ fn fresh_state(scene: &Scene, rest_per_channel: usize) -> OptimizerState {
 fn write_scene(
     out: &mut fantasystyle_schemas::ArtifactWriter,
     scene: &Scene,
-    format: SceneFormat,
+    format: &[SceneFormat],
+    dir: &std::path::Path,
 ) -> Result<()> {
-    out.write_bytes("scene.ply", &crate::scene::ply::encode_ply(scene))?;
-    if format == SceneFormat::Both {
-        out.write_bytes("scene.splat", &crate::scene::splat::encode_splat(scene))?;
+    let has = |f| format.contains(&f);
+    let extra = crate::scene::ExtraFormats {
+        splat: has(SceneFormat::Splat) || has(SceneFormat::Both),
+        spz: has(SceneFormat::Spz),
+    };
+    for (name, bytes) in crate::scene::encode_files(dir, scene, extra)? {
+        out.write_bytes(name, &bytes)?;
     }
     Ok(())
 }

@@ -15,7 +15,7 @@ use crate::metrics::views::ViewSet;
 use crate::sweep::Sweep;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Measure a stylized view set against the original views and the style image: LPIPS,
 /// FID/KID (style and content), ArtFID, short/long-range view consistency, Gram distance.
@@ -52,6 +52,13 @@ pub struct Args {
     /// A sweep.json (from the `sweep` stage) to include as the speed-accuracy section.
     #[arg(long)]
     pub sweep: Option<PathBuf>,
+    /// The original scene (.ply, .splat, .spz or a scene artifact): with
+    /// --stylized-scene, the report gets an interactive 3D viewer of the two side by side.
+    #[arg(long, requires = "stylized_scene")]
+    pub original_scene: Option<PathBuf>,
+    /// The stylized scene (a scene artifact with scene.spz is embedded as written).
+    #[arg(long, requires = "original_scene")]
+    pub stylized_scene: Option<PathBuf>,
 }
 
 /// The stage: read the views and the style, evaluate, write the artifact.
@@ -69,6 +76,10 @@ pub fn run(a: Args) -> Result<Metrics> {
     orig.check_same_views(&styl)?;
     let style = Image::load(&a.style)?;
     let sweep = a.sweep.as_deref().map(Sweep::load).transpose()?;
+    let viewer = match (&a.original_scene, &a.stylized_scene) {
+        (Some(o), Some(s)) => Some(crate::timing::load(|| viewer_inputs(o, s, &orig))?),
+        _ => None,
+    };
     let models = crate::models::models_dir()?;
     if !models.join("metrics").is_dir() {
         return Err(Error::Missing(format!(
@@ -94,11 +105,23 @@ pub fn run(a: Args) -> Result<Metrics> {
         style: &a.style,
     };
     let sweep_html = sweep.as_ref().map(Sweep::html);
-    let html = evaluation_report(paths, &ev, &orig, &styl, &style, sweep_html.as_deref());
+    let html = evaluation_report(
+        paths,
+        &ev,
+        &orig,
+        &styl,
+        &style,
+        sweep_html.as_deref(),
+        viewer.as_deref(),
+    );
 
     wr.add_input("original", &a.original)?;
     wr.add_input("stylized", &a.stylized)?;
     wr.add_input("style", &a.style)?;
+    if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
+        wr.add_input("original-scene", o)?;
+        wr.add_input("stylized-scene", s)?;
+    }
     wr.write_json("metrics.json", &ev.metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;
     crate::timing::io(|| wr.commit())?;
@@ -112,4 +135,36 @@ pub fn run(a: Args) -> Result<Metrics> {
         a.out.display()
     );
     Ok(m)
+}
+
+/// The report's 3D viewer section for the two scenes, starting at the first original
+/// view ([`crate::metrics::viewer`]); with a note instead when the viewer library is not
+/// installed. The background is the one the original views were rendered over.
+fn viewer_inputs(original: &Path, stylized: &Path, orig: &ViewSet) -> Result<String> {
+    use crate::metrics::viewer::{self, ViewerCamera};
+    let (o, scene) = viewer::viewer_scene("original", original)?;
+    let (s, _) = viewer::viewer_scene("stylized", stylized)?;
+    let cam = ViewerCamera::from_views(&orig.cameras, &scene);
+    let background = fantasystyle_schemas::Artifact::open_unverified(&orig.dir)
+        .ok()
+        .and_then(|a| {
+            serde_json::from_value::<[f32; 3]>(a.manifest.meta["background"].clone()).ok()
+        })
+        .unwrap_or([0.0; 3]);
+    let bundle = match viewer::bundle_path() {
+        Some(p) => Some(viewer::load_bundle(&p)?),
+        None => {
+            tracing::warn!(
+                "evaluate: the viewer library is not installed (scripts/setup/50_viewer.sh); \
+                 the report says so instead of showing the 3D viewer"
+            );
+            None
+        }
+    };
+    Ok(viewer::section_html(
+        bundle.as_deref(),
+        &[o, s],
+        &cam,
+        background,
+    ))
 }

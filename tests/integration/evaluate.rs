@@ -94,6 +94,8 @@ fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         seed: 0,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
+        original_scene: None,
+        stylized_scene: None,
     }
 }
 

@@ -14,3 +14,5 @@ mod runtime;
 mod scene;
 mod snakemake_sample;
 mod texture;
+mod spz;
+mod viewer;
