@@ -204,7 +204,8 @@ impl Graph {
     ) -> Result<Vec<ArrayD<f32>>> {
         let (name, file) = (self.name, self.file.clone());
         let err = |r: String| Error::Onnx(format!("graph `{name}` ({}): {r}", file.display()));
-        let out = self.session.run(inputs).map_err(|e| err(e.to_string()))?;
+        let out = crate::timing::phase(name, || self.session.run(inputs))
+            .map_err(|e| err(e.to_string()))?;
         outputs
             .iter()
             .map(|o| {

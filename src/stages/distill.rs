@@ -175,7 +175,9 @@ pub fn run(a: Args) -> Result<()> {
     // Inputs, all checked before the prior is loaded.
     let (scene, start, state, history, resumed_from) = match (&a.scene, &a.resume) {
         (_, Some(dir)) => {
-            let c = crate::timing::load(|| read_checkpoint(dir))?;
+            let c = crate::timing::load(|| {
+                crate::timing::phase("checkpoint read", || read_checkpoint(dir))
+            })?;
             (
                 c.scene,
                 c.iteration,
@@ -273,6 +275,7 @@ pub fn run(a: Args) -> Result<()> {
             None => model_set,
         };
         super::with_threads(a.threads.n, || -> Result<_> {
+            let ph = crate::timing::span("setup");
             let mut d = Distiller::new(
                 &scene,
                 &cameras,
@@ -285,6 +288,7 @@ pub fn run(a: Args) -> Result<()> {
             if let Some(s) = state.clone() {
                 d.set_optimizer_state(s)?;
             }
+            drop(ph);
             tracing::info!(
                 "distill: iterations {start}..{} on {n} views ({}x{}), {} per iteration, path {}",
                 start + a.iters,
@@ -303,7 +307,7 @@ pub fn run(a: Args) -> Result<()> {
             let mut reports = Vec::with_capacity(a.iters as usize);
             for k in 0..a.iters {
                 let started = std::time::Instant::now();
-                let r = d.iterate()?;
+                let r = crate::timing::phase("iteration", || d.iterate())?;
                 let left = a.iters - 1 - k;
                 if k < 2 && left > 0 {
                     // The estimate, calibrated: the first iteration timed here, and again
@@ -362,6 +366,7 @@ pub fn run(a: Args) -> Result<()> {
             "device": a.device.device.to_string(), "unet_batch": a.unet_batch,
         }),
     );
+    let ph = crate::timing::span("checkpoint write");
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
     match (&resumed_from, &a.scene) {
         (Some(dir), _) => out.add_input("resume", dir)?,
@@ -411,6 +416,7 @@ pub fn run(a: Args) -> Result<()> {
         "last": last.as_ref().map(|l| &l.report),
     }));
     crate::timing::io(|| out.commit())?;
+    drop(ph);
     tracing::info!("wrote {} (iteration {iteration})", a.out.display());
     Ok(())
 }
