@@ -264,6 +264,23 @@ impl LazyGraph {
         self
     }
 
+    /// An unloaded copy with the same checks and session options `cfg` (for one more
+    /// session of the same graph, e.g. one per worker thread).
+    pub fn with_config(&self, cfg: SessionConfig) -> Self {
+        LazyGraph {
+            path: self.path.clone(),
+            name: self.name,
+            cfg,
+            checks: self.checks.clone(),
+            graph: None,
+        }
+    }
+
+    /// The session options.
+    pub fn config(&self) -> SessionConfig {
+        self.cfg
+    }
+
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
