@@ -187,11 +187,15 @@ pub fn gradient(
     let (et, es) = if prior.unconditional_is_identity() {
         oracle_predictions(prior, schedule, &x, &ct, &cs)?
     } else {
-        let et = prior.predict_eps(x.z_tgt, x.t, &ct, x.control)?;
+        let et = crate::timing::phase("target branch", || {
+            prior.predict_eps(x.z_tgt, x.t, &ct, x.control)
+        })?;
         let es = if cs.is_empty() {
             Vec::new()
         } else {
-            prior.predict_eps(x.z_src, x.t, &cs, x.control)?
+            crate::timing::phase("source branch", || {
+                prior.predict_eps(x.z_src, x.t, &cs, x.control)
+            })?
         };
         (et, es)
     };
@@ -278,17 +282,21 @@ fn oracle_predictions(
             })
             .collect()
     };
+    let ph = crate::timing::span("target branch");
     let et = branch(prior, x.z_tgt, ct, &|| {
         Zip::from(x.z_tgt)
             .and(x.z0)
             .map_collect(|&z, &z0| (z - sa * z0) / sb)
     })?;
+    drop(ph);
+    let ph = crate::timing::span("source branch");
     let es = branch(prior, x.z_src, cs, &|| match x.z0_src {
         Some(z0s) => Zip::from(x.z_src)
             .and(z0s)
             .map_collect(|&z, &z0| (z - sa * z0) / sb),
         None => x.eps.to_owned(),
     })?;
+    drop(ph);
     Ok((et, es))
 }
 

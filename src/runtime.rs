@@ -240,6 +240,14 @@ pub fn load_session_with(path: &Path, cfg: &SessionConfig) -> Result<Session> {
     b = b
         .with_optimization_level(level)
         .map_err(|e| Error::Onnx(e.to_string()))?;
+    // onnxruntime's pool threads spin between operators by default; here they would
+    // burn the cores that rayon's workers (rendering, the colour step, other sessions
+    // run side by side) and other processes need: on the 2-core machine, about a fifth
+    // of `distill`'s CPU samples were that spin loop (BENCHMARKS.md, "distill per phase").
+    b = b
+        .with_intra_op_spinning(false)
+        .and_then(|b| b.with_inter_op_spinning(false))
+        .map_err(|e| Error::Onnx(e.to_string()))?;
     b = with_device(b, cfg.device)?;
     b.commit_from_file(path)
         .map_err(|e| Error::input(path, format!("cannot load ONNX graph: {e}")))

@@ -165,5 +165,213 @@ pub fn report(dag: &Dag) -> Result<String> {
             r.jobs,
         );
     }
+    phase_tables(dag, &lock, &mut out);
     Ok(out)
+}
+
+/// Key prefixes of a named phase's seconds, call count and process CPU seconds in a
+/// stage's timing report.
+const PHASE_PREFIX: &str = "phase:";
+const CALLS_PREFIX: &str = "calls:";
+const CPU_PREFIX: &str = "cpu:";
+
+/// One table per stage (instances of a `foreach` stage, `NAME@ITEM`, summed under
+/// `NAME`) that reported named phases (`"phase:A/B": seconds`, `"calls:A/B": n`,
+/// `"cpu:A/B"`: process CPU seconds; a phase `A/B` ran inside `A`): each phase's wall
+/// seconds, CPU seconds, calls, milliseconds per call and share of the stages' compute
+/// time, children indented under their parent, largest first.
+fn phase_tables(dag: &Dag, lock: &Lock, out: &mut String) {
+    // (base name, instances, compute s, phase -> (seconds, calls, cpu seconds)), in DAG
+    // order.
+    type Phases = std::collections::BTreeMap<String, (f64, f64, Option<f64>)>;
+    let mut groups: Vec<(String, usize, f64, Phases)> = Vec::new();
+    for s in &dag.stages {
+        let Some(e) = lock.stages.get(&s.name) else {
+            continue;
+        };
+        if !e.timing.keys().any(|k| k.starts_with(PHASE_PREFIX)) {
+            continue;
+        }
+        let base = s.name.split('@').next().unwrap_or(&s.name).to_string();
+        let i = match groups.iter().position(|g| g.0 == base) {
+            Some(i) => i,
+            None => {
+                groups.push((base, 0, 0.0, Phases::new()));
+                groups.len() - 1
+            }
+        };
+        let g = &mut groups[i];
+        g.1 += 1;
+        g.2 += e.timing.get("compute_s").copied().unwrap_or(0.0);
+        for (k, v) in &e.timing {
+            if let Some(name) = k.strip_prefix(PHASE_PREFIX) {
+                let calls = e.timing.get(&format!("{CALLS_PREFIX}{name}")).copied();
+                let cpu = e.timing.get(&format!("{CPU_PREFIX}{name}")).copied();
+                let p = g.3.entry(name.to_string()).or_insert((0.0, 0.0, Some(0.0)));
+                p.0 += v;
+                p.1 += calls.unwrap_or(0.0);
+                p.2 = p.2.zip(cpu).map(|(a, b)| a + b);
+            }
+        }
+    }
+    for (base, n, compute, phases) in groups {
+        let _ = writeln!(
+            out,
+            "\nphases of {base}{} (wall time, nested phases included in their parent; compute {compute:.3} s):",
+            if n > 1 {
+                format!(" ({n} stages summed)")
+            } else {
+                String::new()
+            }
+        );
+        let _ = writeln!(
+            out,
+            "  {:<44} {:>9} {:>9} {:>7} {:>9} {:>9}",
+            "phase", "wall_s", "cpu_s", "calls", "ms/call", "%compute"
+        );
+        // Depth first from the roots, children largest first.
+        type Row<'a> = (&'a String, (f64, f64, Option<f64>));
+        fn children<'a>(phases: &'a Phases, parent: Option<&str>) -> Vec<Row<'a>> {
+            let mut c: Vec<_> = phases
+                .iter()
+                .filter(|(k, _)| match parent {
+                    None => !k.contains('/'),
+                    Some(p) => k
+                        .strip_prefix(p)
+                        .and_then(|r| r.strip_prefix('/'))
+                        .is_some_and(|r| !r.contains('/')),
+                })
+                .map(|(k, v)| (k, *v))
+                .collect();
+            c.sort_by(|a, b| b.1.0.total_cmp(&a.1.0));
+            c
+        }
+        let mut stack: Vec<(&String, (f64, f64, Option<f64>), usize)> = children(&phases, None)
+            .into_iter()
+            .rev()
+            .map(|(k, v)| (k, v, 0))
+            .collect();
+        // Phases whose parent was never reported are shown at the top level.
+        for (k, v) in &phases {
+            if let Some((parent, _)) = k.rsplit_once('/')
+                && !phases.contains_key(parent)
+            {
+                stack.insert(0, (k, *v, 0));
+            }
+        }
+        while let Some((name, (secs, calls, cpu), depth)) = stack.pop() {
+            let leaf = if depth == 0 {
+                name.as_str()
+            } else {
+                name.rsplit('/').next().unwrap_or(name)
+            };
+            let label = format!("{}{leaf}", "  ".repeat(depth));
+            let per_call = if calls > 0.0 {
+                format!("{:.2}", 1e3 * secs / calls)
+            } else {
+                "-".into()
+            };
+            let share = if compute > 0.0 {
+                format!("{:.1}", 100.0 * secs / compute)
+            } else {
+                "-".into()
+            };
+            let cpu = cpu.map_or_else(|| "-".to_string(), |c| format!("{c:.2}"));
+            let _ = writeln!(
+                out,
+                "  {label:<44} {secs:>9.3} {cpu:>9} {calls:>7} {per_call:>9} {share:>9}"
+            );
+            for (k, v) in children(&phases, Some(name)).into_iter().rev() {
+                stack.push((k, v, depth + 1));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lock::{Binary, Entry, Status};
+    use std::collections::BTreeMap;
+    use std::path::Path;
+
+    fn entry(timing: &[(&str, f64)]) -> Entry {
+        Entry {
+            cmd: String::new(),
+            binary: Binary {
+                path: "x".into(),
+                blake3: "unresolved".into(),
+            },
+            deps: BTreeMap::new(),
+            params: BTreeMap::new(),
+            outs: BTreeMap::new(),
+            status: Status::Ok,
+            duration_s: 10.0,
+            exit_code: Some(0),
+            finished_unix: 0,
+            log: String::new(),
+            timing: timing.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+            files: BTreeMap::new(),
+        }
+    }
+
+    #[test]
+    fn phase_tables_sum_instances_and_nest_children_largest_first() {
+        let dag = crate::dag::parse(
+            r#"
+[stages.d]
+foreach = { from = 1, to = 2, prefix = "c" }
+cmd = "d ${item}"
+outs = ["o${item}"]
+[stages.plain]
+cmd = "p"
+outs = ["p"]
+"#,
+            Path::new("dag.toml"),
+            Path::new("."),
+        )
+        .unwrap();
+        let mut lock = Lock::default();
+        let t = [
+            ("compute_s", 8.0),
+            ("phase:csd", 4.0),
+            ("calls:csd", 10.0),
+            ("cpu:csd", 7.5),
+            ("phase:csd/prior b", 1.0),
+            ("calls:csd/prior b", 10.0),
+            ("phase:csd/prior a", 3.0),
+            ("calls:csd/prior a", 20.0),
+            ("phase:render", 2.0),
+            ("calls:render", 40.0),
+        ];
+        lock.stages.insert("d@c1".into(), entry(&t));
+        lock.stages.insert("d@c2".into(), entry(&t));
+        lock.stages
+            .insert("plain".into(), entry(&[("compute_s", 1.0)]));
+        let mut out = String::new();
+        phase_tables(&dag, &lock, &mut out);
+        assert!(out.contains("phases of d (2 stages summed)"), "{out}");
+        assert!(!out.contains("phases of plain"), "{out}");
+        let lines: Vec<&str> = out.lines().collect();
+        let at = |name: &str| {
+            lines
+                .iter()
+                .position(|l| l.trim_start().starts_with(name))
+                .unwrap_or_else(|| panic!("no `{name}` in\n{out}"))
+        };
+        // Largest first, children under their parent, indented.
+        assert!(at("csd") < at("prior a") && at("prior a") < at("prior b"));
+        assert!(at("prior b") < at("render"), "{out}");
+        assert!(lines[at("prior a")].starts_with("    prior a"), "{out}");
+        // Summed over the two instances: 8 s of csd, 15 CPU-s, 20 calls, 400 ms per
+        // call, 50%; no CPU figure where a stage reported none.
+        let csd: Vec<&str> = lines[at("csd")].split_whitespace().collect();
+        assert_eq!(
+            csd,
+            ["csd", "8.000", "15.00", "20", "400.00", "50.0"],
+            "{out}"
+        );
+        let render: Vec<&str> = lines[at("render")].split_whitespace().collect();
+        assert_eq!(render[2], "-", "{out}");
+    }
 }

@@ -384,16 +384,21 @@ impl<'a> Distiller<'a> {
         let n = views.len();
 
         // Renders, what the prior sees, latents.
+        let ph = crate::timing::span("render");
         let renders: Vec<Vec<f32>> = views.iter().map(|&v| self.fit.render_view(v)).collect();
+        drop(ph);
+        let ph = crate::timing::span("fill");
         let seen: Vec<Array3<f32>> = views
             .iter()
             .zip(&renders)
             .map(|(&v, r)| to_chw(&Self::prior_view(&p, self.source, r, v), h, w))
             .collect();
+        drop(ph);
         let stack = |xs: &[Array3<f32>]| -> Result<Array4<f32>> {
             let v: Vec<_> = xs.iter().map(|a| a.view().insert_axis(Axis(0))).collect();
             concatenate(Axis(0), &v).map_err(|e| Error::Other(e.to_string()))
         };
+        let ph = crate::timing::span("encode");
         let z0 = self.prior.encode(stack(&seen)?.view())?;
         let z0_src = stack(
             &views
@@ -401,6 +406,7 @@ impl<'a> Distiller<'a> {
                 .map(|&v| self.z0_src[v].clone())
                 .collect::<Vec<_>>(),
         )?;
+        drop(ph);
         if z0.shape() != z0_src.shape() {
             return Err(Error::Other(format!(
                 "prior encoded renders to {:?} but the source to {:?}",
@@ -408,6 +414,7 @@ impl<'a> Distiller<'a> {
                 z0_src.shape()
             )));
         }
+        let ph = crate::timing::span("noise");
         let sh = z0.shape().to_vec();
         let eps = Array4::from_shape_vec((sh[0], sh[1], sh[2], sh[3]), rng.normals_f32(z0.len()))
             .expect("length matches");
@@ -418,6 +425,8 @@ impl<'a> Distiller<'a> {
         .expect("length matches");
         let src_noisy = self.schedule.add_noise(z0_src.view(), eps.view(), t)?;
         let z_noisy = self.schedule.add_noise(z0.view(), eps.view(), t)?;
+        drop(ph);
+        let ph = crate::timing::span("mvfc");
         let (z_tgt, z_src) = match &p.mvfc {
             Some(m) => (
                 mvfc_path(z_noisy.view(), eps_shared.view(), *m, circular)?,
@@ -429,6 +438,8 @@ impl<'a> Distiller<'a> {
             ),
             None => (z_noisy, src_noisy),
         };
+        drop(ph);
+        let ph = crate::timing::span("control");
         let control = match self.prior.info().control {
             // The original render as the prior sees it (over the same fill).
             Some(crate::prior::ControlKind::Source) => {
@@ -454,6 +465,8 @@ impl<'a> Distiller<'a> {
             }
             None => None,
         };
+        drop(ph);
+        let ph = crate::timing::span("csd");
         let (z1, _g) = csd::step(
             self.prior,
             &self.schedule,
@@ -468,8 +481,12 @@ impl<'a> Distiller<'a> {
             },
             &p.csd,
         )?;
+        drop(ph);
+        let ph = crate::timing::span("decode");
         let delta = csd::image_change(self.prior, z1.view(), z0.view(), h, w)?;
+        drop(ph);
 
+        let ph = crate::timing::span("targets");
         // Targets: the object's colour moves by Delta, recomposited with alpha.
         let bg = p.background;
         let mut targets = Array4::<f32>::zeros((n, h, w, 3));
@@ -520,7 +537,9 @@ impl<'a> Distiller<'a> {
                 }
             }
         }
+        drop(ph);
 
+        let ph = crate::timing::span("colour step");
         // One colour step on the window.
         let lp = LossParams {
             ssim_weight: p.ssim_weight,
@@ -553,6 +572,7 @@ impl<'a> Distiller<'a> {
             Ok((l, g))
         };
         let loss = self.fit.step_views(&views, &mut loss)?;
+        drop(ph);
         let report = IterReport {
             iteration: it,
             views: views.clone(),

@@ -274,41 +274,51 @@ pub fn evaluate(
 
     // LPIPS content.
     let mut lp = crate::timing::load(|| LpipsModel::load(models, p.lpips_net, p.threads))?;
+    let ph = crate::timing::span("lpips content");
     let oi: Vec<&Image> = orig.images.iter().collect();
     let si: Vec<&Image> = styl.images.iter().collect();
     let lpips_per_view = lpips::pairwise(&mut lp, &oi, &si)?;
     let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
     pb.inc(1);
 
+    drop(ph);
     // Consistency (geometry from the original views; cameras are checked equal).
+    let ph = crate::timing::span("consistency");
     let (short, short_warps) =
         range_consistency(&mut lp, orig, styl, p.short_range, &mut warnings)?;
     pb.inc(1);
     let (long, long_warps) = range_consistency(&mut lp, orig, styl, p.long_range, &mut warnings)?;
     pb.inc(1);
 
+    drop(ph);
     // Gram distance to the style image (VGG16).
+    let ph = crate::timing::span("gram");
     let mut vgg = if p.lpips_net == LpipsNet::Vgg16 {
         lp
     } else {
         crate::timing::load(|| LpipsModel::load(models, LpipsNet::Vgg16, p.threads))?
     };
     let style_small = style.fit_within(GRAM_MAX_SIDE);
-    let gs = gram::grams(&vgg.features(&[&style_small])?[0]);
+    let f = crate::timing::phase("vgg", || vgg.features(&[&style_small]))?;
+    let gs = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
     let mut gram_per_view = Vec::with_capacity(n);
     let mut gram_orig = Vec::with_capacity(n);
     let mut object_gram = texture::ObjectGram::new(&gs);
     for i in 0..n {
-        let f = vgg.features(&[&styl.images[i], &orig.images[i]])?;
+        let f = crate::timing::phase("vgg", || vgg.features(&[&styl.images[i], &orig.images[i]]))?;
         object_gram.add_view(&f[0], &f[1], orig.geometry(i).1, w, h);
-        gram_per_view.push(gram::gram_distance(&gram::grams(&f[0]), &gs));
-        gram_orig.push(gram::gram_distance(&gram::grams(&f[1]), &gs));
+        let (a, b) =
+            crate::timing::phase("gram matrices", || (gram::grams(&f[0]), gram::grams(&f[1])));
+        gram_per_view.push(gram::gram_distance(&a, &gs));
+        gram_orig.push(gram::gram_distance(&b, &gs));
     }
     drop(vgg);
     let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     pb.inc(1);
 
+    drop(ph);
     // FID / KID.
+    let ph = crate::timing::span("inception");
     let k = n.max(fid::MIN_IMAGES);
     let crops = style_crops(style, k, w, h, p.seed);
     let mut inc = crate::timing::load(|| Inception::load(models, p.threads))?;
@@ -316,6 +326,8 @@ pub fn evaluate(
     let fo = inc.pool3(&oi)?;
     let fc = inc.pool3(&crops.iter().collect::<Vec<_>>())?;
     pb.inc(1);
+    drop(ph);
+    let ph = crate::timing::span("fid kid");
     let (fid_style, kid_style) = set_distances(&fs, &fc, "FID_style", &mut warnings);
     let (fid_content, kid_content) = set_distances(&fs, &fo, "FID_content", &mut warnings);
     let texture = TextureMetrics {
@@ -325,6 +337,7 @@ pub fn evaluate(
         object: texture::object_colour(orig, styl, style),
         notes: texture::NOTES.to_vec(),
     };
+    drop(ph);
     let artfid = match (lpips_content, fid_style.value) {
         (Some(l), Some(f)) => Some(fid::artfid(l, f)),
         _ => None,

@@ -204,7 +204,8 @@ impl Graph {
     ) -> Result<Vec<ArrayD<f32>>> {
         let (name, file) = (self.name, self.file.clone());
         let err = |r: String| Error::Onnx(format!("graph `{name}` ({}): {r}", file.display()));
-        let out = self.session.run(inputs).map_err(|e| err(e.to_string()))?;
+        let out = crate::timing::phase(name, || self.session.run(inputs))
+            .map_err(|e| err(e.to_string()))?;
         outputs
             .iter()
             .map(|o| {
@@ -261,6 +262,23 @@ impl LazyGraph {
         self.checks
             .push((output, io.to_string(), kind, dims.to_vec()));
         self
+    }
+
+    /// An unloaded copy with the same checks and session options `cfg` (for one more
+    /// session of the same graph, e.g. one per worker thread).
+    pub fn with_config(&self, cfg: SessionConfig) -> Self {
+        LazyGraph {
+            path: self.path.clone(),
+            name: self.name,
+            cfg,
+            checks: self.checks.clone(),
+            graph: None,
+        }
+    }
+
+    /// The session options.
+    pub fn config(&self) -> SessionConfig {
+        self.cfg
     }
 
     /// The file.

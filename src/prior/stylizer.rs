@@ -53,10 +53,10 @@
 //! with the sharp style image's would ask for a change even when the two are the same
 //! picture. `csd` and `csd-no-neg` coincide for this prior (Content = Null).
 
-use super::session::{Kind, LazyGraph};
+use super::session::{Graph, Kind, LazyGraph};
 use super::{Cond, ControlKind, Prior, PriorInfo};
 use crate::imageio::{Filter, Image};
-use crate::runtime::SessionConfig;
+use crate::runtime::{Device, SessionConfig};
 use crate::scheduler::{Schedule, SchedulerConfig};
 use crate::{Error, Result};
 use ndarray::{Array3, Array4, ArrayView3, ArrayView4, Axis};
@@ -137,6 +137,9 @@ pub struct StylizerPrior {
     manifest: StylizerManifest,
     predict: LazyGraph,
     transform: LazyGraph,
+    /// Sessions of the transfer graph for [`Prior::predict_eps`], one per worker (see
+    /// [`StylizerPrior::lanes`]); made on first use.
+    lanes: Vec<LazyGraph>,
     style: Option<Vec<f32>>,
     strength: f32,
     /// Motif scale (>= 1), see `PriorOptions::motif_scale`.
@@ -221,6 +224,7 @@ impl StylizerPrior {
             manifest,
             predict,
             transform,
+            lanes: Vec::new(),
             style: None,
             strength: 1.0,
             motif_scale: 1.0,
@@ -240,11 +244,9 @@ impl StylizerPrior {
 
     /// The style vector of control image `img` `[3, H, W]`, cached by content.
     fn own_style(&mut self, img: ArrayView3<'_, f32>) -> Result<Vec<f32>> {
-        let mut h = blake3::Hasher::new();
-        for v in img.iter() {
-            h.update(&v.to_le_bytes());
-        }
-        let key = *h.finalize().as_bytes();
+        // One buffer hashed at once (4-byte updates cost more than the lookup saves).
+        let bytes: Vec<u8> = img.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let key = *blake3::hash(&bytes).as_bytes();
         if let Some(s) = self.own_styles.get(&key) {
             return Ok(s.clone());
         }
@@ -316,101 +318,58 @@ impl StylizerPrior {
     /// the transfer size are scaled down (aspect kept) and back up; smaller sides are
     /// mirror-padded to the transfer size and cropped after.
     pub fn stylize(&mut self, img: ArrayView3<'_, f32>, s: &[f32]) -> Result<Array3<f32>> {
-        if self.motif_scale != 1.0 {
-            // Enlarged before the network, reduced after (area average).
-            let (h, w) = (img.shape()[1], img.shape()[2]);
-            let (bh, bw) = (
-                ((h as f32 * self.motif_scale).round() as usize).max(1),
-                ((w as f32 * self.motif_scale).round() as usize).max(1),
-            );
-            let big = resize(img, bh, bw);
-            let out = self.stylize_at(big.view(), s, self.motif_scale)?;
-            return Ok(resize(out.view(), h, w));
-        }
-        self.stylize_at(img, s, 1.0)
-    }
-
-    /// [`Self::stylize`] at the image's own scale; `zoom` enlarges the largest side
-    /// processed as it is.
-    fn stylize_at(
-        &mut self,
-        img: ArrayView3<'_, f32>,
-        s: &[f32],
-        zoom: f32,
-    ) -> Result<Array3<f32>> {
-        let (h, w) = (img.shape()[1], img.shape()[2]);
-        // A dynamic graph processes up to `size x zoom` as it is; a fixed one only `size`.
-        let size = self.manifest.transform.size;
-        let limit = if self.manifest.transform.dynamic {
-            (size as f32 * zoom).round() as usize
-        } else {
-            size
-        };
-        let scale = (limit as f64 / h.max(w) as f64).min(1.0);
-        let (sh, sw) = (
-            ((h as f64 * scale).round() as usize).max(1),
-            ((w as f64 * scale).round() as usize).max(1),
-        );
-        let small = if (sh, sw) == (h, w) {
-            img.to_owned()
-        } else {
-            resize(img, sh, sw)
-        };
-        let (ph, pw) = if self.manifest.transform.dynamic {
-            (
-                sh.max(64).next_multiple_of(8),
-                sw.max(64).next_multiple_of(8),
-            )
-        } else {
-            (size, size)
-        };
-        let padded = Array3::from_shape_fn((3, ph, pw), |(c, y, x)| {
-            small[[c, mirror(y, sh), mirror(x, sw)]]
-        });
-        let g = self.manifest.transform.clone();
-        let content = Tensor::from_array(([1usize, ph, pw, 3], to_nhwc(padded.view())))
-            .map_err(|e| Error::Onnx(e.to_string()))?;
-        let style = Tensor::from_array(([1usize, 1, 1, s.len()], s.to_vec()))
-            .map_err(|e| Error::Onnx(e.to_string()))?;
-        let out = self
-            .transform
-            .get()?
-            .session
-            .run(ort::inputs![g.content_input.as_str() => content, g.style_input.as_str() => style])
-            .map_err(|e| Error::Onnx(format!("{}: {e}", g.file)))?;
-        let (_, data) = out
-            .get(&g.output)
-            .ok_or_else(|| Error::Onnx(format!("{}: no output {}", g.file, g.output)))?
-            .try_extract_tensor::<f32>()
-            .map_err(|e| Error::Onnx(e.to_string()))?;
-        if data.len() != ph * pw * 3 {
-            return Err(Error::Onnx(format!(
-                "{}: output has {} values, expected {}",
-                g.file,
-                data.len(),
-                ph * pw * 3
-            )));
-        }
-        let styl = Array3::from_shape_fn((3, sh, sw), |(c, y, x)| data[(y * pw + x) * 3 + c]);
-        Ok(if (sh, sw) == (h, w) {
-            styl
-        } else {
-            resize(styl.view(), h, w)
-        })
+        let zoom = self.motif_scale;
+        let tr = &self.manifest.transform;
+        let g = self.transform.get()?;
+        stylize_with(g, tr, img, s, zoom)
     }
 
     /// The clean estimate x^ of `z_t` [3, H, W] at timestep t (see module docs).
     pub fn clean_estimate(&self, z_t: ArrayView3<'_, f32>, t: usize) -> Result<Array3<f32>> {
-        let ab = self.schedule.alpha_bar(t)?;
-        let r: f64 = ((1.0 - ab) / ab).sqrt();
-        let sigma = (r / (2.0 * std::f64::consts::PI.sqrt() * 0.05)).min(8.0);
-        let inv = (1.0 / ab.sqrt()) as f32;
-        let x = z_t.mapv(|v| v * inv);
-        let mut b = gaussian_blur(x.view(), sigma as f32);
-        b.mapv_inplace(|v| v.clamp(0.0, 1.0));
-        Ok(b)
+        clean_estimate(&self.schedule, z_t, t)
     }
 
+    /// Sessions of the transfer graph for `jobs` images on the current rayon pool: on
+    /// the CPU one per worker (at most one per image), each with its share of the
+    /// pool's threads as intra-op threads (at least 1), so that the images of a call
+    /// are stylized side by side on all cores instead of one after another with
+    /// onnxruntime's own thread pool competing with rayon's; on other devices one
+    /// session with the configured options. The output does not depend on the split:
+    /// onnxruntime's CPU convolutions give the same bits for any intra-op thread count
+    /// (checked by `lanes_give_the_same_bits_as_one_session`).
+    fn lanes(&mut self, jobs: usize) -> &mut [LazyGraph] {
+        let cfg = self.transform.config();
+        let (n, intra) = if cfg.device == Device::Cpu {
+            let threads = rayon::current_num_threads().max(1);
+            let n = jobs.clamp(1, threads);
+            (n, (threads / n).max(1))
+        } else {
+            (1, cfg.threads)
+        };
+        let want = SessionConfig {
+            threads: intra,
+            ..cfg
+        };
+        if self.lanes.len() != n || self.lanes.iter().any(|l| l.config() != want) {
+            self.lanes = (0..n).map(|_| self.transform.with_config(want)).collect();
+        }
+        &mut self.lanes
+    }
+}
+
+/// [`StylizerPrior::clean_estimate`] with the prior's schedule.
+fn clean_estimate(schedule: &Schedule, z_t: ArrayView3<'_, f32>, t: usize) -> Result<Array3<f32>> {
+    let ab = schedule.alpha_bar(t)?;
+    let r: f64 = ((1.0 - ab) / ab).sqrt();
+    let sigma = (r / (2.0 * std::f64::consts::PI.sqrt() * 0.05)).min(8.0);
+    let inv = (1.0 / ab.sqrt()) as f32;
+    let x = z_t.mapv(|v| v * inv);
+    let mut b = gaussian_blur(x.view(), sigma as f32);
+    b.mapv_inplace(|v| v.clamp(0.0, 1.0));
+    Ok(b)
+}
+
+impl StylizerPrior {
     pub fn schedule(&self) -> &Schedule {
         &self.schedule
     }
@@ -418,6 +377,95 @@ impl StylizerPrior {
     pub fn manifest(&self) -> &StylizerManifest {
         &self.manifest
     }
+}
+
+/// Stylize one image `[3, H, W]` with style vector `s` on transfer graph `g` (see
+/// [`StylizerPrior::stylize`]).
+fn stylize_with(
+    g: &mut Graph,
+    tr: &TransformGraph,
+    img: ArrayView3<'_, f32>,
+    s: &[f32],
+    zoom: f32,
+) -> Result<Array3<f32>> {
+    if zoom != 1.0 {
+        // Enlarged before the network, reduced after (area average): the motif scale.
+        let (h, w) = (img.shape()[1], img.shape()[2]);
+        let (bh, bw) = (
+            ((h as f32 * zoom).round() as usize).max(1),
+            ((w as f32 * zoom).round() as usize).max(1),
+        );
+        let big = resize(img, bh, bw);
+        let out = stylize_at(g, tr, big.view(), s, zoom)?;
+        return Ok(resize(out.view(), h, w));
+    }
+    stylize_at(g, tr, img, s, 1.0)
+}
+
+/// [`stylize_with`] at the image's own scale; a dynamic graph processes up to
+/// `size x zoom` as it is, a fixed one only `size`.
+fn stylize_at(
+    g: &mut Graph,
+    tr: &TransformGraph,
+    img: ArrayView3<'_, f32>,
+    s: &[f32],
+    zoom: f32,
+) -> Result<Array3<f32>> {
+    let (h, w) = (img.shape()[1], img.shape()[2]);
+    let size = tr.size;
+    let limit = if tr.dynamic {
+        (size as f32 * zoom).round() as usize
+    } else {
+        size
+    };
+    let scale = (limit as f64 / h.max(w) as f64).min(1.0);
+    let (sh, sw) = (
+        ((h as f64 * scale).round() as usize).max(1),
+        ((w as f64 * scale).round() as usize).max(1),
+    );
+    let small = if (sh, sw) == (h, w) {
+        img.to_owned()
+    } else {
+        resize(img, sh, sw)
+    };
+    let (ph, pw) = if tr.dynamic {
+        (
+            sh.max(64).next_multiple_of(8),
+            sw.max(64).next_multiple_of(8),
+        )
+    } else {
+        (size, size)
+    };
+    let padded = Array3::from_shape_fn((3, ph, pw), |(c, y, x)| {
+        small[[c, mirror(y, sh), mirror(x, sw)]]
+    });
+    let content = Tensor::from_array(([1usize, ph, pw, 3], to_nhwc(padded.view())))
+        .map_err(|e| Error::Onnx(e.to_string()))?;
+    let style = Tensor::from_array(([1usize, 1, 1, s.len()], s.to_vec()))
+        .map_err(|e| Error::Onnx(e.to_string()))?;
+    let out = g
+        .session
+        .run(ort::inputs![tr.content_input.as_str() => content, tr.style_input.as_str() => style])
+        .map_err(|e| Error::Onnx(format!("{}: {e}", tr.file)))?;
+    let (_, data) = out
+        .get(&tr.output)
+        .ok_or_else(|| Error::Onnx(format!("{}: no output {}", tr.file, tr.output)))?
+        .try_extract_tensor::<f32>()
+        .map_err(|e| Error::Onnx(e.to_string()))?;
+    if data.len() != ph * pw * 3 {
+        return Err(Error::Onnx(format!(
+            "{}: output has {} values, expected {}",
+            tr.file,
+            data.len(),
+            ph * pw * 3
+        )));
+    }
+    let styl = Array3::from_shape_fn((3, sh, sw), |(c, y, x)| data[(y * pw + x) * 3 + c]);
+    Ok(if (sh, sw) == (h, w) {
+        styl
+    } else {
+        resize(styl.view(), h, w)
+    })
 }
 
 /// Mirror index (reflect without repeating the edge, periodic for any overshoot).
@@ -545,54 +593,141 @@ impl Prior for StylizerPrior {
                 "the stylizer prior needs a style image for the PromptStyle conditioning",
             ));
         }
-        let mut outs: Vec<Array4<f32>> =
-            conds.iter().map(|_| Array4::zeros(z_t.raw_dim())).collect();
-        for b in 0..z_t.shape()[0] {
-            let zb = z_t.index_axis(Axis(0), b);
-            let xh = self.clean_estimate(zb, t)?;
-            let needs_own = conds.contains(&Cond::Prompt)
-                || (conds.contains(&Cond::PromptStyle) && self.strength < 1.0);
-            let own = if needs_own {
-                Some(match control {
+        let nb = z_t.shape()[0];
+        let needs_own = conds.contains(&Cond::Prompt)
+            || (conds.contains(&Cond::PromptStyle) && self.strength < 1.0);
+        let needs_x0 = conds
+            .iter()
+            .any(|c| matches!(c, Cond::Prompt | Cond::PromptStyle));
+        // The style vectors each view is redrawn with: [own (Prompt), styled
+        // (PromptStyle)]. Own styles come from the control images (cached) or, without
+        // them, from the clean estimate (computed here for that, and again below).
+        let mut own: Vec<Option<Vec<f32>>> = vec![None; nb];
+        if needs_own {
+            let ph = crate::timing::span("own style");
+            for (b, o) in own.iter_mut().enumerate() {
+                *o = Some(match control {
                     Some(c) => self.own_style(c.index_axis(Axis(0), b))?,
-                    None => self.style_vector(xh.view())?,
+                    None => {
+                        let xh = self.clean_estimate(z_t.index_axis(Axis(0), b), t)?;
+                        self.style_vector(xh.view())?
+                    }
+                });
+            }
+            drop(ph);
+        }
+        let (a, target) = (self.strength, self.style.clone());
+        let styled: Vec<Option<Vec<f32>>> = (0..nb)
+            .map(|b| {
+                let target = target.clone()?;
+                conds.contains(&Cond::PromptStyle).then(|| match &own[b] {
+                    Some(o) if a < 1.0 => o
+                        .iter()
+                        .zip(&target)
+                        .map(|(o, t)| (1.0 - a) * o + a * t)
+                        .collect(),
+                    _ => target,
                 })
+            })
+            .collect();
+        if needs_x0 {
+            // Make the sessions before the parallel part (loading is not timed there).
+            for l in self.lanes(nb) {
+                l.get()?;
+            }
+        }
+
+        // Per view (views side by side, one transfer session per worker): the clean
+        // estimate, the redrawings it needs, eps for every conditioning.
+        let ph = crate::timing::span("views");
+        let schedule = &self.schedule;
+        let tr = &self.manifest.transform;
+        let zoom = self.motif_scale;
+        let lanes: &mut [LazyGraph] = if needs_x0 {
+            let n = self.lanes.len();
+            &mut self.lanes[..n]
+        } else {
+            &mut []
+        };
+        let n_lanes = lanes.len().max(1);
+        let (own, styled) = (&own, &styled);
+        // One view on `g` (None: no redrawing needed): eps per conditioning, and the
+        // seconds spent (clean estimate, transfer, eps).
+        type ViewOut = (Vec<Array3<f32>>, [f64; 3], usize);
+        let one = |b: usize, mut g: Option<&mut Graph>| -> Result<ViewOut> {
+            let zb = z_t.index_axis(Axis(0), b);
+            let t0 = std::time::Instant::now();
+            let xh = clean_estimate(schedule, zb, t)?;
+            let t1 = std::time::Instant::now();
+            let mut calls = 0;
+            let mut redraw = |s: &Option<Vec<f32>>| -> Result<Option<Array3<f32>>> {
+                match (s, g.as_deref_mut()) {
+                    (Some(s), Some(g)) => {
+                        calls += 1;
+                        stylize_with(g, tr, xh.view(), s, zoom).map(Some)
+                    }
+                    _ => Ok(None),
+                }
+            };
+            let redrawn = if conds.contains(&Cond::Prompt) {
+                redraw(&own[b])?
             } else {
                 None
             };
-            let mut redrawn: Option<Array3<f32>> = None;
-            let mut styled: Option<Array3<f32>> = None;
-            for (k, c) in conds.iter().enumerate() {
-                let x0 = match c {
-                    Cond::Null | Cond::Content => xh.clone(),
-                    Cond::Prompt => {
-                        if redrawn.is_none() {
-                            let s = own.as_ref().expect("computed above");
-                            redrawn = Some(self.stylize(xh.view(), s)?);
-                        }
-                        redrawn.clone().expect("set")
-                    }
-                    Cond::PromptStyle => {
-                        if styled.is_none() {
-                            let target = self.style.clone().expect("checked above");
-                            let a = self.strength;
-                            let s: Vec<f32> = match &own {
-                                Some(o) if a < 1.0 => o
-                                    .iter()
-                                    .zip(&target)
-                                    .map(|(o, t)| (1.0 - a) * o + a * t)
-                                    .collect(),
-                                _ => target,
-                            };
-                            styled = Some(self.stylize(xh.view(), &s)?);
-                        }
-                        styled.clone().expect("set")
-                    }
-                };
-                let e = self.schedule.eps_from_x0(zb, x0.view(), t)?;
-                outs[k].index_axis_mut(Axis(0), b).assign(&e);
+            let restyled = redraw(&styled[b])?;
+            let t2 = std::time::Instant::now();
+            let eps = conds
+                .iter()
+                .map(|c| {
+                    let x0 = match c {
+                        Cond::Null | Cond::Content => &xh,
+                        Cond::Prompt => redrawn.as_ref().expect("redrawn above"),
+                        Cond::PromptStyle => restyled.as_ref().expect("redrawn above"),
+                    };
+                    schedule.eps_from_x0(zb, x0.view(), t)
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let secs = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64();
+            let done = [
+                secs(t0, t1),
+                secs(t1, t2),
+                secs(t2, std::time::Instant::now()),
+            ];
+            Ok((eps, done, calls))
+        };
+        let per_lane: Vec<Result<Vec<(usize, ViewOut)>>> = if lanes.is_empty() {
+            vec![(0..nb).map(|b| Ok((b, one(b, None)?))).collect()]
+        } else {
+            use rayon::prelude::*;
+            lanes
+                .par_iter_mut()
+                .enumerate()
+                .map(|(k, lane)| {
+                    let g = lane.get()?;
+                    (k..nb)
+                        .step_by(n_lanes)
+                        .map(|b| Ok((b, one(b, Some(&mut *g))?)))
+                        .collect()
+                })
+                .collect()
+        };
+        let mut outs: Vec<Array4<f32>> =
+            conds.iter().map(|_| Array4::zeros(z_t.raw_dim())).collect();
+        let (mut spent, mut transfers) = ([0.0f64; 3], 0u64);
+        for r in per_lane {
+            for (b, (eps, secs, calls)) in r? {
+                for (k, e) in eps.into_iter().enumerate() {
+                    outs[k].index_axis_mut(Axis(0), b).assign(&e);
+                }
+                spent.iter_mut().zip(secs).for_each(|(a, s)| *a += s);
+                transfers += calls as u64;
             }
         }
+        let d = std::time::Duration::from_secs_f64;
+        crate::timing::add("clean estimate [summed]", d(spent[0]), nb as u64);
+        crate::timing::add("transfer net [summed]", d(spent[1]), transfers);
+        crate::timing::add("eps [summed]", d(spent[2]), nb as u64);
+        drop(ph);
         Ok(outs)
     }
 }

@@ -213,7 +213,9 @@ pub fn run(a: Args) -> Result<()> {
     // Inputs, all checked before the prior is loaded.
     let (scene, start, state, history, resumed_from) = match (&a.scene, &a.resume) {
         (_, Some(dir)) => {
-            let c = crate::timing::load(|| read_checkpoint(dir))?;
+            let c = crate::timing::load(|| {
+                crate::timing::phase("checkpoint read", || read_checkpoint(dir))
+            })?;
             (
                 c.scene,
                 c.iteration,
@@ -312,6 +314,7 @@ pub fn run(a: Args) -> Result<()> {
             None => model_set,
         };
         super::with_threads(a.threads.n, || -> Result<_> {
+            let ph = crate::timing::span("setup");
             let mut d = Distiller::new(
                 &scene,
                 &cameras,
@@ -327,6 +330,7 @@ pub fn run(a: Args) -> Result<()> {
             if a.texture_weight > 0.0 {
                 d = d.with_texture(texture_term(&a)?);
             }
+            drop(ph);
             tracing::info!(
                 "distill: iterations {start}..{} on {n} views ({}x{}), {} per iteration, path {}",
                 start + a.iters,
@@ -345,7 +349,7 @@ pub fn run(a: Args) -> Result<()> {
             let mut reports = Vec::with_capacity(a.iters as usize);
             for k in 0..a.iters {
                 let started = std::time::Instant::now();
-                let r = d.iterate()?;
+                let r = crate::timing::phase("iteration", || d.iterate())?;
                 let left = a.iters - 1 - k;
                 if k < 2 && left > 0 {
                     // The estimate, calibrated: the first iteration timed here, and again
@@ -407,6 +411,7 @@ pub fn run(a: Args) -> Result<()> {
         }),
     );
     crate::distill::guard::checkpoint(&out_scene, &out_state)?;
+    let ph = crate::timing::span("checkpoint write");
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
     match (&resumed_from, &a.scene) {
         (Some(dir), _) => out.add_input("resume", dir)?,
@@ -456,6 +461,7 @@ pub fn run(a: Args) -> Result<()> {
         "last": last.as_ref().map(|l| &l.report),
     }));
     crate::timing::io(|| out.commit())?;
+    drop(ph);
     tracing::info!("wrote {} (iteration {iteration})", a.out.display());
     Ok(())
 }

@@ -104,6 +104,7 @@ pub fn run(a: Args) -> Result<Metrics> {
         stylized: &a.stylized,
         style: &a.style,
     };
+    let ph = crate::timing::span("report");
     let sweep_html = sweep.as_ref().map(Sweep::html);
     let html = evaluation_report(
         paths,
@@ -114,6 +115,7 @@ pub fn run(a: Args) -> Result<Metrics> {
         sweep_html.as_deref(),
         viewer.as_deref(),
     );
+    drop(ph);
 
     wr.add_input("original", &a.original)?;
     wr.add_input("stylized", &a.stylized)?;

@@ -13,6 +13,6 @@ mod render;
 mod runtime;
 mod scene;
 mod snakemake_sample;
-mod texture;
 mod spz;
+mod texture;
 mod viewer;

@@ -673,3 +673,53 @@ fn stylizer_eps_is_the_x0_parameterisation() {
     let est: f32 = xh.iter().zip(x.iter()).map(|(a, b)| (a - b).powi(2)).sum();
     assert!(est < 0.2 * naive, "{est} vs {naive}");
 }
+
+/// `predict_eps` stylizes the views of a call side by side (one transfer session per
+/// worker, intra-op threads split between them): the same bits on pools of 1, 2 and 3
+/// threads, and the same as stylizing view after view with one session of the default
+/// thread count (eps from the clean estimate redrawn by `stylize`).
+#[test]
+fn lanes_give_the_same_bits_as_one_session() {
+    use fantasystyle::prior::Cond;
+    let style = style_image(64);
+    let Some(mut prior) = stylizer(&style) else {
+        return;
+    };
+    let sched = prior.schedule().clone();
+    let x = content_views(3, 48);
+    let eps = Array4::from_shape_vec(x.raw_dim(), Rng::new(9).normals_f32(x.len())).unwrap();
+    let t = 150;
+    let z = sched.add_noise(x.view(), eps.view(), t).unwrap();
+    let conds = [Cond::PromptStyle, Cond::Prompt];
+    let on = |threads: usize, prior: &mut StylizerPrior| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| prior.predict_eps(z.view(), t, &conds, Some(x.view())))
+            .unwrap()
+    };
+    let one = on(1, &mut prior);
+    assert_eq!(on(2, &mut prior), one);
+    assert_eq!(on(3, &mut prior), one);
+    // View after view on the prior's own session (2 intra-op threads).
+    let s_style = prior
+        .style_vector(style.index_axis(ndarray::Axis(0), 0))
+        .unwrap();
+    for b in 0..3 {
+        let zb = z.index_axis(ndarray::Axis(0), b);
+        let xh = prior.clean_estimate(zb, t).unwrap();
+        let s_own = prior
+            .style_vector(x.index_axis(ndarray::Axis(0), b))
+            .unwrap();
+        for (k, s) in [(0, &s_style), (1, &s_own)] {
+            let x0 = prior.stylize(xh.view(), s).unwrap();
+            let e = sched.eps_from_x0(zb, x0.view(), t).unwrap();
+            assert_eq!(
+                one[k].index_axis(ndarray::Axis(0), b),
+                e,
+                "view {b}, cond {k}"
+            );
+        }
+    }
+}
