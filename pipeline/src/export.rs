@@ -13,7 +13,9 @@
 //! * outputs: artifact (and other) directories as `directory()`, declared files as
 //!   files;
 //! * `params`: the substituted command and the values of every tracked params key,
-//!   so that Snakemake's `params` rerun trigger reruns what a changed value touches;
+//!   so that Snakemake's `params` rerun trigger reruns what a changed value touches
+//!   (each as a function returning the text: Snakemake reads braces in a params
+//!   string as wildcards);
 //! * `threads`: the command's `--threads N` (`0`, all cores: `workflow.cores`), else 1;
 //! * before the command, the staging leftovers of a killed stage (`.NAME.partial-*`,
 //!   `.NAME.old-*`, `.NAME.tmp-*`) are removed, as `pipeline run` does.

@@ -166,8 +166,35 @@ fn self_style_is_nearly_a_fixed_point() {
     );
 }
 
-/// Brightness settles where the style takes it (no monotone drift past the style's own
-/// luma), and no more than 2% of covered pixels become clipped.
+/// The mean luma of covered pixels in the stylizer's output T(view, s_style) on the
+/// source views (as the prior sees them: over a fill of their own colours).
+fn stylized_luma(src: &SourceViews, style: &Array4<f32>) -> f64 {
+    let dir = stylizer_dir().unwrap();
+    let mut p =
+        fantasystyle::prior::stylizer::StylizerPrior::open(&dir, Some(style.view()), 2).unwrap();
+    let s = p
+        .style_vector(style.index_axis(ndarray::Axis(0), 0))
+        .unwrap();
+    let (h, w) = (src.height, src.width);
+    let (mut l, mut n) = (0.0f64, 0usize);
+    for v in 0..src.rgb.len() {
+        let seen = fill::fill_background(&src.rgb[v], &src.alpha[v], [0.0; 3], h, w);
+        let img = ndarray::Array3::from_shape_fn((3, h, w), |(c, y, x)| seen[(y * w + x) * 3 + c]);
+        let t = p.stylize(img.view(), &s).unwrap();
+        for q in 0..h * w {
+            if src.alpha[v][q] > 0.5 {
+                let (y, x) = (q / w, q % w);
+                l += luma(&[t[[0, y, x]], t[[1, y, x]], t[[2, y, x]]]) as f64;
+                n += 1;
+            }
+        }
+    }
+    l / n.max(1) as f64
+}
+
+/// Brightness settles where the style takes it: within 0.05 of the luma of the 2D
+/// stylizer's own output on the same views, and no longer drifting; no more than 2% of
+/// covered pixels become clipped.
 #[test]
 fn no_brightness_drift_and_no_extra_clipping() {
     if stylizer_dir().is_none() {
@@ -202,10 +229,17 @@ fn no_brightness_drift_and_no_extra_clipping() {
         "luma: source {l0:.3}, style {ls:.3}, after 15/30/45 iterations {lumas:.3?}; clipped {clip0:.4} -> {:.4}",
         last.2
     );
-    let (lo, hi) = (l0.min(ls) - 0.05, l0.max(ls) + 0.05);
+    // Where the style takes the brightness, independently of the loop: the 2D
+    // stylizer's own output on the same views. The 3D fit settles near it (measured:
+    // 0.311 after 45 iterations against 0.334; multi-view consistency and MVFC's low
+    // band keep it from matching exactly), far from the source's 0.463.
+    let l2d = stylized_luma(&src, &style);
+    eprintln!("luma of the 2D stylizer's output on the source views: {l2d:.3}");
     assert!(
-        lumas.iter().all(|l| (lo..=hi).contains(l)),
-        "luma left [{lo}, {hi}]: {lumas:?}"
+        (lumas[2] - l2d).abs() < 0.05,
+        "luma after 45 iterations {} is not within 0.05 of the 2D stylization's {l2d} \
+         (source {l0}): {lumas:?}",
+        lumas[2]
     );
     assert!(
         (lumas[2] - lumas[1]).abs() < 0.03,
