@@ -14,7 +14,7 @@
 //! | `scene` with optimizer state (a checkpoint) | distill | [`read_checkpoint`] |
 //!
 //! Stage inputs that may be an artifact or a plain file: [`load_scene`] (a `.ply`, a
-//! `.splat` or a scene artifact) and [`load_cameras`] (an `orbit:` spec, a camera file or
+//! `.splat`, a `.spz` or a scene artifact) and [`load_cameras`] (an `orbit:` spec, a camera file or
 //! directory, or any artifact holding a `cameras.json`).
 
 use crate::camera::{self, Camera};
@@ -301,7 +301,7 @@ pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint> {
 }
 
 /// A stage's scene input: a scene artifact directory ([`read_scene`]), else a `.ply`, a
-/// `.splat` or a directory holding `scene.ply` ([`scene::read_scene_file`]).
+/// `.splat`, a `.spz` or a directory holding `scene.ply` ([`scene::read_scene_file`]).
 pub fn load_scene(path: &Path) -> Result<Scene> {
     if is_artifact(path) {
         read_scene(path)

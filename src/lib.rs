@@ -6,7 +6,7 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`scene`] | Gaussian scenes: INRIA `.ply`, `.splat` |
+//! | [`scene`] | Gaussian scenes: INRIA `.ply`, `.splat`, Niantic's `.spz` |
 //! | [`camera`] | cameras: INRIA `cameras.json`, COLMAP, nerfstudio, generated orbits around [`geometry::Bounds`] |
 //! | [`geometry`] | unit vectors, quaternions, look-at frames, bounds (on `glam`) |
 //! | [`imageio`] | the one image type ([`imageio::Image`], HWC RGB f32), its resizer, PNG/JPEG files |

@@ -69,7 +69,7 @@ pub fn run_main<A: clap::Parser, T>(run: fn(A) -> Result<T>) -> ExitCode {
 /// `--scene` and `--cameras`: the scene and the views of it a stage works on.
 #[derive(clap::Args, Debug, Clone)]
 pub struct SceneInput {
-    /// Scene: an INRIA .ply, a .splat, or a scene artifact directory (its scene.ply).
+    /// Scene: an INRIA .ply, a .splat, a .spz, or a scene artifact directory (its scene.ply).
     #[arg(long)]
     pub scene: PathBuf,
     /// Cameras: `orbit:N[,elev=DEG][,radius=R][,fov=DEG]` (around the scene's bounds), an

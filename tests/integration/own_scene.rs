@@ -129,6 +129,37 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
         out.contains("result  report   out/bob/runs/eval/report.html"),
         "{out}"
     );
+    // The stylized splat also as .spz, and the report's 3D viewer embeds it as written
+    // (or says how to install the viewer).
+    let spz = w.join("runs/final/scene.spz");
+    let s = fantasystyle::artifacts::load_scene(&spz).unwrap();
+    let ply = fantasystyle::artifacts::load_scene(&w.join("runs/final/scene.ply")).unwrap();
+    assert_eq!(s.len(), 10_000);
+    let cams = fantasystyle::camera::load_cameras("orbit:4", &ply.bounds(), 64, 64).unwrap();
+    let (mut worst, mut sum) = (0.0f32, 0.0f64);
+    let opts = fantasystyle::render::RenderOptions::default();
+    for c in &cams {
+        let a = fantasystyle::render::render(&ply, c, &opts).unwrap();
+        let b = fantasystyle::render::render(&s, c, &opts).unwrap();
+        for (x, y) in a.rgb.iter().zip(&b.rgb) {
+            let d = (x.clamp(0.0, 1.0) - y.clamp(0.0, 1.0)).abs();
+            worst = worst.max(d);
+            sum += d as f64;
+        }
+    }
+    let mean = sum / (4 * 64 * 64 * 3) as f64;
+    eprintln!("final scene.spz vs scene.ply renders: max {worst:.4}, mean {mean:.2e}");
+    use fantasystyle::scene::spz::{SPZ_RENDER_MAX, SPZ_RENDER_MEAN};
+    assert!(
+        worst < SPZ_RENDER_MAX && mean < SPZ_RENDER_MEAN,
+        "{worst} {mean}"
+    );
+    let html = std::fs::read_to_string(w.join("runs/eval/report.html")).unwrap();
+    assert!(html.contains("fs-viewer-0") || html.contains("fs-viewer-missing"));
+    assert!(
+        html.contains("runs/final/scene.spz"),
+        "the stylized pane's source"
+    );
     // Outputs only under the work directory: the temp dir holds art/, the captures and
     // out/ only; no value ran as a command (no `pwned` anywhere).
     let mut top: Vec<String> = std::fs::read_dir(t.path())
