@@ -246,7 +246,9 @@ pub fn load_session_with(path: &Path, cfg: &SessionConfig) -> Result<Session> {
     // of `distill`'s CPU samples were that spin loop (BENCHMARKS.md, "distill per phase").
     b = b
         .with_intra_op_spinning(false)
-        .and_then(|b| b.with_inter_op_spinning(false))
+        .map_err(|e| Error::Onnx(e.to_string()))?;
+    b = b
+        .with_inter_op_spinning(false)
         .map_err(|e| Error::Onnx(e.to_string()))?;
     b = with_device(b, cfg.device)?;
     b.commit_from_file(path)

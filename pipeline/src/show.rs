@@ -246,6 +246,7 @@ fn phase_tables(dag: &Dag, lock: &Lock, out: &mut String) {
             c.sort_by(|a, b| b.1.0.total_cmp(&a.1.0));
             c
         }
+        #[allow(clippy::type_complexity)]
         let mut stack: Vec<(&String, (f64, f64, Option<f64>), usize)> = children(&phases, None)
             .into_iter()
             .rev()
