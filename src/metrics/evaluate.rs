@@ -301,12 +301,9 @@ pub fn evaluate(
     let mut gram_per_view = Vec::with_capacity(n);
     let mut gram_orig = Vec::with_capacity(n);
     for i in 0..n {
-        let f = crate::timing::phase("vgg", || {
-            vgg.features(&[&styl.images[i], &orig.images[i]])
-        })?;
-        let (a, b) = crate::timing::phase("gram matrices", || {
-            (gram::grams(&f[0]), gram::grams(&f[1]))
-        });
+        let f = crate::timing::phase("vgg", || vgg.features(&[&styl.images[i], &orig.images[i]]))?;
+        let (a, b) =
+            crate::timing::phase("gram matrices", || (gram::grams(&f[0]), gram::grams(&f[1])));
         gram_per_view.push(gram::gram_distance(&a, &gs));
         gram_orig.push(gram::gram_distance(&b, &gs));
     }
