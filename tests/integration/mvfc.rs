@@ -755,7 +755,11 @@ fn lanes_give_the_same_bits_as_one_session() {
         for (k, s) in [(0, &s_style), (1, &s_own)] {
             let x0 = prior.stylize(xh.view(), s).unwrap();
             let e = sched.eps_from_x0(zb, x0.view(), t).unwrap();
-            assert_eq!(one[k].index_axis(ndarray::Axis(0), b), e, "view {b}, cond {k}");
+            assert_eq!(
+                one[k].index_axis(ndarray::Axis(0), b),
+                e,
+                "view {b}, cond {k}"
+            );
         }
     }
 }
