@@ -274,6 +274,17 @@ pub fn evaluate(
 
     // LPIPS content.
     let mut lp = crate::timing::load(|| LpipsModel::load(models, p.lpips_net, p.threads))?;
+    // The other networks load on a second thread while LPIPS and consistency run
+    // (creating a session is mostly one thread's work; the wait for it counts as load).
+    let loading = {
+        let (models, net, threads) = (models.to_path_buf(), p.lpips_net, p.threads);
+        std::thread::spawn(move || -> Result<(Option<LpipsModel>, Inception)> {
+            let vgg = (net != LpipsNet::Vgg16)
+                .then(|| LpipsModel::load(&models, LpipsNet::Vgg16, threads))
+                .transpose()?;
+            Ok((vgg, Inception::load(&models, threads)?))
+        })
+    };
     let ph = crate::timing::span("lpips content");
     let oi: Vec<&Image> = orig.images.iter().collect();
     let si: Vec<&Image> = styl.images.iter().collect();
@@ -292,12 +303,10 @@ pub fn evaluate(
 
     drop(ph);
     // Gram distance to the style image (VGG16).
+    let (vgg_own, mut inc) = crate::timing::load(|| loading.join())
+        .map_err(|_| Error::Other("loading the metric networks panicked".into()))??;
     let ph = crate::timing::span("gram");
-    let mut vgg = if p.lpips_net == LpipsNet::Vgg16 {
-        lp
-    } else {
-        crate::timing::load(|| LpipsModel::load(models, LpipsNet::Vgg16, p.threads))?
-    };
+    let mut vgg = vgg_own.unwrap_or(lp);
     let style_small = style.fit_within(GRAM_MAX_SIDE);
     let f = crate::timing::phase("vgg", || vgg.features(&[&style_small]))?;
     let gs = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
@@ -321,7 +330,6 @@ pub fn evaluate(
     let ph = crate::timing::span("inception");
     let k = n.max(fid::MIN_IMAGES);
     let crops = style_crops(style, k, w, h, p.seed);
-    let mut inc = crate::timing::load(|| Inception::load(models, p.threads))?;
     let fs = inc.pool3(&si)?;
     let fo = inc.pool3(&oi)?;
     let fc = inc.pool3(&crops.iter().collect::<Vec<_>>())?;

@@ -69,25 +69,25 @@ fn run_batched(
         let out = session
             .run(ort::inputs!["image" => t])
             .map_err(onnx_err(path))?;
-        let mut tensors = Vec::new();
+        // Each image's part copied once, straight out of onnxruntime's output.
+        let first = per_image.len();
+        per_image.extend((0..chunk.len()).map(|_| Vec::with_capacity(outputs.len())));
         for name in outputs {
             let v = out
                 .get(*name)
                 .ok_or_else(|| Error::input(path, format!("graph has no output `{name}`")))?;
             let (s, d) = v.try_extract_tensor::<f32>().map_err(onnx_err(path))?;
             let s: Vec<usize> = s.iter().map(|&x| x as usize).collect();
-            tensors.push((s, d.to_vec()));
-        }
-        for b in 0..chunk.len() {
-            per_image.push(
-                tensors
-                    .iter()
-                    .map(|(s, d)| {
-                        let per = d.len() / s[0];
-                        (s[1..].to_vec(), d[b * per..(b + 1) * per].to_vec())
-                    })
-                    .collect(),
-            );
+            if s.first() != Some(&chunk.len()) {
+                return Err(Error::input(
+                    path,
+                    format!("output `{name}` has shape {s:?} for {} images", chunk.len()),
+                ));
+            }
+            let per = d.len() / chunk.len();
+            for (b, img) in per_image[first..].iter_mut().enumerate() {
+                img.push((s[1..].to_vec(), d[b * per..(b + 1) * per].to_vec()));
+            }
         }
     }
     Ok(per_image)

@@ -245,7 +245,10 @@ impl StylizerPrior {
     /// The style vector of control image `img` `[3, H, W]`, cached by content.
     fn own_style(&mut self, img: ArrayView3<'_, f32>) -> Result<Vec<f32>> {
         // One buffer hashed at once (4-byte updates cost more than the lookup saves).
-        let bytes: Vec<u8> = img.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let mut bytes = Vec::with_capacity(4 * img.len());
+        for v in img.iter() {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
         let key = *blake3::hash(&bytes).as_bytes();
         if let Some(s) = self.own_styles.get(&key) {
             return Ok(s.clone());

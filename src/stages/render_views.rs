@@ -8,9 +8,9 @@
 
 use super::{Background, SceneInput, Threads};
 use crate::camera::inria;
-use crate::render::{RenderOptions, RenderOutput, render};
+use crate::render::{RenderOptions, render};
 use crate::{Camera, Error, Result, Scene};
-use fantasystyle_schemas::{ArtifactKind, Producer};
+use fantasystyle_schemas::{ArtifactKind, Producer, TensorStream};
 use std::path::PathBuf;
 
 /// Render a splat scene from a set of cameras into a views artifact (rgb, depth and
@@ -35,25 +35,52 @@ pub struct Args {
     pub threads: Threads,
 }
 
-/// Render every camera, with a progress bar.
-pub fn render_all(
+/// Render every camera into `w` as it goes: views are rendered a window at a time on
+/// all cores ([`crate::parallel::ordered`]) and each is appended to the streams of
+/// `rgb.npy`, `depth.npy` and `alpha.npy` (and its PNG preview written) in view order
+/// while the next window renders, so at most two windows of views are held (not all of
+/// them) and the bytes are the same for any thread count. A progress bar counts views.
+fn write_views(
+    w: &mut fantasystyle_schemas::ArtifactWriter,
+    [rgb, depth, alpha]: [&mut TensorStream<f32>; 3],
     scene: &Scene,
     cams: &[Camera],
     opts: &RenderOptions,
-) -> Result<Vec<RenderOutput>> {
+) -> Result<()> {
     let bar = indicatif::ProgressBar::new(cams.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} views {elapsed}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     bar.set_message("render-views");
-    let mut out = Vec::with_capacity(cams.len());
-    for c in cams {
-        out.push(render(scene, c, opts)?);
-        bar.inc(1);
-    }
+    let window = crate::parallel::window_for(rayon::current_num_threads());
+    crate::parallel::ordered(
+        cams.len(),
+        window,
+        |i| {
+            let mut v = render(scene, &cams[i], opts)?;
+            let (wd, h) = (cams[i].width as usize, cams[i].height as usize);
+            if v.width != wd || v.height != h {
+                return Err(Error::Other(format!(
+                    "renderer returned {}x{} for a {wd}x{h} camera",
+                    v.width, v.height
+                )));
+            }
+            let png = crate::imageio::encode_png_rgb(&v.rgb, wd, h)?;
+            v.rgb.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
+            Ok((v, png))
+        },
+        |i, (v, png)| {
+            rgb.append(&v.rgb)?;
+            depth.append(&v.depth)?;
+            alpha.append(&v.alpha)?;
+            w.write_bytes(&format!("view_{i:03}.png"), &png)?;
+            bar.inc(1);
+            Ok(())
+        },
+    )?;
     bar.finish_and_clear();
-    Ok(out)
+    Ok(())
 }
 
 /// The stage: load, render, write the artifact.
@@ -83,30 +110,18 @@ pub fn run(a: Args) -> Result<()> {
     let opts = RenderOptions {
         background: a.background.rgb,
     };
-    let views = a.threads.install(|| render_all(&scene, &cams, &opts))??;
-    let (n, h, wd) = (views.len(), a.height as usize, a.width as usize);
-    let mut rgb = Vec::with_capacity(n * h * wd * 3);
-    let mut depth = Vec::with_capacity(n * h * wd);
-    let mut alpha = Vec::with_capacity(n * h * wd);
-    for v in &views {
-        if v.width != wd || v.height != h {
-            return Err(Error::Other(format!(
-                "renderer returned {}x{} for a {wd}x{h} camera",
-                v.width, v.height
-            )));
-        }
-        rgb.extend(v.rgb.iter().map(|x| x.clamp(0.0, 1.0)));
-        depth.extend_from_slice(&v.depth);
-        alpha.extend_from_slice(&v.alpha);
-    }
-    w.write_tensor("rgb.npy", &[n, h, wd, 3], &rgb)?;
-    w.write_tensor("depth.npy", &[n, h, wd], &depth)?;
-    w.write_tensor("alpha.npy", &[n, h, wd], &alpha)?;
+    let (n, h, wd) = (cams.len(), a.height as usize, a.width as usize);
+    // The tensors, then cameras.json, then the previews (the manifest's file order).
+    let mut rgb = w.stream_tensor::<f32>("rgb.npy", &[n, h, wd, 3])?;
+    let mut depth = w.stream_tensor::<f32>("depth.npy", &[n, h, wd])?;
+    let mut alpha = w.stream_tensor::<f32>("alpha.npy", &[n, h, wd])?;
     w.write_json("cameras.json", &inria::to_inria(&cams))?;
-    for (i, v) in views.iter().enumerate() {
-        let png = crate::imageio::encode_png_rgb(&v.rgb, wd, h)?;
-        w.write_bytes(&format!("view_{i:03}.png"), &png)?;
-    }
+    let streams = [&mut rgb, &mut depth, &mut alpha];
+    a.threads
+        .install(|| write_views(&mut w, streams, &scene, &cams, &opts))??;
+    w.finish_stream(rgb)?;
+    w.finish_stream(depth)?;
+    w.finish_stream(alpha)?;
     w.set_meta(serde_json::json!({
         "views": n, "width": wd, "height": h, "background": a.background.rgb,
         "camera_names": cams.iter().map(|c| c.name.clone()).collect::<Vec<_>>(),

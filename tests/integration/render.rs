@@ -367,3 +367,73 @@ fn update_gaussians_default_rate_converges_in_a_hundred_steps() {
         "default {fast:.1} dB vs 0.0025 {slow:.1} dB"
     );
 }
+
+/// `render-views` streams each view into its artifact as it is rendered: the artifact
+/// (every file, hence the manifest) is the same for 1 and 3 threads, and its tensors
+/// are the library's renders of each camera (rgb clamped to [0, 1]).
+#[test]
+fn render_views_streams_the_same_bytes_for_any_thread_count() {
+    let d = tempfile::tempdir().unwrap();
+    let scene_path = repo_root().join("data-sample/scene.ply");
+    let out = |threads: &str| {
+        let o = d.path().join(format!("v{threads}"));
+        let (code, err) = run_stage(
+            RENDER,
+            &[
+                "--scene",
+                scene_path.to_str().unwrap(),
+                "--cameras",
+                "orbit:5",
+                "--width",
+                "40",
+                "--height",
+                "24",
+                "--threads",
+                threads,
+                "--out",
+                o.to_str().unwrap(),
+            ],
+        );
+        assert_eq!(code, 0, "{err}");
+        o
+    };
+    let (a, b) = (out("1"), out("3"));
+    let manifest = std::fs::read_to_string(a.join("manifest.json")).unwrap();
+    assert_eq!(
+        manifest,
+        std::fs::read_to_string(b.join("manifest.json")).unwrap()
+    );
+    for f in [
+        "rgb.npy",
+        "depth.npy",
+        "alpha.npy",
+        "cameras.json",
+        "view_004.png",
+    ] {
+        assert_eq!(
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    let scene = sample_scene();
+    let cams = fantasystyle::camera::load_cameras("orbit:5", &scene.bounds(), 40, 24).unwrap();
+    let rgb = read_npy_f32(&a.join("rgb.npy")).unwrap();
+    let alpha = read_npy_f32(&a.join("alpha.npy")).unwrap();
+    assert_eq!(rgb.shape, [5, 24, 40, 3]);
+    let per = 24 * 40;
+    for (i, c) in cams.iter().enumerate() {
+        let r = render(&scene, c, &RenderOptions::default()).unwrap();
+        let want: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        assert_eq!(
+            &rgb.data[i * per * 3..(i + 1) * per * 3],
+            &want[..],
+            "view {i}"
+        );
+        assert_eq!(
+            &alpha.data[i * per..(i + 1) * per],
+            &r.alpha[..],
+            "view {i}"
+        );
+    }
+}
