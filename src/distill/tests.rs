@@ -33,7 +33,7 @@ fn l2_colour_gradient_matches_finite_differences() {
     // Colours around mid-grey, away from the clamp at 0.
     for c in &mut scene.sh_dc {
         for v in c.iter_mut() {
-            *v = 0.3 * *v;
+            *v *= 0.3;
         }
     }
     let cams = [front_camera(40, 32, 40.0, 3.0)];
