@@ -11,7 +11,11 @@
 //! changed), `loss.json` (`method`, and per step the objective, its style and content
 //! terms, and every `--monitor-every` steps the Gram distance to the style, mean over
 //! views: relu1_2..relu4_3, scale 1), for `refit` also `target_000.png`.. (the stylized
-//! views it fitted). Style image handling: grayscale expanded to RGB, alpha dropped,
+//! views it fitted) and `hf_agree_adjacent` in `loss.json`: how much of the per-view 2D
+//! stylizations' high-frequency change agrees between path neighbours after depth
+//! reprojection ([`crate::distill::agreement::adjacent_agreement_of_views`]), the ceiling
+//! of the distillation's per-iteration measure (and `hf_agree_adjacent_original`, the same
+//! measure on the original renders' own high pass: what the warp allows). Style image handling: grayscale expanded to RGB, alpha dropped,
 //! shorter side at least 92 px (relu4_3's receptive field), resized to `--style-size`.
 
 use super::{Background, SceneInput, Threads};
@@ -102,6 +106,14 @@ pub struct LossLog {
     /// `refit` only: the Gram distance of the stylized target views (mean over views).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub targets_gram_distance: Option<f64>,
+    /// `refit` only: agreement of the stylizations' high-pass change between neighbouring
+    /// views after depth reprojection (module docs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hf_agree_adjacent: Option<f64>,
+    /// `refit` only: the same measure on the original renders' own high pass (the scene's
+    /// texture, consistent by construction): how much agreement the warp allows.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hf_agree_adjacent_original: Option<f64>,
     pub steps: Vec<crate::baselines::fit::StepLog>,
 }
 
@@ -205,17 +217,18 @@ fn optimise(
     let ropts = crate::render::RenderOptions {
         background: a.background.rgb,
     };
-    let originals = cams
+    let renders = cams
         .iter()
-        .map(|c| {
-            let r = crate::render::render(&scene, c, &ropts)?;
-            Ok(Image {
-                width: r.width,
-                height: r.height,
-                data: r.rgb,
-            })
-        })
+        .map(|c| crate::render::render(&scene, c, &ropts))
         .collect::<Result<Vec<_>>>()?;
+    let originals: Vec<Image> = renders
+        .iter()
+        .map(|r| Image {
+            width: r.width,
+            height: r.height,
+            data: r.rgb.clone(),
+        })
+        .collect();
     crate::baselines::check_views(&originals)?;
     let gram_cfg = GramConfig::default();
     let monitor_targets = GramTargets::new(vgg, style, &gram_cfg.layers, &[1])?;
@@ -228,6 +241,7 @@ fn optimise(
     };
     let mut targets = Vec::new();
     let mut targets_gram = None;
+    let (mut hf_agree, mut hf_agree_orig) = (None, None);
     let obj: Option<Box<dyn Objective + '_>> = match a.method {
         Method::Gram => Some(Box::new(GramObjective::new(
             vgg,
@@ -260,6 +274,24 @@ fn optimise(
             let d = monitor(&targets)?;
             tracing::info!("refit targets: Gram distance to the style {d:.4}");
             targets_gram = Some(d);
+            let changes: Vec<_> = targets
+                .iter()
+                .zip(&originals)
+                .map(|(t, o)| t.to_chw() - o.to_chw())
+                .collect();
+            let alpha: Vec<Vec<f32>> = renders.iter().map(|r| r.alpha.clone()).collect();
+            let depth: Vec<Vec<f32>> = renders.iter().map(|r| r.depth.clone()).collect();
+            let closed = crate::distill::path::ViewPath::of(cams).closed;
+            use crate::distill::agreement::adjacent_agreement_of_views as agree;
+            hf_agree = agree(cams, &changes, &alpha, &depth, closed);
+            let own: Vec<_> = originals.iter().map(Image::to_chw).collect();
+            hf_agree_orig = agree(cams, &own, &alpha, &depth, closed);
+            tracing::info!(
+                "refit targets: high-frequency change agreement between neighbouring views {} \
+                 (the original renders' own high pass: {})",
+                crate::metrics::report::fmt_opt(hf_agree, 3),
+                crate::metrics::report::fmt_opt(hf_agree_orig, 3)
+            );
             None
         }
     };
@@ -299,6 +331,8 @@ fn optimise(
         LossLog {
             method: a.method,
             targets_gram_distance: targets_gram,
+            hf_agree_adjacent: hf_agree,
+            hf_agree_adjacent_original: hf_agree_orig,
             steps,
         },
         targets,
