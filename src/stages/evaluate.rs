@@ -52,6 +52,14 @@ pub struct Args {
     /// A sweep.json (from the `sweep` stage) to include as the speed-accuracy section.
     #[arg(long)]
     pub sweep: Option<PathBuf>,
+    /// A distill checkpoint whose history.json's agreement of the prior's high-frequency
+    /// change (across visits, between neighbouring views) the report draws per iteration.
+    #[arg(long)]
+    pub history: Option<PathBuf>,
+    /// A `stylize-baseline --method refit` artifact: its per-view stylizations' agreement
+    /// between neighbouring views is drawn as the ceiling (needs --history).
+    #[arg(long, requires = "history")]
+    pub refit_baseline: Option<PathBuf>,
 }
 
 /// The stage: read the views and the style, evaluate, write the artifact.
@@ -69,6 +77,27 @@ pub fn run(a: Args) -> Result<Metrics> {
     orig.check_same_views(&styl)?;
     let style = Image::load(&a.style)?;
     let sweep = a.sweep.as_deref().map(Sweep::load).transpose()?;
+    let history = a
+        .history
+        .as_deref()
+        .map(crate::artifacts::read_history)
+        .transpose()?;
+    let ceiling = match &a.refit_baseline {
+        Some(dir) => {
+            let log = crate::artifacts::read_baseline_log(dir)?;
+            match log["hf_agree_adjacent"].as_f64() {
+                Some(c) => Some((c, log["hf_agree_adjacent_original"].as_f64())),
+                None => {
+                    return Err(Error::input(
+                        dir.join("loss.json"),
+                        "no hf_agree_adjacent: not a refit baseline (stylize-baseline \
+                         --method refit) of this version",
+                    ));
+                }
+            }
+        }
+        None => None,
+    };
     let models = crate::models::models_dir()?;
     if !models.join("metrics").is_dir() {
         return Err(Error::Missing(format!(
@@ -94,11 +123,28 @@ pub fn run(a: Args) -> Result<Metrics> {
         style: &a.style,
     };
     let sweep_html = sweep.as_ref().map(Sweep::html);
-    let html = evaluation_report(paths, &ev, &orig, &styl, &style, sweep_html.as_deref());
+    let agreement_html = history
+        .as_deref()
+        .map(|h| crate::metrics::report::agreement_html(h, ceiling, 20));
+    let html = evaluation_report(
+        paths,
+        &ev,
+        &orig,
+        &styl,
+        &style,
+        sweep_html.as_deref(),
+        agreement_html.as_deref(),
+    );
 
     wr.add_input("original", &a.original)?;
     wr.add_input("stylized", &a.stylized)?;
     wr.add_input("style", &a.style)?;
+    if let Some(h) = &a.history {
+        wr.add_input("history", h)?;
+    }
+    if let Some(r) = &a.refit_baseline {
+        wr.add_input("refit-baseline", r)?;
+    }
     wr.write_json("metrics.json", &ev.metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;
     crate::timing::io(|| wr.commit())?;

@@ -92,6 +92,8 @@ fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         seed: 0,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
+        history: None,
+        refit_baseline: None,
     }
 }
 
