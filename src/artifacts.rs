@@ -235,6 +235,9 @@ pub struct Checkpoint {
     pub state: crate::optim::OptimizerState,
     /// Per-iteration reports of every iteration so far (`history.json`).
     pub history: Vec<serde_json::Value>,
+    /// Each view's previous high-pass change, shape and values (`hf_prev.npy`, from
+    /// [`crate::distill::agreement`]; absent before the first iteration).
+    pub hf_prev: Option<(Vec<usize>, Vec<f32>)>,
 }
 
 /// Files of a checkpoint beside `scene.ply`.
@@ -242,6 +245,7 @@ pub const CHECKPOINT_STATE: &str = "state.json";
 pub const CHECKPOINT_ADAM_DC: &str = "adam_dc.npy";
 pub const CHECKPOINT_ADAM_REST: &str = "adam_rest.npy";
 pub const CHECKPOINT_HISTORY: &str = "history.json";
+pub const CHECKPOINT_HF_PREV: &str = "hf_prev.npy";
 
 /// Read a checkpoint written by `distill` (a scene artifact with `state.json`,
 /// `adam_dc.npy` `[2, 3 G]` and `adam_rest.npy` `[2, 3 G K]` holding Adam's first and
@@ -291,13 +295,45 @@ pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint> {
     } else {
         Vec::new()
     };
+    let hf_prev = if art.path(CHECKPOINT_HF_PREV).is_file() {
+        let a = art.read_f32(CHECKPOINT_HF_PREV)?;
+        Some((a.shape, a.data))
+    } else {
+        None
+    };
     Ok(Checkpoint {
         art,
         scene,
         iteration: st.iteration,
         state,
         history,
+        hf_prev,
     })
+}
+
+/// The per-iteration reports (`history.json`) of a distill checkpoint, without reading
+/// its scene or optimizer state.
+pub fn read_history(dir: &Path) -> Result<Vec<serde_json::Value>> {
+    let art = Artifact::open(dir, ArtifactKind::Scene)?;
+    if !art.path(CHECKPOINT_HISTORY).is_file() {
+        return Err(Error::input(
+            dir,
+            "scene artifact holds no history.json: not a distill checkpoint",
+        ));
+    }
+    Ok(art.read_json(CHECKPOINT_HISTORY)?)
+}
+
+/// The `loss.json` of a `stylize-baseline` artifact (a scene artifact).
+pub fn read_baseline_log(dir: &Path) -> Result<serde_json::Value> {
+    let art = Artifact::open(dir, ArtifactKind::Scene)?;
+    if !art.path("loss.json").is_file() {
+        return Err(Error::input(
+            dir,
+            "scene artifact holds no loss.json: not written by stylize-baseline",
+        ));
+    }
+    Ok(art.read_json("loss.json")?)
 }
 
 /// A stage's scene input: a scene artifact directory ([`read_scene`]), else a `.ply`, a

@@ -42,6 +42,7 @@
 //! interpolation of style vectors), except strength 0, which the stage short-circuits to
 //! "unchanged". Whether f_rest (view-dependent colour) may change is `fit_rest`.
 
+pub mod agreement;
 pub mod fill;
 pub mod guard;
 pub mod path;
@@ -183,6 +184,12 @@ pub struct IterReport {
     pub delta_rms: f64,
     /// Fraction of covered target pixels clipped (<= 0.02 or >= 0.98 in every channel).
     pub clipped: f64,
+    /// Cosine of the high-pass change with the same views' previous visit ([`agreement`];
+    /// None when no view of the window was visited before).
+    pub hf_agree_revisit: Option<f64>,
+    /// Cosine of the high-pass change between the window's neighbouring views after depth
+    /// reprojection ([`agreement`]; None for a one-view window or no overlap).
+    pub hf_agree_adjacent: Option<f64>,
 }
 
 /// The last iteration's tensors, written into checkpoints for inspection.
@@ -218,6 +225,8 @@ pub struct Distiller<'a> {
     last: Option<LastIteration>,
     /// The low-layer texture term added to the colour step ([`texture`]), if any.
     texture: Option<texture::TextureTerm>,
+    /// Each view's previous high-pass change (measurement only, [`agreement`]).
+    agreement: agreement::Tracker,
 }
 
 fn to_chw(img: &[f32], h: usize, w: usize) -> Array3<f32> {
@@ -315,6 +324,7 @@ impl<'a> Distiller<'a> {
             iteration,
             last: None,
             texture: None,
+            agreement: agreement::Tracker::new(cameras, h, w),
         })
     }
 
@@ -360,6 +370,24 @@ impl<'a> Distiller<'a> {
 
     pub fn set_optimizer_state(&mut self, s: OptimizerState) -> Result<()> {
         self.fit.set_optimizer_state(s)
+    }
+
+    /// The previous visits' high-pass changes `[V, 3, H, W]` (checkpointed, so a resumed
+    /// run measures the same agreements as an uninterrupted one).
+    pub fn agreement_state(&self) -> &Array4<f32> {
+        self.agreement.state()
+    }
+
+    /// Restore [`Self::agreement_state`] from a checkpoint.
+    pub fn set_agreement_state(&mut self, shape: &[usize], data: Vec<f32>) -> Result<()> {
+        if self.agreement.set_state(shape, data) {
+            Ok(())
+        } else {
+            Err(Error::param(format!(
+                "agreement state of shape {shape:?}, expected {:?}",
+                self.agreement.state().shape()
+            )))
+        }
     }
 
     /// The last iteration's tensors (None before the first iteration of this process).
@@ -485,6 +513,10 @@ impl<'a> Distiller<'a> {
         let ph = crate::timing::span("decode");
         let delta = csd::image_change(self.prior, z1.view(), z0.view(), h, w)?;
         drop(ph);
+        let ph = crate::timing::span("agreement");
+        let (a, s) = (&self.source.alpha, &self.source.depth);
+        let agree = self.agreement.measure(&views, circular, delta.view(), a, s);
+        drop(ph);
 
         let ph = crate::timing::span("targets");
         // Targets: the object's colour moves by Delta, recomposited with alpha.
@@ -581,6 +613,8 @@ impl<'a> Distiller<'a> {
             texture_loss: tex_loss,
             delta_rms: (d2 / (3 * covered.max(1)) as f64).sqrt(),
             clipped: clipped as f64 / covered.max(1) as f64,
+            hf_agree_revisit: agree.revisit,
+            hf_agree_adjacent: agree.adjacent,
         };
         self.last = Some(LastIteration {
             report: report.clone(),

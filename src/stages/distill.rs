@@ -12,15 +12,18 @@
 //! A checkpoint is a `scene` artifact (anything that reads a scene reads it) holding
 //! `scene.ply` (and `scene.splat`, `scene.spz` with `--format ply,splat,spz`), the optimizer state
 //! (`adam_dc.npy`, `adam_rest.npy`: Adam's moments; `state.json`: iteration and step
-//! counts), `history.json` (every iteration's timestep, views, loss, clipped fraction) and
+//! counts), `history.json` (every iteration's timestep, views, loss, clipped fraction, and
+//! the agreement of the prior's high-frequency change across visits and neighbouring
+//! views, [`crate::distill::agreement`]), `hf_prev.npy` `[V, 3, H, W]` (each view's last
+//! high-pass change, which the next chunk's revisit agreement compares with) and
 //! the last iteration's tensors for `pipeline inspect`: `last_z0.npy`, `last_z_tgt.npy`,
 //! `last_z_src.npy` `[N, C, h, w]` and `last_targets.npy` `[N, H, W, 3]`. Every draw
 //! depends only on (seed, iteration), so chunks of any size, and a resume after a kill,
 //! give the same bytes as one uninterrupted run.
 
 use crate::artifacts::{
-    CHECKPOINT_ADAM_DC, CHECKPOINT_ADAM_REST, CHECKPOINT_HISTORY, CHECKPOINT_STATE, load_scene,
-    read_checkpoint, read_views,
+    CHECKPOINT_ADAM_DC, CHECKPOINT_ADAM_REST, CHECKPOINT_HF_PREV, CHECKPOINT_HISTORY,
+    CHECKPOINT_STATE, load_scene, read_checkpoint, read_views,
 };
 use crate::csd::{self, CsdParams};
 use crate::distill::{DistillParams, Distiller, SourceViews};
@@ -211,7 +214,7 @@ pub fn run(a: Args) -> Result<()> {
         return Err(Error::param("--views-per-iter must be at least 1"));
     }
     // Inputs, all checked before the prior is loaded.
-    let (scene, start, state, history, resumed_from) = match (&a.scene, &a.resume) {
+    let (scene, start, state, history, resumed_from, hf_prev) = match (&a.scene, &a.resume) {
         (_, Some(dir)) => {
             let c = crate::timing::load(|| {
                 crate::timing::phase("checkpoint read", || read_checkpoint(dir))
@@ -222,6 +225,7 @@ pub fn run(a: Args) -> Result<()> {
                 Some(c.state),
                 c.history,
                 Some(dir.clone()),
+                c.hf_prev,
             )
         }
         (Some(p), None) => (
@@ -229,6 +233,7 @@ pub fn run(a: Args) -> Result<()> {
             0,
             None,
             Vec::new(),
+            None,
             None,
         ),
         (None, None) => return Err(Error::param("give --scene or --resume")),
@@ -240,6 +245,14 @@ pub fn run(a: Args) -> Result<()> {
         return Err(Error::input(
             views.art.path("cameras.json"),
             format!("{} cameras for {n} views", cameras.len()),
+        ));
+    }
+    if let (Some((shape, _)), Some(dir)) = (&hf_prev, &resumed_from)
+        && shape[..] != [n, 3, h, w]
+    {
+        return Err(Error::input(
+            dir.join(CHECKPOINT_HF_PREV),
+            format!("shape {shape:?}, but the source views need [{n}, 3, {h}, {w}]"),
         ));
     }
     let style = load_style(&a.style, MIN_STYLE_SIDE)?;
@@ -258,7 +271,7 @@ pub fn run(a: Args) -> Result<()> {
     let p = params(&a);
 
     let mut run_iters = a.iters;
-    let (out_scene, out_state, reports, last) = if a.strength == 0.0 || a.iters == 0 {
+    let (out_scene, out_state, reports, last, hf_out) = if a.strength == 0.0 || a.iters == 0 {
         // Strength 0 is "unchanged" exactly; 0 iterations only re-packages the input.
         if a.strength == 0.0 && a.iters > 0 {
             tracing::info!("strength 0: the scene is left unchanged");
@@ -266,7 +279,7 @@ pub fn run(a: Args) -> Result<()> {
         run_iters = if a.strength == 0.0 { a.iters } else { 0 };
         let k = scene.rest_per_channel();
         let st = state.clone().unwrap_or_else(|| fresh_state(&scene, k));
-        (scene.clone(), st, Vec::new(), None)
+        (scene.clone(), st, Vec::new(), None, hf_prev)
     } else {
         let mut prior = crate::timing::load(|| {
             prior::open(
@@ -327,6 +340,9 @@ pub fn run(a: Args) -> Result<()> {
             if let Some(s) = state.clone() {
                 d.set_optimizer_state(s)?;
             }
+            if let Some((shape, data)) = hf_prev.clone() {
+                d.set_agreement_state(&shape, data)?;
+            }
             if a.texture_weight > 0.0 {
                 d = d.with_texture(texture_term(&a)?);
             }
@@ -377,11 +393,17 @@ pub fn run(a: Args) -> Result<()> {
                 reports.push(r);
             }
             bar.finish_and_clear();
+            let hf = d.agreement_state();
+            let hf = (
+                hf.shape().to_vec(),
+                hf.iter().copied().collect::<Vec<f32>>(),
+            );
             Ok((
                 d.scene().clone(),
                 d.optimizer_state(),
                 reports,
                 d.last().cloned(),
+                Some(hf),
             ))
         })??
     };
@@ -445,6 +467,9 @@ pub fn run(a: Args) -> Result<()> {
         hist.push(serde_json::to_value(r).map_err(|e| Error::Other(e.to_string()))?);
     }
     out.write_json(CHECKPOINT_HISTORY, &hist)?;
+    if let Some((shape, data)) = &hf_out {
+        out.write_tensor(CHECKPOINT_HF_PREV, shape, data)?;
+    }
     if let Some(l) = &last {
         let sh = |x: &ndarray::Array4<f32>| x.shape().to_vec();
         let flat =

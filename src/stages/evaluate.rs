@@ -59,6 +59,14 @@ pub struct Args {
     /// The stylized scene (a scene artifact with scene.spz is embedded as written).
     #[arg(long, requires = "original_scene")]
     pub stylized_scene: Option<PathBuf>,
+    /// A distill checkpoint whose history.json's agreement of the prior's high-frequency
+    /// change (across visits, between neighbouring views) the report draws per iteration.
+    #[arg(long)]
+    pub history: Option<PathBuf>,
+    /// A `stylize-baseline --method refit` artifact: its per-view stylizations' agreement
+    /// between neighbouring views is drawn as the ceiling (needs --history).
+    #[arg(long, requires = "history")]
+    pub refit_baseline: Option<PathBuf>,
 }
 
 /// The stage: read the views and the style, evaluate, write the artifact.
@@ -79,6 +87,27 @@ pub fn run(a: Args) -> Result<Metrics> {
     let viewer = match (&a.original_scene, &a.stylized_scene) {
         (Some(o), Some(s)) => Some(crate::timing::load(|| viewer_inputs(o, s, &orig))?),
         _ => None,
+    };
+    let history = a
+        .history
+        .as_deref()
+        .map(crate::artifacts::read_history)
+        .transpose()?;
+    let ceiling = match &a.refit_baseline {
+        Some(dir) => {
+            let log = crate::artifacts::read_baseline_log(dir)?;
+            match log["hf_agree_adjacent"].as_f64() {
+                Some(c) => Some((c, log["hf_agree_adjacent_original"].as_f64())),
+                None => {
+                    return Err(Error::input(
+                        dir.join("loss.json"),
+                        "no hf_agree_adjacent: not a refit baseline (stylize-baseline \
+                         --method refit) of this version",
+                    ));
+                }
+            }
+        }
+        None => None,
     };
     let models = crate::models::models_dir()?;
     if !models.join("metrics").is_dir() {
@@ -106,6 +135,9 @@ pub fn run(a: Args) -> Result<Metrics> {
     };
     let ph = crate::timing::span("report");
     let sweep_html = sweep.as_ref().map(Sweep::html);
+    let agreement_html = history
+        .as_deref()
+        .map(|h| crate::metrics::report::agreement_html(h, ceiling, 20));
     let html = evaluation_report(
         paths,
         &ev,
@@ -114,6 +146,7 @@ pub fn run(a: Args) -> Result<Metrics> {
         &style,
         sweep_html.as_deref(),
         viewer.as_deref(),
+        agreement_html.as_deref(),
     );
     drop(ph);
 
@@ -123,6 +156,12 @@ pub fn run(a: Args) -> Result<Metrics> {
     if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
         wr.add_input("original-scene", o)?;
         wr.add_input("stylized-scene", s)?;
+    }
+    if let Some(h) = &a.history {
+        wr.add_input("history", h)?;
+    }
+    if let Some(r) = &a.refit_baseline {
+        wr.add_input("refit-baseline", r)?;
     }
     wr.write_json("metrics.json", &ev.metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;

@@ -15,7 +15,12 @@
 //! terms, and every `--monitor-every` steps the Gram distance to the style, mean over
 //! views: relu1_2..relu4_3, scale 1; for `colour-transfer` the map and both statistics),
 //! for `refit` also `target_000.png`.. (the stylized views it fitted), with `--save-at`
-//! also `scene_step10.ply`.. (the scene after those steps). Style image handling:
+//! also `scene_step10.ply`.. (the scene after those steps); for `refit` also
+//! `hf_agree_adjacent` in `loss.json`: how much of the per-view 2D stylizations'
+//! high-frequency change agrees between path neighbours after depth reprojection
+//! ([`crate::distill::agreement::adjacent_agreement_of_views`]), the ceiling of the
+//! distillation's per-iteration measure (and `hf_agree_adjacent_original`, the same
+//! measure on the original renders' own high pass: what the warp allows). Style image handling:
 //! grayscale expanded to RGB, alpha dropped, shorter side at least 92 px (relu4_3's
 //! receptive field), resized to `--style-size`.
 //!
@@ -150,6 +155,14 @@ pub struct LossLog {
     /// `refit` only: the Gram distance of the stylized target views (mean over views).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub targets_gram_distance: Option<f64>,
+    /// `refit` only: agreement of the stylizations' high-pass change between neighbouring
+    /// views after depth reprojection (module docs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hf_agree_adjacent: Option<f64>,
+    /// `refit` only: the same measure on the original renders' own high pass (the scene's
+    /// texture, consistent by construction): how much agreement the warp allows.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hf_agree_adjacent_original: Option<f64>,
     pub steps: Vec<crate::baselines::fit::StepLog>,
     /// `colour-transfer` only: the map and the statistics it matched.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -416,6 +429,8 @@ fn transfer_colours(
         log: LossLog {
             method: a.method,
             targets_gram_distance: None,
+            hf_agree_adjacent: None,
+            hf_agree_adjacent_original: None,
             steps: Vec::new(),
             colour_map: Some(ColourMapLog {
                 t,
@@ -448,12 +463,13 @@ fn optimise(
     t0: Instant,
     budget_s: Option<f64>,
 ) -> Result<Outcome> {
-    let originals: Vec<Image> = render_originals(a, &scene, cams)?
-        .into_iter()
+    let renders = render_originals(a, &scene, cams)?;
+    let originals: Vec<Image> = renders
+        .iter()
         .map(|r| Image {
             width: r.width,
             height: r.height,
-            data: r.rgb,
+            data: r.rgb.clone(),
         })
         .collect();
     crate::baselines::check_views(&originals)?;
@@ -468,6 +484,7 @@ fn optimise(
     };
     let mut targets = Vec::new();
     let mut targets_gram = None;
+    let (mut hf_agree, mut hf_agree_orig) = (None, None);
     let obj: Option<Box<dyn Objective + '_>> = match a.method {
         Method::ColourTransfer => {
             return Err(Error::Other(
@@ -507,6 +524,24 @@ fn optimise(
                 tracing::info!("refit targets: Gram distance to the style {d:.4}");
                 targets_gram = Some(d);
             }
+            let changes: Vec<_> = targets
+                .iter()
+                .zip(&originals)
+                .map(|(t, o)| t.to_chw() - o.to_chw())
+                .collect();
+            let alpha: Vec<Vec<f32>> = renders.iter().map(|r| r.alpha.clone()).collect();
+            let depth: Vec<Vec<f32>> = renders.iter().map(|r| r.depth.clone()).collect();
+            let closed = crate::distill::path::ViewPath::of(cams).closed;
+            use crate::distill::agreement::adjacent_agreement_of_views as agree;
+            hf_agree = agree(cams, &changes, &alpha, &depth, closed);
+            let own: Vec<_> = originals.iter().map(Image::to_chw).collect();
+            hf_agree_orig = agree(cams, &own, &alpha, &depth, closed);
+            tracing::info!(
+                "refit targets: high-frequency change agreement between neighbouring views {} \
+                 (the original renders' own high pass: {})",
+                crate::metrics::report::fmt_opt(hf_agree, 3),
+                crate::metrics::report::fmt_opt(hf_agree_orig, 3)
+            );
             None
         }
     };
@@ -578,6 +613,8 @@ fn optimise(
         log: LossLog {
             method: a.method,
             targets_gram_distance: targets_gram,
+            hf_agree_adjacent: hf_agree,
+            hf_agree_adjacent_original: hf_agree_orig,
             steps,
             colour_map: None,
         },

@@ -144,9 +144,15 @@ mod stage {
         let first = steps_log[0]["gram_distance"].as_f64().unwrap();
         let last = steps_log[steps]["gram_distance"].as_f64().unwrap();
         eprintln!(
-            "{method:?}: Gram distance {first} -> {last} (targets: {})",
-            log["targets_gram_distance"]
+            "{method:?}: Gram distance {first} -> {last} (targets: {}, agreement {})",
+            log["targets_gram_distance"], log["hf_agree_adjacent"]
         );
+        if method != Method::Refit {
+            assert!(
+                log.get("hf_agree_adjacent").is_none(),
+                "only refit has targets"
+            );
+        }
         eprintln!(
             "totals: {:?}",
             steps_log

@@ -96,6 +96,8 @@ fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         sweep: None,
         original_scene: None,
         stylized_scene: None,
+        history: None,
+        refit_baseline: None,
     }
 }
 

@@ -301,6 +301,8 @@ fn report_viewer_shows_both_splats_in_chromium() {
         sweep: None,
         original_scene: Some(orig_scene.clone()),
         stylized_scene: Some(styl_scene.clone()),
+        history: None,
+        refit_baseline: None,
     })
     .unwrap();
     eprintln!("evaluate: {:.1} s", t_eval.elapsed().as_secs_f64());
