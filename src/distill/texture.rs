@@ -22,7 +22,12 @@
 //! is held fixed, so dL/d(render) is dL/d(image) on covered pixels.
 //!
 //! Cost: one forward and backward of VGG16 up to relu2_2 on the object's bounding box
-//! (plus 8 px) per view and iteration.
+//! (plus 8 px) per view and iteration. With `downsample` D > 1 the crop, its coverage
+//! and the style image are box-averaged D x D before the network (D^2 times fewer
+//! pixels; the motif scale on screen is kept, since crop and style shrink alike) and the
+//! gradient is spread back evenly over each D x D block (the exact adjoint of the
+//! average): the term then constrains the texture at periods of 2D pixels and longer,
+//! and leaves finer detail to the prior.
 
 use crate::imageio::Image;
 use crate::metrics::gram::gram;
@@ -42,6 +47,10 @@ pub struct TextureTerm {
     targets: Vec<Vec<f64>>,
     /// Weight of the term's gradient against the colour loss's.
     pub weight: f32,
+    /// Box-average factor of crop and style before the network (1 = full resolution).
+    downsample: usize,
+    /// Views of each window that get the term (0 = all; see [`Self::views_per_iter`]).
+    pub views: usize,
 }
 
 /// One view's texture loss and its gradient `[H, W, 3]` (zero outside the crop).
@@ -52,9 +61,22 @@ pub struct TextureGrad {
 }
 
 impl TextureTerm {
-    /// The style's Gram matrices at `layers` (the style image as given: the caller sizes
-    /// it, which sets the motif scale against the render's pixels).
-    pub fn new(vgg: Vgg16, style: &Image, layers: &[Layer], weight: f32) -> Result<Self> {
+    /// The style's Gram matrices at `layers` (the style image as given at the render's
+    /// scale: the caller sizes it, which sets the motif scale against the render's
+    /// pixels; it is box-averaged by `downsample` like the crops).
+    pub fn new(
+        vgg: Vgg16,
+        style: &Image,
+        layers: &[Layer],
+        weight: f32,
+        downsample: usize,
+    ) -> Result<Self> {
+        if !(1..=8).contains(&downsample) {
+            return Err(Error::param(format!(
+                "texture downsample must be 1..=8, got {downsample}"
+            )));
+        }
+        let style = &crate::baselines::downsample(style, downsample);
         if layers.is_empty() {
             return Err(Error::param("texture term: at least one layer"));
         }
@@ -71,7 +93,20 @@ impl TextureTerm {
             layers: layers.to_vec(),
             targets,
             weight,
+            downsample,
+            views: 0,
         })
+    }
+
+    /// How many of a window's `n` views get the term in one iteration: `views` (0 = all),
+    /// at most `n`. The caller rotates which ones with the iteration and scales the term
+    /// by `n / k`, so its gradient is the same in expectation over a full rotation.
+    pub fn views_per_iter(&self, n: usize) -> usize {
+        if self.views == 0 {
+            n
+        } else {
+            self.views.min(n)
+        }
     }
 
     /// Loss and dL/d(image) of `image` (`[H, W, 3]`, the object over its fill) with
@@ -84,7 +119,8 @@ impl TextureTerm {
         w: usize,
     ) -> Result<TextureGrad> {
         let mut grad = vec![0.0f32; h * w * 3];
-        let Some((y0, y1, x0, x1)) = crop_box(alpha, h, w, &self.layers) else {
+        let d = self.downsample;
+        let Some((y0, y1, x0, x1)) = crop_box(alpha, h, w, &self.layers, d) else {
             return Ok(TextureGrad { loss: 0.0, grad });
         };
         let (ch, cw) = (y1 - y0, x1 - x0);
@@ -97,6 +133,17 @@ impl TextureTerm {
                 mask[y * cw + x] = alpha[(y0 + y) * w + x0 + x].clamp(0.0, 1.0);
             }
         }
+        let (crop, mask, ch_full, cw_full) = (crop, mask, ch, cw);
+        let (crop, mask, ch, cw) = if d > 1 {
+            (
+                box_average(&crop, ch, cw, 3, d),
+                box_average(&mask, ch, cw, 1, d),
+                ch / d,
+                cw / d,
+            )
+        } else {
+            (crop, mask, ch, cw)
+        };
         let deepest = *self.layers.iter().max().expect("non-empty");
         let fw = self.vgg.forward(&crop, ch, cw, deepest)?;
         let scale = 1.0 / self.layers.len() as f32;
@@ -111,22 +158,29 @@ impl TextureTerm {
         }
         let refs: Vec<(Layer, &Tensor3)> = grads.iter().map(|(l, g)| (*l, g)).collect();
         let gc = self.vgg.backward(&fw, &refs)?;
-        for y in 0..ch {
-            let dst = ((y0 + y) * w + x0) * 3;
-            grad[dst..dst + cw * 3].copy_from_slice(&gc[y * cw * 3..(y + 1) * cw * 3]);
+        // The adjoint of the D x D average: each pixel of a block gets 1/D^2 of its gradient.
+        let inv = 1.0 / (d * d) as f32;
+        for y in 0..ch_full {
+            for x in 0..cw_full {
+                let (src, dst) = (((y / d) * cw + x / d) * 3, ((y0 + y) * w + x0 + x) * 3);
+                for k in 0..3 {
+                    grad[dst + k] = gc[src + k] * inv;
+                }
+            }
         }
         Ok(TextureGrad { loss, grad })
     }
 }
 
 /// The object's bounding box (alpha > 0.01) plus [`MARGIN`], as `(y0, y1, x0, x1)`,
-/// grown to a multiple of 2^pools of the deepest layer (and to at least that many
-/// pixels) within the frame; `None` with no covered pixel.
+/// grown to a multiple of `downsample` x 2^pools of the deepest layer (and to at least
+/// that many pixels) within the frame; `None` with no covered pixel.
 fn crop_box(
     alpha: &[f32],
     h: usize,
     w: usize,
     layers: &[Layer],
+    downsample: usize,
 ) -> Option<(usize, usize, usize, usize)> {
     let (mut y0, mut y1, mut x0, mut x1) = (h, 0, w, 0);
     for y in 0..h {
@@ -142,7 +196,7 @@ fn crop_box(
     if y1 == 0 {
         return None;
     }
-    let unit = 1usize << layers.iter().map(|l| l.pools()).max().unwrap_or(0);
+    let unit = downsample << layers.iter().map(|l| l.pools()).max().unwrap_or(0);
     let grow = |lo: usize, hi: usize, n: usize| -> (usize, usize) {
         let (mut lo, mut hi) = (lo.saturating_sub(MARGIN), (hi + MARGIN).min(n));
         let want = (hi - lo).max(unit).next_multiple_of(unit).min(n - n % unit);
@@ -158,6 +212,22 @@ fn crop_box(
     let (y0, y1) = grow(y0, y1, h);
     let (x0, x1) = grow(x0, x1, w);
     (y1 > y0 && x1 > x0).then_some((y0, y1, x0, x1))
+}
+
+/// `x` (`[h, w, c]`, `h` and `w` multiples of `d`) averaged over `d x d` blocks.
+fn box_average(x: &[f32], h: usize, w: usize, c: usize, d: usize) -> Vec<f32> {
+    let (oh, ow) = (h / d, w / d);
+    let inv = 1.0 / (d * d) as f32;
+    let mut out = vec![0.0f32; oh * ow * c];
+    for y in 0..h {
+        for xx in 0..w {
+            let (src, dst) = ((y * w + xx) * c, ((y / d) * ow + xx / d) * c);
+            for k in 0..c {
+                out[dst + k] += x[src + k] * inv;
+            }
+        }
+    }
+    out
 }
 
 /// `mask` (`[h, w]`) averaged down to `[fh, fw]` (each feature position the mean of its
@@ -274,11 +344,63 @@ mod tests {
                 alpha[y * w + x] = 1.0;
             }
         }
-        let (y0, y1, x0, x1) = crop_box(&alpha, h, w, &[Layer::Relu2_2]).unwrap();
-        assert!(y0 <= 10 && y1 >= 20 && x0 <= 30 && x1 >= 33);
-        assert_eq!((y1 - y0) % 2, 0);
-        assert_eq!((x1 - x0) % 2, 0);
-        assert!(y1 <= h && x1 <= w);
-        assert!(crop_box(&vec![0.0; h * w], h, w, &[Layer::Relu2_2]).is_none());
+        for d in [1, 2, 3] {
+            let (y0, y1, x0, x1) = crop_box(&alpha, h, w, &[Layer::Relu2_2], d).unwrap();
+            assert!(y0 <= 10 && y1 >= 20 && x0 <= 30 && x1 >= 33);
+            assert_eq!((y1 - y0) % (2 * d), 0);
+            assert_eq!((x1 - x0) % (2 * d), 0);
+            assert!(y1 <= h && x1 <= w);
+            assert!(crop_box(&vec![0.0; h * w], h, w, &[Layer::Relu2_2], d).is_none());
+        }
+    }
+
+    /// The whole term's image gradient (crop, optional D x D average, VGG forward and
+    /// backward, masked Gram, the average's adjoint) against central differences of its
+    /// loss, with a small random-weight VGG; pixels outside the crop get exactly 0.
+    #[test]
+    fn view_gradient_matches_finite_differences_at_full_and_half_resolution() {
+        let (h, w) = (28, 24);
+        let mut rng = crate::rng::Rng::derive(3, "tex-view");
+        let style = Image {
+            width: 20,
+            height: 20,
+            data: (0..20 * 20 * 3).map(|_| rng.uniform() as f32).collect(),
+        };
+        let image: Vec<f32> = (0..h * w * 3).map(|_| rng.uniform() as f32).collect();
+        let mut alpha = vec![0.0f32; h * w];
+        for y in 6..20 {
+            for x in 5..15 {
+                alpha[y * w + x] = if (x + y) % 4 == 0 { 0.6 } else { 1.0 };
+            }
+        }
+        for d in [1usize, 2] {
+            let layers = [Layer::Relu1_2, Layer::Relu2_2];
+            let term = TextureTerm::new(Vgg16::random(5, 16), &style, &layers, 1.0, d).unwrap();
+            let g = term.view_grad(&image, &alpha, h, w).unwrap();
+            assert!(g.loss > 0.0);
+            let (y0, y1, x0, x1) = crop_box(&alpha, h, w, &layers, d).unwrap();
+            let loss = |img: &[f32]| term.view_grad(img, &alpha, h, w).unwrap().loss;
+            let eps = 1e-3f32;
+            // Relative L2 error of the sampled gradient: f32 features make single small
+            // entries noisy (and ReLU kinks can flip one), the vector is not.
+            let (mut checked, mut num, mut den) = (0, 0.0f64, 0.0f64);
+            for q in (0..h * w * 3).step_by(7) {
+                let (y, x) = ((q / 3) / w, (q / 3) % w);
+                if !(y0..y1).contains(&y) || !(x0..x1).contains(&x) {
+                    assert_eq!(g.grad[q], 0.0, "outside the crop: no gradient");
+                    continue;
+                }
+                let (mut a, mut b) = (image.clone(), image.clone());
+                a[q] += eps;
+                b[q] -= eps;
+                let fd = (loss(&a) - loss(&b)) / (2.0 * eps as f64);
+                num += (fd - g.grad[q] as f64).powi(2);
+                den += fd * fd;
+                checked += 1;
+            }
+            assert!(checked > 50, "{checked} pixels checked");
+            let rel = (num / den).sqrt();
+            assert!(rel < 1e-2, "downsample {d}: relative L2 error {rel}");
+        }
     }
 }

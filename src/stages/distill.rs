@@ -134,6 +134,16 @@ pub struct Args {
     /// texture term (sets the motif scale against the render's pixels).
     #[arg(long, default_value_t = 256)]
     pub texture_style_size: usize,
+    /// The texture term sees the object crop and the style box-averaged this many times
+    /// smaller (motif scale on screen kept; D^2 times cheaper; periods under 2D pixels
+    /// are left to the prior). 1 = full resolution.
+    #[arg(long, default_value_t = 1)]
+    pub texture_downsample: usize,
+    /// The texture term on this many of each iteration's views (rotating; scaled so the
+    /// gradient is the same in expectation); 0 = every view. 1 looks the same as every
+    /// view at about 0.7x the CPU (BENCHMARKS.md "Texture").
+    #[arg(long, default_value_t = 1)]
+    pub texture_views: usize,
     /// VGG16 weights for the texture term (default: lpips/vgg16 in the models directory).
     #[arg(long)]
     pub texture_vgg: Option<PathBuf>,
@@ -344,7 +354,9 @@ pub fn run(a: Args) -> Result<()> {
                 d.set_agreement_state(&shape, data)?;
             }
             if a.texture_weight > 0.0 {
-                d = d.with_texture(texture_term(&a)?);
+                let mut term = texture_term(&a)?;
+                term.views = a.texture_views;
+                d = d.with_texture(term);
             }
             drop(ph);
             tracing::info!(
@@ -428,7 +440,7 @@ pub fn run(a: Args) -> Result<()> {
             "d_s": a.mvfc.d_s, "d_t": a.mvfc.d_t, "timesteps": a.timesteps,
             "fill": !a.no_fill, "seed": a.seed,
             "colour_loss": a.colour_loss, "texture_weight": a.texture_weight,
-            "texture_style_size": a.texture_style_size, "anneal_iters": a.anneal_iters, "motif_scale": a.motif_scale, "prompt": a.prompt, "format": a.format,
+            "texture_style_size": a.texture_style_size, "texture_downsample": a.texture_downsample, "texture_views": a.texture_views, "anneal_iters": a.anneal_iters, "motif_scale": a.motif_scale, "prompt": a.prompt, "format": a.format,
             "device": a.device.device.to_string(), "unet_batch": a.unet_batch,
         }),
     );
@@ -507,6 +519,7 @@ fn texture_term(a: &Args) -> Result<crate::distill::texture::TextureTerm> {
         &style,
         &[Layer::Relu1_2, Layer::Relu2_2],
         a.texture_weight,
+        a.texture_downsample,
     )
 }
 

@@ -171,6 +171,7 @@ fn a_plane_styled_with_stripes_shows_them_in_every_view() {
         &style,
         &[Layer::Relu1_2, Layer::Relu2_2],
         1.0,
+        1,
     )
     .unwrap();
     let mut d = Distiller::new(&scene, &cams, &src, p.as_mut(), set, params, 0)
