@@ -221,6 +221,32 @@ def sheet(runs, styles_dir, sc, sty, present):
             v = np.load(p)
             rows.append(np.concatenate([v[c] for c in cols], 1))
             names.append(me)
+    # Crop each view to the object (the original's alpha, + 8 px; one box size for all
+    # views, centred on each view's object) and enlarge it by an integer factor, so the
+    # texture on a small object can be seen.
+    alpha_path = os.path.join(runs, sc, "source", "alpha.npy")
+    if os.path.isfile(alpha_path):
+        a = np.load(alpha_path)
+        a = a.reshape(a.shape[0], hh, ww)
+        boxes = []
+        for c in cols:
+            ys, xs = np.where(a[c] > 0.05)
+            if ys.size:
+                boxes.append((ys.min(), ys.max() + 1, xs.min(), xs.max() + 1))
+        if len(boxes) == len(cols):
+            bh = min(hh, max(b[1] - b[0] for b in boxes) + 16)
+            bw = min(ww, max(b[3] - b[2] for b in boxes) + 16)
+            f = max(2, min(hh // bh, ww // bw))
+            def crop(r):
+                parts = []
+                for k, (y0, y1, x0, x1) in enumerate(boxes):
+                    cy = min(max((y0 + y1) // 2 - bh // 2, 0), hh - bh)
+                    cx = min(max((x0 + x1) // 2 - bw // 2, 0), ww - bw)
+                    parts.append(r[cy:cy + bh, k * ww + cx:k * ww + cx + bw])
+                return np.concatenate(parts, 1).repeat(f, 0).repeat(f, 1)
+            rows = [crop(r) for r in rows[1:]]
+            rows.insert(0, np.concatenate([fit_rows(style, bh * f, bw * f)] * len(cols), 1))
+            names[1] += f" (object crops x{f})"
     out = os.path.join(runs, "sheets", f"{sc}.{sty}.png")
     write_png(out, np.concatenate(rows, 0) * 255.0 + 0.5)
     print(f"contact sheet: {out} (rows: {', '.join(names)}; views {cols})", file=sys.stderr)

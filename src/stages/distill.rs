@@ -139,6 +139,11 @@ pub struct Args {
     /// are left to the prior). 1 = full resolution.
     #[arg(long, default_value_t = 1)]
     pub texture_downsample: usize,
+    /// VGG16 layers whose Gram matrices the texture term matches (receptive fields:
+    /// relu1_2 5 px, relu2_2 14 px, relu3_3 40 px; a deeper layer sees larger motifs and
+    /// costs more).
+    #[arg(long, value_delimiter = ',', default_value = "relu1_2,relu2_2")]
+    pub texture_layers: Vec<crate::vgg::Layer>,
     /// The texture term on this many of each iteration's views (rotating; scaled so the
     /// gradient is the same in expectation); 0 = every view. 1 looks the same as every
     /// view at about 0.7x the CPU (BENCHMARKS.md "Texture").
@@ -440,7 +445,7 @@ pub fn run(a: Args) -> Result<()> {
             "d_s": a.mvfc.d_s, "d_t": a.mvfc.d_t, "timesteps": a.timesteps,
             "fill": !a.no_fill, "seed": a.seed,
             "colour_loss": a.colour_loss, "texture_weight": a.texture_weight,
-            "texture_style_size": a.texture_style_size, "texture_downsample": a.texture_downsample, "texture_views": a.texture_views, "anneal_iters": a.anneal_iters, "motif_scale": a.motif_scale, "prompt": a.prompt, "format": a.format,
+            "texture_style_size": a.texture_style_size, "texture_downsample": a.texture_downsample, "texture_views": a.texture_views, "texture_layers": a.texture_layers.iter().map(|l| l.name()).collect::<Vec<_>>(), "anneal_iters": a.anneal_iters, "motif_scale": a.motif_scale, "prompt": a.prompt, "format": a.format,
             "device": a.device.device.to_string(), "unet_batch": a.unet_batch,
         }),
     );
@@ -506,7 +511,7 @@ pub fn run(a: Args) -> Result<()> {
 /// The texture term of `--texture-weight` (VGG from `--texture-vgg` or the models
 /// directory; the style image at `--texture-style-size`).
 fn texture_term(a: &Args) -> Result<crate::distill::texture::TextureTerm> {
-    use crate::vgg::{Layer, Vgg16};
+    use crate::vgg::Vgg16;
     let dir = match &a.texture_vgg {
         Some(p) => p.clone(),
         None => crate::models::model_path("lpips/vgg16")?,
@@ -517,7 +522,7 @@ fn texture_term(a: &Args) -> Result<crate::distill::texture::TextureTerm> {
     crate::distill::texture::TextureTerm::new(
         vgg,
         &style,
-        &[Layer::Relu1_2, Layer::Relu2_2],
+        &a.texture_layers,
         a.texture_weight,
         a.texture_downsample,
     )
