@@ -593,15 +593,12 @@ impl<'a> Distiller<'a> {
                 }
                 ColourLoss::L2 => half_squared_distance(rgb, target),
             };
-            // The term on `views` of the window's views (rotating with the iteration),
-            // scaled by n / views: the same gradient in expectation, fewer networks.
-            let k = tex.map_or(0, |t| t.views_per_iter(n));
-            let chosen = (i + n - (it as usize % n)) % n < k;
-            if let Some(t) = tex.filter(|t| t.weight > 0.0 && chosen) {
-                let scale = n as f32 / k as f32;
+            // The term on some of the window's views (rotating with the iteration), scaled
+            // so its gradient is the same in expectation ([`texture::TextureTerm::applies`]).
+            if let Some((t, scale)) = tex.and_then(|t| t.applies(i, n, it).map(|s| (t, s))) {
                 let seen = Self::prior_view(&p, source, rgb, v);
                 let tg = t.view_grad(&seen, &source.alpha[v], h, w)?;
-                tex_loss += tg.loss / k as f64;
+                tex_loss += tg.loss * scale as f64 / n as f64;
                 for (a, b) in g.iter_mut().zip(&tg.grad) {
                     *a += scale * t.weight * b;
                 }

@@ -109,6 +109,16 @@ impl TextureTerm {
         }
     }
 
+    /// Whether the view at `position` of an `n`-view window gets the term in iteration
+    /// `iteration`, and the factor `n / k` it is scaled by: positions `it mod n` ..
+    /// `it mod n + k - 1` (cyclically), so over `n` consecutive iterations every position
+    /// gets it exactly `k` times.
+    pub fn applies(&self, position: usize, n: usize, iteration: u64) -> Option<f32> {
+        let k = self.views_per_iter(n);
+        let chosen = k > 0 && (position + n - (iteration % n as u64) as usize) % n < k;
+        (self.weight > 0.0 && chosen).then(|| n as f32 / k as f32)
+    }
+
     /// Loss and dL/d(image) of `image` (`[H, W, 3]`, the object over its fill) with
     /// coverage `alpha` (`[H, W]`). A view with no covered pixel has loss 0 and gradient 0.
     pub fn view_grad(
@@ -352,6 +362,36 @@ mod tests {
             assert!(y1 <= h && x1 <= w);
             assert!(crop_box(&vec![0.0; h * w], h, w, &[Layer::Relu2_2], d).is_none());
         }
+    }
+
+    /// Over n consecutive iterations each window position gets the term exactly k times,
+    /// k per iteration, scaled by n / k; k = 0 means every view, weight 0 none.
+    #[test]
+    fn the_views_that_get_the_term_rotate_evenly() {
+        let style = Image {
+            width: 8,
+            height: 8,
+            data: vec![0.5; 8 * 8 * 3],
+        };
+        let mut term =
+            TextureTerm::new(Vgg16::random(1, 16), &style, &[Layer::Relu1_2], 1.0, 1).unwrap();
+        for (views, n) in [(1, 4), (2, 4), (3, 5), (0, 4), (6, 4)] {
+            term.views = views;
+            let k = term.views_per_iter(n);
+            assert_eq!(k, if views == 0 { n } else { views.min(n) });
+            let mut count = vec![0; n];
+            for it in 7..7 + n as u64 {
+                let chosen: Vec<_> = (0..n).filter_map(|i| term.applies(i, n, it)).collect();
+                assert_eq!(chosen.len(), k, "iteration {it}");
+                assert!(chosen.iter().all(|&s| s == n as f32 / k as f32));
+                for (i, c) in count.iter_mut().enumerate() {
+                    *c += term.applies(i, n, it).is_some() as usize;
+                }
+            }
+            assert_eq!(count, vec![k; n], "views {views}, n {n}");
+        }
+        term.weight = 0.0;
+        assert!((0..4).all(|i| term.applies(i, 4, 0).is_none()));
     }
 
     /// The whole term's image gradient (crop, optional D x D average, VGG forward and
