@@ -110,6 +110,25 @@ impl Default for CsdParams {
     }
 }
 
+impl CsdParams {
+    /// How many conditionings (UNet rows per latent) a step of this mode evaluates.
+    pub fn conds(&self) -> usize {
+        let (t, s) = conds(self.mode);
+        t.len() + s.len()
+    }
+
+    /// Refuse a non-finite guidance scale and a negative or non-finite step size.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.guidance.is_finite() && self.lr.is_finite() && self.lr >= 0.0) {
+            return Err(Error::param(format!(
+                "--guidance ({}) must be finite and --lr ({}) finite and >= 0",
+                self.guidance, self.lr
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// The latents one step works on (all `[N, C, h, w]`).
 #[derive(Debug, Clone, Copy)]
 pub struct StepInputs<'a> {

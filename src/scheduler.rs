@@ -300,6 +300,17 @@ impl TimestepSet {
         Self::new(cfg, lo, hi, 50.min(hi - lo + 1))
     }
 
+    /// A set given as `MIN:MAX:COUNT` (e.g. `20:300:25`) for a schedule `cfg`.
+    pub fn parse(spec: &str, cfg: &SchedulerConfig) -> Result<Self> {
+        let nums: Option<Vec<usize>> = spec.split(':').map(|p| p.trim().parse().ok()).collect();
+        match nums.as_deref() {
+            Some([a, b, c]) => Self::new(cfg, *a, *b, *c),
+            _ => Err(Error::param(format!(
+                "--timesteps `{spec}`: expected MIN:MAX:COUNT, e.g. 20:300:25"
+            ))),
+        }
+    }
+
     /// The timesteps, ascending.
     pub fn steps(&self) -> &[usize] {
         &self.steps

@@ -1,9 +1,11 @@
-//! Distillation at the scale the method needs (FantasyStyle Sec. 3, the whole loop):
+//! Distillation at the scale the method needs (FantasyStyle Sec. 4, the whole loop):
 //! hundreds of iterations, each on a few adjacent views with a fresh timestep and fresh
 //! noise, with one optimizer whose state persists across iterations and checkpoints.
 //!
 //! One iteration `i` (all randomness from `(seed, i)`, so a run split into chunks or
-//! resumed from a checkpoint gives the same bytes as one uninterrupted run):
+//! resumed from a checkpoint gives the same bytes as one uninterrupted run); each step is
+//! a function of [`step`], which the stage chain (`render-views --window` ->
+//! `encode-latents` -> `mvfc-filter` -> `csd-step` -> `update-gaussians`) calls too:
 //!
 //! 1. a window of N adjacent views along the camera path ([`path`]);
 //! 2. render them with the current colours (frozen-geometry caches) and give the prior
@@ -26,7 +28,7 @@
 //!    blowing up (the "glowing haze" of the first version), and Delta = 0 asks for no
 //!    change at all (the target is then the render, bit for bit);
 //! 6. one Adam step of the SH colours on the window's views towards the targets
-//!    (L1 + D-SSIM, [`crate::optim`]); geometry is frozen.
+//!    (L1, + D-SSIM with a weight, [`crate::optim`]); geometry is frozen.
 //!
 //! Strength is the prior's business (`PriorOptions::strength`; for the stylizer an
 //! interpolation of style vectors), except strength 0, which the stage short-circuits to
@@ -34,17 +36,19 @@
 
 pub mod fill;
 pub mod path;
+pub mod step;
 
-use crate::csd::{self, CsdParams};
-use crate::mvfc::{MvfcParams, mvfc_path};
-use crate::optim::{ColourFit, FitParams, LossParams, OptimizerState, loss_and_grad};
+use crate::artifacts::{Start, Views};
+use crate::csd::CsdParams;
+use crate::mvfc::MvfcParams;
+use crate::optim::{ColourFit, OptimizerState};
 use crate::prior::Prior;
-use crate::render::CacheMode;
-use crate::rng::Rng;
+use crate::prior::cost::{CostModel, Plan, about};
 use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Camera, Error, Result, Scene};
-use ndarray::{Array3, Array4, Axis, concatenate};
+use ndarray::{Array3, Array4, Axis};
 use path::{ViewPath, Window};
+pub use step::{Draws, IterReport, TargetParams};
 
 /// Parameters of the loop.
 #[derive(Debug, Clone, PartialEq)]
@@ -110,20 +114,6 @@ pub struct SourceViews {
     pub depth: Vec<Vec<f32>>,
 }
 
-/// What one iteration did, for logs, checkpoints and tests.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct IterReport {
-    pub iteration: u64,
-    pub views: Vec<usize>,
-    pub timestep: usize,
-    /// Mean colour loss over the window before the update.
-    pub loss: f64,
-    /// RMS of the image change the prior asked for, over covered pixels.
-    pub delta_rms: f64,
-    /// Fraction of covered target pixels clipped (<= 0.02 or >= 0.98 in every channel).
-    pub clipped: f64,
-}
-
 /// The last iteration's tensors, written into checkpoints for inspection.
 #[derive(Debug, Clone)]
 pub struct LastIteration {
@@ -136,6 +126,41 @@ pub struct LastIteration {
     pub targets: Array4<f32>,
 }
 
+impl SourceViews {
+    /// The source views of a `views` artifact (render-views of the original scene).
+    pub fn from_views(views: &Views) -> SourceViews {
+        let (n, h, w) = views.dim();
+        let plane = |x: &ndarray::Array3<f32>, i: usize| -> Vec<f32> {
+            x.index_axis(Axis(0), i).iter().copied().collect()
+        };
+        SourceViews {
+            width: w,
+            height: h,
+            rgb: (0..n)
+                .map(|i| views.rgb.index_axis(Axis(0), i).iter().copied().collect())
+                .collect(),
+            alpha: (0..n).map(|i| plane(&views.alpha, i)).collect(),
+            depth: (0..n).map(|i| plane(&views.depth, i)).collect(),
+        }
+    }
+
+    /// View `v` as the prior sees it ([`step::prior_view`]).
+    pub fn seen(&self, v: usize, background: [f32; 3], fill: bool) -> Array3<f32> {
+        step::prior_view(
+            &self.rgb[v],
+            &self.alpha[v],
+            background,
+            fill,
+            (self.height, self.width),
+        )
+    }
+
+    /// The un-premultiplied colour `[H, W, 3]` of view `v` ([`fill::unpremultiply`]).
+    pub fn colour(&self, v: usize, background: [f32; 3]) -> Vec<f32> {
+        fill::unpremultiply(&self.rgb[v], &self.alpha[v], background)
+    }
+}
+
 /// The distillation state: the colour fit (scene + optimizer + caches), the prior, the
 /// source views and their latents.
 pub struct Distiller<'a> {
@@ -145,20 +170,16 @@ pub struct Distiller<'a> {
     timesteps: TimestepSet,
     params: DistillParams,
     source: &'a SourceViews,
-    /// Source chroma/colour per view, un-premultiplied `[H, W, 3]`.
+    /// Source colour per view, un-premultiplied `[H, W, 3]`.
     source_colour: Vec<Vec<f32>>,
     /// The source views as the prior sees them, `[3, H, W]` per view (the encoder's
     /// input for z0_src, and the control image of a `ControlKind::Source` prior).
     source_seen: Vec<Array3<f32>>,
-    /// z0_src per view, `[C, h, w]`.
-    z0_src: Vec<Array3<f32>>,
+    /// z0_src of every view, `[N, C, h, w]`.
+    z0_src: Array4<f32>,
     path: ViewPath,
     iteration: u64,
     last: Option<LastIteration>,
-}
-
-fn to_chw(img: &[f32], h: usize, w: usize) -> Array3<f32> {
-    Array3::from_shape_fn((3, h, w), |(c, y, x)| img[(y * w + x) * 3 + c])
 }
 
 impl<'a> Distiller<'a> {
@@ -204,40 +225,14 @@ impl<'a> Distiller<'a> {
             )));
         }
         let schedule = Schedule::new(info.scheduler.clone())?;
-        let fit_params = FitParams {
-            lr_dc: params.lr_dc,
-            lr_rest: if params.fit_rest {
-                params.lr_dc / 20.0
-            } else {
-                0.0
-            },
-            ssim_weight: params.ssim_weight,
-            mask_alpha: false,
-            cache: CacheMode::On,
-            background: params.background,
-            progress: false,
-        };
-        let fit = ColourFit::without_targets(scene, cameras, &fit_params)?;
+        let fit = ColourFit::without_targets(scene, cameras, &step::fit_params(&params))?;
         let bg = params.background;
-        let source_colour: Vec<Vec<f32>> = (0..n)
-            .map(|v| fill::unpremultiply(&source.rgb[v], &source.alpha[v], bg))
-            .collect();
+        let source_colour: Vec<Vec<f32>> = (0..n).map(|v| source.colour(v, bg)).collect();
         let source_seen: Vec<Array3<f32>> = (0..n)
-            .map(|v| to_chw(&Self::prior_view(&params, source, &source.rgb[v], v), h, w))
+            .map(|v| source.seen(v, bg, params.fill_background))
             .collect();
-        // The source latents, encoded once, a few views per call.
-        let mut z0_src = Vec::with_capacity(n);
-        for chunk in source_seen.chunks(params.views_per_iter.max(1)) {
-            let views: Vec<_> = chunk
-                .iter()
-                .map(|a| a.view().insert_axis(Axis(0)))
-                .collect();
-            let batch = concatenate(Axis(0), &views).map_err(|e| Error::Other(e.to_string()))?;
-            let z = prior.encode(batch.view())?;
-            for i in 0..chunk.len() {
-                z0_src.push(z.index_axis(Axis(0), i).to_owned());
-            }
-        }
+        // The source latents, encoded once, a window's worth of views per call.
+        let z0_src = step::encode_views(prior, &source_seen, params.views_per_iter)?;
         Ok(Distiller {
             fit,
             prior,
@@ -252,22 +247,6 @@ impl<'a> Distiller<'a> {
             iteration,
             last: None,
         })
-    }
-
-    /// The image of view `v` the prior sees: `rgb` as rendered, or the object over a
-    /// fill of its own colours.
-    fn prior_view(p: &DistillParams, source: &SourceViews, rgb: &[f32], v: usize) -> Vec<f32> {
-        if p.fill_background {
-            fill::fill_background(
-                rgb,
-                &source.alpha[v],
-                p.background,
-                source.height,
-                source.width,
-            )
-        } else {
-            rgb.to_vec()
-        }
     }
 
     /// Iterations done so far.
@@ -302,187 +281,199 @@ impl<'a> Distiller<'a> {
         self.fit.render_view(v)
     }
 
-    /// One iteration (module docs).
+    /// One iteration (module docs), step by step through [`step`].
     pub fn iterate(&mut self) -> Result<IterReport> {
-        let it = self.iteration;
-        let p = self.params.clone();
-        let (h, w) = (self.source.height, self.source.width);
-        let mut rng = Rng::derive(p.seed, &format!("distill/{it}"));
-        let Window { views, circular } = self.path.draw(&mut rng, p.views_per_iter);
-        let t = self.timesteps.sample(&mut rng);
-        let n = views.len();
+        let p = &self.params;
+        let size = (self.source.height, self.source.width);
+        let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views_per_iter);
+        let t = draws.timestep(&self.timesteps);
+        let Window { views, circular } = draws.window().window.clone();
 
-        // Renders, what the prior sees, latents.
-        let renders: Vec<Vec<f32>> = views.iter().map(|&v| self.fit.render_view(v)).collect();
+        // Render the window; encode what the prior sees of it; the source latents.
+        let renders = step::render_window(&self.fit, &views);
         let seen: Vec<Array3<f32>> = views
             .iter()
             .zip(&renders)
-            .map(|(&v, r)| to_chw(&Self::prior_view(&p, self.source, r, v), h, w))
+            .map(|(&v, r)| {
+                step::prior_view(
+                    r,
+                    &self.source.alpha[v],
+                    p.background,
+                    p.fill_background,
+                    size,
+                )
+            })
             .collect();
-        let stack = |xs: &[Array3<f32>]| -> Result<Array4<f32>> {
-            let v: Vec<_> = xs.iter().map(|a| a.view().insert_axis(Axis(0))).collect();
-            concatenate(Axis(0), &v).map_err(|e| Error::Other(e.to_string()))
-        };
-        let z0 = self.prior.encode(stack(&seen)?.view())?;
-        let z0_src = stack(
-            &views
-                .iter()
-                .map(|&v| self.z0_src[v].clone())
-                .collect::<Vec<_>>(),
-        )?;
-        if z0.shape() != z0_src.shape() {
-            return Err(Error::Other(format!(
-                "prior encoded renders to {:?} but the source to {:?}",
-                z0.shape(),
-                z0_src.shape()
-            )));
-        }
-        let sh = z0.shape().to_vec();
-        let eps = Array4::from_shape_vec((sh[0], sh[1], sh[2], sh[3]), rng.normals_f32(z0.len()))
-            .expect("length matches");
-        let eps_shared = Array3::from_shape_vec(
-            (sh[1], sh[2], sh[3]),
-            rng.normals_f32(sh[1] * sh[2] * sh[3]),
-        )
-        .expect("length matches");
-        let src_noisy = self.schedule.add_noise(z0_src.view(), eps.view(), t)?;
-        let z_noisy = self.schedule.add_noise(z0.view(), eps.view(), t)?;
-        let (z_tgt, z_src) = match &p.mvfc {
-            Some(m) => (
-                mvfc_path(z_noisy.view(), eps_shared.view(), *m, circular)?,
-                if p.mvfc_source {
-                    mvfc_path(src_noisy.view(), eps_shared.view(), *m, circular)?
-                } else {
-                    src_noisy
-                },
-            ),
-            None => (z_noisy, src_noisy),
-        };
-        let control = match self.prior.info().control {
-            // The original render as the prior sees it (over the same fill).
-            Some(crate::prior::ControlKind::Source) => {
-                let imgs: Vec<Array3<f32>> =
-                    views.iter().map(|&v| self.source_seen[v].clone()).collect();
-                Some(stack(&imgs)?)
-            }
-            Some(kind) => {
-                let pick = |xs: &Vec<Vec<f32>>, c: usize| -> Array4<f32> {
-                    Array4::from_shape_fn((n, h, w, c), |(i, y, x, k)| {
-                        xs[views[i]][(y * w + x) * c + k]
-                    })
-                };
-                let rgb = pick(&self.source.rgb, 3);
-                let depth = pick(&self.source.depth, 1).remove_axis(Axis(3));
-                let alpha = pick(&self.source.alpha, 1).remove_axis(Axis(3));
-                Some(crate::prior::control_image(
-                    kind,
-                    rgb.view(),
-                    depth.view(),
-                    alpha.view(),
-                )?)
-            }
-            None => None,
-        };
-        let (z1, _g) = csd::step(
+        let z0 = step::encode_views(self.prior, &seen, views.len())?;
+        let z0_src = self.z0_src.select(Axis(0), &views);
+        let sh = z0.shape();
+        let noise = draws.noise([sh[0], sh[1], sh[2], sh[3]]);
+        let x = step::noise_branches(&self.schedule, z0, z0_src, &noise, t, p, circular)?;
+
+        // CSD, the image change, the targets.
+        let seen_src = |v: usize| self.source_seen[v].clone();
+        let control = step::control(self.prior.info().control, self.source, &seen_src, &views)?;
+        let change = step::prior_change(
             self.prior,
             &self.schedule,
-            csd::StepInputs {
-                z0: z0.view(),
-                z_tgt: z_tgt.view(),
-                z_src: z_src.view(),
-                eps: eps.view(),
-                z0_src: Some(z0_src.view()),
-                t,
-                control: control.as_ref().map(|c| c.view()),
-            },
+            &x,
+            control.as_ref().map(|c| c.view()),
             &p.csd,
+            size,
         )?;
-        let delta = csd::image_change(self.prior, z1.view(), z0.view(), h, w)?;
-
-        // Targets: the object's colour moves by Delta, recomposited with alpha.
-        let bg = p.background;
-        let mut targets = Array4::<f32>::zeros((n, h, w, 3));
-        let (mut d2, mut covered, mut clipped) = (0.0f64, 0usize, 0usize);
-        for (i, &v) in views.iter().enumerate() {
-            let alpha = &self.source.alpha[v];
-            let src = &self.source_colour[v];
-            for y in 0..h {
-                for x in 0..w {
-                    let q = y * w + x;
-                    let a = alpha[q];
-                    let rgb = &renders[i][q * 3..q * 3 + 3];
-                    // The object's own colour (un-premultiplied, not clamped).
-                    let c0: [f32; 3] = std::array::from_fn(|k| {
-                        if a >= 1e-4 {
-                            (rgb[k] - (1.0 - a) * bg[k]) / a
-                        } else {
-                            0.0
-                        }
-                    });
-                    let mut c = [0.0f32; 3];
-                    for k in 0..3 {
-                        let d = delta[[i, k, y, x]];
-                        if !d.is_finite() {
-                            return Err(Error::Other(format!(
-                                "prior asked for a non-finite change at t = {t}"
-                            )));
-                        }
-                        c[k] = c0[k] + d;
-                        if a > 0.5 {
-                            d2 += (d * d) as f64;
-                        }
-                    }
-                    if p.preserve_color {
-                        c = keep_chroma(c, [src[q * 3], src[q * 3 + 1], src[q * 3 + 2]]);
-                    }
-                    let c: [f32; 3] =
-                        std::array::from_fn(|k| c[k].clamp(c0[k].min(0.0), c0[k].max(1.0)));
-                    if a > 0.5 {
-                        covered += 1;
-                        if c.iter().all(|v| *v <= 0.02) || c.iter().all(|v| *v >= 0.98) {
-                            clipped += 1;
-                        }
-                    }
-                    for k in 0..3 {
-                        targets[[i, y, x, k]] = rgb[k] + a * (c[k] - c0[k]);
-                    }
-                }
-            }
-        }
+        let (targets, stats) = step::targets(
+            &renders.iter().map(|r| r.as_slice()).collect::<Vec<_>>(),
+            &views
+                .iter()
+                .map(|&v| self.source.alpha[v].as_slice())
+                .collect::<Vec<_>>(),
+            &views
+                .iter()
+                .map(|&v| self.source_colour[v].as_slice())
+                .collect::<Vec<_>>(),
+            change.delta.view(),
+            TargetParams {
+                background: p.background,
+                preserve_color: p.preserve_color,
+            },
+        )?;
 
         // One colour step on the window.
-        let lp = LossParams {
-            ssim_weight: p.ssim_weight,
-        };
-        let index: std::collections::HashMap<usize, usize> =
-            views.iter().enumerate().map(|(i, &v)| (v, i)).collect();
-        let tg = &targets;
-        let mut loss = |v: usize, rgb: &[f32], _a: Option<&[f32]>| -> Result<(f64, Vec<f32>)> {
-            let i = index[&v];
-            let target = tg.index_axis(Axis(0), i);
-            let target = target.as_slice().expect("standard layout");
-            let (l, g) = loss_and_grad(rgb, target, None, h, w, lp);
-            Ok((l as f64, g))
-        };
-        let loss = self.fit.step_views(&views, &mut loss)?;
-        let report = IterReport {
-            iteration: it,
-            views: views.clone(),
-            timestep: t,
-            loss,
-            delta_rms: (d2 / (3 * covered.max(1)) as f64).sqrt(),
-            clipped: clipped as f64 / covered.max(1) as f64,
-        };
+        let loss = step::colour_step(&mut self.fit, &views, targets.view(), p.ssim_weight)?;
+        let report = IterReport::new(draws.window(), t, stats, loss);
         self.last = Some(LastIteration {
             report: report.clone(),
-            z0,
-            z_tgt,
-            z_src,
+            z0: x.z0,
+            z_tgt: x.z_tgt,
+            z_src: x.z_src,
             targets,
         });
         self.iteration += 1;
         Ok(report)
     }
+}
+
+impl Distiller<'_> {
+    /// Run `iters` iterations with a progress bar, logging after the first (and the
+    /// second: the first pays the graphs' warm-up, about a third more for SD 1.5 on a
+    /// CPU, BENCHMARKS.md "Diffusion path") how long the rest will take on this machine,
+    /// and what `cost` predicted for one iteration (`one`: its plan).
+    pub fn run(
+        &mut self,
+        iters: u64,
+        cost: Option<&CostModel>,
+        one: &Plan,
+    ) -> Result<Vec<IterReport>> {
+        let start = self.iteration;
+        let bar = indicatif::ProgressBar::new(iters);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg} [{bar:30}] {pos}/{len} iterations {elapsed} (ETA {eta})",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        let mut reports = Vec::with_capacity(iters as usize);
+        for k in 0..iters {
+            let started = std::time::Instant::now();
+            let r = self.iterate()?;
+            let left = iters - 1 - k;
+            if k < 2 && left > 0 {
+                let s = started.elapsed().as_secs_f64();
+                let model = match (k, cost) {
+                    (0, Some(c)) => format!(
+                        " (the graphs' size predicted {} for it)",
+                        about(c.seconds(one))
+                    ),
+                    _ => String::new(),
+                };
+                bar.suspend(|| {
+                    tracing::info!(
+                        "distill: iteration {} took {s:.2} s{model}; the other {left}: {} on \
+                         this machine",
+                        start + k,
+                        about(s * left as f64)
+                    )
+                });
+            }
+            bar.set_message(format!("distill t={:3} loss {:.4}", r.timestep, r.loss));
+            bar.inc(1);
+            reports.push(r);
+        }
+        bar.finish_and_clear();
+        Ok(reports)
+    }
+}
+
+/// What a run of the loop leaves.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// The scene with its colours as of the last iteration.
+    pub scene: Scene,
+    pub state: OptimizerState,
+    /// The reports of this run's iterations.
+    pub reports: Vec<IterReport>,
+    /// The last iteration's tensors (None when no iteration ran).
+    pub last: Option<LastIteration>,
+}
+
+impl Outcome {
+    /// No iteration: the start as it is.
+    pub fn unchanged(start: &Start) -> Outcome {
+        Outcome {
+            scene: start.scene.clone(),
+            state: start.state(),
+            reports: Vec::new(),
+            last: None,
+        }
+    }
+}
+
+/// Run `iters` iterations of the loop from `start` (a scene, or a checkpoint with its
+/// optimizer state and iteration count) on the views of `cameras` (`source`: their
+/// original renders), with `prior` and timesteps from `set`; `cost` (diffusion models)
+/// says what the run will cost before it starts and is calibrated on its first
+/// iterations ([`Distiller::run`]).
+#[allow(clippy::too_many_arguments)]
+pub fn distill(
+    start: &Start,
+    cameras: &[Camera],
+    source: &SourceViews,
+    prior: &mut dyn Prior,
+    set: TimestepSet,
+    params: DistillParams,
+    iters: u64,
+    cost: Option<&CostModel>,
+) -> Result<Outcome> {
+    let (conds, f) = (params.csd.conds(), prior.info().downsample);
+    let per_iter = params.views_per_iter.min(cameras.len());
+    let (h, w) = (source.height, source.width);
+    let plan = |n: u64| Plan::csd_steps(n as usize, per_iter, conds, (h, w), f, 1);
+    crate::prior::cost::announce(cost, "distill", &plan(iters));
+    let it = start.iteration;
+    let mut d = Distiller::new(&start.scene, cameras, source, prior, set, params, it)?;
+    d.set_optimizer_state(start.state())?;
+    tracing::info!(
+        "distill: iterations {it}..{} on {} views ({w}x{h}), {per_iter} per iteration, path {}",
+        it + iters,
+        cameras.len(),
+        if d.path().closed { "closed" } else { "open" }
+    );
+    let reports = d.run(iters, cost, &plan(1))?;
+    if let Some(r) = reports.last() {
+        tracing::info!(
+            "distill: iteration {} t = {} loss {:.5}, clipped {:.2}% of covered target pixels",
+            r.iteration,
+            r.timestep,
+            r.loss,
+            100.0 * r.clipped
+        );
+    }
+    Ok(Outcome {
+        scene: d.scene().clone(),
+        state: d.optimizer_state(),
+        reports,
+        last: d.last().cloned(),
+    })
 }
 
 /// Luminance-only transfer (Gatys et al. 2016, "Preserving color in neural artistic

@@ -9,7 +9,11 @@
 //!
 //! Flags several stages share are clap groups flattened into their `Args`:
 //! [`SceneInput`] (`--scene`, `--cameras`), [`Background`] (`--background`) and
-//! [`Threads`] (`--threads`), [`DeviceArg`] (`--device`); a stage's own numerics parameters are the library's
+//! [`Threads`] (`--threads`), [`DeviceArg`] (`--device`), [`PriorArgs`] (`--model`,
+//! `--style`, `--prompt`, `--strength` and the device flags of `distill` and `csd-step`),
+//! [`MvfcArgs`] (`--no-mvfc`, `--mvfc-source`, `--gamma`, ... of `distill` and
+//! `mvfc-filter`);
+//! a stage's own numerics parameters are the library's
 //! parameter structs flattened the same way (`csd::CsdParams`, `mvfc::MvfcParams`).
 //! A stage never imports another stage: what two stages need lives in the library
 //! (artifact readers in [`crate::artifacts`], model lookup in [`crate::models`], phase
@@ -135,6 +139,137 @@ pub struct DeviceArg {
     /// needs onnxruntime's GPU build, see README "Running on a GPU").
     #[arg(long = "device", value_name = "DEVICE", default_value = "cpu")]
     pub device: crate::runtime::Device,
+}
+
+/// `--model`, `--style`, `--prompt`, `--strength`, `--device`, `--unet-batch`: the prior a
+/// distilling stage (`distill`, `csd-step`) opens, and how.
+#[derive(clap::Args, Debug, Clone)]
+pub struct PriorArgs {
+    /// Model directory with model.json (e.g. vendor/models/stylizer,
+    /// vendor/models/gaussian-prior, an export of scripts/export_models.py).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Style image (PNG or JPEG, shorter side >= 64 px).
+    #[arg(long)]
+    pub style: PathBuf,
+    /// The prompt P: any text for a model with a text encoder (else one of its exported
+    /// prompts); empty or absent: the model's first exported prompt. Ignored by the
+    /// stylizer.
+    #[arg(long)]
+    pub prompt: Option<String>,
+    /// Style strength in [0, 1]: 0 leaves the scene unchanged, 1 is the full style.
+    #[arg(long, default_value_t = 1.0)]
+    pub strength: f32,
+    #[command(flatten)]
+    pub device: DeviceArg,
+    /// Most UNet rows per call (rows = views x conditionings; 0 = automatic: all, unless
+    /// the first level's attention scores would pass 2^31 floats, as SD 1.5 at 64x64
+    /// latents with more than 4 rows).
+    #[arg(long, default_value_t = 0)]
+    pub unet_batch: usize,
+}
+
+impl PriorArgs {
+    /// Check the flags and read the style image (before anything slow).
+    pub fn load_style(&self) -> Result<crate::imageio::Image> {
+        if !(0.0..=1.0).contains(&self.strength) {
+            return Err(Error::param(format!(
+                "--strength must be in [0, 1], got {}",
+                self.strength
+            )));
+        }
+        crate::imageio::load_style(&self.style, crate::imageio::MIN_STYLE_SIDE)
+    }
+
+    /// Open the prior with the style image `style` and `threads` intra-op threads
+    /// (counted as loading time).
+    pub fn open(
+        &self,
+        style: &crate::imageio::Image,
+        threads: Threads,
+    ) -> Result<Box<dyn crate::prior::Prior>> {
+        let opts = crate::prior::PriorOptions {
+            style_image: Some(style.to_chw().insert_axis(ndarray::Axis(0))),
+            prompt: self.prompt.clone().filter(|p| !p.is_empty()),
+            threads: threads.n,
+            strength: Some(self.strength),
+            device: self.device.device,
+            unet_batch: self.unet_batch,
+            ..Default::default()
+        };
+        crate::timing::load(|| crate::prior::open(&self.model, &opts))
+    }
+
+    /// The model's `model.json` (the model directory's, or `--model` itself if a file).
+    pub fn manifest_path(&self) -> PathBuf {
+        model_manifest(&self.model)
+    }
+
+    /// Record the style image and the model's manifest as inputs of an artifact.
+    pub fn add_inputs(&self, w: &mut fantasystyle_schemas::ArtifactWriter) -> Result<()> {
+        w.add_input("style", &self.style)?;
+        w.add_input("model", &self.manifest_path())?;
+        Ok(())
+    }
+
+    /// The flags as producer parameters.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "strength": self.strength, "prompt": self.prompt,
+            "device": self.device.device.to_string(), "unet_batch": self.unet_batch,
+        })
+    }
+}
+
+/// `--no-mvfc`, `--mvfc-source` and MVFC's parameters: how the loop (`distill`,
+/// `mvfc-filter`) filters the noisy latents of the two branches.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct MvfcArgs {
+    /// Skip MVFC (the paper's "w/o MVFC" ablation).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub no_mvfc: bool,
+    /// Filter the source branch with MVFC too (false: the target only, as in the paper,
+    /// which moves the scene even when the style is its own look).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub mvfc_source: bool,
+    #[command(flatten)]
+    pub params: crate::mvfc::MvfcParams,
+}
+
+impl MvfcArgs {
+    /// The filter (`None`: without MVFC), checked.
+    pub fn filter(&self) -> Result<Option<crate::mvfc::MvfcParams>> {
+        self.params.validate()?;
+        Ok((!self.no_mvfc).then_some(self.params))
+    }
+
+    /// The flags as producer parameters.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "mvfc": !self.no_mvfc, "mvfc_source": self.mvfc_source, "gamma": self.params.gamma,
+            "d_s": self.params.d_s, "d_t": self.params.d_t,
+        })
+    }
+}
+
+/// Merge the fields of JSON objects into one (later ones win), for producer parameters.
+pub fn merge_params(parts: &[serde_json::Value]) -> serde_json::Value {
+    let mut out = serde_json::Map::new();
+    for p in parts {
+        if let serde_json::Value::Object(m) = p {
+            out.extend(m.clone());
+        }
+    }
+    serde_json::Value::Object(out)
+}
+
+/// A model's `model.json`: `model` itself if it is a file, else `model/model.json`.
+pub fn model_manifest(model: &Path) -> PathBuf {
+    if model.is_file() {
+        model.to_path_buf()
+    } else {
+        model.join("model.json")
+    }
 }
 
 /// Run `f` on a rayon pool of `threads` threads (0 = all cores).

@@ -5,9 +5,20 @@
 //! the same way when it saves renders), `depth.npy` [N,H,W] (expected depth, not divided by alpha), `alpha.npy`
 //! [N,H,W], `cameras.json` (INRIA format, at W x H), and `view_000.png`.. previews.
 //! The manifest records the scene and cameras as inputs (hashes) and the parameters.
+//!
+//! With `--window N` it renders one iteration's window for the stage chain instead: the
+//! N adjacent views of the `--cameras` path that `distill`'s iteration draws from
+//! (`--seed`, the iteration count of the `--scene` checkpoint; [`crate::distill::step::Draws`]),
+//! with the colour fit's renderer as `distill` renders them
+//! ([`crate::distill::step::render_window`]: `rgb.npy` NOT clamped, colours have no upper
+//! bound), `cameras.json` of those views, and the iteration in `meta.iteration`.
 
 use super::{Background, SceneInput, Threads};
+use crate::artifacts::Start;
 use crate::camera::inria;
+use crate::distill::path::ViewPath;
+use crate::distill::step::{Draws, IterationWindow, render_window};
+use crate::optim::{ColourFit, FitParams};
 use crate::render::{RenderOptions, RenderOutput, render};
 use crate::{Camera, Error, Result, Scene};
 use fantasystyle_schemas::{ArtifactKind, Producer};
@@ -33,6 +44,14 @@ pub struct Args {
     pub background: Background,
     #[command(flatten)]
     pub threads: Threads,
+    /// Render only the window of this many adjacent views that distill's iteration draws
+    /// (from --seed and the iteration count of the --scene checkpoint; a plain scene is
+    /// iteration 0), as distill renders them (rgb not clamped); for the stage chain.
+    #[arg(long)]
+    pub window: Option<usize>,
+    /// Seed of the run whose window --window draws.
+    #[arg(long, default_value_t = 0, requires = "window")]
+    pub seed: u64,
 }
 
 /// Render every camera, with a progress bar.
@@ -58,21 +77,27 @@ pub fn render_all(
 
 /// The stage: load, render, write the artifact.
 pub fn run(a: Args) -> Result<()> {
-    if a.width == 0 || a.height == 0 {
+    if a.width == 0 || a.height == 0 || a.window == Some(0) {
         return Err(Error::param(format!(
-            "image size {}x{}: --width and --height must be positive",
-            a.width, a.height
+            "image size {}x{}, window {:?}: --width, --height and --window must be positive",
+            a.width, a.height, a.window
         )));
     }
-    let scene = a.input.load_scene()?;
-    let cams = a.input.load_cameras(&scene, a.width, a.height)?;
-    let params = serde_json::json!({
-        "cameras": a.input.cameras, "width": a.width, "height": a.height,
-        "background": a.background.rgb,
+    let start = match a.window {
+        Some(_) => crate::timing::load(|| Start::load(&a.input.scene))?,
+        None => Start::fresh(a.input.load_scene()?),
+    };
+    let scene = &start.scene;
+    let cams = a.input.load_cameras(scene, a.width, a.height)?;
+    // The iteration's window (--window) of the cameras' path, or every camera.
+    let window = a.window.map(|size| {
+        let d = Draws::new(a.seed, start.iteration, ViewPath::of(&cams), size);
+        d.window().clone()
     });
-    let producer = Producer::new("render-views", crate::VERSION, params);
-    let mut w = super::create_artifact(&a.out, ArtifactKind::Views, producer)?;
-    a.input.add_inputs(&mut w)?;
+    let cams: Vec<Camera> = match &window {
+        Some(w) => w.window.views.iter().map(|&v| cams[v].clone()).collect(),
+        None => cams,
+    };
     tracing::info!(
         "rendering {} Gaussians, {} views at {}x{}",
         scene.len(),
@@ -83,26 +108,61 @@ pub fn run(a: Args) -> Result<()> {
     let opts = RenderOptions {
         background: a.background.rgb,
     };
-    let views = a.threads.install(|| render_all(&scene, &cams, &opts))??;
+    let mut views = a.threads.install(|| render_all(scene, &cams, &opts))??;
+    if window.is_some() {
+        // The colours as distill's colour fit renders them (not clamped).
+        let fit = FitParams {
+            background: a.background.rgb,
+            ..FitParams::default()
+        };
+        let rgb = a.threads.install(|| -> Result<_> {
+            let fit = ColourFit::without_targets(scene, &cams, &fit)?;
+            Ok(render_window(&fit, &(0..cams.len()).collect::<Vec<_>>()))
+        })??;
+        for (v, rgb) in views.iter_mut().zip(rgb) {
+            v.rgb = rgb;
+        }
+    } else {
+        for v in views.iter_mut() {
+            v.rgb.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
+        }
+    }
+    write(&a, &cams, &views, window.as_ref())
+}
+
+/// Write the views artifact.
+fn write(
+    a: &Args,
+    cams: &[Camera],
+    views: &[RenderOutput],
+    window: Option<&IterationWindow>,
+) -> Result<()> {
+    let params = serde_json::json!({
+        "cameras": a.input.cameras, "width": a.width, "height": a.height,
+        "background": a.background.rgb, "window": a.window, "seed": a.seed,
+    });
+    let producer = Producer::new("render-views", crate::VERSION, params);
+    let mut w = super::create_artifact(&a.out, ArtifactKind::Views, producer)?;
+    a.input.add_inputs(&mut w)?;
     let (n, h, wd) = (views.len(), a.height as usize, a.width as usize);
     let mut rgb = Vec::with_capacity(n * h * wd * 3);
     let mut depth = Vec::with_capacity(n * h * wd);
     let mut alpha = Vec::with_capacity(n * h * wd);
-    for v in &views {
+    for v in views {
         if v.width != wd || v.height != h {
             return Err(Error::Other(format!(
                 "renderer returned {}x{} for a {wd}x{h} camera",
                 v.width, v.height
             )));
         }
-        rgb.extend(v.rgb.iter().map(|x| x.clamp(0.0, 1.0)));
+        rgb.extend_from_slice(&v.rgb);
         depth.extend_from_slice(&v.depth);
         alpha.extend_from_slice(&v.alpha);
     }
     w.write_tensor("rgb.npy", &[n, h, wd, 3], &rgb)?;
     w.write_tensor("depth.npy", &[n, h, wd], &depth)?;
     w.write_tensor("alpha.npy", &[n, h, wd], &alpha)?;
-    w.write_json("cameras.json", &inria::to_inria(&cams))?;
+    w.write_json("cameras.json", &inria::to_inria(cams))?;
     for (i, v) in views.iter().enumerate() {
         let png = crate::imageio::encode_png_rgb(&v.rgb, wd, h)?;
         w.write_bytes(&format!("view_{i:03}.png"), &png)?;
@@ -110,6 +170,7 @@ pub fn run(a: Args) -> Result<()> {
     w.set_meta(serde_json::json!({
         "views": n, "width": wd, "height": h, "background": a.background.rgb,
         "camera_names": cams.iter().map(|c| c.name.clone()).collect::<Vec<_>>(),
+        "iteration": window,
     }));
     crate::timing::io(|| w.commit())?;
     tracing::info!("wrote {}", a.out.display());

@@ -429,7 +429,7 @@ fn csd_step_stage_runs_the_fixture_and_refuses_shared_conditioning() {
     let sp = crate::mvfc::csd_inputs(d.path(), &dir, &views, &style);
     // The routed model, a run-time prompt, --mode csd: targets written.
     let mut a = crate::mvfc::step_args(d.path(), &dir, &sp, Mode::Csd);
-    a.prompt = Some("an ink drawing of a stone bridge".into());
+    a.prior.prompt = Some("an ink drawing of a stone bridge".into());
     let rep = fantasystyle::stages::csd_step::run(a).unwrap();
     assert!(rep.grad_rms > 0.0 && rep.grad_rms.is_finite(), "{rep:?}");
     // Plain IP-Adapter routing: --mode csd refused (exit code 2 from the binary),

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// The installed stylizer model; under CI its absence is a failure, elsewhere a skip.
-fn stylizer_dir() -> Option<PathBuf> {
+pub(crate) fn stylizer_dir() -> Option<PathBuf> {
     let dir = fantasystyle::models::model_path("stylizer").ok()?;
     if dir.join("model.json").is_file() {
         return Some(dir);

@@ -204,10 +204,13 @@ fn stylizer_csd_moves_views_toward_the_style() {
 
 use fantasystyle::artifacts::{read_latents, read_noised_latents, read_targets};
 use fantasystyle::csd::{Mode, Weighting};
+use fantasystyle::distill::path::ViewPath;
+use fantasystyle::distill::step::Draws;
+use fantasystyle::mvfc::mvfc_path;
 use fantasystyle::prior::gaussian::{GaussianPrior, vae_decode};
 use fantasystyle::scheduler::Schedule;
-use fantasystyle::stages::mvfc_filter::TimestepChoice;
-use fantasystyle::stages::{Threads, csd_step, encode_latents, mvfc_filter};
+use fantasystyle::stages::{Background, MvfcArgs, PriorArgs, Threads};
+use fantasystyle::stages::{csd_step, encode_latents, mvfc_filter};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use std::path::{Path, PathBuf};
 
@@ -221,7 +224,7 @@ fn model_dir(name: &str) -> Option<PathBuf> {
     }
 }
 
-fn write_latents(dir: &Path, z: &Array4<f32>) {
+fn write_latents(dir: &Path, z: &Array4<f32>, meta: serde_json::Value) {
     let mut w = ArtifactWriter::create(
         dir,
         ArtifactKind::Latents,
@@ -230,6 +233,7 @@ fn write_latents(dir: &Path, z: &Array4<f32>) {
     .unwrap();
     w.write_tensor("latents.npy", z.shape(), z.as_slice().unwrap())
         .unwrap();
+    w.set_meta(meta);
     w.commit().unwrap();
 }
 
@@ -257,20 +261,24 @@ fn filter_args(d: &Path, model: &Path) -> mvfc_filter::Args {
         latents: d.join("lat_tgt"),
         source_latents: d.join("lat_src"),
         model: model.to_path_buf(),
-        timestep: TimestepChoice::Auto,
-        seed: 3,
-        round: 1,
+        timesteps: None,
+        seed: Some(3),
+        iteration: Some(1),
+        mvfc: MvfcArgs {
+            no_mvfc: false,
+            mvfc_source: true,
+            params: MvfcParams::default(),
+        },
         out: d.join("noised"),
-        params: MvfcParams::default(),
-        no_filter: false,
-        group_size: 0,
         threads: Threads::new(1),
     }
 }
 
-/// mvfc-filter: source and target share eps; z_src = add_noise exactly; z_tgt is the MVFC
-/// of add_noise(z0_tgt) with the written shared noise; `--no-filter` skips only the filter;
-/// `auto` is deterministic in (seed, round) and draws from the model's set.
+/// mvfc-filter: both branches noised with one eps at the iteration's t and filtered
+/// along the path with the written eps' (`--mvfc-source false`: the source only noised;
+/// `--no-mvfc`: neither filtered); the draws are the iteration's (seed, iteration):
+/// latents without a recorded iteration are one window of an open path of all views
+/// (mirror-extended), and a recorded window picks its rows of the source latents.
 #[test]
 fn mvfc_filter_stage_noises_and_filters() {
     let Some(model) = model_dir("gaussian-prior") else {
@@ -281,42 +289,88 @@ fn mvfc_filter_stage_noises_and_filters() {
     let shape = (4, 4, 8, 6);
     let z_t = Array4::from_shape_vec(shape, rng.normals_f32(4 * 4 * 8 * 6)).unwrap();
     let z_s = Array4::from_shape_vec(shape, rng.normals_f32(4 * 4 * 8 * 6)).unwrap();
-    write_latents(&d.path().join("lat_tgt"), &z_t);
-    write_latents(&d.path().join("lat_src"), &z_s);
+    write_latents(&d.path().join("lat_tgt"), &z_t, serde_json::json!({}));
+    write_latents(&d.path().join("lat_src"), &z_s, serde_json::json!({}));
     let args = filter_args(d.path(), &model);
     let t = mvfc_filter::run(args.clone()).unwrap();
     let (sched, set) = fantasystyle::prior::model_timesteps(&model).unwrap();
     assert!(set.contains(t));
-    let nd = d.path().join("noised");
-    let noised = read_noised_latents(&nd).unwrap();
+    let noised = read_noised_latents(&d.path().join("noised")).unwrap();
     assert_eq!(noised.timestep, t);
     let (eps, zs, zt, es) = (noised.eps, noised.z_src, noised.z_tgt, noised.eps_shared);
     assert_eq!(es.dim(), (4, 8, 6));
-    let want_s = sched.add_noise(z_s.view(), eps.view(), t).unwrap();
-    assert_eq!(zs, want_s);
+    let p = MvfcParams::default();
+    let noisy_s = sched.add_noise(z_s.view(), eps.view(), t).unwrap();
     let noisy_t = sched.add_noise(z_t.view(), eps.view(), t).unwrap();
-    let want_t = mvfc(noisy_t.view(), es.view(), MvfcParams::default()).unwrap();
-    assert_eq!(zt, want_t);
-    assert!(zt != noisy_t);
+    assert_eq!(zs, mvfc_path(noisy_s.view(), es.view(), p, false).unwrap());
+    assert_eq!(zt, mvfc_path(noisy_t.view(), es.view(), p, false).unwrap());
+    assert!(zt != noisy_t && zs != noisy_s);
+    // The iteration's draws: the same as distill's stream for (seed 3, iteration 1).
+    let path = ViewPath {
+        len: 4,
+        closed: false,
+    };
+    let mut draws = Draws::new(3, 1, path, 4);
+    assert_eq!(draws.window().window.views, [0, 1, 2, 3]);
+    assert_eq!(draws.timestep(&set), t);
+    assert_eq!(draws.noise([4, 4, 8, 6]).eps, eps);
 
-    // Same (seed, round): same t and noise; --no-filter: only the filter is skipped.
+    // --mvfc-source false: the source only noised; --no-mvfc: neither filtered.
     let mut a2 = filter_args(d.path(), &model);
-    a2.no_filter = true;
-    a2.out = d.path().join("nofilter");
+    a2.mvfc.mvfc_source = false;
+    a2.out = d.path().join("target-only");
     assert_eq!(mvfc_filter::run(a2.clone()).unwrap(), t);
-    let n2 = d.path().join("nofilter");
-    let n2 = read_noised_latents(&n2).unwrap();
-    assert_eq!(n2.eps, eps);
-    assert_eq!(n2.z_tgt, noisy_t);
-    // Different rounds draw different timesteps (over a few rounds).
-    let ts: std::collections::BTreeSet<usize> =
-        (0..8).map(|r| set.sample_for_round(3, r)).collect();
-    assert!(ts.len() > 1);
-    // An explicit timestep from the set is used as given.
-    let mut a3 = filter_args(d.path(), &model);
-    a3.timestep = TimestepChoice::Fixed(set.steps()[2]);
-    a3.out = d.path().join("fixed");
-    assert_eq!(mvfc_filter::run(a3.clone()).unwrap(), set.steps()[2]);
+    let n2 = read_noised_latents(&a2.out).unwrap();
+    assert_eq!((&n2.z_src, &n2.z_tgt), (&noisy_s, &zt));
+    a2.mvfc.no_mvfc = true;
+    a2.out = d.path().join("nofilter");
+    mvfc_filter::run(a2.clone()).unwrap();
+    let n3 = read_noised_latents(&a2.out).unwrap();
+    assert_eq!((&n3.z_src, &n3.z_tgt), (&noisy_s, &noisy_t));
+    // Another iteration draws other noise.
+    let mut a4 = filter_args(d.path(), &model);
+    a4.iteration = Some(2);
+    a4.out = d.path().join("it2");
+    mvfc_filter::run(a4.clone()).unwrap();
+    assert!(read_noised_latents(&a4.out).unwrap().eps != eps);
+
+    // A recorded window: views 3, 4, 0 of a closed path of 5; the source rows are those.
+    let z_all = Array4::from_shape_vec((5, 4, 8, 6), rng.normals_f32(5 * 4 * 8 * 6)).unwrap();
+    let closed = ViewPath {
+        len: 5,
+        closed: true,
+    };
+    let w = (0..200)
+        .map(|i| Draws::new(9, i, closed, 3).window().clone())
+        .find(|w| w.window.views == [3, 4, 0])
+        .unwrap();
+    write_latents(&d.path().join("lat_src5"), &z_all, serde_json::json!({}));
+    let meta = serde_json::json!({ "iteration": w });
+    write_latents(
+        &d.path().join("lat_w"),
+        &z_t.slice(ndarray::s![..3, .., .., ..]).to_owned(),
+        meta,
+    );
+    let mut b = filter_args(d.path(), &model);
+    (b.latents, b.source_latents) = (d.path().join("lat_w"), d.path().join("lat_src5"));
+    (b.seed, b.iteration, b.out) = (None, None, d.path().join("win"));
+    let t = mvfc_filter::run(b.clone()).unwrap();
+    let nw = read_noised_latents(&b.out).unwrap();
+    assert_eq!(nw.iteration.as_ref(), Some(&w));
+    let src_rows = z_all.select(ndarray::Axis(0), &[3, 4, 0]);
+    let noisy = sched.add_noise(src_rows.view(), nw.eps.view(), t).unwrap();
+    assert_eq!(
+        nw.z_src,
+        mvfc_path(noisy.view(), nw.eps_shared.view(), p, false).unwrap()
+    );
+    // The recorded iteration wins over flags, which may not contradict it.
+    b.seed = Some(1);
+    b.out = d.path().join("conflict");
+    let e = mvfc_filter::run(b.clone()).unwrap_err().to_string();
+    assert!(
+        e.contains("records its iteration") && !b.out.exists(),
+        "{e}"
+    );
 }
 
 /// Bad input to mvfc-filter: clear errors naming the problem, nothing written.
@@ -327,10 +381,12 @@ fn mvfc_filter_stage_rejects_bad_input() {
     };
     let d = tempfile::tempdir().unwrap();
     let z = Array4::<f32>::zeros((2, 4, 8, 8));
-    write_latents(&d.path().join("lat_tgt"), &z);
+    let none = || serde_json::json!({});
+    write_latents(&d.path().join("lat_tgt"), &z, none());
     write_latents(
         &d.path().join("lat_src"),
         &Array4::<f32>::zeros((2, 4, 8, 6)),
+        none(),
     );
     let err = |a: &mvfc_filter::Args| {
         let e = mvfc_filter::run(a.clone()).unwrap_err();
@@ -344,22 +400,30 @@ fn mvfc_filter_stage_rejects_bad_input() {
 
     let mut nan = z.clone();
     nan[[1, 2, 3, 4]] = f32::NAN;
-    write_latents(&d.path().join("lat_src"), &nan);
+    write_latents(&d.path().join("lat_src"), &nan, none());
     let e = err(&a);
     assert!(e.contains("lat_src") && e.contains("NaN"), "{e}");
 
-    write_latents(&d.path().join("lat_src"), &z);
+    // Source latents of another number of views than the path.
+    write_latents(
+        &d.path().join("lat_src"),
+        &Array4::zeros((3, 4, 8, 8)),
+        none(),
+    );
+    let e = err(&a);
+    assert!(e.contains("lat_src") && e.contains("3 views"), "{e}");
+
+    write_latents(&d.path().join("lat_src"), &z, none());
     let mut b = filter_args(d.path(), &model);
-    b.timestep = TimestepChoice::Fixed(3);
+    b.timesteps = Some("3:2:1".into());
     let e = err(&b);
-    assert!(e.contains("timestep 3") && e.contains("DDIM set"), "{e}");
-    b.timestep = TimestepChoice::Fixed(100_000);
+    assert!(e.contains("t_min 3"), "{e}");
+    b.timesteps = Some("soon".into());
     let e = err(&b);
-    assert!(e.contains("100000"), "{e}");
-    assert!("12x".parse::<TimestepChoice>().is_err());
+    assert!(e.contains("MIN:MAX:COUNT"), "{e}");
 
     let mut c = filter_args(d.path(), &model);
-    c.params.gamma = 1.5;
+    c.mvfc.params.gamma = 1.5;
     let e = err(&c);
     assert!(e.contains("gamma"), "{e}");
     let mut m = filter_args(d.path(), &model);
@@ -383,13 +447,14 @@ pub(crate) fn csd_inputs(
         threads: Threads::new(1),
         device: Default::default(),
         batch: 0,
+        fill: false,
+        alpha_from: None,
+        background: Background { rgb: [0.0; 3] },
     })
     .unwrap();
-    let (_, set) = fantasystyle::prior::model_timesteps(model).unwrap();
     let mut a = filter_args(d, model);
     a.latents = d.join("lat");
     a.source_latents = d.join("lat");
-    a.timestep = TimestepChoice::Fixed(set.steps()[set.steps().len() / 2]);
     mvfc_filter::run(a.clone()).unwrap();
     let sp = d.join("style.png");
     let s = style.index_axis(ndarray::Axis(0), 0);
@@ -409,24 +474,32 @@ pub(crate) fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd
         latents: d.join("lat"),
         views: d.join("views"),
         source_views: d.join("views"),
-        model: model.to_path_buf(),
-        style: style.to_path_buf(),
-        prompt: None,
+        source_latents: d.join("lat"),
+        prior: PriorArgs {
+            model: model.to_path_buf(),
+            style: style.to_path_buf(),
+            prompt: None,
+            strength: 1.0,
+            device: Default::default(),
+            unet_batch: 0,
+        },
         params: CsdParams {
             mode,
             lr: 0.05,
             ..Default::default()
         },
+        preserve_color: false,
+        no_fill: false,
+        background: Background { rgb: [0.0; 3] },
         out: d.join("targets"),
         threads: Threads::new(1),
-        device: Default::default(),
-        unet_batch: 0,
     }
 }
 
-/// csd-step with the Gaussian prior's ONNX graphs: the targets equal render +
-/// decode(z0') - decode(z0) recomputed with the pure-Rust closed-form prior and decoder
-/// (max error 1e-4 where not clamped), cameras are copied, values lie in [0, 1].
+/// csd-step with the Gaussian prior's ONNX graphs: on fully covered views (alpha 1) the
+/// targets equal render + decode(z0') - decode(z0) (within [0, 1]) recomputed with the
+/// pure-Rust closed-form prior and decoder (max error 1e-4 where not clamped), cameras
+/// are copied, values lie in [0, 1].
 #[test]
 fn csd_step_stage_matches_closed_form_targets() {
     let Some(model) = model_dir("gaussian-prior") else {
@@ -446,7 +519,7 @@ fn csd_step_stage_matches_closed_form_targets() {
     let rgb = targets.rgb;
     assert_eq!(rgb.shape(), [2, 32, 32, 3]);
     assert!(rgb.iter().all(|v| (0.0..=1.0).contains(v)));
-    assert!(report.image_delta_rms > 1e-4, "{report:?}");
+    assert!(report.stats.delta_rms > 1e-4, "{report:?}");
 
     // Independent recomputation: Rust closed-form prior, style as re-read from the PNG.
     let style_png = fantasystyle::imageio::Image::load(&sp)
@@ -469,7 +542,7 @@ fn csd_step_stage_matches_closed_form_targets() {
             z_tgt: zt.view(),
             z_src: zs.view(),
             eps: eps.view(),
-            z0_src: None,
+            z0_src: Some(z0.view()),
             t,
             control: None,
         },
@@ -529,8 +602,8 @@ fn csd_step_stage_with_stylizer() {
     assert!(m1 < m0, "colour moments {m0} -> {m1}");
 }
 
-/// Bad input to csd-step: missing style image, mismatched latents, a timestep outside
-/// the model's set; clear errors and no output.
+/// Bad input to csd-step: missing style image, mismatched latents, inputs of another
+/// iteration; clear errors and no output.
 #[test]
 fn csd_step_stage_rejects_bad_input() {
     let Some(model) = model_dir("gaussian-prior") else {
@@ -545,7 +618,7 @@ fn csd_step_stage_rejects_bad_input() {
         (e.exit_code(), e.to_string())
     };
     let mut a = step_args(d.path(), &model, &sp, Mode::Csd);
-    a.style = d.path().join("nope.png");
+    a.prior.style = d.path().join("nope.png");
     let (code, e) = err(&a);
     assert!(
         code == 2 && e.contains("nope.png") && e.contains("not found"),
@@ -553,38 +626,50 @@ fn csd_step_stage_rejects_bad_input() {
     );
 
     std::fs::write(d.path().join("bad.png"), b"not a png").unwrap();
-    a.style = d.path().join("bad.png");
+    a.prior.style = d.path().join("bad.png");
     let (code, e) = err(&a);
     assert!(code == 2 && e.contains("bad.png"), "{e}");
 
     // Latents of another shape than the noised ones.
-    write_latents(&d.path().join("lat2"), &Array4::zeros((2, 4, 4, 2)));
+    write_latents(
+        &d.path().join("lat2"),
+        &Array4::zeros((2, 4, 4, 2)),
+        serde_json::json!({}),
+    );
     let mut b = step_args(d.path(), &model, &sp, Mode::Csd);
     b.latents = d.path().join("lat2");
     let (code, e) = err(&b);
     assert!(code == 2 && e.contains("shape"), "{e}");
 
-    // A noised artifact whose timestep is not in the model's set.
+    // Noised latents of a recorded iteration, latents of none.
+    let z = read_latents(&d.path().join("lat")).unwrap();
+    let w = Draws::new(
+        0,
+        4,
+        ViewPath {
+            len: 2,
+            closed: false,
+        },
+        2,
+    )
+    .window()
+    .clone();
     let mut c = filter_args(d.path(), &model);
-    c.latents = d.path().join("lat");
-    c.source_latents = d.path().join("lat");
-    c.out = d.path().join("noised");
-    mvfc_filter::run(c.clone()).unwrap();
-    let stylizer_set = r#"{"t_min": 1, "t_max": 2, "count": 2}"#;
-    let md = tempfile::tempdir().unwrap();
-    for f in std::fs::read_dir(&model).unwrap() {
-        let f = f.unwrap().path();
-        std::fs::copy(&f, md.path().join(f.file_name().unwrap())).unwrap();
-    }
-    let mut mj: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(model.join("model.json")).unwrap()).unwrap();
-    // Same schedule, but a set {1, 2} that cannot contain the drawn t.
-    mj["stylizer"] = serde_json::json!({ "timesteps": serde_json::from_str::<serde_json::Value>(stylizer_set).unwrap() });
-    std::fs::write(md.path().join("model.json"), mj.to_string()).unwrap();
-    let mut e2 = step_args(d.path(), md.path(), &sp, Mode::Csd);
-    e2.out = d.path().join("t-bad");
+    write_latents(
+        &d.path().join("lat_it"),
+        &z,
+        serde_json::json!({ "iteration": w }),
+    );
+    (c.latents, c.source_latents) = (d.path().join("lat_it"), d.path().join("lat"));
+    (c.seed, c.iteration, c.out) = (None, None, d.path().join("noised_it"));
+    mvfc_filter::run(c).unwrap();
+    let mut e2 = step_args(d.path(), &model, &sp, Mode::Csd);
+    e2.noised = d.path().join("noised_it");
     let (code, e) = err(&e2);
-    assert!(code == 2 && e.contains("DDIM set"), "{e}");
+    assert!(
+        code == 2 && e.contains("another iteration") && e.contains("lat"),
+        "{e}"
+    );
 }
 
 /// The binaries: every contract flag is documented in -h; bad input exits 2 with a
@@ -604,14 +689,15 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
         "--latents",
         "--source-latents",
         "--model",
-        "--timestep",
+        "--timesteps",
         "--seed",
-        "--round",
+        "--iteration",
         "--out",
         "--gamma",
         "--ds",
         "--dt",
-        "--no-filter",
+        "--no-mvfc",
+        "--mvfc-source",
         "--threads",
     ] {
         assert!(h.contains(f), "mvfc-filter -h lacks {f}");
@@ -622,9 +708,16 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
         "--latents",
         "--views",
         "--source-views",
+        "--source-latents",
         "--model",
         "--style",
         "--prompt",
+        "--strength",
+        "--device",
+        "--unet-batch",
+        "--preserve-color",
+        "--no-fill",
+        "--background",
         "--mode",
         "--guidance",
         "--weighting",
@@ -654,7 +747,7 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
     );
     let o = Command::new(mf)
         .args(["--latents", "a", "--source-latents", "b", "--model", "m"])
-        .args(["--timestep", "soon", "--out", "x"])
+        .args(["--iteration", "soon", "--out", "x"])
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
