@@ -1,4 +1,4 @@
-//! Controllable stylized distillation (CSD, FantasyStyle Sec. 3.3) and the score
+//! Controllable stylized distillation (CSD, FantasyStyle Sec. 4, the method) and the score
 //! distillation variants the paper compares it with.
 //!
 //! Inputs: the clean target latents z0 (current renders), the noised target latents

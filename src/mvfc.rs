@@ -1,4 +1,4 @@
-//! Multi-view frequency consistency (MVFC, FantasyStyle Sec. 3.2).
+//! Multi-view frequency consistency (MVFC, FantasyStyle Sec. 4, the method).
 //!
 //! The noisy target latents z_t of N adjacent views, `[N, C, h, w]`, are filtered per
 //! channel in the 3D frequency domain over (view, height, width): every high frequency

@@ -8,7 +8,7 @@
 //!   (Salimans & Ho 2022 for v): x0 = (z_t - sqrt(1-ab) eps) / sqrt(ab),
 //!   eps = (z_t - sqrt(ab) x0) / sqrt(1-ab), v = sqrt(ab) eps - sqrt(1-ab) x0,
 //!   eps = sqrt(1-ab) z_t + sqrt(ab) v, x0 = sqrt(ab) z_t - sqrt(1-ab) v.
-//! * The fixed discrete timestep set the method samples t from (FantasyStyle Sec. 3.2:
+//! * The fixed discrete timestep set the method samples t from (FantasyStyle Sec. 4:
 //!   "t drawn from a fixed discrete DDIM set"): [`TimestepSet`].
 //!
 //! Numerical stability: coefficients are computed in f64 and applied per element in f64;

@@ -1,7 +1,7 @@
 //! What the diffusion path will cost, said before a run starts ("about N minutes on this
 //! machine") and corrected once the first evaluation has been timed.
 //!
-//! FantasyStyle's loop (Sec. 3.3) evaluates the UNet, with its ControlNet, on every view
+//! FantasyStyle's loop (Sec. 4, CSD) evaluates the UNet, with its ControlNet, on every view
 //! under several conditionings per iteration (CSD: four, batched as one call per branch),
 //! and runs the VAE on the renders and the targets. On a CPU these graphs are dominated by
 //! convolutions and matrix products whose work is, per image, proportional to the number

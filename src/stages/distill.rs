@@ -7,9 +7,12 @@
 //! process start, model loading and artifact hashing every iteration (the first version's
 //! rounds spent about as long outside the computation as in it). The DAG runs chunks of K
 //! iterations (`distill@c1`, `distill@c2`, ...) and every chunk writes a checkpoint, so a
-//! run still resumes after a failure and every intermediate can be inspected.
+//! run still resumes after a failure. The same iteration runs as five stages, one
+//! artifact per step, in `data-sample/stylize-stages.toml` (the same library functions,
+//! [`crate::distill::step`]; the same bytes, tested), to look inside it.
 //!
-//! A checkpoint is a `scene` artifact (anything that reads a scene reads it) holding
+//! A checkpoint ([`crate::artifacts::write_checkpoint`]) is a `scene` artifact (anything
+//! that reads a scene reads it) holding
 //! `scene.ply` (and `scene.splat` with `--format splat|both`), the optimizer state
 //! (`adam_dc.npy`, `adam_rest.npy`: Adam's moments; `state.json`: iteration and step
 //! counts), `history.json` (every iteration's timestep, views, loss, clipped fraction) and

@@ -8,23 +8,25 @@
 //! circular filter). The stages run in this process, their flags parsed as the binaries
 //! parse them.
 
+use crate::distill::same_files;
 use crate::harness::repo_root;
 use clap::Parser;
 use fantasystyle::stages::update_gaussians;
 use fantasystyle::stages::{csd_step, distill, encode_latents, mvfc_filter, render_views};
 use std::path::{Path, PathBuf};
 
-/// Parse `args` as stage `A`'s flags and run it.
-fn stage<A: Parser, T>(run: fn(A) -> fantasystyle::Result<T>, name: &str, args: &[String]) -> T {
-    let a = A::try_parse_from(std::iter::once(name.to_string()).chain(args.iter().cloned()))
-        .unwrap_or_else(|e| panic!("{name} {args:?}: {e}"));
-    run(a).unwrap_or_else(|e| panic!("{name} {args:?}: {e}"))
-}
-
-fn s(xs: &[&dyn AsRef<std::ffi::OsStr>]) -> Vec<String> {
-    xs.iter()
-        .map(|x| x.as_ref().to_string_lossy().into_owned())
-        .collect()
+/// Run stage `A` with the flags of `cmd` (its name, then flags separated by white space:
+/// the paths of these tests have none) followed by `extra`, parsed as its binary parses
+/// them.
+fn stage<A: Parser, T>(run: fn(A) -> fantasystyle::Result<T>, cmd: &str, extra: &[String]) {
+    let args = cmd
+        .split_whitespace()
+        .map(String::from)
+        .chain(extra.iter().cloned());
+    let a = A::try_parse_from(args).unwrap_or_else(|e| panic!("{cmd} {extra:?}: {e}"));
+    if let Err(e) = run(a) {
+        panic!("{cmd} {extra:?}: {e}");
+    }
 }
 
 /// The bits of a `.npy` tensor (so that -0 and 0 differ, and NaN equals itself).
@@ -46,281 +48,146 @@ fn same_npy(a: &Path, b: &Path) {
     );
 }
 
-fn same_bytes(a: &Path, b: &Path) {
-    let (x, y) = (std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
-    let first = x.iter().zip(&y).position(|(p, q)| p != q);
-    assert!(
-        x == y,
-        "{} vs {}: {} vs {} bytes, first difference at {first:?}",
-        a.display(),
-        b.display(),
-        x.len(),
-        y.len()
-    );
-}
-
 /// The run's settings.
 struct Case<'a> {
     model: PathBuf,
     /// Flags of the prior and the step shared by distill and csd-step.
     prior: &'a [&'a str],
     cameras: &'a str,
-    size: u32,
+    /// Views per iteration.
     window: usize,
-    iters: usize,
 }
+
+/// Image size (64x64: 8x8 SD latents) and iterations.
+const SIZE: u32 = 64;
+const ITERS: usize = 3;
 
 /// Run the chain and distill from the same start in `d` and compare them.
 fn chain_equals_distill(d: &Path, c: &Case<'_>) {
-    let scene = repo_root().join("data-sample/scene.ply");
-    let style = repo_root().join("data-sample/style.png");
-    let (size, window) = (c.size.to_string(), c.window.to_string());
-    let src = d.join("source/views");
-    let src_lat = d.join("source/latents");
-    let model = &c.model;
+    let (d, m, n) = (d.display(), c.model.display(), c.window);
+    let root = repo_root();
+    let (scene, style) = (
+        root.join("data-sample/scene.ply"),
+        root.join("data-sample/style.png"),
+    );
+    let (scene, style) = (scene.display(), style.display());
+    let size = format!("--width {SIZE} --height {SIZE}");
+    let (src, src_lat) = (format!("{d}/source/views"), format!("{d}/source/latents"));
+    let cams = c.cameras;
     stage(
         render_views::run,
-        "render-views",
-        &s(&[
-            &"--scene",
-            &scene,
-            &"--cameras",
-            &c.cameras,
-            &"--width",
-            &size,
-            &"--height",
-            &size,
-            &"--out",
-            &src,
-        ]),
+        &format!("render-views --scene {scene} --cameras {cams} {size} --out {src}"),
+        &[],
     );
     stage(
         encode_latents::run,
-        "encode-latents",
-        &s(&[
-            &"--views",
-            &src,
-            &"--model",
-            model,
-            &"--fill",
-            &"--batch",
-            &window,
-            &"--threads",
-            &"2",
-            &"--out",
-            &src_lat,
-        ]),
+        &format!("el --views {src} --model {m} --fill --batch {n} --threads 2 --out {src_lat}"),
+        &[],
     );
-    let prior: Vec<String> = s(&[&"--model", model, &"--style", &style])
-        .into_iter()
-        .chain(c.prior.iter().map(|x| x.to_string()))
-        .collect();
-    let distill = |from: &str, dir: &Path, iters: usize, out: &Path| {
-        let mut a = s(&[
-            &from,
-            &dir,
-            &"--source-views",
-            &src,
-            &"--iters",
-            &iters.to_string(),
-        ]);
-        a.extend(s(&[
-            &"--views-per-iter",
-            &window,
-            &"--lr-dc",
-            &"0.05",
-            &"--seed",
-            &"7",
-        ]));
-        a.extend(prior.iter().cloned());
-        a.extend(s(&[&"--threads", &"2", &"--out", &out]));
-        stage(distill::run, "distill", &a);
+    let mut prior: Vec<String> = vec!["--style".into(), style.to_string()];
+    prior.extend(c.prior.iter().map(|x| x.to_string()));
+    let distill = |from: &str, iters: usize, out: &str| {
+        let flags = format!("--views-per-iter {n} --lr-dc 0.05 --seed 7 --threads 2");
+        let cmd = format!("distill {from} --source-views {src} --model {m} --iters {iters}");
+        stage(distill::run, &format!("{cmd} {flags} --out {out}"), &prior);
     };
-    let k = |i: usize| d.join(format!("k{i}"));
-    distill("--scene", &scene, 0, &k(0));
+    distill(&format!("--scene {scene}"), 0, &format!("{d}/k0"));
     // distill: all iterations in one process, and one per process (their last_* tensors).
-    distill("--resume", &k(0), c.iters, &d.join("distill"));
-    let one = |i: usize| {
-        if i == 0 {
-            k(0)
-        } else {
-            d.join(format!("d{i}"))
-        }
+    distill(&format!("--resume {d}/k0"), ITERS, &format!("{d}/distill"));
+    let one = |i: usize| match i {
+        0 => format!("{d}/k0"),
+        _ => format!("{d}/d{i}"),
     };
-    for i in 1..=c.iters {
-        distill("--resume", &one(i - 1), 1, &one(i));
+    for i in 1..=ITERS {
+        distill(&format!("--resume {}", one(i - 1)), 1, &one(i));
     }
     // The chain.
-    for i in 1..=c.iters {
-        let it = d.join(format!("i{i}"));
-        let (views, lat, noised, targets) = (
-            it.join("views"),
-            it.join("latents"),
-            it.join("noised"),
-            it.join("targets"),
+    for i in 1..=ITERS {
+        let (k0, k1, it) = (
+            format!("{d}/k{}", i - 1),
+            format!("{d}/k{i}"),
+            format!("{d}/i{i}"),
         );
+        let (views, lat) = (format!("{it}/views"), format!("{it}/latents"));
+        let (noised, targets) = (format!("{it}/noised"), format!("{it}/targets"));
         stage(
             render_views::run,
-            "render-views",
-            &s(&[
-                &"--scene",
-                &k(i - 1),
-                &"--cameras",
-                &src,
-                &"--width",
-                &size,
-                &"--height",
-                &size,
-                &"--window",
-                &window,
-                &"--seed",
-                &"7",
-                &"--out",
-                &views,
-            ]),
+            &format!("rv --scene {k0} --cameras {src} {size} --window {n} --seed 7 --out {views}"),
+            &[],
         );
+        let fill = format!("--fill --alpha-from {src} --batch 0 --threads 2");
         stage(
             encode_latents::run,
-            "encode-latents",
-            &s(&[
-                &"--views",
-                &views,
-                &"--model",
-                model,
-                &"--fill",
-                &"--alpha-from",
-                &src,
-                &"--batch",
-                &"0",
-                &"--threads",
-                &"2",
-                &"--out",
-                &lat,
-            ]),
+            &format!("el --views {views} --model {m} {fill} --out {lat}"),
+            &[],
         );
+        let from = format!("--latents {lat} --source-latents {src_lat} --model {m}");
+        stage(mvfc_filter::run, &format!("mf {from} --out {noised}"), &[]);
+        let inputs = format!("--noised {noised} --latents {lat} --views {views}");
+        let source = format!("--source-views {src} --source-latents {src_lat}");
         stage(
-            mvfc_filter::run,
-            "mvfc-filter",
-            &s(&[
-                &"--latents",
-                &lat,
-                &"--source-latents",
-                &src_lat,
-                &"--model",
-                model,
-                &"--out",
-                &noised,
-            ]),
+            csd_step::run,
+            &format!("cs {inputs} {source} --model {m} --threads 2 --out {targets}"),
+            &prior,
         );
-        let mut a = s(&[
-            &"--noised",
-            &noised,
-            &"--latents",
-            &lat,
-            &"--views",
-            &views,
-            &"--source-views",
-            &src,
-            &"--source-latents",
-            &src_lat,
-            &"--threads",
-            &"2",
-            &"--out",
-            &targets,
-        ]);
-        a.extend(prior.iter().cloned());
-        stage(csd_step::run, "csd-step", &a);
+        let step = "--lr-dc 0.05 --lr-rest 0 --ssim-weight 0";
+        let from = format!("--scene {k0} --cameras {src} --targets {targets}");
         stage(
             update_gaussians::run,
-            "update-gaussians",
-            &s(&[
-                &"--scene",
-                &k(i - 1),
-                &"--cameras",
-                &src,
-                &"--targets",
-                &targets,
-                &"--lr-dc",
-                &"0.05",
-                &"--lr-rest",
-                &"0",
-                &"--ssim-weight",
-                &"0",
-                &"--out",
-                &k(i),
-            ]),
+            &format!("ug {from} {step} --out {k1}"),
+            &[],
         );
-        // This iteration: the same latents, noised latents and targets as distill's.
-        let last = one(i);
-        same_npy(&lat.join("latents.npy"), &last.join("last_z0.npy"));
-        same_npy(&noised.join("z_tgt.npy"), &last.join("last_z_tgt.npy"));
-        same_npy(&noised.join("z_src.npy"), &last.join("last_z_src.npy"));
-        same_npy(&targets.join("rgb.npy"), &last.join("last_targets.npy"));
-        for f in [
-            "scene.ply",
-            "adam_dc.npy",
-            "adam_rest.npy",
-            "state.json",
-            "history.json",
-        ] {
-            same_bytes(&k(i).join(f), &last.join(f));
-        }
+        // This iteration: the same latents, noised latents and targets as distill's, and
+        // the same checkpoint.
+        let last = PathBuf::from(one(i));
+        let it = PathBuf::from(it);
+        same_npy(&it.join("latents/latents.npy"), &last.join("last_z0.npy"));
+        same_npy(&it.join("noised/z_tgt.npy"), &last.join("last_z_tgt.npy"));
+        same_npy(&it.join("noised/z_src.npy"), &last.join("last_z_src.npy"));
+        same_npy(&it.join("targets/rgb.npy"), &last.join("last_targets.npy"));
+        same_files(Path::new(&k1), &last);
     }
     // K iterations: the same scene, optimizer state and history as distill --iters K.
-    for f in [
-        "scene.ply",
-        "adam_dc.npy",
-        "adam_rest.npy",
-        "state.json",
-        "history.json",
-    ] {
-        same_bytes(&k(c.iters).join(f), &d.join("distill").join(f));
-    }
+    let kk = PathBuf::from(format!("{d}/k{ITERS}"));
+    same_files(&kk, &PathBuf::from(format!("{d}/distill")));
     // And the colours moved: the comparison is not between two unchanged scenes.
     assert_ne!(
-        std::fs::read(k(0).join("scene.ply")).unwrap(),
-        std::fs::read(k(c.iters).join("scene.ply")).unwrap()
+        std::fs::read(format!("{d}/k0/scene.ply")).unwrap(),
+        std::fs::read(kk.join("scene.ply")).unwrap()
     );
 }
 
 /// The stylizer prior; windows of 3 of 4 views of an orbit (the mirror-extended filter).
 #[test]
 fn chain_is_distill_with_the_stylizer() {
-    let Some(model) = crate::distill::stylizer_dir() else {
-        return;
-    };
-    let t = tempfile::tempdir().unwrap();
-    let case = Case {
-        model,
-        prior: &[],
-        cameras: "orbit:4,elev=30,radius=2.4",
-        size: 64,
-        window: 3,
-        iters: 3,
-    };
-    chain_equals_distill(t.path(), &case);
+    if let Some(model) = crate::distill::stylizer_dir() {
+        let case = Case {
+            model,
+            prior: &[],
+            cameras: "orbit:4,elev=30,radius=2.4",
+            window: 3,
+        };
+        chain_equals_distill(tempfile::tempdir().unwrap().path(), &case);
+    }
 }
 
 /// The tiny SD fixture (VAE, UNet through its depth ControlNet, a run-time prompt);
 /// windows that are the whole closed path of 3 views (the circular filter).
 #[test]
 fn chain_is_distill_with_the_tiny_sd_fixture() {
-    let Some(model) = crate::diffusion::tiny_sd15() else {
-        return;
-    };
-    let t = tempfile::tempdir().unwrap();
-    let case = Case {
-        model,
-        prior: &[
+    if let Some(model) = crate::diffusion::tiny_sd15() {
+        let prompt = [
             "--prompt",
             "an ink drawing of a stone bridge",
             "--guidance",
             "3",
-        ],
-        cameras: "orbit:3,elev=30,radius=2.4",
-        size: 64,
-        window: 3,
-        iters: 3,
-    };
-    chain_equals_distill(t.path(), &case);
+        ];
+        let case = Case {
+            model,
+            prior: &prompt,
+            cameras: "orbit:3,elev=30,radius=2.4",
+            window: 3,
+        };
+        chain_equals_distill(tempfile::tempdir().unwrap().path(), &case);
+    }
 }

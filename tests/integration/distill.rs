@@ -300,9 +300,17 @@ fn distill_args(dir: &Path, stylizer: &Path) -> Vec<String> {
     .collect()
 }
 
-const STATE_FILES: [&str; 4] = ["scene.ply", "adam_dc.npy", "adam_rest.npy", "history.json"];
+/// A checkpoint's state: scene, optimizer state, iteration count, history.
+pub(crate) const STATE_FILES: [&str; 5] = [
+    "scene.ply",
+    "adam_dc.npy",
+    "adam_rest.npy",
+    "state.json",
+    "history.json",
+];
 
-fn same_files(a: &Path, b: &Path) {
+/// Files `STATE_FILES` of checkpoints `a` and `b` are the same bytes.
+pub(crate) fn same_files(a: &Path, b: &Path) {
     for f in STATE_FILES {
         let (x, y) = (
             std::fs::read(a.join(f)).unwrap(),
