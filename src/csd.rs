@@ -21,7 +21,7 @@
 //! So `csd` - `csd-no-neg` = beta (e(z_tgt, Null) - e(z_tgt, Content)) (the negative
 //! content guidance), and `dds` - `csd-no-neg` = e(z_tgt, Null) - e(z_src, Null) (DDS keeps
 //! the unconditional predictions that CSD's Phi terms cancel). "Without MVFC" is the
-//! `mvfc-filter` stage's `--no-filter`.
+//! `--no-mvfc` of `distill` and `mvfc-filter`.
 //!
 //! Weighting w(t) ([`Weighting`]): `1-ab` (DreamFusion's choice, default), `uniform` (1),
 //! `sqrt-ab-1-ab` = sqrt(ab) (1 - ab).

@@ -339,11 +339,6 @@ impl TimestepSet {
         let i = ((rng.uniform() * self.steps.len() as f64) as usize).min(self.steps.len() - 1);
         self.steps[i]
     }
-
-    /// The timestep for (`seed`, `round`): deterministic, independent across rounds.
-    pub fn sample_for_round(&self, seed: u64, round: u64) -> usize {
-        self.sample(&mut Rng::derive(seed, &format!("timestep/{round}")))
-    }
 }
 
 #[cfg(test)]
@@ -456,11 +451,6 @@ mod tests {
         assert!(set.steps().windows(2).all(|w| w[1] - w[0] == 20));
         assert!(set.contains(40) && !set.contains(41));
         assert!(set.check(41).unwrap_err().to_string().contains("not in"));
-        let a: Vec<usize> = (0..20).map(|r| set.sample_for_round(7, r)).collect();
-        let b: Vec<usize> = (0..20).map(|r| set.sample_for_round(7, r)).collect();
-        assert_eq!(a, b);
-        assert!(a.iter().all(|t| set.contains(*t)));
-        assert!(a.iter().any(|t| *t != a[0]), "rounds give different t");
         // Sampling covers the whole set.
         let mut rng = Rng::new(3);
         let mut seen = std::collections::HashSet::new();
