@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent numpy reference for MVFC (FantasyStyle Sec. 3.2), and the golden files.
+"""Independent numpy reference for MVFC (FantasyStyle Sec. 4), and the golden files.
 
 Computes the filter exactly as the paper writes it, with numpy.fft in float64:
 fftshift-ed spectra of z_t and of the shared noise eps' (broadcast over views), a
