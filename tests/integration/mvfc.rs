@@ -290,12 +290,12 @@ fn max_abs_diff(a: &Array4<f32>, b: &Array4<f32>) -> f32 {
 /// * z_src = sqrt(ab) z0_src + sqrt(1-ab) eps with ab from numpy's schedule (1e-5);
 /// * MVFC is linear, so two runs of the same (seed, iteration) -- hence the same t, eps
 ///   and eps' -- whose target latents differ by Z / sqrt(ab) differ in z_tgt by
-///   (H + gamma L) Z, the noise-free golden case `stage_4v` of
-///   scripts/reference/mvfc_ref.py (2e-5; latents without a recorded iteration are one
-///   window of an open path, mirror-extended, as the golden case);
-/// * eps' enters through the low band: the mean over views and pixels of z_tgt (the DC
-///   term, where L = 1 and H = 0) is gamma * mean(noisy) + (1 - gamma) * mean(eps')
-///   per channel (1e-5);
+///   (H + gamma L) Z on the mirror-extended view axis (latents without a recorded
+///   iteration are one window of an open path), the noise-free golden case
+///   `stage_4v_path` of scripts/reference/mvfc_ref.py (2e-5);
+/// * eps' enters through the low band: the mean over the mirror-extended views
+///   (v0 .. v_{N-1}, v_{N-2} .. v1) and pixels of z_tgt (the DC term, where L = 1 and
+///   H = 0) is gamma * mean(noisy) + (1 - gamma) * mean(eps') per channel (1e-5);
 /// * `--mvfc-source false`: the source only noised; `--no-mvfc`: the noisy latents
 ///   themselves; the draws are distill's stream for (seed, iteration), another
 ///   iteration draws other noise, and a recorded window picks its rows of the source
@@ -305,8 +305,10 @@ fn mvfc_filter_stage_noises_and_filters() {
     let Some(model) = model_dir("gaussian-prior") else {
         return;
     };
-    let (zg, eg, outg) = golden("stage_4v");
+    let (zg, eg, _) = golden("stage_4v");
     assert!(eg.iter().all(|v| *v == 0.0));
+    let outg = read_npy_f32(&repo_root().join("tests/golden/mvfc/stage_4v_path_out.npy")).unwrap();
+    let outg = Array4::from_shape_vec(zg.raw_dim(), outg.data).unwrap();
     let p = MvfcParams::default();
     let d = tempfile::tempdir().unwrap();
     let shape = zg.raw_dim();
@@ -356,8 +358,19 @@ fn mvfc_filter_stage_noises_and_filters() {
     let noisy_b = eps.mapv(|e| sb * e);
     let (n, c, h, w) = nb.z_tgt.dim();
     for ch in 0..c {
+        // Over the mirror-extended views: the ends once, the inner views twice.
         let mean = |a: ndarray::ArrayView3<'_, f32>| {
-            a.iter().map(|v| *v as f64).sum::<f64>() / a.len() as f64
+            let wt = |v: usize| if v == 0 || v == n - 1 { 1.0 } else { 2.0 };
+            let s: f64 = (0..n)
+                .map(|v| {
+                    wt(v)
+                        * a.index_axis(ndarray::Axis(0), v)
+                            .iter()
+                            .map(|x| *x as f64)
+                            .sum::<f64>()
+                })
+                .sum();
+            s / ((2 * n - 2) * h * w) as f64
         };
         let got = mean(nb.z_tgt.index_axis(ndarray::Axis(1), ch));
         let want = p.gamma as f64 * mean(noisy_b.index_axis(ndarray::Axis(1), ch))
