@@ -29,6 +29,7 @@ use crate::artifacts::{
 };
 use crate::distill::IterReport;
 use crate::distill::step::{ColourStep, IterationWindow, TargetStats, colour_step};
+use crate::distill::texture::TextureTerm;
 use crate::optim::{ColourFit, FitParams, fit_colours};
 use crate::render::CacheMode;
 use crate::scene::ply;
@@ -166,38 +167,7 @@ fn iteration(
         ));
     }
     let cams: Vec<_> = w.window.views.iter().map(|&v| cams[v].clone()).collect();
-    // The texture term and the source coverage it is masked with (the window's views).
-    let texture = a.texture.term(a.style.as_deref())?;
-    let alpha: Vec<Vec<f32>> = match (&texture, &a.source_views) {
-        (None, _) => vec![vec![0.0; h * wd]; cams.len()],
-        (Some(_), None) => {
-            return Err(Error::param(
-                "the texture term needs --source-views (its alpha masks the term)",
-            ));
-        }
-        (Some(_), Some(dir)) => {
-            let src = crate::timing::load(|| read_views(dir))?;
-            let (n, sh, sw) = src.dim();
-            if n != w.path.len || (sh, sw) != (h, wd) {
-                return Err(Error::input(
-                    src.art.path("alpha.npy"),
-                    format!(
-                        "{n} views of {sw}x{sh}, but the iteration's path has {} cameras of \
-                         {wd}x{h}",
-                        w.path.len
-                    ),
-                ));
-            }
-            let plane = |v: usize| -> Vec<f32> {
-                src.alpha
-                    .index_axis(ndarray::Axis(0), v)
-                    .iter()
-                    .copied()
-                    .collect()
-            };
-            w.window.views.iter().map(|&v| plane(v)).collect()
-        }
-    };
+    let (texture, alpha) = texture_inputs(a, &w, (h, wd))?;
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
     a.input.add_inputs(&mut out)?;
     out.add_input("targets", &a.targets)?;
@@ -246,6 +216,48 @@ fn iteration(
         a.out.display()
     );
     Ok(())
+}
+
+/// The texture term of one iteration's colour step (`None` at `--texture-weight 0`) and
+/// the source coverage `[H, W]` of each of the window's views it is masked with (zero
+/// planes without the term).
+fn texture_inputs(
+    a: &Args,
+    w: &IterationWindow,
+    (h, wd): (usize, usize),
+) -> Result<(Option<TextureTerm>, Vec<Vec<f32>>)> {
+    let texture = a.texture.term(a.style.as_deref())?;
+    let alpha: Vec<Vec<f32>> = match (&texture, &a.source_views) {
+        (None, _) => vec![vec![0.0; h * wd]; w.window.views.len()],
+        (Some(_), None) => {
+            return Err(Error::param(
+                "the texture term needs --source-views (its alpha masks the term)",
+            ));
+        }
+        (Some(_), Some(dir)) => {
+            let src = crate::timing::load(|| read_views(dir))?;
+            let (n, sh, sw) = src.dim();
+            if n != w.path.len || (sh, sw) != (h, wd) {
+                return Err(Error::input(
+                    src.art.path("alpha.npy"),
+                    format!(
+                        "{n} views of {sw}x{sh}, but the iteration's path has {} cameras of \
+                         {wd}x{h}",
+                        w.path.len
+                    ),
+                ));
+            }
+            let plane = |v: usize| -> Vec<f32> {
+                src.alpha
+                    .index_axis(ndarray::Axis(0), v)
+                    .iter()
+                    .copied()
+                    .collect()
+            };
+            w.window.views.iter().map(|&v| plane(v)).collect()
+        }
+    };
+    Ok((texture, alpha))
 }
 
 /// A colour fit of `--steps` steps to the targets, one per camera.
