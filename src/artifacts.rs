@@ -11,13 +11,18 @@
 //! | `noised-latents` | mvfc-filter | [`read_noised_latents`]: z_src, z_tgt, eps `[N,C,h,w]`, eps' `[C,h,w]`, t |
 //! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
 //! | `scene` | update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] |
-//! | `scene` with optimizer state (a checkpoint) | distill | [`read_checkpoint`] |
+//! | `scene` with optimizer state (a checkpoint) | distill, update-gaussians (one iteration) | [`read_checkpoint`], [`Start::load`]; written by [`write_checkpoint`] |
+//!
+//! Artifacts of one iteration of the stage chain (`render-views --window` ->
+//! `encode-latents` -> `mvfc-filter` -> `csd-step`) record the iteration and its window
+//! in `meta.iteration` ([`iteration_of`]).
 //!
 //! Stage inputs that may be an artifact or a plain file: [`load_scene`] (a `.ply`, a
 //! `.splat`, a `.spz` or a scene artifact) and [`load_cameras`] (an `orbit:` spec, a camera file or
 //! directory, or any artifact holding a `cameras.json`).
 
 use crate::camera::{self, Camera};
+use crate::distill::step::{IterationWindow, TargetStats};
 use crate::geometry::Bounds;
 use crate::scene::{self, Scene};
 use crate::{Error, Result};
@@ -84,6 +89,19 @@ impl Views {
     pub fn cameras(&self) -> Result<Vec<Camera>> {
         camera::inria::read_inria(&self.art.path("cameras.json"))
     }
+
+    /// The views' cameras, refused unless there is one per view.
+    pub fn cameras_per_view(&self) -> Result<Vec<Camera>> {
+        let cameras = self.cameras()?;
+        let n = self.dim().0;
+        if cameras.len() != n {
+            return Err(Error::input(
+                self.art.path("cameras.json"),
+                format!("{} cameras for {n} views", cameras.len()),
+            ));
+        }
+        Ok(cameras)
+    }
 }
 
 /// Open a `views` artifact and read only its images, `rgb.npy` `[N, H, W, 3]`
@@ -124,15 +142,48 @@ pub fn read_views(dir: &Path) -> Result<Views> {
 
 /// Read a `latents` artifact's `latents.npy` as `[N, C, h, w]` (non-empty).
 pub fn read_latents(dir: &Path) -> Result<Array4<f32>> {
-    let a = Artifact::open(dir, ArtifactKind::Latents)?;
-    let z = read4(&a, "latents.npy")?;
+    Ok(open_latents(dir)?.z)
+}
+
+/// A `latents` artifact (encode-latents' output).
+#[derive(Debug)]
+pub struct Latents {
+    pub art: Artifact,
+    /// `[N, C, h, w]`, non-empty.
+    pub z: Array4<f32>,
+    /// The iteration of the stage chain the encoded views belong to ([`iteration_of`]).
+    pub iteration: Option<IterationWindow>,
+}
+
+/// Open a `latents` artifact: `latents.npy` `[N, C, h, w]` (non-empty) and
+/// `meta.iteration`.
+pub fn open_latents(dir: &Path) -> Result<Latents> {
+    let art = Artifact::open(dir, ArtifactKind::Latents)?;
+    let z = read4(&art, "latents.npy")?;
     if z.is_empty() {
         return Err(Error::input(
-            a.path("latents.npy"),
+            art.path("latents.npy"),
             format!("empty latents {:?}", z.shape()),
         ));
     }
-    Ok(z)
+    let iteration = iteration_of(&art)?;
+    Ok(Latents { art, z, iteration })
+}
+
+/// The rows of `z` (`[N, ...]` over every camera of `w`'s path, read from `file`) of
+/// the window of `w`, in window order.
+pub fn window_rows(z: &Array4<f32>, w: &IterationWindow, file: &Path) -> Result<Array4<f32>> {
+    if z.shape()[0] != w.path.len {
+        return Err(Error::input(
+            file,
+            format!(
+                "{} views, but the iteration's path has {} cameras",
+                z.shape()[0],
+                w.path.len
+            ),
+        ));
+    }
+    Ok(z.select(ndarray::Axis(0), &w.window.views))
 }
 
 /// A `noised-latents` artifact (mvfc-filter's output).
@@ -149,6 +200,8 @@ pub struct NoisedLatents {
     pub eps_shared: Array3<f32>,
     /// The timestep t (`meta.timestep`).
     pub timestep: usize,
+    /// The iteration of the stage chain ([`iteration_of`]).
+    pub iteration: Option<IterationWindow>,
 }
 
 /// Open a `noised-latents` artifact: `z_src.npy`, `z_tgt.npy`, `eps.npy` of one shape
@@ -185,6 +238,7 @@ pub fn read_noised_latents(dir: &Path) -> Result<NoisedLatents> {
             "meta.timestep is missing or not a non-negative integer",
         )
     })? as usize;
+    let iteration = iteration_of(&art)?;
     Ok(NoisedLatents {
         art,
         z_src,
@@ -192,6 +246,7 @@ pub fn read_noised_latents(dir: &Path) -> Result<NoisedLatents> {
         eps,
         eps_shared,
         timestep,
+        iteration,
     })
 }
 
@@ -202,6 +257,9 @@ pub struct Targets {
     pub art: Artifact,
     /// `[N, H, W, 3]`.
     pub rgb: Array4<f32>,
+    /// For the targets of one iteration of the stage chain (csd-step): the iteration, its
+    /// timestep (`meta.timestep`) and what the targets asked for (`meta.stats`).
+    pub step: Option<(IterationWindow, usize, TargetStats)>,
 }
 
 /// Open a `targets` (or `views`) artifact and read its `rgb.npy` `[N, H, W, 3]`.
@@ -215,7 +273,28 @@ pub fn read_targets(dir: &Path) -> Result<Targets> {
         ));
     }
     let rgb = read_rgb(&art, "rgb.npy")?;
-    Ok(Targets { art, rgb })
+    let step = match iteration_of(&art)? {
+        None => None,
+        Some(w) => {
+            let meta = &art.manifest.meta;
+            let bad =
+                |what: String| Error::input(art.path(fantasystyle_schemas::MANIFEST_FILE), what);
+            let t = meta["timestep"]
+                .as_u64()
+                .ok_or_else(|| bad("meta.timestep is missing or not an integer".into()))?;
+            let stats: TargetStats = serde_json::from_value(meta["stats"].clone())
+                .map_err(|e| bad(format!("meta.stats: {e}")))?;
+            if rgb.dim().0 != w.window.views.len() {
+                return Err(bad(format!(
+                    "{} target images for a window of {} views",
+                    rgb.dim().0,
+                    w.window.views.len()
+                )));
+            }
+            Some((w, t as usize, stats))
+        }
+    };
+    Ok(Targets { art, rgb, step })
 }
 
 /// Read a `scene` artifact's `scene.ply` (manifest and hashes checked first).
@@ -334,6 +413,187 @@ pub fn read_baseline_log(dir: &Path) -> Result<serde_json::Value> {
         ));
     }
     Ok(art.read_json("loss.json")?)
+}
+
+/// Where a run of the loop starts: a scene and the iterations done on it, with the
+/// optimizer state and history of a checkpoint (none for a plain scene: iteration 0).
+#[derive(Debug, Clone)]
+pub struct Start {
+    pub scene: Scene,
+    /// Iterations done.
+    pub iteration: u64,
+    /// The optimizer state (`None`: zero, nothing done yet).
+    pub state: Option<crate::optim::OptimizerState>,
+    /// Per-iteration reports so far.
+    pub history: Vec<serde_json::Value>,
+    /// Each view's previous high-pass change (`hf_prev.npy`, shape and values): the
+    /// agreement measurement's state, which only `distill` keeps.
+    pub hf_prev: Option<(Vec<usize>, Vec<f32>)>,
+    /// The checkpoint it was read from (None for a plain scene).
+    pub from: Option<PathBuf>,
+}
+
+impl Start {
+    /// A scene at iteration 0.
+    pub fn fresh(scene: Scene) -> Start {
+        Start {
+            scene,
+            iteration: 0,
+            state: None,
+            history: Vec::new(),
+            hf_prev: None,
+            from: None,
+        }
+    }
+
+    /// A checkpoint ([`read_checkpoint`]).
+    pub fn resume(dir: &Path) -> Result<Start> {
+        let c = read_checkpoint(dir)?;
+        Ok(Start {
+            scene: c.scene,
+            iteration: c.iteration,
+            state: Some(c.state),
+            history: c.history,
+            hf_prev: c.hf_prev,
+            from: Some(dir.to_path_buf()),
+        })
+    }
+
+    /// A checkpoint if `path` is one (a scene artifact with `state.json`), else any scene
+    /// ([`load_scene`]) at iteration 0.
+    pub fn load(path: &Path) -> Result<Start> {
+        if is_artifact(path) && path.join(CHECKPOINT_STATE).is_file() {
+            Start::resume(path)
+        } else {
+            Ok(Start::fresh(load_scene(path)?))
+        }
+    }
+
+    /// The optimizer state (zero where none was saved).
+    pub fn state(&self) -> crate::optim::OptimizerState {
+        self.state
+            .clone()
+            .unwrap_or_else(|| crate::optim::OptimizerState::zeros(&self.scene))
+    }
+}
+
+/// What a checkpoint holds beside its scene files.
+#[derive(Debug, Clone, Copy)]
+pub struct CheckpointParts<'a> {
+    pub scene: &'a Scene,
+    pub state: &'a crate::optim::OptimizerState,
+    /// Iterations done.
+    pub iteration: u64,
+    /// Every iteration's report so far, in order.
+    pub history: &'a [serde_json::Value],
+    /// The agreement measurement's state (`hf_prev.npy`: shape, values), if any.
+    pub hf_prev: Option<(&'a [usize], &'a [f32])>,
+    /// The last iteration's tensors (for inspection), if this process ran one.
+    pub last: Option<&'a crate::distill::LastIteration>,
+}
+
+/// Write a checkpoint's optimizer state (`adam_dc.npy`, `adam_rest.npy`, `state.json`),
+/// `history.json`, `hf_prev.npy` (if any), the last iteration's `last_z0.npy`, `last_z_tgt.npy`,
+/// `last_z_src.npy` `[N, C, h, w]` and `last_targets.npy` `[N, H, W, 3]` (if any) and
+/// the manifest's meta into `out`, a scene artifact whose scene files (`scene.ply`, at
+/// least) the caller writes: what [`read_checkpoint`] reads.
+pub fn write_checkpoint(
+    out: &mut fantasystyle_schemas::ArtifactWriter,
+    c: &CheckpointParts<'_>,
+) -> Result<()> {
+    let st = c.state;
+    let pair = |x: &crate::optim::AdamState| [x.m.clone(), x.v.clone()].concat();
+    out.write_tensor(CHECKPOINT_ADAM_DC, &[2, st.dc.m.len()], &pair(&st.dc))?;
+    out.write_tensor(CHECKPOINT_ADAM_REST, &[2, st.rest.m.len()], &pair(&st.rest))?;
+    out.write_json(
+        CHECKPOINT_STATE,
+        &serde_json::json!({
+            "iteration": c.iteration,
+            "adam_dc_step": st.dc.t,
+            "adam_rest_step": st.rest.t,
+        }),
+    )?;
+    out.write_json(CHECKPOINT_HISTORY, &c.history)?;
+    if let Some((shape, data)) = c.hf_prev {
+        out.write_tensor(CHECKPOINT_HF_PREV, shape, data)?;
+    }
+    if let Some(l) = c.last {
+        for (name, x) in [
+            ("last_z0.npy", &l.z0),
+            ("last_z_tgt.npy", &l.z_tgt),
+            ("last_z_src.npy", &l.z_src),
+            ("last_targets.npy", &l.targets),
+        ] {
+            write_array(out, name, x)?;
+        }
+    }
+    out.set_meta(serde_json::json!({
+        "iteration": c.iteration,
+        "gaussians": c.scene.len(),
+        "sh_degree": c.scene.sh_degree,
+        "last": c.last.map(|l| &l.report),
+    }));
+    Ok(())
+}
+
+/// The iteration that stage inputs `(path, recorded)` record: they must all record the
+/// same one, or none (then: one window of an open path of all `n` views, iteration 0 of
+/// seed 0).
+pub fn agreed_iteration(
+    inputs: &[(&Path, Option<&IterationWindow>)],
+    n: usize,
+) -> Result<IterationWindow> {
+    let Some(w) = inputs.iter().find_map(|(_, w)| *w) else {
+        return Ok(IterationWindow::whole_open_path(n, 0, 0));
+    };
+    if let Some((p, _)) = inputs.iter().find(|(_, o)| *o != Some(w)) {
+        return Err(Error::input(
+            p,
+            format!(
+                "records another iteration than the other inputs (or none); expected \
+                 iteration {} of seed {}, views {:?}",
+                w.iteration, w.seed, w.window.views
+            ),
+        ));
+    }
+    Ok(w.clone())
+}
+
+/// Append the reports of iterations to a checkpoint's history.
+pub fn extend_history(
+    history: &mut Vec<serde_json::Value>,
+    reports: &[crate::distill::IterReport],
+) -> Result<()> {
+    for r in reports {
+        history.push(serde_json::to_value(r).map_err(|e| Error::Other(e.to_string()))?);
+    }
+    Ok(())
+}
+
+/// Write an array as the `.npy` tensor `name` of `out` (in standard layout).
+pub fn write_array<D: ndarray::Dimension>(
+    out: &mut fantasystyle_schemas::ArtifactWriter,
+    name: &str,
+    x: &ndarray::Array<f32, D>,
+) -> Result<()> {
+    let data = x.as_standard_layout();
+    out.write_tensor(name, x.shape(), data.as_slice().expect("standard layout"))?;
+    Ok(())
+}
+
+/// The iteration an artifact of the stage chain belongs to (`meta.iteration`, written by
+/// `render-views --window` and carried along), or `None` for an artifact outside the
+/// chain.
+pub fn iteration_of(art: &Artifact) -> Result<Option<IterationWindow>> {
+    match art.manifest.meta.get("iteration") {
+        None | Some(serde_json::Value::Null) => Ok(None),
+        Some(v) => serde_json::from_value(v.clone()).map(Some).map_err(|e| {
+            Error::input(
+                art.path(fantasystyle_schemas::MANIFEST_FILE),
+                format!("meta.iteration: {e}"),
+            )
+        }),
+    }
 }
 
 /// A stage's scene input: a scene artifact directory ([`read_scene`]), else a `.ply`, a

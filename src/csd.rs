@@ -1,4 +1,4 @@
-//! Controllable stylized distillation (CSD, FantasyStyle Sec. 3.3) and the score
+//! Controllable stylized distillation (CSD, FantasyStyle Sec. 4, the method) and the score
 //! distillation variants the paper compares it with.
 //!
 //! Inputs: the clean target latents z0 (current renders), the noised target latents
@@ -21,7 +21,7 @@
 //! So `csd` - `csd-no-neg` = beta (e(z_tgt, Null) - e(z_tgt, Content)) (the negative
 //! content guidance), and `dds` - `csd-no-neg` = e(z_tgt, Null) - e(z_src, Null) (DDS keeps
 //! the unconditional predictions that CSD's Phi terms cancel). "Without MVFC" is the
-//! `mvfc-filter` stage's `--no-filter`.
+//! `--no-mvfc` of `distill` and `mvfc-filter`.
 //!
 //! Weighting w(t) ([`Weighting`]): `1-ab` (DreamFusion's choice, default), `uniform` (1),
 //! `sqrt-ab-1-ab` = sqrt(ab) (1 - ab).
@@ -107,6 +107,25 @@ impl Default for CsdParams {
             weighting: Weighting::OneMinusAlphaBar,
             lr: 0.1,
         }
+    }
+}
+
+impl CsdParams {
+    /// How many conditionings (UNet rows per latent) a step of this mode evaluates.
+    pub fn conds(&self) -> usize {
+        let (t, s) = conds(self.mode);
+        t.len() + s.len()
+    }
+
+    /// Refuse a non-finite guidance scale and a negative or non-finite step size.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.guidance.is_finite() && self.lr.is_finite() && self.lr >= 0.0) {
+            return Err(Error::param(format!(
+                "--guidance ({}) must be finite and --lr ({}) finite and >= 0",
+                self.guidance, self.lr
+            )));
+        }
+        Ok(())
     }
 }
 

@@ -16,8 +16,8 @@
 //! | [`models`] | where installed models are found (`$FANTASYSTYLE_MODELS`, `vendor/models`) |
 //! | [`prior`] | the prior interface: ONNX diffusion, Gaussian closed form, 2D stylizer |
 //! | [`scheduler`] | DDIM: alphas, the discrete timestep set, noising, eps/x0/v |
-//! | [`mvfc`] | multi-view frequency consistency (paper Sec. 3.2) |
-//! | [`csd`] | controllable stylized distillation (paper Sec. 3.3) |
+//! | [`mvfc`] | multi-view frequency consistency (paper Sec. 4, MVFC) |
+//! | [`csd`] | controllable stylized distillation (paper Sec. 4, CSD) |
 //! | [`vgg`] | VGG16 forward and backward in Rust (the baselines' features) |
 //! | [`baselines`] | Gram, NNFM and per-view refit baselines |
 //! | [`metrics`] | LPIPS, FID/KID, ArtFID, view consistency, Gram distance, the evaluation and its report |

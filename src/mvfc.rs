@@ -1,4 +1,4 @@
-//! Multi-view frequency consistency (MVFC, FantasyStyle Sec. 3.2).
+//! Multi-view frequency consistency (MVFC, FantasyStyle Sec. 4, the method).
 //!
 //! The noisy target latents z_t of N adjacent views, `[N, C, h, w]`, are filtered per
 //! channel in the 3D frequency domain over (view, height, width): every high frequency
@@ -360,31 +360,6 @@ pub fn mvfc(
     MvfcFilter::new([s[0], s[1], s[2], s[3]], params)?.apply(z_t, eps_shared)
 }
 
-/// MVFC over groups of `group` adjacent views (0, or at least N, = all views in one
-/// group). The 3D FFT runs within each group, so low-frequency consistency is enforced
-/// among neighbouring views only, as in the paper, which filters the N adjacent views
-/// rendered per iteration; larger groups tie more distant views together at a higher
-/// FFT cost. The last group may be smaller. Every group blends with the same shared
-/// noise eps'.
-pub fn mvfc_grouped(
-    z_t: ArrayView4<'_, f32>,
-    eps_shared: ArrayView3<'_, f32>,
-    params: MvfcParams,
-    group: usize,
-) -> Result<Array4<f32>> {
-    let n = z_t.shape()[0];
-    if group == 0 || group >= n {
-        return mvfc(z_t, eps_shared, params);
-    }
-    let mut out = z_t.to_owned();
-    for start in (0..n).step_by(group) {
-        let views = ndarray::s![start..(start + group).min(n), .., .., ..];
-        let part = mvfc(z_t.slice(views), eps_shared, params)?;
-        out.slice_mut(views).assign(&part);
-    }
-    Ok(out)
-}
-
 /// MVFC of the N adjacent views of one iteration taken along a camera path. When the
 /// views' ends are neighbours (`circular`: the whole of a closed path) the view axis of
 /// the 3D FFT is circular, as [`mvfc`] has it. Otherwise the FFT's wrap-around would
@@ -428,23 +403,6 @@ mod tests {
             .zip(b.iter())
             .map(|(x, y)| (x - y).abs())
             .fold(0.0, f32::max)
-    }
-
-    #[test]
-    fn groups_filter_each_run_of_views_on_its_own() {
-        let p = MvfcParams::default();
-        let z = randn4(11, [5, 2, 6, 4]);
-        let e = randn3(12, [2, 6, 4]);
-        let whole = mvfc(z.view(), e.view(), p).unwrap();
-        assert_eq!(mvfc_grouped(z.view(), e.view(), p, 0).unwrap(), whole);
-        assert_eq!(mvfc_grouped(z.view(), e.view(), p, 9).unwrap(), whole);
-        let g = mvfc_grouped(z.view(), e.view(), p, 2).unwrap();
-        for (a, b) in [(0, 2), (2, 4), (4, 5)] {
-            let part = mvfc(z.slice(ndarray::s![a..b, .., .., ..]), e.view(), p).unwrap();
-            assert_eq!(g.slice(ndarray::s![a..b, .., .., ..]), part);
-        }
-        // Grouping changes the result (the view axis of the FFT is shorter).
-        assert!(max_abs_diff(&g, &whole) > 1e-4);
     }
 
     /// On an open path the first and last views do not exchange low frequencies (the

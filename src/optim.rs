@@ -382,6 +382,21 @@ pub struct OptimizerState {
     pub rest: AdamState,
 }
 
+impl OptimizerState {
+    /// The state of a fit of `scene` that has not stepped yet (zero moments).
+    pub fn zeros(scene: &Scene) -> OptimizerState {
+        let z = |len: usize| AdamState {
+            m: vec![0.0; len],
+            v: vec![0.0; len],
+            t: 0,
+        };
+        OptimizerState {
+            dc: z(scene.len() * 3),
+            rest: z(scene.len() * 3 * scene.rest_per_channel()),
+        }
+    }
+}
+
 /// Adam state for one parameter vector.
 #[derive(Debug, Clone)]
 pub struct Adam {

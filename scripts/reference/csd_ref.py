@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent numpy reference for one CSD step (FantasyStyle Sec. 3.3, src/csd.rs), and
+"""Independent numpy reference for one CSD step (FantasyStyle Sec. 4, CSD; src/csd.rs), and
 the golden files under tests/golden/csd/.
 
 Everything is computed here from the formulas, in float64, without the Rust code:

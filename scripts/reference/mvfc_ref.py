@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent numpy reference for MVFC (FantasyStyle Sec. 3.2), and the golden files.
+"""Independent numpy reference for MVFC (FantasyStyle Sec. 4), and the golden files.
 
 Computes the filter exactly as the paper writes it, with numpy.fft in float64:
 fftshift-ed spectra of z_t and of the shared noise eps' (broadcast over views), a
@@ -14,6 +14,10 @@ Each case writes CASE_z.npy [N,C,h,w], CASE_eps.npy [C,h,w], CASE_out.npy and a 
 cases.json with gamma, d_s, d_t. The NOISE_FREE cases have eps' = 0, so their output is
 the filter's action on z alone, (H + gamma L) z: the mvfc-filter stage test takes the
 difference of two runs that share eps' (MVFC is linear) and compares it with them.
+They also write CASE_path_out.npy: the filter on an open camera path (the N views are
+not a circle, so the view axis is extended by its mirror image v0 .. v_{N-1},
+v_{N-2} .. v1 before the FFT and cut back to N views after), which the mvfc-filter stage
+applies to latents that record no iteration (one window of an open path).
 """
 import json
 import os
@@ -54,6 +58,15 @@ def mvfc(z, eps, gamma, d_s, d_t):
     return out
 
 
+def mvfc_open_path(z, eps, gamma, d_s, d_t):
+    """MVFC of N views along an open path: the mirror-extended view axis, cut back."""
+    n = z.shape[0]
+    if n <= 2:
+        return mvfc(z, eps, gamma, d_s, d_t)
+    order = list(range(n)) + list(range(n - 2, 0, -1))
+    return mvfc(z[order], eps, gamma, d_s, d_t)[:n]
+
+
 CASES = [
     # name, shape, gamma, d_s, d_t
     ("default_4v", (4, 4, 8, 8), 0.9, 0.25, 0.25),
@@ -88,6 +101,8 @@ def main(out_dir):
         np.save(os.path.join(out_dir, f"{name}_z.npy"), z)
         np.save(os.path.join(out_dir, f"{name}_eps.npy"), eps)
         np.save(os.path.join(out_dir, f"{name}_out.npy"), out)
+        path = mvfc_open_path(z, eps, gamma, d_s, d_t).astype(np.float32)
+        np.save(os.path.join(out_dir, f"{name}_path_out.npy"), path)
         meta[name] = {"gamma": gamma, "d_s": d_s, "d_t": d_t, "noise_free": True}
     with open(os.path.join(out_dir, "cases.json"), "w") as f:
         json.dump(meta, f, indent=1, sort_keys=True)

@@ -2,7 +2,7 @@
 //! (issue 21, item 2: "measure why texture is lost before fixing it").
 //!
 //! The colour step averages what the prior asks for over visits of a view and over the
-//! views that see a surface (FantasyStyle Sec. 3: one optimiser over all iterations).
+//! views that see a surface (FantasyStyle Sec. 4: one optimiser over all iterations).
 //! Texture (strokes, motifs) survives that averaging only where the asks agree; where they
 //! are independent, the average of `k` of them shrinks like `1/sqrt(k)` and only the
 //! low-frequency part (the palette) accumulates. This module measures the agreement:

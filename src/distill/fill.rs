@@ -10,8 +10,8 @@
 //! version came from), and its output bleeds the void's texture into the silhouette.
 //! Filling the void with the object's own colours gives the prior a frame whose
 //! statistics are the object's; the fill carries no new information, and the colour
-//! fit only ever sees the covered part (targets are recomposited with the render's
-//! alpha, [`super::composite_target`]).
+//! fit only ever sees the covered part (targets are recomposited with the coverage,
+//! target = render + alpha (c' - c), [`super::step::targets`]).
 //!
 //! Images are `[H, W, 3]` row-major; weights (coverage, alpha) `[H, W]` in [0, 1].
 

@@ -1,9 +1,12 @@
-//! Distillation at the scale the method needs (FantasyStyle Sec. 3, the whole loop):
+//! Distillation at the scale the method needs (FantasyStyle Sec. 4, the whole loop):
 //! hundreds of iterations, each on a few adjacent views with a fresh timestep and fresh
 //! noise, with one optimizer whose state persists across iterations and checkpoints.
 //!
 //! One iteration `i` (all randomness from `(seed, i)`, so a run split into chunks or
-//! resumed from a checkpoint gives the same bytes as one uninterrupted run):
+//! resumed from a checkpoint gives the same bytes as one uninterrupted run); each step is
+//! a function of [`step`], which the stage chain (`render-views --window` ->
+//! `encode-latents` -> `mvfc-filter` -> `csd-step` -> `update-gaussians`) calls too, so
+//! the chain runs this iteration byte for byte (the integration test `chain`):
 //!
 //! 1. a window of N adjacent views along the camera path ([`path`]);
 //! 2. render them with the current colours (frozen-geometry caches) and give the prior
@@ -41,23 +44,31 @@
 //! Strength is the prior's business (`PriorOptions::strength`; for the stylizer an
 //! interpolation of style vectors), except strength 0, which the stage short-circuits to
 //! "unchanged". Whether f_rest (view-dependent colour) may change is `fit_rest`.
+//!
+//! Not part of the iteration's arithmetic: the agreement measurement ([`agreement`],
+//! between steps 4 and 5: how much the prior's high-frequency change agrees across
+//! visits and neighbouring views), which only `distill` keeps (its state travels in
+//! `distill`'s checkpoints as `hf_prev.npy`; the stage chain does not measure it).
 
 pub mod agreement;
 pub mod fill;
 pub mod guard;
 pub mod path;
+pub mod step;
 pub mod texture;
 
-use crate::csd::{self, CsdParams};
-use crate::mvfc::{MvfcParams, mvfc_path};
-use crate::optim::{ColourFit, FitParams, LossParams, OptimizerState, loss_and_grad};
+use crate::artifacts::{Start, Views};
+use crate::csd::CsdParams;
+use crate::mvfc::MvfcParams;
+use crate::optim::{ColourFit, OptimizerState};
 use crate::prior::Prior;
-use crate::render::CacheMode;
+use crate::prior::cost::{CostModel, Plan, about};
 use crate::rng::Rng;
 use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Camera, Error, Result, Scene};
-use ndarray::{Array3, Array4, Axis, concatenate};
+use ndarray::{Array3, Array4, Axis};
 use path::{ViewPath, Window};
+pub use step::{ColourStep, Draws, TargetParams};
 
 /// Parameters of the loop.
 #[derive(Debug, Clone, PartialEq)]
@@ -170,8 +181,44 @@ pub struct SourceViews {
     pub depth: Vec<Vec<f32>>,
 }
 
+impl SourceViews {
+    /// The source views of a `views` artifact (render-views of the original scene).
+    pub fn from_views(views: &Views) -> SourceViews {
+        let (n, h, w) = views.dim();
+        let plane = |x: &Array3<f32>, i: usize| -> Vec<f32> {
+            x.index_axis(Axis(0), i).iter().copied().collect()
+        };
+        SourceViews {
+            width: w,
+            height: h,
+            rgb: (0..n)
+                .map(|i| views.rgb.index_axis(Axis(0), i).iter().copied().collect())
+                .collect(),
+            alpha: (0..n).map(|i| plane(&views.alpha, i)).collect(),
+            depth: (0..n).map(|i| plane(&views.depth, i)).collect(),
+        }
+    }
+
+    /// Image `rgb` `[H, W, 3]` of view `v` as the prior sees it, `[3, H, W]`
+    /// ([`step::prior_view`] with this view's coverage).
+    pub fn seen(&self, rgb: &[f32], v: usize, background: [f32; 3], fill: bool) -> Array3<f32> {
+        step::prior_view(
+            rgb,
+            &self.alpha[v],
+            background,
+            fill,
+            (self.height, self.width),
+        )
+    }
+
+    /// The un-premultiplied colour `[H, W, 3]` of view `v` ([`fill::unpremultiply`]).
+    pub fn colour(&self, v: usize, background: [f32; 3]) -> Vec<f32> {
+        fill::unpremultiply(&self.rgb[v], &self.alpha[v], background)
+    }
+}
+
 /// What one iteration did, for logs, checkpoints and tests.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct IterReport {
     pub iteration: u64,
     pub views: Vec<usize>,
@@ -190,6 +237,29 @@ pub struct IterReport {
     /// Cosine of the high-pass change between the window's neighbouring views after depth
     /// reprojection ([`agreement`]; None for a one-view window or no overlap).
     pub hf_agree_adjacent: Option<f64>,
+}
+
+impl IterReport {
+    /// The report of an iteration from its window, timestep, targets and colour step
+    /// (`(loss, texture_loss)`), with no agreement measured.
+    pub fn new(
+        w: &step::IterationWindow,
+        timestep: usize,
+        stats: step::TargetStats,
+        (loss, texture_loss): (f64, f64),
+    ) -> Self {
+        IterReport {
+            iteration: w.iteration,
+            views: w.window.views.clone(),
+            timestep,
+            loss,
+            texture_loss,
+            delta_rms: stats.delta_rms,
+            clipped: stats.clipped,
+            hf_agree_revisit: None,
+            hf_agree_adjacent: None,
+        }
+    }
 }
 
 /// The last iteration's tensors, written into checkpoints for inspection.
@@ -213,13 +283,13 @@ pub struct Distiller<'a> {
     timesteps: TimestepSet,
     params: DistillParams,
     source: &'a SourceViews,
-    /// Source chroma/colour per view, un-premultiplied `[H, W, 3]`.
+    /// Source colour per view, un-premultiplied `[H, W, 3]`.
     source_colour: Vec<Vec<f32>>,
     /// The source views as the prior sees them, `[3, H, W]` per view (the encoder's
     /// input for z0_src, and the control image of a `ControlKind::Source` prior).
     source_seen: Vec<Array3<f32>>,
-    /// z0_src per view, `[C, h, w]`.
-    z0_src: Vec<Array3<f32>>,
+    /// z0_src of every view, `[V, C, h, w]`.
+    z0_src: Array4<f32>,
     path: ViewPath,
     iteration: u64,
     last: Option<LastIteration>,
@@ -227,10 +297,6 @@ pub struct Distiller<'a> {
     texture: Option<texture::TextureTerm>,
     /// Each view's previous high-pass change (measurement only, [`agreement`]).
     agreement: agreement::Tracker,
-}
-
-fn to_chw(img: &[f32], h: usize, w: usize) -> Array3<f32> {
-    Array3::from_shape_fn((3, h, w), |(c, y, x)| img[(y * w + x) * 3 + c])
 }
 
 impl<'a> Distiller<'a> {
@@ -276,40 +342,14 @@ impl<'a> Distiller<'a> {
             )));
         }
         let schedule = Schedule::new(info.scheduler.clone())?;
-        let fit_params = FitParams {
-            lr_dc: params.lr_dc,
-            lr_rest: if params.fit_rest {
-                params.lr_dc / 20.0
-            } else {
-                0.0
-            },
-            ssim_weight: params.ssim_weight,
-            mask_alpha: false,
-            cache: CacheMode::On,
-            background: params.background,
-            progress: false,
-        };
-        let fit = ColourFit::without_targets(scene, cameras, &fit_params)?;
+        let fit = ColourFit::without_targets(scene, cameras, &step::fit_params(&params))?;
         let bg = params.background;
-        let source_colour: Vec<Vec<f32>> = (0..n)
-            .map(|v| fill::unpremultiply(&source.rgb[v], &source.alpha[v], bg))
-            .collect();
+        let source_colour: Vec<Vec<f32>> = (0..n).map(|v| source.colour(v, bg)).collect();
         let source_seen: Vec<Array3<f32>> = (0..n)
-            .map(|v| to_chw(&Self::prior_view(&params, source, &source.rgb[v], v), h, w))
+            .map(|v| source.seen(&source.rgb[v], v, bg, params.fill_background))
             .collect();
-        // The source latents, encoded once, a few views per call.
-        let mut z0_src = Vec::with_capacity(n);
-        for chunk in source_seen.chunks(params.views_per_iter.max(1)) {
-            let views: Vec<_> = chunk
-                .iter()
-                .map(|a| a.view().insert_axis(Axis(0)))
-                .collect();
-            let batch = concatenate(Axis(0), &views).map_err(|e| Error::Other(e.to_string()))?;
-            let z = prior.encode(batch.view())?;
-            for i in 0..chunk.len() {
-                z0_src.push(z.index_axis(Axis(0), i).to_owned());
-            }
-        }
+        // The source latents, encoded once, a window's worth of views per call.
+        let z0_src = step::encode_views(prior, &source_seen, params.views_per_iter)?;
         Ok(Distiller {
             fit,
             prior,
@@ -326,22 +366,6 @@ impl<'a> Distiller<'a> {
             texture: None,
             agreement: agreement::Tracker::new(cameras, h, w),
         })
-    }
-
-    /// The image of view `v` the prior sees: `rgb` as rendered, or the object over a
-    /// fill of its own colours.
-    fn prior_view(p: &DistillParams, source: &SourceViews, rgb: &[f32], v: usize) -> Vec<f32> {
-        if p.fill_background {
-            fill::fill_background(
-                rgb,
-                &source.alpha[v],
-                p.background,
-                source.height,
-                source.width,
-            )
-        } else {
-            rgb.to_vec()
-        }
     }
 
     /// Add the low-layer texture term to every colour step.
@@ -400,234 +424,243 @@ impl<'a> Distiller<'a> {
         self.fit.render_view(v)
     }
 
-    /// One iteration (module docs), unchecked: [`Self::iterate`] (in [`guard`]) names
-    /// the iteration in errors and refuses a non-finite result.
+    /// One iteration (module docs), step by step through [`step`], unchecked:
+    /// [`Self::iterate`] (in [`guard`]) names the iteration in errors and refuses a
+    /// non-finite result.
     fn iterate_unguarded(&mut self) -> Result<IterReport> {
-        let it = self.iteration;
-        let p = self.params.clone();
-        let (h, w) = (self.source.height, self.source.width);
-        let mut rng = Rng::derive(p.seed, &format!("distill/{it}"));
-        let Window { views, circular } = self.path.draw(&mut rng, p.views_per_iter);
-        let t = p.t_schedule.draw(&self.timesteps, it, &mut rng);
-        let n = views.len();
+        let p = &self.params;
+        let size = (self.source.height, self.source.width);
+        let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views_per_iter);
+        let t = draws.timestep(p.t_schedule, &self.timesteps);
+        let Window { views, circular } = draws.window().window.clone();
 
-        // Renders, what the prior sees, latents.
+        // Render the window; encode what the prior sees of it; the source latents.
         let ph = crate::timing::span("render");
-        let renders: Vec<Vec<f32>> = views.iter().map(|&v| self.fit.render_view(v)).collect();
+        let renders = step::render_window(&self.fit, &views);
         drop(ph);
         let ph = crate::timing::span("fill");
+        let (bg, fill) = (p.background, p.fill_background);
         let seen: Vec<Array3<f32>> = views
             .iter()
             .zip(&renders)
-            .map(|(&v, r)| to_chw(&Self::prior_view(&p, self.source, r, v), h, w))
+            .map(|(&v, r)| self.source.seen(r, v, bg, fill))
             .collect();
         drop(ph);
-        let stack = |xs: &[Array3<f32>]| -> Result<Array4<f32>> {
-            let v: Vec<_> = xs.iter().map(|a| a.view().insert_axis(Axis(0))).collect();
-            concatenate(Axis(0), &v).map_err(|e| Error::Other(e.to_string()))
-        };
         let ph = crate::timing::span("encode");
-        let z0 = self.prior.encode(stack(&seen)?.view())?;
-        let z0_src = stack(
-            &views
-                .iter()
-                .map(|&v| self.z0_src[v].clone())
-                .collect::<Vec<_>>(),
-        )?;
+        let z0 = step::encode_views(self.prior, &seen, views.len())?;
+        let z0_src = self.z0_src.select(Axis(0), &views);
         drop(ph);
-        if z0.shape() != z0_src.shape() {
-            return Err(Error::Other(format!(
-                "prior encoded renders to {:?} but the source to {:?}",
-                z0.shape(),
-                z0_src.shape()
-            )));
-        }
-        let ph = crate::timing::span("noise");
-        let sh = z0.shape().to_vec();
-        let eps = Array4::from_shape_vec((sh[0], sh[1], sh[2], sh[3]), rng.normals_f32(z0.len()))
-            .expect("length matches");
-        let eps_shared = Array3::from_shape_vec(
-            (sh[1], sh[2], sh[3]),
-            rng.normals_f32(sh[1] * sh[2] * sh[3]),
-        )
-        .expect("length matches");
-        let src_noisy = self.schedule.add_noise(z0_src.view(), eps.view(), t)?;
-        let z_noisy = self.schedule.add_noise(z0.view(), eps.view(), t)?;
-        drop(ph);
-        let ph = crate::timing::span("mvfc");
-        let (z_tgt, z_src) = match &p.mvfc {
-            Some(m) => (
-                mvfc_path(z_noisy.view(), eps_shared.view(), *m, circular)?,
-                if p.mvfc_source {
-                    mvfc_path(src_noisy.view(), eps_shared.view(), *m, circular)?
-                } else {
-                    src_noisy
-                },
-            ),
-            None => (z_noisy, src_noisy),
-        };
-        drop(ph);
+        let sh = z0.shape();
+        let noise = draws.noise([sh[0], sh[1], sh[2], sh[3]]);
+        let x = step::noise_branches(&self.schedule, z0, z0_src, &noise, t, p, circular)?;
+
+        // CSD, the image change, the targets.
         let ph = crate::timing::span("control");
-        let control = match self.prior.info().control {
-            // The original render as the prior sees it (over the same fill).
-            Some(crate::prior::ControlKind::Source) => {
-                let imgs: Vec<Array3<f32>> =
-                    views.iter().map(|&v| self.source_seen[v].clone()).collect();
-                Some(stack(&imgs)?)
-            }
-            Some(kind) => {
-                let pick = |xs: &Vec<Vec<f32>>, c: usize| -> Array4<f32> {
-                    Array4::from_shape_fn((n, h, w, c), |(i, y, x, k)| {
-                        xs[views[i]][(y * w + x) * c + k]
-                    })
-                };
-                let rgb = pick(&self.source.rgb, 3);
-                let depth = pick(&self.source.depth, 1).remove_axis(Axis(3));
-                let alpha = pick(&self.source.alpha, 1).remove_axis(Axis(3));
-                Some(crate::prior::control_image(
-                    kind,
-                    rgb.view(),
-                    depth.view(),
-                    alpha.view(),
-                )?)
-            }
-            None => None,
-        };
+        let seen_src = |v: usize| self.source_seen[v].clone();
+        let control = step::control(self.prior.info().control, self.source, &seen_src, &views)?;
         drop(ph);
-        let ph = crate::timing::span("csd");
-        let (z1, _g) = csd::step(
+        let change = step::prior_change(
             self.prior,
             &self.schedule,
-            csd::StepInputs {
-                z0: z0.view(),
-                z_tgt: z_tgt.view(),
-                z_src: z_src.view(),
-                eps: eps.view(),
-                z0_src: Some(z0_src.view()),
-                t,
-                control: control.as_ref().map(|c| c.view()),
-            },
+            &x,
+            control.as_ref().map(|c| c.view()),
             &p.csd,
+            size,
         )?;
-        drop(ph);
-        let ph = crate::timing::span("decode");
-        let delta = csd::image_change(self.prior, z1.view(), z0.view(), h, w)?;
-        drop(ph);
         let ph = crate::timing::span("agreement");
         let (a, s) = (&self.source.alpha, &self.source.depth);
-        let agree = self.agreement.measure(&views, circular, delta.view(), a, s);
+        let agree = self
+            .agreement
+            .measure(&views, circular, change.delta.view(), a, s);
         drop(ph);
-
         let ph = crate::timing::span("targets");
-        // Targets: the object's colour moves by Delta, recomposited with alpha.
-        let bg = p.background;
-        let mut targets = Array4::<f32>::zeros((n, h, w, 3));
-        let (mut d2, mut covered, mut clipped) = (0.0f64, 0usize, 0usize);
-        for (i, &v) in views.iter().enumerate() {
-            let alpha = &self.source.alpha[v];
-            let src = &self.source_colour[v];
-            for y in 0..h {
-                for x in 0..w {
-                    let q = y * w + x;
-                    let a = alpha[q];
-                    let rgb = &renders[i][q * 3..q * 3 + 3];
-                    // The object's own colour (un-premultiplied, not clamped).
-                    let c0: [f32; 3] = std::array::from_fn(|k| {
-                        if a >= 1e-4 {
-                            (rgb[k] - (1.0 - a) * bg[k]) / a
-                        } else {
-                            0.0
-                        }
-                    });
-                    let mut c = [0.0f32; 3];
-                    for k in 0..3 {
-                        let d = delta[[i, k, y, x]];
-                        if !d.is_finite() {
-                            return Err(Error::Other(format!(
-                                "prior asked for a non-finite change at t = {t}"
-                            )));
-                        }
-                        c[k] = c0[k] + d;
-                        if a > 0.5 {
-                            d2 += (d * d) as f64;
-                        }
-                    }
-                    if p.preserve_color {
-                        c = keep_chroma(c, [src[q * 3], src[q * 3 + 1], src[q * 3 + 2]]);
-                    }
-                    let c: [f32; 3] =
-                        std::array::from_fn(|k| c[k].clamp(c0[k].min(0.0), c0[k].max(1.0)));
-                    if a > 0.5 {
-                        covered += 1;
-                        if c.iter().all(|v| *v <= 0.02) || c.iter().all(|v| *v >= 0.98) {
-                            clipped += 1;
-                        }
-                    }
-                    for k in 0..3 {
-                        targets[[i, y, x, k]] = rgb[k] + a * (c[k] - c0[k]);
-                    }
-                }
-            }
-        }
+        let alpha: Vec<&[f32]> = views.iter().map(|&v| &self.source.alpha[v][..]).collect();
+        let colour: Vec<&[f32]> = views.iter().map(|&v| &self.source_colour[v][..]).collect();
+        let (targets, stats) = step::targets(
+            &renders.iter().map(|r| r.as_slice()).collect::<Vec<_>>(),
+            &alpha,
+            &colour,
+            change.delta.view(),
+            TargetParams {
+                background: p.background,
+                preserve_color: p.preserve_color,
+            },
+        )?;
         drop(ph);
 
+        // One colour step on the window (with the texture term, if any).
         let ph = crate::timing::span("colour step");
-        // One colour step on the window.
-        let lp = LossParams {
+        let cs = ColourStep {
+            loss: p.colour_loss,
             ssim_weight: p.ssim_weight,
+            texture: self.texture.as_ref(),
+            background: p.background,
+            fill: p.fill_background,
+            iteration: self.iteration,
         };
-        let index: std::collections::HashMap<usize, usize> =
-            views.iter().enumerate().map(|(i, &v)| (v, i)).collect();
-        let tg = &targets;
-        let tex = self.texture.as_ref();
-        let source = self.source;
-        let mut tex_loss = 0.0f64;
-        let mut loss = |v: usize, rgb: &[f32], _a: Option<&[f32]>| -> Result<(f64, Vec<f32>)> {
-            let i = index[&v];
-            let target = tg.index_axis(Axis(0), i);
-            let target = target.as_slice().expect("standard layout");
-            let (l, mut g) = match p.colour_loss {
-                ColourLoss::L1 => {
-                    let (l, g) = loss_and_grad(rgb, target, None, h, w, lp);
-                    (l as f64, g)
-                }
-                ColourLoss::L2 => half_squared_distance(rgb, target),
-            };
-            // The term on some of the window's views (rotating with the iteration), scaled
-            // so its gradient is the same in expectation ([`texture::TextureTerm::applies`]).
-            if let Some((t, scale)) = tex.and_then(|t| t.applies(i, n, it).map(|s| (t, s))) {
-                let seen = Self::prior_view(&p, source, rgb, v);
-                let tg = t.view_grad(&seen, &source.alpha[v], h, w)?;
-                tex_loss += tg.loss * scale as f64 / n as f64;
-                for (a, b) in g.iter_mut().zip(&tg.grad) {
-                    *a += scale * t.weight * b;
-                }
-            }
-            Ok((l, g))
-        };
-        let loss = self.fit.step_views(&views, &mut loss)?;
+        let losses = step::colour_step(&mut self.fit, &views, targets.view(), &alpha, &cs)?;
         drop(ph);
-        let report = IterReport {
-            iteration: it,
-            views: views.clone(),
-            timestep: t,
-            loss,
-            texture_loss: tex_loss,
-            delta_rms: (d2 / (3 * covered.max(1)) as f64).sqrt(),
-            clipped: clipped as f64 / covered.max(1) as f64,
-            hf_agree_revisit: agree.revisit,
-            hf_agree_adjacent: agree.adjacent,
-        };
+        let mut report = IterReport::new(draws.window(), t, stats, losses);
+        report.hf_agree_revisit = agree.revisit;
+        report.hf_agree_adjacent = agree.adjacent;
         self.last = Some(LastIteration {
             report: report.clone(),
-            z0,
-            z_tgt,
-            z_src,
+            z0: x.z0,
+            z_tgt: x.z_tgt,
+            z_src: x.z_src,
             targets,
         });
         self.iteration += 1;
         Ok(report)
     }
+}
+
+impl Distiller<'_> {
+    /// Run `iters` iterations with a progress bar, logging after the first (and the
+    /// second: the first pays the graphs' warm-up, about a third more for SD 1.5 on a
+    /// CPU, BENCHMARKS.md "Diffusion path") how long the rest will take on this machine,
+    /// and what `cost` predicted for one iteration (`one`: its plan).
+    pub fn run(
+        &mut self,
+        iters: u64,
+        cost: Option<&CostModel>,
+        one: &Plan,
+    ) -> Result<Vec<IterReport>> {
+        let start = self.iteration;
+        let bar = indicatif::ProgressBar::new(iters);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg} [{bar:30}] {pos}/{len} iterations {elapsed} (ETA {eta})",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        let mut reports = Vec::with_capacity(iters as usize);
+        for k in 0..iters {
+            let started = std::time::Instant::now();
+            let r = crate::timing::phase("iteration", || self.iterate())?;
+            let left = iters - 1 - k;
+            if k < 2 && left > 0 {
+                let s = started.elapsed().as_secs_f64();
+                let model = match (k, cost) {
+                    (0, Some(c)) => format!(
+                        " (the graphs' size predicted {} for it)",
+                        about(c.seconds(one))
+                    ),
+                    _ => String::new(),
+                };
+                bar.suspend(|| {
+                    tracing::info!(
+                        "distill: iteration {} took {s:.2} s{model}; the other {left}: {} on \
+                         this machine",
+                        start + k,
+                        about(s * left as f64)
+                    )
+                });
+            }
+            bar.set_message(format!("distill t={:3} loss {:.4}", r.timestep, r.loss));
+            bar.inc(1);
+            reports.push(r);
+        }
+        bar.finish_and_clear();
+        Ok(reports)
+    }
+}
+
+/// What a run of the loop leaves.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// The scene with its colours as of the last iteration.
+    pub scene: Scene,
+    pub state: OptimizerState,
+    /// The reports of this run's iterations.
+    pub reports: Vec<IterReport>,
+    /// The last iteration's tensors (None when no iteration ran).
+    pub last: Option<LastIteration>,
+    /// The agreement measurement's state (`[V, 3, H, W]`: shape, values), if any.
+    pub hf_prev: Option<(Vec<usize>, Vec<f32>)>,
+}
+
+impl Outcome {
+    /// No iteration: the start as it is.
+    pub fn unchanged(start: &Start) -> Outcome {
+        Outcome {
+            scene: start.scene.clone(),
+            state: start.state(),
+            reports: Vec::new(),
+            last: None,
+            hf_prev: start.hf_prev.clone(),
+        }
+    }
+}
+
+/// What [`distill`] runs: the loop's parameters, its timesteps, how many iterations and
+/// the optional texture term.
+pub struct Run {
+    pub params: DistillParams,
+    pub set: TimestepSet,
+    pub iters: u64,
+    pub texture: Option<texture::TextureTerm>,
+}
+
+/// Run `run.iters` iterations of the loop from `start` (a scene, or a checkpoint with
+/// its optimizer state, iteration count and agreement state) on the views of `cameras`
+/// (`source`: their original renders), with `prior`; `cost` (diffusion models) says what
+/// the run will cost before it starts and is calibrated on its first iterations
+/// ([`Distiller::run`]).
+pub fn distill(
+    start: &Start,
+    cameras: &[Camera],
+    source: &SourceViews,
+    prior: &mut dyn Prior,
+    run: Run,
+    cost: Option<&CostModel>,
+) -> Result<Outcome> {
+    let Run {
+        params,
+        set,
+        iters,
+        texture,
+    } = run;
+    let (conds, f) = (params.csd.conds(), prior.info().downsample);
+    let per_iter = params.views_per_iter.min(cameras.len());
+    let (h, w) = (source.height, source.width);
+    let plan = |n: u64| Plan::csd_steps(n as usize, per_iter, conds, (h, w), f, 1);
+    crate::prior::cost::announce(cost, "distill", &plan(iters));
+    let it = start.iteration;
+    let ph = crate::timing::span("setup");
+    let mut d = Distiller::new(&start.scene, cameras, source, prior, set, params, it)?;
+    d.set_optimizer_state(start.state())?;
+    if let Some((shape, data)) = start.hf_prev.clone() {
+        d.set_agreement_state(&shape, data)?;
+    }
+    if let Some(t) = texture {
+        d = d.with_texture(t);
+    }
+    drop(ph);
+    tracing::info!(
+        "distill: iterations {it}..{} on {} views ({w}x{h}), {per_iter} per iteration, path {}",
+        it + iters,
+        cameras.len(),
+        if d.path().closed { "closed" } else { "open" }
+    );
+    let reports = d.run(iters, cost, &plan(1))?;
+    if let Some(r) = reports.last() {
+        tracing::info!(
+            "distill: iteration {} t = {} loss {:.5}, clipped {:.2}% of covered target pixels",
+            r.iteration,
+            r.timestep,
+            r.loss,
+            100.0 * r.clipped
+        );
+    }
+    let hf = d.agreement_state();
+    Ok(Outcome {
+        scene: d.scene().clone(),
+        state: d.optimizer_state(),
+        reports,
+        last: d.last().cloned(),
+        hf_prev: Some((hf.shape().to_vec(), hf.iter().copied().collect())),
+    })
 }
 
 /// `(sum 0.5 (x - y)^2 / n, (x - y) / n)` over the `n` values of a view: the gradient is

@@ -1,5 +1,5 @@
 //! The camera path and the windows of adjacent views each iteration works on
-//! (FantasyStyle Sec. 3.1: "render N adjacent views"; MVFC's view axis, Sec. 3.2).
+//! (FantasyStyle Sec. 4: "render N adjacent views"; MVFC's view axis).
 //!
 //! Cameras are taken in file order as a path. The path is *closed* (an orbit) when its
 //! last camera is about as close to its first as consecutive cameras are to each other:
@@ -13,7 +13,8 @@ use crate::Camera;
 use crate::rng::Rng;
 
 /// The cameras' order as a path.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ViewPath {
     /// Number of cameras.
     pub len: usize,
@@ -22,7 +23,8 @@ pub struct ViewPath {
 }
 
 /// A run of adjacent views.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Window {
     /// Camera indices in path order.
     pub views: Vec<usize>,

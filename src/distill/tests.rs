@@ -4,6 +4,8 @@
 
 use super::*;
 use crate::optim::FitParams;
+use crate::optim::{LossParams, loss_and_grad};
+use crate::render::CacheMode;
 use crate::render::tests::{front_camera, random_scene};
 use crate::render::{RenderOptions, render};
 

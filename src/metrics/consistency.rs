@@ -1,4 +1,4 @@
-//! Short- and long-range view consistency (FantasyStyle Sec. 4): for view pairs
+//! Short- and long-range view consistency (FantasyStyle's experiments): for view pairs
 //! `(i, i + k)` (`k = 1` short range, `k = 5` long range by default), warp the stylized
 //! view `i + k` into view `i` with the rendered depth and the cameras ([`super::warp`]),
 //! then compare it with stylized view `i` on the pixels both see:

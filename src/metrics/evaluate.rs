@@ -1,7 +1,7 @@
 //! The evaluation of a stylized view set (the `evaluate` stage's computation; the stage
 //! reads the artifacts and writes `metrics.json` and the report of [`super::report`]).
 //!
-//! Metrics (FantasyStyle Sec. 4; see [`crate::metrics`] for each definition):
+//! Metrics (FantasyStyle's experiments; see [`crate::metrics`] for each definition):
 //! LPIPS_content (original vs stylized, per view); FID_style (stylized renders vs crops
 //! of the style image) and FID_content (stylized vs original renders), each with KID;
 //! ArtFID = (1 + LPIPS_content)(1 + FID_style) with the standard FID Inception;

@@ -1,5 +1,5 @@
 //! Evaluation metrics for stylized 3DGS scenes, as reported by FantasyStyle (AAAI 2026,
-//! Sec. 4 "Experiments": ArtFID, FID, short- and long-range view consistency).
+//! its experiments: ArtFID, FID, short- and long-range view consistency).
 //!
 //! | module | what |
 //! |---|---|

@@ -1,6 +1,6 @@
 //! Depth reprojection: warp one rendered view into another with the rendered depth and
-//! the known cameras, so view consistency needs no optical flow (FantasyStyle Sec. 4
-//! measures short- and long-range consistency on warped view pairs).
+//! the known cameras, so view consistency needs no optical flow (FantasyStyle's
+//! experiments measure short- and long-range consistency on warped view pairs).
 //!
 //! Depth convention: the `views` artifact's `depth.npy` is the *expected* depth
 //! `sum_i w_i z_i` of the alpha-blended Gaussians, not normalised by the accumulated

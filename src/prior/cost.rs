@@ -1,7 +1,7 @@
 //! What the diffusion path will cost, said before a run starts ("about N minutes on this
 //! machine") and corrected once the first evaluation has been timed.
 //!
-//! FantasyStyle's loop (Sec. 3.3) evaluates the UNet, with its ControlNet, on every view
+//! FantasyStyle's loop (Sec. 4, CSD) evaluates the UNet, with its ControlNet, on every view
 //! under several conditionings per iteration (CSD: four, batched as one call per branch),
 //! and runs the VAE on the renders and the targets. On a CPU these graphs are dominated by
 //! convolutions and matrix products whose work is, per image, proportional to the number
@@ -89,6 +89,30 @@ pub struct Plan {
     /// Images VAE-encoded and decoded over the run.
     pub encodes: usize,
     pub decodes: usize,
+}
+
+impl Plan {
+    /// `iterations` CSD steps, each one UNet call on `views` views under `conds`
+    /// conditionings, at images of `image` (h, w) and latents `downsample` times smaller,
+    /// with two decodes (z0' and z0) and `encodes` encodes per view.
+    pub fn csd_steps(
+        iterations: usize,
+        views: usize,
+        conds: usize,
+        image: (usize, usize),
+        downsample: usize,
+        encodes: usize,
+    ) -> Plan {
+        let f = downsample.max(1);
+        Plan {
+            evaluations: iterations,
+            batch: views * conds,
+            latent: (image.0 / f, image.1 / f),
+            downsample: f,
+            encodes: iterations * encodes * views,
+            decodes: iterations * 2 * views,
+        }
+    }
 }
 
 /// The cost model of one model on one machine.
@@ -187,6 +211,20 @@ impl CostModel {
             "{} on this machine ({how})",
             about(self.seconds(p))
         ))
+    }
+}
+
+/// Log what `plan` will cost (`who`: the stage), before it starts; nothing for a model
+/// without a cost model (the stylizer) or without an estimate yet.
+pub fn announce(cost: Option<&CostModel>, who: &str, plan: &Plan) {
+    if let Some(say) = cost.and_then(|c| c.describe(plan)) {
+        tracing::info!(
+            "{who}: {} UNet calls of {} rows at {}x{} latents: {say}",
+            plan.evaluations,
+            plan.batch,
+            plan.latent.0,
+            plan.latent.1
+        );
     }
 }
 

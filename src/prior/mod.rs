@@ -1,6 +1,6 @@
 //! The prior interface: everything the method asks of a 2D model.
 //!
-//! FantasyStyle (Sec. 3.3) needs, from a diffusion model: a VAE (encode renders to
+//! FantasyStyle (Sec. 4, CSD) needs, from a diffusion model: a VAE (encode renders to
 //! latents z0, decode back), and noise predictions eps(z_t, t, c) under several
 //! conditionings c, batched so that classifier-free guidance costs one call.
 //! Three kinds implement [`Prior`]:
@@ -119,7 +119,7 @@ pub enum ControlKind {
     Source,
 }
 
-/// The conditioning sets of the paper's guidance terms (Sec. 3.3):
+/// The conditioning sets of the paper's guidance terms (Sec. 4, CSD):
 /// Phi_tgt = beta (eps(z, t, [P, style]) - eps(z, t, content)),
 /// Phi_src = beta (eps(z, t, P) - eps(z, t, null)).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -5,7 +5,7 @@
 //! * `encode`: images in [0,1] -> 2x-1 -> VAE encoder -> posterior mean x scaling factor.
 //! * `decode`: latents / scaling factor -> VAE decoder -> (x+1)/2.
 //! * `predict_eps`: classifier-free guidance batched into one UNet call (FantasyStyle
-//!   Sec. 3.3 needs eps under up to four conditionings): for conditionings c_1..c_k and
+//!   Sec. 4 (CSD) needs eps under up to four conditionings): for conditionings c_1..c_k and
 //!   latents `[B,C,h,w]`, the UNet sees a batch of k*B, rows `i*B..(i+1)*B` carrying c_i.
 //!   With a ControlNet, one ControlNet call on the same batch produces the residuals fed
 //!   to the UNet (times `scale`). A v-prediction output is converted to eps.

@@ -83,7 +83,7 @@ pub struct StylizerManifest {
     /// Where the weights come from (informational).
     #[serde(default)]
     pub source: Option<String>,
-    /// The timestep set `mvfc-filter --timestep auto` draws from for this model.
+    /// The timestep set `distill` (and `mvfc-filter`) draws from for this model.
     #[serde(default)]
     pub timesteps: Option<TimestepRange>,
     pub style_predict: PredictGraph,

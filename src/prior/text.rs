@@ -1,6 +1,6 @@
 //! Run-time prompts: the model's own tokenizer(s) and text encoder graph turn any prompt
-//! into the UNet's text conditioning, so `--prompt` takes any text (FantasyStyle Sec. 3.3
-//! conditions the target branch on a prompt P).
+//! into the UNet's text conditioning, so `--prompt` takes any text (FantasyStyle's CSD,
+//! Sec. 4, conditions the target branch on a prompt P).
 //!
 //! `model.json`'s `text.encoder` names the graph (`text_encoder.onnx`: `input_ids` int64
 //! `[B, 77]`, plus `input_ids_2` for SDXL's second encoder) and, per input, the

@@ -1,92 +1,96 @@
-//! `csd-step`: one controllable-stylized-distillation step (FantasyStyle Sec. 3.3; the
-//! gradient is [`crate::csd`]) and the target images it implies for `update-gaussians`.
+//! `csd-step`: one controllable-stylized-distillation step (FantasyStyle Sec. 4, CSD; the
+//! gradient is [`crate::csd`]) and the colour targets it implies for `update-gaussians`,
+//! as `distill` computes them ([`crate::distill::step`]: [`control`], [`prior_change`],
+//! [`targets`]).
 //!
-//! Reads the `noised-latents` artifact of `mvfc-filter` (z_src, z_tgt, eps, t), the clean
-//! target latents z0 (`latents` artifact of the current renders), the current renders
-//! (`views`) and the original renders (`source-views`, for a ControlNet's control image:
-//! the geometry is frozen, so depth is the original's), the model and the style image.
-//! Computes z0' = z0 - lr w(t) g and writes a `targets` artifact:
+//! Reads the `noised-latents` of `mvfc-filter` (z_tgt, z_src, eps, t), the clean latents
+//! z0 of the window's renders (`latents`), the window's renders (`views`, `render-views
+//! --window`), the original renders (`source-views`: their alpha composites the targets,
+//! their colour is kept by `--preserve-color`, and a ControlNet's control image is made
+//! from them, the geometry being frozen) and their latents (`source-latents`: z0_src of
+//! the window's views), the model and the style image. The iteration's window is the one
+//! the inputs record (`meta.iteration`; all must agree); inputs that record none are one
+//! window of all their views.
 //!
-//! ```text
-//! target = clamp(render + decode(z0') - decode(z0), 0, 1)
-//! ```
-//!
-//! Why the difference of two decodes: decode(encode(render)) != render (an SD VAE loses
-//! fine detail and shifts colours slightly), so decode(z0') alone would also ask the colour
-//! fit to reproduce the VAE's reconstruction error. The difference is the change the prior
-//! asks for, to first order J_dec (z0' - z0), with the reconstruction error cancelled; it is
-//! exact for a linear decoder (the Gaussian prior's) and for the identity (the stylizer).
-//! Clamping keeps targets in the renderer's displayable range, which the colour fit (with
-//! SH DC colours passed through a clamp) can reach. Both decodes are one batched call.
-//!
-//! The artifact holds `rgb.npy` [N, H, W, 3], the views' `cameras.json` (copied),
-//! `delta.npy` [N, H, W, 3] (target - render, for inspection) and PNG previews; `meta`
-//! records t, the mode and the step's statistics.
+//! Computes z0' = z0 - lr w(t) g, the image change Delta = decode(z0') - decode(z0)
+//! (the difference of two decodes, so that the VAE's reconstruction error cancels), and
+//! the targets render + alpha (c' - c), c' = c + Delta (module docs of
+//! [`crate::distill`]). Writes a `targets` artifact: `rgb.npy` [N, H, W, 3] (the targets;
+//! not clamped to [0, 1] where the render is not), `delta.npy` [N, H, W, 3] (target -
+//! render), the views' `cameras.json`, PNG previews, and `meta`: the iteration, t, the
+//! mode and the step's statistics.
 
-use super::{DeviceArg, Threads};
-use crate::artifacts::{read_latents, read_noised_latents, read_views};
-use crate::csd::{self, CsdParams, StepInputs};
-use crate::prior::cost::{CostModel, Plan};
-use crate::prior::{self, PriorOptions, model_timesteps};
+use super::{Background, PriorArgs, Threads};
+use crate::artifacts::{
+    Views, agreed_iteration, iteration_of, open_latents, read_latents, read_noised_latents,
+    read_views, window_rows,
+};
+use crate::csd::{self, CsdParams};
+use crate::distill::SourceViews;
+use crate::distill::step::{
+    IterLatents, IterationWindow, TargetParams, TargetStats, control, prior_change, targets,
+};
+use crate::prior::cost::{CostModel, Plan, about, announce};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
-use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
-use ndarray::{Array4, Axis};
+use fantasystyle_schemas::{ArtifactKind, Producer};
+use ndarray::Axis;
 use std::path::PathBuf;
 
-/// One controllable stylized distillation (CSD) step: from noised latents (mvfc-filter),
-/// the clean target latents and the renders, compute z0' = z0 - lr w(t) grad and write
-/// target images render + decode(z0') - decode(z0) as a targets artifact
-/// (rgb.npy [N,H,W,3], cameras.json, delta.npy, PNG previews).
+/// One controllable stylized distillation (CSD) step as distill makes it: from the
+/// noised latents (mvfc-filter), the clean latents and the window's renders, compute
+/// z0' = z0 - lr w(t) grad and write the colour targets render + alpha (c' - c),
+/// c' = c + decode(z0') - decode(z0), as a targets artifact (rgb.npy [N,H,W,3],
+/// cameras.json, delta.npy, PNG previews).
 #[derive(clap::Parser, Debug, Clone)]
 #[command(name = "csd-step", version)]
 pub struct Args {
     /// Noised-latents artifact from mvfc-filter (z_src, z_tgt, eps; meta.timestep).
     #[arg(long)]
     pub noised: PathBuf,
-    /// Latents artifact of the current renders (the clean target latents z0).
+    /// Latents artifact of the window's renders (the clean target latents z0).
     #[arg(long)]
     pub latents: PathBuf,
-    /// Views artifact of the current renders (the targets are built on them; cameras copied).
+    /// Views artifact of the window's renders (render-views --window; the targets are
+    /// built on them; cameras copied).
     #[arg(long)]
     pub views: PathBuf,
-    /// Views artifact of the original renders (control image for ControlNet priors).
+    /// Views artifact of the original renders, every view (alpha, colour, control image).
     #[arg(long)]
     pub source_views: PathBuf,
-    /// Model directory with model.json (e.g. vendor/models/stylizer, vendor/models/gaussian-prior).
+    /// Latents artifact of the original renders, every view (encode-latents --fill): z0_src.
     #[arg(long)]
-    pub model: PathBuf,
-    /// Style image (PNG or JPEG).
-    #[arg(long)]
-    pub style: PathBuf,
-    /// The prompt P: any text for a model with a text encoder (else one of its exported
-    /// prompts); default: the model's first exported prompt. Ignored by the stylizer.
-    #[arg(long)]
-    pub prompt: Option<String>,
+    pub source_latents: PathBuf,
+    #[command(flatten)]
+    pub prior: PriorArgs,
     #[command(flatten)]
     pub params: CsdParams,
+    /// Keep the scene's own colours (chroma); change luminance (texture, contrast) only.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub preserve_color: bool,
+    /// A ControlNet prior that takes the source view itself gets it over its background
+    /// instead of over a fill of its own colours (as distill --no-fill).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub no_fill: bool,
+    #[command(flatten)]
+    pub background: Background,
     /// Output targets artifact directory (written atomically).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
     pub threads: Threads,
-    #[command(flatten)]
-    pub device: DeviceArg,
-    /// Most UNet rows per call (rows = views x conditionings; 0 = automatic: all, unless
-    /// the first level's attention scores would pass 2^31 floats, as SD 1.5 at 64x64
-    /// latents with more than 4 rows).
-    #[arg(long, default_value_t = 0)]
-    pub unet_batch: usize,
 }
 
 /// Statistics of one step (also written to the artifact's meta).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct StepReport {
     pub timestep: usize,
+    /// RMS of w(t) g.
     pub grad_rms: f64,
+    /// RMS of z0' - z0.
     pub latent_step_rms: f64,
-    pub image_delta_rms: f64,
-    pub clamped_fraction: f64,
+    /// What the targets asked for.
+    pub stats: TargetStats,
 }
 
 fn rms(a: impl Iterator<Item = f32>) -> f64 {
@@ -100,222 +104,189 @@ fn rms(a: impl Iterator<Item = f32>) -> f64 {
 
 /// The stage: read the inputs, step, write the targets artifact.
 pub fn run(a: Args) -> Result<StepReport> {
-    let p = a.params;
-    if !(p.guidance.is_finite() && p.lr.is_finite() && p.lr >= 0.0) {
-        return Err(Error::param(format!(
-            "--guidance ({}) must be finite and --lr ({}) finite and >= 0",
-            p.guidance, p.lr
-        )));
-    }
-    // Inputs, checked against each other before the (slow) prior is loaded.
-    let noised = read_noised_latents(&a.noised)?;
-    let z0 = read_latents(&a.latents)?;
-    if noised.z_src.shape() != z0.shape() {
-        return Err(Error::input(
-            noised.art.path("z_src.npy"),
-            format!(
-                "shape {:?} differs from the latents' {:?} ({})",
-                noised.z_src.shape(),
-                z0.shape(),
-                a.latents.join("latents.npy").display()
-            ),
-        ));
-    }
-    let (z_src, z_tgt, eps, t) = (&noised.z_src, &noised.z_tgt, &noised.eps, noised.timestep);
-    let views = crate::timing::load(|| read_views(&a.views))?;
-    let source = crate::timing::load(|| read_views(&a.source_views))?;
-    if views.rgb.shape() != source.rgb.shape() {
-        return Err(Error::input(
-            source.art.path("rgb.npy"),
-            format!(
-                "source views {:?} and views {:?} differ in shape",
-                source.rgb.shape(),
-                views.rgb.shape()
-            ),
-        ));
-    }
-    let (n, h, w) = (
-        views.rgb.shape()[0],
-        views.rgb.shape()[1],
-        views.rgb.shape()[2],
-    );
-    if z0.shape()[0] != n {
-        return Err(Error::input(
-            views.art.path("rgb.npy"),
-            format!("{n} views but {} latents", z0.shape()[0]),
-        ));
-    }
-    let (_, set) = model_timesteps(&a.model)?;
-    set.check(t).map_err(|e| {
-        Error::input(
-            noised.art.path("manifest.json"),
-            format!("meta.timestep: {e}"),
-        )
-    })?;
-    let style = crate::imageio::load_style(&a.style, crate::imageio::MIN_STYLE_SIDE)?
-        .to_chw()
-        .insert_axis(Axis(0));
-
-    // The prior.
-    let mut prior = crate::timing::load(|| {
-        prior::open(
-            &a.model,
-            &PriorOptions {
-                style_image: Some(style),
-                prompt: a.prompt.clone(),
-                threads: a.threads.n,
-                device: a.device.device,
-                unet_batch: a.unet_batch,
-                ..Default::default()
-            },
-        )
-    })?;
+    a.params.validate()?;
+    let Inputs { views, src, win, x } = inputs(&a)?;
+    let (n, h, w) = views.dim();
+    let style = a.prior.load_style()?;
+    let mut prior = a.prior.open(&style, a.threads)?;
     let info = prior.info().clone();
-    csd::check_mode(p.mode, &info)?;
+    csd::check_mode(a.params.mode, &info)?;
     let f = info.downsample.max(1);
-    if z0.shape()[1] != info.latent_channels || h != z0.shape()[2] * f || w != z0.shape()[3] * f {
+    let z = x.z0.shape();
+    if z[1] != info.latent_channels || z[2] * f != h || z[3] * f != w {
         return Err(Error::input(
             a.latents.join("latents.npy"),
             format!(
-                "latents {:?} do not fit model `{}` ({} channels, downsample {f}) and views {h}x{w}",
-                z0.shape(),
-                info.name,
-                info.latent_channels
+                "latents {z:?} do not fit model `{}` ({} channels, downsample {f}) and views \
+                 {h}x{w}",
+                info.name, info.latent_channels
             ),
         ));
     }
     let schedule = Schedule::new(info.scheduler.clone())?;
-    let control = match info.control {
-        Some(kind) => Some(prior::control_image(
-            kind,
-            source.rgb.view(),
-            source.depth.view(),
-            source.alpha.view(),
-        )?),
-        None => None,
-    };
+    let (bg, vs) = (a.background.rgb, &win.window.views);
+    let control = control(
+        info.control,
+        &src,
+        &|v| src.seen(&src.rgb[v], v, bg, !a.no_fill),
+        vs,
+    )?;
+    let plan = Plan::csd_steps(1, n, a.params.conds(), (h, w), f, 0);
+    let mut cost = CostModel::for_model(&a.prior.model, a.threads.n, a.prior.device.device)?;
+    announce(cost.as_ref(), "csd-step", &plan);
 
-    // What the step will cost (diffusion models), said before it starts.
-    let (tc, sc) = csd::conds(p.mode);
-    let plan = Plan {
-        evaluations: 1,
-        batch: n * (tc.len() + sc.len()),
-        latent: (h / f, w / f),
-        downsample: f,
-        encodes: 0,
-        decodes: 2 * n,
-    };
-    let mut cost = CostModel::for_model(&a.model, a.threads.n, a.device.device)?;
-    if let Some(say) = cost.as_ref().and_then(|c| c.describe(&plan)) {
-        tracing::info!(
-            "csd-step: {n} views x {} conditionings at {}x{} latents: {say}",
-            tc.len() + sc.len(),
-            h / f,
-            w / f
-        );
-    }
-
-    // The step.
-    let started = std::time::Instant::now();
-    let (z1, g) = a.threads.install(|| {
-        csd::step(
-            prior.as_mut(),
-            &schedule,
-            StepInputs {
-                z0: z0.view(),
-                z_tgt: z_tgt.view(),
-                z_src: z_src.view(),
-                eps: eps.view(),
-                z0_src: None,
-                t,
-                control: control.as_ref().map(|c| c.view()),
-            },
-            &p,
-        )
-    })??;
-    let step_secs = started.elapsed().as_secs_f64();
-    let started = std::time::Instant::now();
-    let delta = crate::csd::image_change(prior.as_mut(), z1.view(), z0.view(), h, w)?;
+    // The step and the targets.
+    let ctl = control.as_ref().map(|c| c.view());
+    let change = a
+        .threads
+        .install(|| prior_change(prior.as_mut(), &schedule, &x, ctl, &a.params, (h, w)))??;
     if let Some(c) = cost.as_mut() {
-        c.calibrate_unet(plan.batch, plan.latent, step_secs);
-        c.calibrate_vae(0, 2 * n, h * w, started.elapsed().as_secs_f64());
+        c.calibrate_unet(plan.batch, plan.latent, change.unet_s);
+        c.calibrate_vae(0, 2 * n, h * w, change.vae_s);
         tracing::info!(
-            "csd-step: took {} ({:.3e} UNet and {:.3e} VAE work units/s here; see \
-             prior::cost)",
-            crate::prior::cost::about(c.seconds(&plan)),
-            c.unet_rate,
-            c.vae_rate
+            "csd-step: took {} (see prior::cost)",
+            about(c.seconds(&plan))
         );
     }
-    let delta_nhwc = delta.permuted_axes([0, 2, 3, 1]);
-    let raw = &views.rgb + &delta_nhwc;
-    let clamped = raw.iter().filter(|v| !(0.0..=1.0).contains(*v)).count();
-    let target = raw.mapv(|v| v.clamp(0.0, 1.0));
-    let applied = &target - &views.rgb;
-    if target.iter().any(|v| !v.is_finite()) {
-        return Err(Error::Other(
-            "target images are not finite (prior or decoder output NaN)".into(),
+    let rgb = views.rgb.as_slice().expect("standard layout");
+    let colour: Vec<Vec<f32>> = vs.iter().map(|&v| src.colour(v, bg)).collect();
+    let (target, stats) = targets(
+        &rgb.chunks(h * w * 3).collect::<Vec<_>>(),
+        &vs.iter()
+            .map(|&v| src.alpha[v].as_slice())
+            .collect::<Vec<_>>(),
+        &colour.iter().map(|c| c.as_slice()).collect::<Vec<_>>(),
+        change.delta.view(),
+        TargetParams {
+            background: bg,
+            preserve_color: a.preserve_color,
+        },
+    )?;
+    let report = StepReport {
+        timestep: x.t,
+        grad_rms: rms(change.grad.iter().copied()),
+        latent_step_rms: rms(change.z1.iter().zip(x.z0.iter()).map(|(a, b)| a - b)),
+        stats,
+    };
+    tracing::info!("csd-step: mode {:?}, {report:?}", a.params.mode);
+    write(&a, &views, &target, &win, &report)?;
+    Ok(report)
+}
+
+/// The step's inputs, read and checked against each other (before the slow prior).
+struct Inputs {
+    /// The window's renders.
+    views: Views,
+    /// The source views, every one.
+    src: SourceViews,
+    win: IterationWindow,
+    x: IterLatents,
+}
+
+fn inputs(a: &Args) -> Result<Inputs> {
+    let noised = read_noised_latents(&a.noised)?;
+    let lat = open_latents(&a.latents)?;
+    let views = crate::timing::load(|| read_views(&a.views))?;
+    let src = SourceViews::from_views(&crate::timing::load(|| read_views(&a.source_views))?);
+    let (n, h, w) = views.dim();
+    let view_it = iteration_of(&views.art)?;
+    let recorded = [
+        (a.noised.as_path(), noised.iteration.as_ref()),
+        (a.latents.as_path(), lat.iteration.as_ref()),
+        (a.views.as_path(), view_it.as_ref()),
+    ];
+    let win = agreed_iteration(&recorded, n)?;
+    let src_file = a.source_latents.join("latents.npy");
+    let z0_src = window_rows(&read_latents(&a.source_latents)?, &win, &src_file)?;
+    for (file, shape) in [
+        (noised.art.path("z_src.npy"), noised.z_src.shape()),
+        (src_file, z0_src.shape()),
+    ] {
+        if shape != lat.z.shape() {
+            return Err(Error::input(
+                file,
+                format!(
+                    "shape {shape:?} (the window's) differs from the latents' {:?} ({})",
+                    lat.z.shape(),
+                    a.latents.display()
+                ),
+            ));
+        }
+    }
+    if (src.height, src.width) != (h, w) || lat.z.shape()[0] != n {
+        return Err(Error::input(
+            views.art.path("rgb.npy"),
+            format!(
+                "{n} views of {w}x{h}, but {} latents and source views of {}x{}",
+                lat.z.shape()[0],
+                src.width,
+                src.height
+            ),
         ));
     }
-    let report = StepReport {
-        timestep: t,
-        grad_rms: rms(g.iter().copied()),
-        latent_step_rms: rms(z1.iter().zip(z0.iter()).map(|(a, b)| a - b)),
-        image_delta_rms: rms(applied.iter().copied()),
-        clamped_fraction: clamped as f64 / raw.len() as f64,
+    let x = IterLatents {
+        z0: lat.z,
+        z0_src,
+        eps: noised.eps,
+        z_tgt: noised.z_tgt,
+        z_src: noised.z_src,
+        t: noised.timestep,
     };
-    tracing::info!(
-        "csd-step: t = {t}, mode {:?}, |grad| {:.4}, |dz0| {:.4}, |d image| {:.4}, clamped {:.2}%",
-        p.mode,
-        report.grad_rms,
-        report.latent_step_rms,
-        report.image_delta_rms,
-        100.0 * report.clamped_fraction
-    );
+    Ok(Inputs { views, src, win, x })
+}
 
-    // The artifact.
-    let params = serde_json::json!({
-        "mode": p.mode, "guidance": p.guidance, "weighting": p.weighting, "lr": p.lr,
-        "prompt": a.prompt,
-    });
-    let mut wr = ArtifactWriter::create(
+/// Write the targets artifact.
+fn write(
+    a: &Args,
+    views: &Views,
+    target: &ndarray::Array4<f32>,
+    win: &IterationWindow,
+    report: &StepReport,
+) -> Result<()> {
+    let params = super::merge_params(&[
+        serde_json::json!({
+            "csd": a.params, "preserve_color": a.preserve_color, "fill": !a.no_fill,
+            "background": a.background.rgb,
+        }),
+        a.prior.to_json(),
+    ]);
+    let mut wr = super::create_artifact(
         &a.out,
         ArtifactKind::Targets,
         Producer::new("csd-step", crate::VERSION, params),
     )?;
-    wr.add_input("noised", &a.noised)?;
-    wr.add_input("latents", &a.latents)?;
-    wr.add_input("views", &a.views)?;
-    wr.add_input("source-views", &a.source_views)?;
-    wr.add_input("style", &a.style)?;
-    let mpath = if a.model.is_file() {
-        a.model.clone()
-    } else {
-        a.model.join("model.json")
-    };
-    wr.add_input("model", &mpath)?;
-    let flat = |x: &Array4<f32>| x.as_standard_layout().iter().copied().collect::<Vec<_>>();
-    wr.write_tensor("rgb.npy", &[n, h, w, 3], &flat(&target))?;
-    wr.write_tensor("delta.npy", &[n, h, w, 3], &flat(&applied))?;
-    let cams = std::fs::read(views.art.path("cameras.json"))
-        .map_err(|e| Error::io(views.art.path("cameras.json"), e))?;
-    wr.write_bytes("cameras.json", &cams)?;
-    for i in 0..n {
-        let bytes: Vec<u8> = target
-            .index_axis(Axis(0), i)
-            .iter()
-            .map(|v| (v * 255.0 + 0.5) as u8)
-            .collect();
-        wr.write_with(&format!("target_{i:03}.png"), |path| {
-            image::save_buffer(path, &bytes, w as u32, h as u32, image::ColorType::Rgb8)
-                .map_err(|e| e.to_string())
-        })?;
+    for (name, p) in [
+        ("noised", &a.noised),
+        ("latents", &a.latents),
+        ("views", &a.views),
+        ("source-views", &a.source_views),
+        ("source-latents", &a.source_latents),
+    ] {
+        wr.add_input(name, p)?;
+    }
+    a.prior.add_inputs(&mut wr)?;
+    crate::artifacts::write_array(&mut wr, "rgb.npy", target)?;
+    crate::artifacts::write_array(&mut wr, "delta.npy", &(target - &views.rgb))?;
+    let cams = views.art.path("cameras.json");
+    wr.write_bytes(
+        "cameras.json",
+        &std::fs::read(&cams).map_err(|e| Error::io(&cams, e))?,
+    )?;
+    let (_, h, w, _) = target.dim();
+    for (i, img) in target.axis_iter(Axis(0)).enumerate() {
+        let img: Vec<f32> = img.iter().copied().collect();
+        wr.write_bytes(
+            &format!("target_{i:03}.png"),
+            &crate::imageio::encode_png_rgb(&img, w, h)?,
+        )?;
     }
     wr.set_meta(serde_json::json!({
-        "timestep": t,
-        "mode": p.mode,
+        "iteration": win,
+        "timestep": report.timestep,
+        "mode": a.params.mode,
+        "stats": report.stats,
         "report": report,
     }));
     crate::timing::io(|| wr.commit())?;
-    Ok(report)
+    Ok(())
 }

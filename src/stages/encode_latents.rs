@@ -1,21 +1,26 @@
 //! `encode-latents`: VAE-encode a views artifact's renders to latents z0 (FantasyStyle
-//! Sec. 3.1: every iteration starts from the latents of the current and the original
-//! renders).
+//! Sec. 4: every iteration starts from the latents of the current and the original
+//! renders; the encoding is [`crate::distill::step::encode_views`], as in `distill`).
 //!
-//! Reads `rgb.npy` `[N, H, W, 3]` in [0, 1] from a `views` artifact, encodes with the
-//! model's VAE (posterior mean x scaling factor) in batches, and writes a `latents`
-//! artifact: `latents.npy` `[N, C, H/f, W/f]` f32 plus the views' `cameras.json`. The
-//! inputs recorded are the views artifact and the model's `model.json`.
+//! Reads `rgb.npy` `[N, H, W, 3]` from a `views` artifact; with `--fill`, gives the
+//! encoder what `distill` gives it: the object over a push-pull fill of its own colours
+//! (the coverage is the views' `alpha.npy`, or with `--alpha-from` the source views',
+//! as `distill` has it; [`crate::distill::step::prior_view`]).
+//! Encodes with the model's VAE (posterior mean x scaling factor), `--batch` views per
+//! call, and writes a `latents` artifact: `latents.npy` `[N, C, H/f, W/f]` f32 plus the
+//! views' `cameras.json`, and the views' `meta.iteration` (a window of the stage chain).
+//! The inputs recorded are the views artifact and the model's `model.json`.
 
-use super::{DeviceArg, Threads};
-use crate::artifacts::read_view_images;
+use super::{Background, DeviceArg, Threads};
+use crate::artifacts::{iteration_of, read_view_images, read_views};
+use crate::distill::step;
+use crate::distill::step::IterationWindow;
 use crate::prior::manifest::ModelManifest;
 use crate::prior::{self, PriorOptions};
 use crate::runtime::Optimization;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
-use indicatif::{ProgressBar, ProgressStyle};
-use ndarray::{Axis, concatenate};
+use ndarray::{Array3, Array4, Axis};
 use std::path::PathBuf;
 
 /// VAE-encode a views artifact's renders into a latents artifact (latents.npy [N,C,h,w]).
@@ -36,8 +41,66 @@ pub struct Args {
     #[command(flatten)]
     pub device: DeviceArg,
     /// Views per VAE call (0 = all at once; lower it to bound memory with real VAEs).
+    /// distill encodes the source views a window's worth (--views-per-iter) at a time
+    /// and a window in one call.
     #[arg(long, default_value_t = 4)]
     pub batch: usize,
+    /// Encode the object over a fill of its own colours (what distill's prior sees;
+    /// needs the views' alpha.npy), not the render over its background.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub fill: bool,
+    /// With --fill: take the coverage from this views artifact instead (its views of the
+    /// window the views record in meta.iteration, else all in order). distill fills
+    /// with the source views' coverage; the stage chain passes them.
+    #[arg(long, requires = "fill")]
+    pub alpha_from: Option<PathBuf>,
+    /// The background the views were rendered over (removed by --fill).
+    #[command(flatten)]
+    pub background: Background,
+}
+
+/// What the encoder sees of each view ([`step::prior_view`]): the render, or with
+/// `--fill` the object over a fill of its own colours with the coverage of the views
+/// (or of `--alpha-from`'s views of the `window`).
+fn seen(p: &Args, rgb: &Array4<f32>, window: Option<&IterationWindow>) -> Result<Vec<Array3<f32>>> {
+    let (n, h, w, _) = rgb.dim();
+    let alpha = match (p.fill, &p.alpha_from) {
+        (false, _) => None,
+        (true, None) => Some(read_views(&p.views)?.alpha),
+        (true, Some(dir)) => {
+            let a = read_views(dir)?.alpha;
+            let rows: Vec<usize> = match window {
+                Some(it) => it.window.views.clone(),
+                None => (0..n).collect(),
+            };
+            if a.dim().1 != h || a.dim().2 != w || rows.iter().any(|&v| v >= a.dim().0) {
+                return Err(Error::input(
+                    dir.join("alpha.npy"),
+                    format!(
+                        "shape {:?} has no views {rows:?} of {h}x{w} to take the coverage from",
+                        a.shape()
+                    ),
+                ));
+            }
+            Some(a.select(Axis(0), &rows))
+        }
+    };
+    let plane = |x: ndarray::ArrayView<f32, _>| -> Vec<f32> { x.iter().copied().collect() };
+    Ok((0..n)
+        .map(|i| {
+            let a = alpha
+                .as_ref()
+                .map(|a| plane(a.index_axis(Axis(0), i).into_dyn()));
+            let rgb = plane(rgb.index_axis(Axis(0), i).into_dyn());
+            step::prior_view(
+                &rgb,
+                &a.unwrap_or_default(),
+                p.background.rgb,
+                p.fill,
+                (h, w),
+            )
+        })
+        .collect())
 }
 
 /// The stage; returns the latents' shape.
@@ -57,11 +120,8 @@ pub fn run(p: Args) -> Result<[usize; 4]> {
             ),
         ));
     }
-    let images = rgb
-        .view()
-        .permuted_axes([0, 3, 1, 2])
-        .as_standard_layout()
-        .to_owned();
+    let iteration = iteration_of(&views)?;
+    let images = seen(&p, &rgb, iteration.as_ref())?;
     let opts = PriorOptions {
         threads: p.threads.n,
         optimization: Optimization::All,
@@ -69,26 +129,12 @@ pub fn run(p: Args) -> Result<[usize; 4]> {
         ..Default::default()
     };
     let mut prior = crate::timing::load(|| prior::open(&md.dir, &opts))?;
-    let batch = if p.batch == 0 { n } else { p.batch };
-    let bar = ProgressBar::new(n as u64).with_style(
-        ProgressStyle::with_template("encode-latents {bar:30} {pos}/{len} views {elapsed}")
-            .expect("template"),
-    );
-    let mut parts = Vec::new();
-    for chunk in images.axis_chunks_iter(Axis(0), batch) {
-        parts.push(prior.encode(chunk)?);
-        bar.inc(chunk.dim().0 as u64);
-    }
-    bar.finish_and_clear();
-    let views_of: Vec<_> = parts.iter().map(|a| a.view()).collect();
-    let lat = concatenate(Axis(0), &views_of).expect("same shapes");
-    if let Some(x) = lat.iter().find(|x| !x.is_finite()) {
-        return Err(Error::Onnx(format!("the VAE encoder produced {x}")));
-    }
+    let lat = step::encode_views(prior.as_mut(), &images, p.batch)?;
     let shape = [lat.dim().0, lat.dim().1, lat.dim().2, lat.dim().3];
     let info = prior.info().clone();
     let params = serde_json::json!({
-        "views": p.views, "model": p.model, "batch": p.batch,
+        "views": p.views, "model": p.model, "batch": p.batch, "fill": p.fill,
+        "alpha_from": p.alpha_from, "background": p.background.rgb,
     });
     let mut wr = ArtifactWriter::create(
         &p.out,
@@ -96,13 +142,11 @@ pub fn run(p: Args) -> Result<[usize; 4]> {
         Producer::new("encode-latents", crate::VERSION, params),
     )?;
     wr.add_input("views", &p.views)?;
+    if let Some(dir) = p.alpha_from.as_ref().filter(|_| p.fill) {
+        wr.add_input("alpha-from", dir)?;
+    }
     wr.add_input("model", &md.manifest_path)?;
-    let data = lat.as_standard_layout();
-    wr.write_tensor(
-        "latents.npy",
-        &shape,
-        data.as_slice().expect("standard layout"),
-    )?;
+    crate::artifacts::write_array(&mut wr, "latents.npy", &lat)?;
     let cams = views.path("cameras.json");
     let bytes = std::fs::read(&cams).map_err(|e| Error::io(&cams, e))?;
     wr.write_bytes("cameras.json", &bytes)?;
@@ -113,6 +157,8 @@ pub fn run(p: Args) -> Result<[usize; 4]> {
         "downsample": info.downsample,
         "vae_scaling_factor": md.manifest.vae_scaling_factor,
         "image_size": [h, w],
+        "fill": p.fill,
+        "iteration": iteration,
     }));
     crate::timing::io(|| wr.commit())?;
     tracing::info!("encode-latents: {n} views -> latents {shape:?}");

@@ -1,7 +1,7 @@
 //! `evaluate`: compare a stylized views artifact with the original one and the style image,
 //! and write an `evaluation` artifact (`metrics.json`, `report.html`).
 //!
-//! The metrics are [`crate::metrics::evaluate`] (FantasyStyle Sec. 4: LPIPS_content,
+//! The metrics are [`crate::metrics::evaluate`] (FantasyStyle's experiments: LPIPS_content,
 //! FID/KID, ArtFID, short/long-range consistency, Gram distance), the page
 //! [`crate::metrics::report::evaluation_report`]; the metric networks come from the
 //! models directory ([`crate::models`]).

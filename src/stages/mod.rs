@@ -9,7 +9,13 @@
 //!
 //! Flags several stages share are clap groups flattened into their `Args`:
 //! [`SceneInput`] (`--scene`, `--cameras`), [`Background`] (`--background`) and
-//! [`Threads`] (`--threads`), [`DeviceArg`] (`--device`); a stage's own numerics parameters are the library's
+//! [`Threads`] (`--threads`), [`DeviceArg`] (`--device`), [`PriorArgs`] (`--model`,
+//! `--style`, `--prompt`, `--strength`, `--motif-scale` and the device flags of `distill`
+//! and `csd-step`), [`MvfcArgs`] (`--no-mvfc`, `--mvfc-source`, `--gamma`, ... of
+//! `distill` and `mvfc-filter`), [`TimestepArgs`] (`--timesteps`, `--anneal-iters` of
+//! `distill` and `mvfc-filter`), [`ColourArgs`] (`--colour-loss`) and [`TextureArgs`]
+//! (`--texture-weight`, ... of `distill` and `update-gaussians`);
+//! a stage's own numerics parameters are the library's
 //! parameter structs flattened the same way (`csd::CsdParams`, `mvfc::MvfcParams`).
 //! A stage never imports another stage: what two stages need lives in the library
 //! (artifact readers in [`crate::artifacts`], model lookup in [`crate::models`], phase
@@ -135,6 +141,286 @@ pub struct DeviceArg {
     /// needs onnxruntime's GPU build, see README "Running on a GPU").
     #[arg(long = "device", value_name = "DEVICE", default_value = "cpu")]
     pub device: crate::runtime::Device,
+}
+
+/// `--model`, `--style`, `--prompt`, `--strength`, `--device`, `--unet-batch`: the prior a
+/// distilling stage (`distill`, `csd-step`) opens, and how.
+#[derive(clap::Args, Debug, Clone)]
+pub struct PriorArgs {
+    /// Model directory with model.json (e.g. vendor/models/stylizer,
+    /// vendor/models/gaussian-prior, an export of scripts/export_models.py).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Style image (PNG or JPEG, shorter side >= 64 px).
+    #[arg(long)]
+    pub style: PathBuf,
+    /// The prompt P: any text for a model with a text encoder (else one of its exported
+    /// prompts); empty or absent: the model's first exported prompt. Ignored by the
+    /// stylizer.
+    #[arg(long)]
+    pub prompt: Option<String>,
+    /// Style strength in [0, 1]: 0 leaves the scene unchanged, 1 is the full style.
+    #[arg(long, default_value_t = 1.0)]
+    pub strength: f32,
+    /// Motif scale of the stylizer prior: the render is enlarged this many times before
+    /// the network and reduced after, so strokes and motifs come out this much smaller
+    /// on the object (1 = as the network draws them at the render's size).
+    #[arg(long, default_value_t = 1.0)]
+    pub motif_scale: f32,
+    #[command(flatten)]
+    pub device: DeviceArg,
+    /// Most UNet rows per call (rows = views x conditionings; 0 = automatic: all, unless
+    /// the first level's attention scores would pass 2^31 floats, as SD 1.5 at 64x64
+    /// latents with more than 4 rows).
+    #[arg(long, default_value_t = 0)]
+    pub unet_batch: usize,
+}
+
+impl PriorArgs {
+    /// Check the flags and read the style image (before anything slow).
+    pub fn load_style(&self) -> Result<crate::imageio::Image> {
+        if !(0.0..=1.0).contains(&self.strength) {
+            return Err(Error::param(format!(
+                "--strength must be in [0, 1], got {}",
+                self.strength
+            )));
+        }
+        crate::imageio::load_style(&self.style, crate::imageio::MIN_STYLE_SIDE)
+    }
+
+    /// Open the prior with the style image `style` and `threads` intra-op threads
+    /// (counted as loading time).
+    pub fn open(
+        &self,
+        style: &crate::imageio::Image,
+        threads: Threads,
+    ) -> Result<Box<dyn crate::prior::Prior>> {
+        let opts = crate::prior::PriorOptions {
+            style_image: Some(style.to_chw().insert_axis(ndarray::Axis(0))),
+            prompt: self.prompt.clone().filter(|p| !p.is_empty()),
+            threads: threads.n,
+            strength: Some(self.strength),
+            motif_scale: Some(self.motif_scale),
+            device: self.device.device,
+            unet_batch: self.unet_batch,
+            ..Default::default()
+        };
+        crate::timing::load(|| crate::prior::open(&self.model, &opts))
+    }
+
+    /// The model's `model.json` (the model directory's, or `--model` itself if a file).
+    pub fn manifest_path(&self) -> PathBuf {
+        model_manifest(&self.model)
+    }
+
+    /// Record the style image and the model's manifest as inputs of an artifact.
+    pub fn add_inputs(&self, w: &mut fantasystyle_schemas::ArtifactWriter) -> Result<()> {
+        w.add_input("style", &self.style)?;
+        w.add_input("model", &self.manifest_path())?;
+        Ok(())
+    }
+
+    /// The flags as producer parameters.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "strength": self.strength, "prompt": self.prompt, "motif_scale": self.motif_scale,
+            "device": self.device.device.to_string(), "unet_batch": self.unet_batch,
+        })
+    }
+}
+
+/// `--no-mvfc`, `--mvfc-source` and MVFC's parameters: how the loop (`distill`,
+/// `mvfc-filter`) filters the noisy latents of the two branches.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct MvfcArgs {
+    /// Skip MVFC (the paper's "w/o MVFC" ablation).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub no_mvfc: bool,
+    /// Filter the source branch with MVFC too (false: the target only, as in the paper,
+    /// which moves the scene even when the style is its own look).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub mvfc_source: bool,
+    #[command(flatten)]
+    pub params: crate::mvfc::MvfcParams,
+}
+
+impl MvfcArgs {
+    /// The filter (`None`: without MVFC), checked.
+    pub fn filter(&self) -> Result<Option<crate::mvfc::MvfcParams>> {
+        self.params.validate()?;
+        Ok((!self.no_mvfc).then_some(self.params))
+    }
+
+    /// The flags as producer parameters.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "mvfc": !self.no_mvfc, "mvfc_source": self.mvfc_source, "gamma": self.params.gamma,
+            "d_s": self.params.d_s, "d_t": self.params.d_t,
+        })
+    }
+}
+
+/// `--timesteps`, `--anneal-iters`: the set an iteration's timestep is drawn from and
+/// how (`distill`, `mvfc-filter`).
+#[derive(clap::Args, Debug, Clone)]
+pub struct TimestepArgs {
+    /// Timestep set MIN:MAX:COUNT (default: the model's own set).
+    #[arg(long)]
+    pub timesteps: Option<String>,
+    /// Anneal the timestep from coarse to fine over this many iterations in total (the
+    /// whole run, all chunks: t_max falls linearly to the set's smallest); 0 = draw
+    /// uniformly from the whole set every iteration.
+    #[arg(long, default_value_t = 0)]
+    pub anneal_iters: u64,
+}
+
+impl TimestepArgs {
+    /// The set: `--timesteps` for the model's noise schedule `cfg`, else `model_set`.
+    pub fn set(
+        &self,
+        cfg: &crate::scheduler::SchedulerConfig,
+        model_set: crate::scheduler::TimestepSet,
+    ) -> Result<crate::scheduler::TimestepSet> {
+        match &self.timesteps {
+            Some(spec) => crate::scheduler::TimestepSet::parse(spec, cfg),
+            None => Ok(model_set),
+        }
+    }
+
+    /// How the timestep is drawn.
+    pub fn schedule(&self) -> crate::distill::TimestepSchedule {
+        if self.anneal_iters > 0 {
+            crate::distill::TimestepSchedule::Anneal {
+                total: self.anneal_iters,
+            }
+        } else {
+            crate::distill::TimestepSchedule::Random
+        }
+    }
+
+    /// The flags as producer parameters.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({ "timesteps": self.timesteps, "anneal_iters": self.anneal_iters })
+    }
+}
+
+/// `--colour-loss`: the colour step's loss against the targets (`distill`,
+/// `update-gaussians` on one iteration's targets).
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct ColourArgs {
+    /// The colour step's loss: l2 passes the prior's change with its magnitude (the
+    /// paper's gradient), l1 only its sign.
+    #[arg(long, value_enum, default_value = "l2")]
+    pub colour_loss: crate::distill::ColourLoss,
+}
+
+impl ColourArgs {
+    /// The flags as producer parameters.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({ "colour_loss": self.colour_loss })
+    }
+}
+
+/// `--texture-weight`, `--texture-style-size`, `--texture-vgg`: the low-layer texture
+/// term of the colour step ([`crate::distill::texture`]; `distill`, `update-gaussians`
+/// on one iteration's targets).
+#[derive(clap::Args, Debug, Clone)]
+pub struct TextureArgs {
+    /// Weight of the low-layer texture term in the colour step (masked VGG16 Gram loss
+    /// at relu1_2 and relu2_2 of the object crop against the style image; not part of
+    /// FantasyStyle, see src/distill/texture.rs); 0 = off, the paper's method alone.
+    #[arg(long, default_value_t = 1.0)]
+    pub texture_weight: f32,
+    /// The style image is resized so its shorter side is this many pixels for the
+    /// texture term (sets the motif scale against the render's pixels).
+    #[arg(long, default_value_t = 256)]
+    pub texture_style_size: usize,
+    /// The texture term sees the object crop and the style box-averaged this many times
+    /// smaller (motif scale on screen kept; D^2 times cheaper; periods under 2D pixels
+    /// are left to the prior). 1 = full resolution.
+    #[arg(long, default_value_t = 1)]
+    pub texture_downsample: usize,
+    /// VGG16 layers whose Gram matrices the texture term matches (receptive fields:
+    /// relu1_2 5 px, relu2_2 14 px, relu3_3 40 px; a deeper layer sees larger motifs and
+    /// costs more).
+    #[arg(long, value_delimiter = ',', default_value = "relu1_2,relu2_2")]
+    pub texture_layers: Vec<crate::vgg::Layer>,
+    /// The texture term on this many of each iteration's views (rotating; scaled so the
+    /// gradient is the same in expectation); 0 = every view. 1 looks the same as every
+    /// view at about 0.7x the CPU (BENCHMARKS.md "Texture").
+    #[arg(long, default_value_t = 1)]
+    pub texture_views: usize,
+    /// VGG16 weights for the texture term (default: lpips/vgg16 in the models directory).
+    #[arg(long)]
+    pub texture_vgg: Option<PathBuf>,
+}
+
+impl TextureArgs {
+    /// The texture term against the style image `style` (VGG from `--texture-vgg` or the
+    /// models directory; the style at `--texture-style-size`); `None` at weight 0.
+    pub fn term(
+        &self,
+        style: Option<&Path>,
+    ) -> Result<Option<crate::distill::texture::TextureTerm>> {
+        use crate::vgg::Vgg16;
+        if self.texture_weight == 0.0 {
+            return Ok(None);
+        }
+        let Some(style) = style else {
+            return Err(Error::param(format!(
+                "the texture term (--texture-weight {}) needs the style image (--style); \
+                 --texture-weight 0 is the paper's method alone",
+                self.texture_weight
+            )));
+        };
+        let dir = match &self.texture_vgg {
+            Some(p) => p.clone(),
+            None => crate::models::model_path("lpips/vgg16")?,
+        };
+        let vgg = crate::timing::load(|| Vgg16::load(&dir))?;
+        let img = crate::imageio::read_rgb(style)?;
+        let img = crate::baselines::prepare_style(&img, self.texture_style_size, style)?;
+        let mut term = crate::distill::texture::TextureTerm::new(
+            vgg,
+            &img,
+            &self.texture_layers,
+            self.texture_weight,
+            self.texture_downsample,
+        )?;
+        term.views = self.texture_views;
+        Ok(Some(term))
+    }
+
+    /// The flags as producer parameters.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "texture_weight": self.texture_weight,
+            "texture_style_size": self.texture_style_size,
+            "texture_downsample": self.texture_downsample,
+            "texture_views": self.texture_views,
+            "texture_layers": self.texture_layers.iter().map(|l| l.name()).collect::<Vec<_>>(),
+        })
+    }
+}
+
+/// Merge the fields of JSON objects into one (later ones win), for producer parameters.
+pub fn merge_params(parts: &[serde_json::Value]) -> serde_json::Value {
+    let mut out = serde_json::Map::new();
+    for p in parts {
+        if let serde_json::Value::Object(m) = p {
+            out.extend(m.clone());
+        }
+    }
+    serde_json::Value::Object(out)
+}
+
+/// A model's `model.json`: `model` itself if it is a file, else `model/model.json`.
+pub fn model_manifest(model: &Path) -> PathBuf {
+    if model.is_file() {
+        model.to_path_buf()
+    } else {
+        model.join("model.json")
+    }
 }
 
 /// Run `f` on a rayon pool of `threads` threads (0 = all cores).

@@ -1,15 +1,36 @@
 //! `update-gaussians`: fit a scene's SH colours to target images with geometry frozen
-//! (issue: update-gaussians; the paper's "Gaussians are updated toward z0_tgt" step).
+//! (the paper's "Gaussians are updated toward the targets" step).
 //!
-//! Reads the scene, the cameras and a `targets` (or `views`) artifact whose `rgb.npy`
-//! is `[N, H, W, 3]` with one image per camera; runs [`crate::optim::fit_colours`]
-//! (L1 + D-SSIM, Adam) for `--steps` steps; writes a `scene` artifact with `scene.ply`
-//! (every non-colour field bit-identical to the input) and `loss.json` (the mean loss
-//! over views per step, plus cache statistics).
+//! Two uses, told apart by the targets:
+//!
+//! * **One iteration of the stage chain** (targets of `csd-step`, which record their
+//!   iteration): the colour step of `distill` ([`crate::distill::step::colour_step`]):
+//!   one Adam step on the window's views, continuing the optimizer state of the `--scene`
+//!   checkpoint (a plain scene: iteration 0, zero state), which must be at the targets'
+//!   iteration. Writes the next checkpoint, as `distill` does
+//!   ([`crate::artifacts::write_checkpoint`]: `scene.ply`, the optimizer state,
+//!   `history.json` with this iteration's report; not `distill`'s agreement measurement,
+//!   which the chain does not make). `distill`'s colour step is `--ssim-weight 0
+//!   --lr-rest 0` (with `--fit-rest`: `--lr-rest` = lr-dc / 20, the default) at its
+//!   `--lr-dc`, with its `--colour-loss` (L2 by default) and its texture term
+//!   (`--texture-weight`, default 1; it needs `--style` and `--source-views`, whose
+//!   alpha masks it, and sees each render over the fill as the prior does, `--no-fill`
+//!   as distill's); `--steps` must be absent or 1.
+//! * **A colour fit to any images** (a `targets` artifact without an iteration, or a
+//!   `views` artifact with one image per camera): [`crate::optim::fit_colours`] (L1 +
+//!   D-SSIM, Adam from zero; `--colour-loss` and the texture flags do not apply) for
+//!   `--steps` steps; writes a `scene` artifact with
+//!   `scene.ply` (every non-colour field bit-identical to the input) and `loss.json`
+//!   (the mean loss over views per step, plus cache statistics).
 
-use super::{Background, SceneInput, Threads};
-use crate::artifacts::read_targets;
-use crate::optim::{FitParams, fit_colours};
+use super::{Background, ColourArgs, SceneInput, TextureArgs, Threads};
+use crate::artifacts::{
+    CheckpointParts, Start, Targets, extend_history, read_targets, read_views, write_checkpoint,
+};
+use crate::distill::IterReport;
+use crate::distill::step::{ColourStep, IterationWindow, TargetStats, colour_step};
+use crate::distill::texture::TextureTerm;
+use crate::optim::{ColourFit, FitParams, fit_colours};
 use crate::render::CacheMode;
 use crate::scene::ply;
 use crate::{Error, Result};
@@ -27,9 +48,10 @@ pub struct Args {
     /// Targets: a `targets` or `views` artifact directory whose rgb.npy is [N,H,W,3].
     #[arg(long)]
     pub targets: PathBuf,
-    /// Number of Adam steps; each step renders every view once (>= 1).
+    /// Number of Adam steps; each step renders every view once (>= 1). Required for a
+    /// colour fit; one iteration of the stage chain is one step.
     #[arg(long)]
-    pub steps: usize,
+    pub steps: Option<usize>,
     /// Output scene artifact directory (written atomically).
     #[arg(long)]
     pub out: PathBuf,
@@ -55,17 +77,196 @@ pub struct Args {
     #[command(flatten)]
     pub background: Background,
     #[command(flatten)]
+    pub colour: ColourArgs,
+    #[command(flatten)]
+    pub texture: TextureArgs,
+    /// Style image of the texture term (one iteration's targets).
+    #[arg(long)]
+    pub style: Option<PathBuf>,
+    /// Views artifact of the ORIGINAL scene, every camera (as distill's
+    /// --source-views): its alpha masks the texture term (one iteration's targets).
+    #[arg(long)]
+    pub source_views: Option<PathBuf>,
+    /// The texture term sees the raw render instead of the object over a fill of its own
+    /// colours (as distill --no-fill).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub no_fill: bool,
+    #[command(flatten)]
     pub threads: Threads,
 }
 
-/// The stage: load, fit, write the artifact.
+/// The stage: load, fit (or step), write the artifact.
 pub fn run(a: Args) -> Result<()> {
     let cache: CacheMode = a.cache.parse()?;
-    if a.steps == 0 {
-        return Err(Error::param("--steps must be at least 1"));
-    }
-    let scene = a.input.load_scene()?;
     let targets = read_targets(&a.targets)?;
+    let params = FitParams {
+        lr_dc: a.lr_dc,
+        lr_rest: a.lr_rest.unwrap_or(a.lr_dc / 20.0),
+        ssim_weight: a.ssim_weight,
+        mask_alpha: a.mask_alpha,
+        cache,
+        background: a.background.rgb,
+        progress: true,
+    };
+    let mut own = serde_json::json!({
+        "cameras": a.input.cameras, "steps": a.steps, "lr_dc": params.lr_dc,
+        "lr_rest": params.lr_rest, "ssim_weight": a.ssim_weight,
+        "mask_alpha": a.mask_alpha, "cache": a.cache, "background": a.background.rgb,
+    });
+    if targets.step.is_some() {
+        own = super::merge_params(&[
+            own,
+            a.colour.to_json(),
+            a.texture.to_json(),
+            serde_json::json!({ "fill": !a.no_fill }),
+        ]);
+    }
+    let producer = Producer::new("update-gaussians", crate::VERSION, own);
+    match targets.step.clone() {
+        Some(step) => iteration(&a, &targets, step, &params, producer),
+        None => fit(&a, &targets, &params, producer),
+    }
+}
+
+/// One iteration's colour step from a checkpoint to the next.
+fn iteration(
+    a: &Args,
+    targets: &Targets,
+    (w, t, stats): (IterationWindow, usize, TargetStats),
+    params: &FitParams,
+    producer: Producer,
+) -> Result<()> {
+    if a.steps.is_some_and(|s| s != 1) {
+        return Err(Error::param(
+            "--steps: the targets are one iteration's (csd-step), which is one step",
+        ));
+    }
+    let start = crate::timing::load(|| Start::load(&a.input.scene))?;
+    if start.iteration != w.iteration {
+        return Err(Error::input(
+            &a.input.scene,
+            format!(
+                "has done {} iterations, but the targets ({}) are of iteration {}",
+                start.iteration,
+                a.targets.display(),
+                w.iteration
+            ),
+        ));
+    }
+    let (_, h, wd, _) = targets.rgb.dim();
+    let cams = a.input.load_cameras(&start.scene, wd as u32, h as u32)?;
+    if cams.len() != w.path.len {
+        return Err(Error::input(
+            &a.targets,
+            format!(
+                "the iteration's path has {} cameras, `{}` {}",
+                w.path.len,
+                a.input.cameras,
+                cams.len()
+            ),
+        ));
+    }
+    let cams: Vec<_> = w.window.views.iter().map(|&v| cams[v].clone()).collect();
+    let (texture, alpha) = texture_inputs(a, &w, (h, wd))?;
+    let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
+    a.input.add_inputs(&mut out)?;
+    out.add_input("targets", &a.targets)?;
+    if texture.is_some() {
+        for (name, p) in [("style", &a.style), ("source-views", &a.source_views)] {
+            if let Some(p) = p {
+                out.add_input(name, p)?;
+            }
+        }
+    }
+    let cs = ColourStep {
+        loss: a.colour.colour_loss,
+        ssim_weight: params.ssim_weight,
+        texture: texture.as_ref(),
+        background: a.background.rgb,
+        fill: !a.no_fill,
+        iteration: w.iteration,
+    };
+    let (scene, state, losses) = a.threads.install(|| -> Result<_> {
+        let mut fit = ColourFit::without_targets(&start.scene, &cams, params)?;
+        fit.set_optimizer_state(start.state())?;
+        let views: Vec<usize> = (0..cams.len()).collect();
+        let alpha: Vec<&[f32]> = alpha.iter().map(|x| x.as_slice()).collect();
+        let losses = colour_step(&mut fit, &views, targets.rgb.view(), &alpha, &cs)?;
+        Ok((fit.scene().clone(), fit.optimizer_state(), losses))
+    })??;
+    crate::distill::guard::checkpoint(&scene, &state)?;
+    let (loss, _) = losses;
+    let report = IterReport::new(&w, t, stats, losses);
+    let mut history = start.history;
+    extend_history(&mut history, &[report])?;
+    out.write_bytes("scene.ply", &ply::encode_ply(&scene))?;
+    let parts = CheckpointParts {
+        scene: &scene,
+        state: &state,
+        iteration: w.iteration + 1,
+        history: &history,
+        hf_prev: None,
+        last: None,
+    };
+    write_checkpoint(&mut out, &parts)?;
+    crate::timing::io(|| out.commit())?;
+    tracing::info!(
+        "iteration {} (views {:?}, t = {t}): loss {loss:.5}; wrote {}",
+        w.iteration,
+        w.window.views,
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// The texture term of one iteration's colour step (`None` at `--texture-weight 0`) and
+/// the source coverage `[H, W]` of each of the window's views it is masked with (zero
+/// planes without the term).
+fn texture_inputs(
+    a: &Args,
+    w: &IterationWindow,
+    (h, wd): (usize, usize),
+) -> Result<(Option<TextureTerm>, Vec<Vec<f32>>)> {
+    let texture = a.texture.term(a.style.as_deref())?;
+    let alpha: Vec<Vec<f32>> = match (&texture, &a.source_views) {
+        (None, _) => vec![vec![0.0; h * wd]; w.window.views.len()],
+        (Some(_), None) => {
+            return Err(Error::param(
+                "the texture term needs --source-views (its alpha masks the term)",
+            ));
+        }
+        (Some(_), Some(dir)) => {
+            let src = crate::timing::load(|| read_views(dir))?;
+            let (n, sh, sw) = src.dim();
+            if n != w.path.len || (sh, sw) != (h, wd) {
+                return Err(Error::input(
+                    src.art.path("alpha.npy"),
+                    format!(
+                        "{n} views of {sw}x{sh}, but the iteration's path has {} cameras of \
+                         {wd}x{h}",
+                        w.path.len
+                    ),
+                ));
+            }
+            let plane = |v: usize| -> Vec<f32> {
+                src.alpha
+                    .index_axis(ndarray::Axis(0), v)
+                    .iter()
+                    .copied()
+                    .collect()
+            };
+            w.window.views.iter().map(|&v| plane(v)).collect()
+        }
+    };
+    Ok((texture, alpha))
+}
+
+/// A colour fit of `--steps` steps to the targets, one per camera.
+fn fit(a: &Args, targets: &Targets, params: &FitParams, producer: Producer) -> Result<()> {
+    let Some(steps) = a.steps.filter(|s| *s > 0) else {
+        return Err(Error::param("--steps must be at least 1"));
+    };
+    let scene = a.input.load_scene()?;
     let rgb_path = targets.art.path("rgb.npy");
     let (n, h, w, _) = targets.rgb.dim();
     let cams = a.input.load_cameras(&scene, w as u32, h as u32)?;
@@ -82,36 +283,18 @@ pub fn run(a: Args) -> Result<()> {
     let per = h * w * 3;
     let rgb = targets.rgb.as_slice().expect("standard layout");
     let targets: Vec<Vec<f32>> = rgb.chunks(per).map(|c| c.to_vec()).collect();
-    let params = FitParams {
-        lr_dc: a.lr_dc,
-        lr_rest: a.lr_rest.unwrap_or(a.lr_dc / 20.0),
-        ssim_weight: a.ssim_weight,
-        mask_alpha: a.mask_alpha,
-        cache,
-        background: a.background.rgb,
-        progress: true,
-    };
-    let producer = Producer::new(
-        "update-gaussians",
-        crate::VERSION,
-        serde_json::json!({
-            "cameras": a.input.cameras, "steps": a.steps, "lr_dc": params.lr_dc,
-            "lr_rest": params.lr_rest, "ssim_weight": a.ssim_weight,
-            "mask_alpha": a.mask_alpha, "cache": a.cache, "background": a.background.rgb,
-        }),
-    );
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
     a.input.add_inputs(&mut out)?;
     out.add_input("targets", &a.targets)?;
     let (fitted, report) = a
         .threads
-        .install(|| fit_colours(&scene, &cams, &targets, a.steps, &params))??;
+        .install(|| fit_colours(&scene, &cams, &targets, steps, params))??;
     out.write_bytes("scene.ply", &ply::encode_ply(&fitted))?;
     out.write_json(
         "loss.json",
         &serde_json::json!({
             "loss": report.losses,
-            "steps": a.steps,
+            "steps": steps,
             "views": n,
             "cached_views": report.cached_views,
             "cache_bytes": report.cache_bytes,

@@ -368,6 +368,9 @@ fn csd_step_stage_matches_numpy_targets() {
         threads: Threads::new(1),
         device: Default::default(),
         batch: 0,
+        fill: false,
+        alpha_from: None,
+        background: fantasystyle::stages::Background { rgb: [0.0; 3] },
     })
     .unwrap();
     let z0 = g4("gaussian_z0.npy");
@@ -407,14 +410,23 @@ fn csd_step_stage_matches_numpy_targets() {
             latents: dp.join("lat"),
             views: dp.join("views"),
             source_views: dp.join("views"),
-            model: model.clone(),
-            style: sp.clone(),
-            prompt: None,
+            // z0_src = z0: numpy's z_src is add_noise(z0, eps).
+            source_latents: dp.join("lat"),
+            prior: fantasystyle::stages::PriorArgs {
+                model: model.clone(),
+                style: sp.clone(),
+                prompt: None,
+                strength: 1.0,
+                motif_scale: 1.0,
+                device: Default::default(),
+                unet_batch: 0,
+            },
             params: params(&c),
+            preserve_color: false,
+            no_fill: false,
+            background: fantasystyle::stages::Background { rgb: [0.0; 3] },
             out: out.clone(),
             threads: Threads::new(1),
-            device: Default::default(),
-            unet_batch: 0,
         })
         .unwrap();
         assert_eq!(report.timestep as u64, t);

@@ -484,7 +484,7 @@ fn csd_step_stage_runs_the_fixture_and_refuses_shared_conditioning() {
     let sp = crate::mvfc::csd_inputs(d.path(), &dir, &views, &style);
     // The routed model, a run-time prompt, --mode csd: targets written.
     let mut a = crate::mvfc::step_args(d.path(), &dir, &sp, Mode::Csd);
-    a.prompt = Some("an ink drawing of a stone bridge".into());
+    a.prior.prompt = Some("an ink drawing of a stone bridge".into());
     let lr = a.params.lr as f64;
     let rep = fantasystyle::stages::csd_step::run(a).unwrap();
     // z0' - z0 = -lr w g exactly: the two reported RMS agree, and the step is not nil.
@@ -495,7 +495,7 @@ fn csd_step_stage_runs_the_fixture_and_refuses_shared_conditioning() {
     );
     // The run-time prompt reaches the gradient: another prompt, other targets.
     let mut b = crate::mvfc::step_args(d.path(), &dir, &sp, Mode::Csd);
-    b.prompt = Some("a watercolour of a lighthouse".into());
+    b.prior.prompt = Some("a watercolour of a lighthouse".into());
     b.out = d.path().join("targets-other-prompt");
     let rep_b = fantasystyle::stages::csd_step::run(b).unwrap();
     assert!(

@@ -19,7 +19,7 @@ use std::process::Command;
 
 /// The installed stylizer model ([`crate::harness::model`]: a failure under CI, else a
 /// skip).
-fn stylizer_dir() -> Option<PathBuf> {
+pub(crate) fn stylizer_dir() -> Option<PathBuf> {
     crate::harness::model("stylizer")
 }
 
@@ -325,10 +325,23 @@ fn distill_args(dir: &Path, stylizer: &Path) -> Vec<String> {
     .collect()
 }
 
-const STATE_FILES: [&str; 4] = ["scene.ply", "adam_dc.npy", "adam_rest.npy", "history.json"];
+/// A checkpoint's state: scene, optimizer state, iteration count, history.
+pub(crate) const STATE_FILES: [&str; 5] = [
+    "scene.ply",
+    "adam_dc.npy",
+    "adam_rest.npy",
+    "state.json",
+    "history.json",
+];
 
-fn same_files(a: &Path, b: &Path) {
-    for f in STATE_FILES {
+/// Files `STATE_FILES` of checkpoints `a` and `b` are the same bytes.
+pub(crate) fn same_files(a: &Path, b: &Path) {
+    same_bytes(a, b, &STATE_FILES);
+}
+
+/// Files `files` of artifacts `a` and `b` are the same bytes.
+pub(crate) fn same_bytes(a: &Path, b: &Path, files: &[&str]) {
+    for f in files {
         let (x, y) = (
             std::fs::read(a.join(f)).unwrap(),
             std::fs::read(b.join(f)).unwrap(),

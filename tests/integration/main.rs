@@ -1,5 +1,6 @@
 //! The integration test binary: one binary, one harness (`harness`), one module per area.
 mod baselines;
+mod chain;
 mod csd_golden;
 mod diffusion;
 mod distill;

@@ -198,10 +198,14 @@ fn stylizer_csd_moves_views_toward_the_style() {
 // ---------------------------------------------------------------------------------
 // The stages: mvfc-filter and csd-step, through their library functions.
 
-use fantasystyle::artifacts::{read_noised_latents, read_targets};
+use fantasystyle::artifacts::{read_latents, read_noised_latents, read_targets};
 use fantasystyle::csd::Mode;
-use fantasystyle::stages::mvfc_filter::TimestepChoice;
-use fantasystyle::stages::{Threads, csd_step, encode_latents, mvfc_filter};
+use fantasystyle::distill::TimestepSchedule;
+use fantasystyle::distill::path::ViewPath;
+use fantasystyle::distill::step::Draws;
+use fantasystyle::mvfc::mvfc_path;
+use fantasystyle::stages::{Background, MvfcArgs, PriorArgs, Threads, TimestepArgs};
+use fantasystyle::stages::{csd_step, encode_latents, mvfc_filter};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use std::path::{Path, PathBuf};
 
@@ -213,7 +217,7 @@ fn model_dir(name: &str) -> Option<PathBuf> {
     crate::harness::model(name)
 }
 
-fn write_latents(dir: &Path, z: &Array4<f32>) {
+fn write_latents(dir: &Path, z: &Array4<f32>, meta: serde_json::Value) {
     let mut w = ArtifactWriter::create(
         dir,
         ArtifactKind::Latents,
@@ -222,6 +226,7 @@ fn write_latents(dir: &Path, z: &Array4<f32>) {
     .unwrap();
     w.write_tensor("latents.npy", z.shape(), z.as_slice().unwrap())
         .unwrap();
+    w.set_meta(meta);
     w.commit().unwrap();
 }
 
@@ -249,13 +254,18 @@ fn filter_args(d: &Path, model: &Path) -> mvfc_filter::Args {
         latents: d.join("lat_tgt"),
         source_latents: d.join("lat_src"),
         model: model.to_path_buf(),
-        timestep: TimestepChoice::Auto,
-        seed: 3,
-        round: 1,
+        timesteps: TimestepArgs {
+            timesteps: None,
+            anneal_iters: 0,
+        },
+        seed: Some(3),
+        iteration: Some(1),
+        mvfc: MvfcArgs {
+            no_mvfc: false,
+            mvfc_source: true,
+            params: MvfcParams::default(),
+        },
         out: d.join("noised"),
-        params: MvfcParams::default(),
-        no_filter: false,
-        group_size: 0,
         threads: Threads::new(1),
     }
 }
@@ -278,51 +288,69 @@ fn max_abs_diff(a: &Array4<f32>, b: &Array4<f32>) -> f32 {
 
 /// mvfc-filter against independent references, not its own library calls:
 /// * z_src = sqrt(ab) z0_src + sqrt(1-ab) eps with ab from numpy's schedule (1e-5);
-/// * MVFC is linear, so two runs that share (seed, round) -- hence eps and eps' -- and
-///   whose target latents differ by Z / sqrt(ab) differ in z_tgt by (H + gamma L) Z, the
-///   noise-free golden case `stage_4v` of scripts/reference/mvfc_ref.py (2e-5);
-/// * eps' enters through the low band: the mean over views and pixels of z_tgt (the DC
-///   term, where L = 1 and H = 0) is gamma * mean(noisy) + (1 - gamma) * mean(eps')
-///   per channel (1e-5);
-/// * `--no-filter` gives the noisy latents themselves; `auto` is deterministic in
-///   (seed, round), draws from the model's set, and different rounds draw different t.
+/// * MVFC is linear, so two runs of the same (seed, iteration) -- hence the same t, eps
+///   and eps' -- whose target latents differ by Z / sqrt(ab) differ in z_tgt by
+///   (H + gamma L) Z on the mirror-extended view axis (latents without a recorded
+///   iteration are one window of an open path), the noise-free golden case
+///   `stage_4v_path` of scripts/reference/mvfc_ref.py (2e-5);
+/// * eps' enters through the low band: the mean over the mirror-extended views
+///   (v0 .. v_{N-1}, v_{N-2} .. v1) and pixels of z_tgt (the DC term, where L = 1 and
+///   H = 0) is gamma * mean(noisy) + (1 - gamma) * mean(eps') per channel (1e-5);
+/// * `--mvfc-source false`: the source only noised; `--no-mvfc`: the noisy latents
+///   themselves; the draws are distill's stream for (seed, iteration), another
+///   iteration draws other noise, and a recorded window picks its rows of the source
+///   latents and wins over flags, which may not contradict it.
 #[test]
 fn mvfc_filter_stage_noises_and_filters() {
     let Some(model) = model_dir("gaussian-prior") else {
         return;
     };
-    let (zg, eg, outg) = golden("stage_4v");
+    let (zg, eg, _) = golden("stage_4v");
     assert!(eg.iter().all(|v| *v == 0.0));
+    let outg = read_npy_f32(&repo_root().join("tests/golden/mvfc/stage_4v_path_out.npy")).unwrap();
+    let outg = Array4::from_shape_vec(zg.raw_dim(), outg.data).unwrap();
     let p = MvfcParams::default();
     let d = tempfile::tempdir().unwrap();
     let shape = zg.raw_dim();
-    let (_, set) = fantasystyle::prior::model_timesteps(&model).unwrap();
-    let t = set.steps()[17];
-    let ab = numpy_alphas()[t];
-    let (sa, sb) = (ab.sqrt() as f32, (1.0 - ab).sqrt() as f32);
     let z_s = Array4::from_shape_vec(shape, Rng::new(11).normals_f32(zg.len())).unwrap();
-    write_latents(&d.path().join("lat_src"), &z_s);
-    write_latents(&d.path().join("lat_a"), &zg.mapv(|v| v / sa));
-    write_latents(&d.path().join("lat_b"), &Array4::zeros(shape));
-    let run = |tgt: &str, out: &str, no_filter: bool, timestep: TimestepChoice| {
+    write_latents(&d.path().join("lat_src"), &z_s, serde_json::json!({}));
+    write_latents(
+        &d.path().join("lat_b"),
+        &Array4::zeros(shape),
+        serde_json::json!({}),
+    );
+    let run = |tgt: &str, out: &str, edit: &dyn Fn(&mut mvfc_filter::Args)| {
         let mut a = filter_args(d.path(), &model);
         a.latents = d.path().join(tgt);
         a.out = d.path().join(out);
-        a.no_filter = no_filter;
-        a.timestep = timestep;
+        edit(&mut a);
         let used = mvfc_filter::run(a).unwrap();
         (used, read_noised_latents(&d.path().join(out)).unwrap())
     };
-    let (ta, na) = run("lat_a", "a", false, TimestepChoice::Fixed(t));
-    let (tb, nb) = run("lat_b", "b", false, TimestepChoice::Fixed(t));
-    assert_eq!((ta, tb, na.timestep), (t, t, t));
+    // The iteration's t comes from its draws; the golden case is scaled by its ab.
+    let (t, nb) = run("lat_b", "b", &|_| {});
+    let (_, set) = fantasystyle::prior::model_timesteps(&model).unwrap();
+    assert!(set.contains(t) && nb.timestep == t);
+    let ab = numpy_alphas()[t];
+    let (sa, sb) = (ab.sqrt() as f32, (1.0 - ab).sqrt() as f32);
+    write_latents(
+        &d.path().join("lat_a"),
+        &zg.mapv(|v| v / sa),
+        serde_json::json!({}),
+    );
+    let (ta, na) = run("lat_a", "a", &|_| {});
+    assert_eq!(ta, t);
     assert_eq!((&na.eps, &na.eps_shared), (&nb.eps, &nb.eps_shared));
     let eps = &na.eps;
     let want_src = ndarray::Zip::from(&z_s)
         .and(eps)
         .map_collect(|&z, &e| sa * z + sb * e);
-    let e_src = max_abs_diff(&na.z_src, &want_src);
+    // The source is filtered too (same eps'): compare with its own filter off.
+    let (_, ns) = run("lat_a", "src-only-noised", &|a| a.mvfc.mvfc_source = false);
+    let e_src = max_abs_diff(&ns.z_src, &want_src);
     assert!(e_src < 1e-5, "z_src vs numpy's schedule: {e_src}");
+    assert_eq!(ns.z_tgt, na.z_tgt);
+    assert!(na.z_src != ns.z_src);
     let e_lin = max_abs_diff(&(&na.z_tgt - &nb.z_tgt), &outg);
     assert!(e_lin < 2e-5, "filter vs the numpy reference: {e_lin}");
     // The low band takes (1 - gamma) of eps', whose per-channel means are far from 0
@@ -330,8 +358,19 @@ fn mvfc_filter_stage_noises_and_filters() {
     let noisy_b = eps.mapv(|e| sb * e);
     let (n, c, h, w) = nb.z_tgt.dim();
     for ch in 0..c {
+        // Over the mirror-extended views: the ends once, the inner views twice.
         let mean = |a: ndarray::ArrayView3<'_, f32>| {
-            a.iter().map(|v| *v as f64).sum::<f64>() / a.len() as f64
+            let wt = |v: usize| if v == 0 || v == n - 1 { 1.0 } else { 2.0 };
+            let s: f64 = (0..n)
+                .map(|v| {
+                    wt(v)
+                        * a.index_axis(ndarray::Axis(0), v)
+                            .iter()
+                            .map(|x| *x as f64)
+                            .sum::<f64>()
+                })
+                .sum();
+            s / ((2 * n - 2) * h * w) as f64
         };
         let got = mean(nb.z_tgt.index_axis(ndarray::Axis(1), ch));
         let want = p.gamma as f64 * mean(noisy_b.index_axis(ndarray::Axis(1), ch))
@@ -345,20 +384,77 @@ fn mvfc_filter_stage_noises_and_filters() {
             "channel {ch}: DC {got} vs {want} ({n}x{h}x{w})"
         );
     }
-    // --no-filter: the noisy latents, nothing else.
-    let (_, nf) = run("lat_a", "nofilter", true, TimestepChoice::Fixed(t));
+    // --no-mvfc: the noisy latents, nothing else.
+    let (_, nf) = run("lat_a", "nofilter", &|a| a.mvfc.no_mvfc = true);
     let want_noisy = ndarray::Zip::from(&zg)
         .and(eps)
         .map_collect(|&z, &e| sa * (z / sa) + sb * e);
     assert!(max_abs_diff(&nf.z_tgt, &want_noisy) < 1e-5);
+    assert!(max_abs_diff(&nf.z_src, &want_src) < 1e-5);
     assert_eq!(nf.eps, na.eps);
-    // auto: deterministic in (seed, round), from the model's set; rounds differ.
-    let (t1, _) = run("lat_b", "auto1", false, TimestepChoice::Auto);
-    let (t2, _) = run("lat_b", "auto2", false, TimestepChoice::Auto);
-    assert!(t1 == t2 && set.contains(t1));
-    let ts: std::collections::BTreeSet<usize> =
-        (0..8).map(|r| set.sample_for_round(3, r)).collect();
-    assert!(ts.len() > 1);
+    // The draws: distill's stream for (seed 3, iteration 1) on an open path of 4 views.
+    let path = ViewPath {
+        len: shape[0],
+        closed: false,
+    };
+    let mut draws = Draws::new(3, 1, path, shape[0]);
+    assert_eq!(
+        draws.window().window.views,
+        (0..shape[0]).collect::<Vec<_>>()
+    );
+    assert_eq!(draws.timestep(TimestepSchedule::Random, &set), t);
+    assert_eq!(
+        &draws.noise([shape[0], shape[1], shape[2], shape[3]]).eps,
+        eps
+    );
+    // Another iteration draws other noise; an annealed schedule at its end the smallest t.
+    let (_, n2) = run("lat_b", "it2", &|a| a.iteration = Some(2));
+    assert!(n2.eps != nb.eps);
+    let (t_end, _) = run("lat_b", "annealed", &|a| a.timesteps.anneal_iters = 1);
+    assert_eq!(t_end, set.steps()[0]);
+
+    // A recorded window: views 3, 4, 0 of a closed path of 5; the source rows are those.
+    let mut rng = Rng::new(12);
+    let (c, lh, lw) = (shape[1], shape[2], shape[3]);
+    let z_all = Array4::from_shape_vec((5, c, lh, lw), rng.normals_f32(5 * c * lh * lw)).unwrap();
+    let z_t = Array4::from_shape_vec((3, c, lh, lw), rng.normals_f32(3 * c * lh * lw)).unwrap();
+    let closed = ViewPath {
+        len: 5,
+        closed: true,
+    };
+    let win = (0..200)
+        .map(|i| Draws::new(9, i, closed, 3).window().clone())
+        .find(|w| w.window.views == [3, 4, 0])
+        .unwrap();
+    write_latents(&d.path().join("lat_src5"), &z_all, serde_json::json!({}));
+    write_latents(
+        &d.path().join("lat_w"),
+        &z_t,
+        serde_json::json!({ "iteration": win }),
+    );
+    let mut b = filter_args(d.path(), &model);
+    (b.latents, b.source_latents) = (d.path().join("lat_w"), d.path().join("lat_src5"));
+    (b.seed, b.iteration, b.out) = (None, None, d.path().join("win"));
+    let tw = mvfc_filter::run(b.clone()).unwrap();
+    let nw = read_noised_latents(&b.out).unwrap();
+    assert_eq!(nw.iteration.as_ref(), Some(&win));
+    let ab = numpy_alphas()[tw];
+    let (sa, sb) = (ab.sqrt() as f32, (1.0 - ab).sqrt() as f32);
+    let src_rows = z_all.select(ndarray::Axis(0), &[3, 4, 0]);
+    let noisy = ndarray::Zip::from(&src_rows)
+        .and(&nw.eps)
+        .map_collect(|&z, &e| sa * z + sb * e);
+    // The window is not the whole closed path: mirror-extended, as mvfc_path says.
+    let want = mvfc_path(noisy.view(), nw.eps_shared.view(), p, false).unwrap();
+    assert!(max_abs_diff(&nw.z_src, &want) < 1e-5);
+    // The recorded iteration wins over flags, which may not contradict it.
+    b.seed = Some(1);
+    b.out = d.path().join("conflict");
+    let e = mvfc_filter::run(b.clone()).unwrap_err().to_string();
+    assert!(
+        e.contains("records its iteration") && !b.out.exists(),
+        "{e}"
+    );
 }
 
 /// Bad input to mvfc-filter: clear errors naming the problem, nothing written.
@@ -369,10 +465,12 @@ fn mvfc_filter_stage_rejects_bad_input() {
     };
     let d = tempfile::tempdir().unwrap();
     let z = Array4::<f32>::zeros((2, 4, 8, 8));
-    write_latents(&d.path().join("lat_tgt"), &z);
+    let none = || serde_json::json!({});
+    write_latents(&d.path().join("lat_tgt"), &z, none());
     write_latents(
         &d.path().join("lat_src"),
         &Array4::<f32>::zeros((2, 4, 8, 6)),
+        none(),
     );
     let err = |a: &mvfc_filter::Args| {
         let e = mvfc_filter::run(a.clone()).unwrap_err();
@@ -386,22 +484,30 @@ fn mvfc_filter_stage_rejects_bad_input() {
 
     let mut nan = z.clone();
     nan[[1, 2, 3, 4]] = f32::NAN;
-    write_latents(&d.path().join("lat_src"), &nan);
+    write_latents(&d.path().join("lat_src"), &nan, none());
     let e = err(&a);
     assert!(e.contains("lat_src") && e.contains("NaN"), "{e}");
 
-    write_latents(&d.path().join("lat_src"), &z);
+    // Source latents of another number of views than the path.
+    write_latents(
+        &d.path().join("lat_src"),
+        &Array4::zeros((3, 4, 8, 8)),
+        none(),
+    );
+    let e = err(&a);
+    assert!(e.contains("lat_src") && e.contains("3 views"), "{e}");
+
+    write_latents(&d.path().join("lat_src"), &z, none());
     let mut b = filter_args(d.path(), &model);
-    b.timestep = TimestepChoice::Fixed(3);
+    b.timesteps.timesteps = Some("3:2:1".into());
     let e = err(&b);
-    assert!(e.contains("timestep 3") && e.contains("DDIM set"), "{e}");
-    b.timestep = TimestepChoice::Fixed(100_000);
+    assert!(e.contains("t_min 3"), "{e}");
+    b.timesteps.timesteps = Some("soon".into());
     let e = err(&b);
-    assert!(e.contains("100000"), "{e}");
-    assert!("12x".parse::<TimestepChoice>().is_err());
+    assert!(e.contains("MIN:MAX:COUNT"), "{e}");
 
     let mut c = filter_args(d.path(), &model);
-    c.params.gamma = 1.5;
+    c.mvfc.params.gamma = 1.5;
     let e = err(&c);
     assert!(e.contains("gamma"), "{e}");
     let mut m = filter_args(d.path(), &model);
@@ -425,13 +531,14 @@ pub(crate) fn csd_inputs(
         threads: Threads::new(1),
         device: Default::default(),
         batch: 0,
+        fill: false,
+        alpha_from: None,
+        background: Background { rgb: [0.0; 3] },
     })
     .unwrap();
-    let (_, set) = fantasystyle::prior::model_timesteps(model).unwrap();
     let mut a = filter_args(d, model);
     a.latents = d.join("lat");
     a.source_latents = d.join("lat");
-    a.timestep = TimestepChoice::Fixed(set.steps()[set.steps().len() / 2]);
     mvfc_filter::run(a.clone()).unwrap();
     let sp = d.join("style.png");
     let s = style.index_axis(ndarray::Axis(0), 0);
@@ -451,18 +558,26 @@ pub(crate) fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd
         latents: d.join("lat"),
         views: d.join("views"),
         source_views: d.join("views"),
-        model: model.to_path_buf(),
-        style: style.to_path_buf(),
-        prompt: None,
+        source_latents: d.join("lat"),
+        prior: PriorArgs {
+            model: model.to_path_buf(),
+            style: style.to_path_buf(),
+            prompt: None,
+            strength: 1.0,
+            motif_scale: 1.0,
+            device: Default::default(),
+            unet_batch: 0,
+        },
         params: CsdParams {
             mode,
             lr: 0.05,
             ..Default::default()
         },
+        preserve_color: false,
+        no_fill: false,
+        background: Background { rgb: [0.0; 3] },
         out: d.join("targets"),
         threads: Threads::new(1),
-        device: Default::default(),
-        unet_batch: 0,
     }
 }
 
@@ -489,8 +604,8 @@ fn csd_step_stage_with_stylizer() {
     assert!(m1 < m0, "colour moments {m0} -> {m1}");
 }
 
-/// Bad input to csd-step: missing style image, mismatched latents, a timestep outside
-/// the model's set; clear errors and no output.
+/// Bad input to csd-step: missing style image, mismatched latents, inputs of another
+/// iteration; clear errors and no output.
 #[test]
 fn csd_step_stage_rejects_bad_input() {
     let Some(model) = model_dir("gaussian-prior") else {
@@ -505,7 +620,7 @@ fn csd_step_stage_rejects_bad_input() {
         (e.exit_code(), e.to_string())
     };
     let mut a = step_args(d.path(), &model, &sp, Mode::Csd);
-    a.style = d.path().join("nope.png");
+    a.prior.style = d.path().join("nope.png");
     let (code, e) = err(&a);
     assert!(
         code == 2 && e.contains("nope.png") && e.contains("not found"),
@@ -513,38 +628,50 @@ fn csd_step_stage_rejects_bad_input() {
     );
 
     std::fs::write(d.path().join("bad.png"), b"not a png").unwrap();
-    a.style = d.path().join("bad.png");
+    a.prior.style = d.path().join("bad.png");
     let (code, e) = err(&a);
     assert!(code == 2 && e.contains("bad.png"), "{e}");
 
     // Latents of another shape than the noised ones.
-    write_latents(&d.path().join("lat2"), &Array4::zeros((2, 4, 4, 2)));
+    write_latents(
+        &d.path().join("lat2"),
+        &Array4::zeros((2, 4, 4, 2)),
+        serde_json::json!({}),
+    );
     let mut b = step_args(d.path(), &model, &sp, Mode::Csd);
     b.latents = d.path().join("lat2");
     let (code, e) = err(&b);
     assert!(code == 2 && e.contains("shape"), "{e}");
 
-    // A noised artifact whose timestep is not in the model's set.
+    // Noised latents of a recorded iteration, latents of none.
+    let z = read_latents(&d.path().join("lat")).unwrap();
+    let w = Draws::new(
+        0,
+        4,
+        ViewPath {
+            len: 2,
+            closed: false,
+        },
+        2,
+    )
+    .window()
+    .clone();
     let mut c = filter_args(d.path(), &model);
-    c.latents = d.path().join("lat");
-    c.source_latents = d.path().join("lat");
-    c.out = d.path().join("noised");
-    mvfc_filter::run(c.clone()).unwrap();
-    let stylizer_set = r#"{"t_min": 1, "t_max": 2, "count": 2}"#;
-    let md = tempfile::tempdir().unwrap();
-    for f in std::fs::read_dir(&model).unwrap() {
-        let f = f.unwrap().path();
-        std::fs::copy(&f, md.path().join(f.file_name().unwrap())).unwrap();
-    }
-    let mut mj: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(model.join("model.json")).unwrap()).unwrap();
-    // Same schedule, but a set {1, 2} that cannot contain the drawn t.
-    mj["stylizer"] = serde_json::json!({ "timesteps": serde_json::from_str::<serde_json::Value>(stylizer_set).unwrap() });
-    std::fs::write(md.path().join("model.json"), mj.to_string()).unwrap();
-    let mut e2 = step_args(d.path(), md.path(), &sp, Mode::Csd);
-    e2.out = d.path().join("t-bad");
+    write_latents(
+        &d.path().join("lat_it"),
+        &z,
+        serde_json::json!({ "iteration": w }),
+    );
+    (c.latents, c.source_latents) = (d.path().join("lat_it"), d.path().join("lat"));
+    (c.seed, c.iteration, c.out) = (None, None, d.path().join("noised_it"));
+    mvfc_filter::run(c).unwrap();
+    let mut e2 = step_args(d.path(), &model, &sp, Mode::Csd);
+    e2.noised = d.path().join("noised_it");
     let (code, e) = err(&e2);
-    assert!(code == 2 && e.contains("DDIM set"), "{e}");
+    assert!(
+        code == 2 && e.contains("another iteration") && e.contains("lat"),
+        "{e}"
+    );
 }
 
 /// The binaries: every contract flag is documented in -h; bad input exits 2 with a
@@ -564,14 +691,15 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
         "--latents",
         "--source-latents",
         "--model",
-        "--timestep",
+        "--timesteps",
         "--seed",
-        "--round",
+        "--iteration",
         "--out",
         "--gamma",
         "--ds",
         "--dt",
-        "--no-filter",
+        "--no-mvfc",
+        "--mvfc-source",
         "--threads",
     ] {
         assert!(h.contains(f), "mvfc-filter -h lacks {f}");
@@ -582,9 +710,16 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
         "--latents",
         "--views",
         "--source-views",
+        "--source-latents",
         "--model",
         "--style",
         "--prompt",
+        "--strength",
+        "--device",
+        "--unet-batch",
+        "--preserve-color",
+        "--no-fill",
+        "--background",
         "--mode",
         "--guidance",
         "--weighting",
@@ -614,7 +749,7 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
     );
     let o = Command::new(mf)
         .args(["--latents", "a", "--source-latents", "b", "--model", "m"])
-        .args(["--timestep", "soon", "--out", "x"])
+        .args(["--iteration", "soon", "--out", "x"])
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(2));

@@ -261,6 +261,9 @@ fn encode_latents_stage_writes_latents_and_rejects_bad_input() {
         threads: Threads::new(1),
         device: Default::default(),
         batch: 2,
+        fill: false,
+        alpha_from: None,
+        background: fantasystyle::stages::Background { rgb: [0.0; 3] },
     };
     assert_eq!(encode_latents::run(p.clone()).unwrap(), [3, 4, 2, 3]);
     let a = Artifact::open(&out, ArtifactKind::Latents).unwrap();
