@@ -143,25 +143,28 @@ impl TextureTerm {
                 mask[y * cw + x] = alpha[(y0 + y) * w + x0 + x].clamp(0.0, 1.0);
             }
         }
-        let (crop, mask, ch_full, cw_full) = (crop, mask, ch, cw);
-        let (crop, mask, ch, cw) = if d > 1 {
-            (
-                box_average(&crop, ch, cw, 3, d),
-                box_average(&mask, ch, cw, 1, d),
-                ch / d,
-                cw / d,
-            )
+        // What the network sees: the crop and its coverage box-averaged d x d (the
+        // project's image downsample and the feature-grid mask pooling).
+        let (sh, sw) = (ch / d, cw / d);
+        let (small, small_mask) = if d > 1 {
+            let img = Image {
+                width: cw,
+                height: ch,
+                data: crop,
+            };
+            let small = crate::baselines::downsample(&img, d).data;
+            (small, pooled_mask(&mask, ch, cw, sh, sw))
         } else {
-            (crop, mask, ch, cw)
+            (crop, mask)
         };
         let deepest = *self.layers.iter().max().expect("non-empty");
-        let fw = self.vgg.forward(&crop, ch, cw, deepest)?;
+        let fw = self.vgg.forward(&small, sh, sw, deepest)?;
         let scale = 1.0 / self.layers.len() as f32;
         let mut loss = 0.0;
         let mut grads: Vec<(Layer, Tensor3)> = Vec::new();
         for (l, target) in self.layers.iter().zip(&self.targets) {
             let f = fw.get(*l);
-            let m = pooled_mask(&mask, ch, cw, f.h, f.w);
+            let m = pooled_mask(&small_mask, sh, sw, f.h, f.w);
             let (v, g) = masked_gram_loss_grad(f, &m, target, scale);
             loss += v * scale as f64;
             grads.push((*l, g));
@@ -170,9 +173,9 @@ impl TextureTerm {
         let gc = self.vgg.backward(&fw, &refs)?;
         // The adjoint of the D x D average: each pixel of a block gets 1/D^2 of its gradient.
         let inv = 1.0 / (d * d) as f32;
-        for y in 0..ch_full {
-            for x in 0..cw_full {
-                let (src, dst) = (((y / d) * cw + x / d) * 3, ((y0 + y) * w + x0 + x) * 3);
+        for y in 0..ch {
+            for x in 0..cw {
+                let (src, dst) = (((y / d) * sw + x / d) * 3, ((y0 + y) * w + x0 + x) * 3);
                 for k in 0..3 {
                     grad[dst + k] = gc[src + k] * inv;
                 }
@@ -222,22 +225,6 @@ fn crop_box(
     let (y0, y1) = grow(y0, y1, h);
     let (x0, x1) = grow(x0, x1, w);
     (y1 > y0 && x1 > x0).then_some((y0, y1, x0, x1))
-}
-
-/// `x` (`[h, w, c]`, `h` and `w` multiples of `d`) averaged over `d x d` blocks.
-fn box_average(x: &[f32], h: usize, w: usize, c: usize, d: usize) -> Vec<f32> {
-    let (oh, ow) = (h / d, w / d);
-    let inv = 1.0 / (d * d) as f32;
-    let mut out = vec![0.0f32; oh * ow * c];
-    for y in 0..h {
-        for xx in 0..w {
-            let (src, dst) = ((y * w + xx) * c, ((y / d) * ow + xx / d) * c);
-            for k in 0..c {
-                out[dst + k] += x[src + k] * inv;
-            }
-        }
-    }
-    out
 }
 
 /// `mask` (`[h, w]`) averaged down to `[fh, fw]` (each feature position the mean of its
