@@ -2,11 +2,16 @@
 """Style images for quality benchmarks (numpy only; deterministic).
 
     make_styles.py OUT_DIR [SIZE] [--skimage-wheel WHEEL]
+    make_styles.py --dev OUT_DIR [SIZE]      (the development styles only)
 
 Writes three procedural styles far from the sample's style and from each other:
   painting.png  swirling brush strokes along a curl flow field, night-sky palette
   opart.png     concentric zig-zag rings, black / white / red, hard edges
   mosaic.png    stained glass: Voronoi cells in a warm palette with dark leading
+and with --dev, instead, two development styles (for choosing settings outside the
+benchmark; BENCHMARKS.md "A texture term that carries arrangement"):
+  tiles.png     coloured bricks in running bond with dark mortar (a regular arrangement)
+  dots.png      yellow, red and green discs on a navy ground (small isolated motifs)
 and one photographic texture:
   brick.png     scikit-image's `brick` (a brick-wall photo, CC0, see
                 benches/quality/styles/CREDITS.md), 512x512 grayscale box-averaged to SIZE
@@ -96,6 +101,37 @@ def mosaic(size, seed=1):
     return img
 
 
+def tiles(size, seed=2):
+    rng = np.random.default_rng(seed)
+    s = size / 512
+    palette = np.array([[40, 140, 150], [230, 140, 60], [245, 225, 170], [200, 70, 50],
+                        [240, 190, 80], [150, 80, 50]], float)
+    img = np.full((size, size, 3), 28.0)
+    row_h, mortar = max(int(16 * s), 4), max(int(3 * s), 1)
+    for y0 in range(0, size, row_h):
+        x = -int(rng.uniform(0, 40 * s))
+        while x < size:
+            wdt = int(rng.uniform(24, 56) * s) + 2
+            col = palette[rng.integers(0, len(palette))]
+            ya, yb, xa, xb = y0, min(y0 + row_h - mortar, size), max(x, 0), min(x + wdt - mortar, size)
+            if xb > xa:
+                img[ya:yb, xa:xb] = col
+            x += wdt
+    return img * rng.uniform(0.88, 1.12, (size, size, 1))
+
+
+def dots(size, seed=3):
+    rng = np.random.default_rng(seed)
+    img = np.zeros((size, size, 3)) + [0, 12, 89]
+    img += rng.uniform(0, 50, (size, size, 1)) * [1, 1, 0]
+    y, x = np.mgrid[0:size, 0:size]
+    cols = np.array([[255, 204, 25], [242, 76, 51], [51, 229, 153]], float)
+    for _ in range(int(160 * (size / 256) ** 2)):
+        cx, cy, r = rng.uniform(0, size), rng.uniform(0, size), rng.uniform(4, 10) * size / 256
+        img[(x - cx) ** 2 + (y - cy) ** 2 < r * r] = cols[rng.integers(0, 3)]
+    return img
+
+
 def read_png_gray8(data):
     """An 8-bit grayscale, non-interlaced PNG (scikit-image's textures) as uint8 [H, W]."""
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
@@ -170,15 +206,23 @@ def main():
             sys.exit(__doc__)
         wheel = args[i + 1]
         del args[i:i + 2]
+    dev = "--dev" in args
+    if dev:
+        args.remove("--dev")
     if len(args) not in (1, 2):
         sys.exit(__doc__)
     out = args[0]
     size = int(args[1]) if len(args) == 2 else 256
     os.makedirs(out, exist_ok=True)
-    for name, f in [("painting", painting), ("opart", opart), ("mosaic", mosaic)]:
+    styles = [("painting", painting), ("opart", opart), ("mosaic", mosaic)]
+    if dev:
+        styles = [("tiles", tiles), ("dots", dots)]
+    for name, f in styles:
         path = os.path.join(out, name + ".png")
         write_png(path, f(size))
         print("wrote", path)
+    if dev:
+        return
     brick = photo_texture("brick.png", size, wheel)
     path = os.path.join(out, "brick.png")
     if brick is None:

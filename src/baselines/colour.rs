@@ -116,6 +116,38 @@ pub fn monge_kantorovich(src: &ColourStats, dst: &ColourStats) -> ([f64; 9], [f6
     (tv, b)
 }
 
+/// A computed transfer: the two distributions' statistics and the affine map between
+/// them (`c' = t c + b`, row-major `t`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Transfer {
+    pub source: ColourStats,
+    pub style: ColourStats,
+    pub t: [f64; 9],
+    pub b: [f64; 3],
+}
+
+/// The whole transfer: the object's statistics over `views` (`(rgb, alpha)` each,
+/// rendered over `background`), the map onto `style`'s, applied to `scene`'s colours.
+pub fn transfer_scene(
+    scene: &Scene,
+    views: &[(&[f32], &[f32])],
+    background: [f32; 3],
+    style: &Image,
+) -> Result<(Scene, Transfer)> {
+    let source = object_stats(views, background)?;
+    let style = image_stats(style);
+    let (t, b) = monge_kantorovich(&source, &style);
+    Ok((
+        apply_to_scene(scene, &t, &b),
+        Transfer {
+            source,
+            style,
+            t,
+            b,
+        },
+    ))
+}
+
 /// The scene with every Gaussian's colour mapped by `c -> T c + b` (DC) and every
 /// higher-order SH coefficient by `T` (see module docs). Geometry is untouched.
 pub fn apply_to_scene(scene: &Scene, t: &[f64; 9], b: &[f64; 3]) -> Scene {

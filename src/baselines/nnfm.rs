@@ -42,34 +42,80 @@ impl Default for NnfmConfig {
     }
 }
 
-/// `[C_total, N]` concatenation of the NNFM layers of a forward pass.
-fn stacked(fw: &Forward) -> Array2<f32> {
-    let parts: Vec<ArrayView2<'_, f32>> = NNFM_LAYERS.iter().map(|&l| fw.get(l).matrix()).collect();
+/// `[C_total, N]` concatenation of `layers` of a forward pass (layers of one VGG block:
+/// the same spatial size).
+pub fn stacked(fw: &Forward, layers: &[Layer]) -> Array2<f32> {
+    let parts: Vec<ArrayView2<'_, f32>> = layers.iter().map(|&l| fw.get(l).matrix()).collect();
     ndarray::concatenate(Axis(0), &parts).expect("same spatial size")
 }
 
+/// The style's stacked features at `layers` with every column scaled to unit length
+/// (the `s_hat` of [`nnfm_loss_grad`]).
+pub fn normalised_style(fw: &Forward, layers: &[Layer]) -> Array2<f32> {
+    let mut s = stacked(fw, layers);
+    for mut col in s.columns_mut() {
+        let n = (col.iter().map(|v| v * v).sum::<f32>() + NORM_EPS).sqrt();
+        col.mapv_inplace(|v| v / n);
+    }
+    s
+}
+
+/// dL/d(stacked features) `[C_total, N]` split back into one tensor per layer, for the
+/// VGG backward.
+pub fn split_stacked(fw: &Forward, layers: &[Layer], g: &Array2<f32>) -> Vec<(Layer, Tensor3)> {
+    let mut row = 0;
+    layers
+        .iter()
+        .map(|&l| {
+            let a = fw.get(l);
+            let part = g.slice(ndarray::s![row..row + a.c, ..]);
+            row += a.c;
+            let data = part.iter().copied().collect();
+            (
+                l,
+                Tensor3 {
+                    c: a.c,
+                    h: a.h,
+                    w: a.w,
+                    data,
+                },
+            )
+        })
+        .collect()
+}
+
 /// NNFM loss of stacked features `f` against normalised style columns `s_hat`, and
-/// dL/df scaled by `scale`.
+/// dL/df scaled by `scale`. With `weights` (one per position, >= 0) the loss is the
+/// weighted mean `sum_i w_i (1 - cos_i) / sum_i w_i` (a coverage mask: positions of
+/// weight 0 are not searched and get no gradient); without, the plain mean.
 pub fn nnfm_loss_grad(
     f: ArrayView2<'_, f32>,
     s_hat: ArrayView2<'_, f32>,
+    weights: Option<&[f32]>,
     scale: f32,
 ) -> (f64, Array2<f32>) {
     let (c, n) = f.dim();
+    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
+    let wsum: f64 = (0..n).map(|i| w(i) as f64).sum();
+    if wsum <= 0.0 {
+        return (0.0, Array2::zeros((c, n)));
+    }
     let norms: Vec<f32> = (0..n)
         .map(|i| (f.column(i).iter().map(|v| v * v).sum::<f32>() + NORM_EPS).sqrt())
         .collect();
-    // Nearest style column per render position, tile by tile.
-    let starts: Vec<usize> = (0..n).step_by(TILE).collect();
-    let nn: Vec<usize> = starts
+    // Nearest style column per searched position (weight > 0), tile by tile; the
+    // positions' columns gathered first so that weight-0 ones cost nothing.
+    let active: Vec<usize> = (0..n).filter(|&i| w(i) > 0.0).collect();
+    let starts: Vec<usize> = (0..active.len()).step_by(TILE).collect();
+    let found: Vec<usize> = starts
         .par_iter()
-        .flat_map_iter(|&i0| {
-            let i1 = (i0 + TILE).min(n);
-            let ft = f.slice(ndarray::s![.., i0..i1]);
-            let mut sims = Array2::zeros((i1 - i0, s_hat.ncols()));
+        .flat_map_iter(|&k0| {
+            let k1 = (k0 + TILE).min(active.len());
+            let ft = Array2::from_shape_fn((k1 - k0, c), |(r, ch)| f[[ch, active[k0 + r]]]);
+            let mut sims = Array2::zeros((k1 - k0, s_hat.ncols()));
             // Unnormalised f suffices for the argmax over j.
-            general_mat_mul(1.0, &ft.t(), &s_hat, 0.0, &mut sims);
-            (0..i1 - i0)
+            general_mat_mul(1.0, &ft, &s_hat, 0.0, &mut sims);
+            (0..k1 - k0)
                 .map(|r| {
                     let row = sims.row(r);
                     let mut best = 0;
@@ -83,21 +129,32 @@ pub fn nnfm_loss_grad(
                 .collect::<Vec<_>>()
         })
         .collect();
+    let mut nn = vec![0usize; n];
+    for (&i, j) in active.iter().zip(found) {
+        nn[i] = j;
+    }
     let mut grad = Array2::zeros((c, n));
     let mut loss = 0.0f64;
-    let k = scale / n as f32;
     for i in 0..n {
+        let wi = w(i);
+        if wi == 0.0 {
+            continue;
+        }
+        let k = match weights {
+            None => scale / n as f32,
+            Some(_) => scale * (wi as f64 / wsum) as f32,
+        };
         let s = s_hat.column(nn[i]);
         let fi = f.column(i);
         let nrm = norms[i];
         let cos = fi.dot(&s) / nrm;
-        loss += 1.0 - cos as f64;
+        loss += wi as f64 * (1.0 - cos as f64);
         let mut g = grad.column_mut(i);
         for ch in 0..c {
             g[ch] = -k * (s[ch] / nrm - cos * fi[ch] / (nrm * nrm));
         }
     }
-    (loss / n as f64, grad)
+    (loss / wsum, grad)
 }
 
 /// The NNFM baseline's objective over a fixed set of views.
@@ -119,11 +176,7 @@ impl<'a> NnfmObjective<'a> {
     ) -> Result<Self> {
         super::check_views(originals)?;
         let fw = vgg.forward(&style.data, style.height, style.width, Layer::Relu3_3)?;
-        let mut s = stacked(&fw);
-        for mut col in s.columns_mut() {
-            let n = (col.iter().map(|v| v * v).sum::<f32>() + NORM_EPS).sqrt();
-            col.mapv_inplace(|v| v / n);
-        }
+        let s = normalised_style(&fw, &NNFM_LAYERS);
         let content = originals
             .iter()
             .map(|v| {
@@ -156,25 +209,15 @@ impl Objective for NnfmObjective<'_> {
                 img.width, img.height
             )));
         }
-        let f = stacked(&fw);
-        let (style, g) = nnfm_loss_grad(f.view(), self.style.view(), self.cfg.style_weight as f32);
+        let f = stacked(&fw, &NNFM_LAYERS);
+        let (style, g) = nnfm_loss_grad(
+            f.view(),
+            self.style.view(),
+            None,
+            self.cfg.style_weight as f32,
+        );
         let (content, gc) = content_loss_grad(f3, c0, self.cfg.content_weight as f32);
-        let mut grads: Vec<(Layer, Tensor3)> = Vec::new();
-        let mut row = 0;
-        for &l in &NNFM_LAYERS {
-            let a = fw.get(l);
-            let part = g.slice(ndarray::s![row..row + a.c, ..]);
-            row += a.c;
-            grads.push((
-                l,
-                Tensor3 {
-                    c: a.c,
-                    h: a.h,
-                    w: a.w,
-                    data: part.iter().copied().collect(),
-                },
-            ));
-        }
+        let mut grads = split_stacked(&fw, &NNFM_LAYERS, &g);
         grads.push((Layer::Relu3_3, gc));
         let refs: Vec<(Layer, &Tensor3)> = grads.iter().map(|(l, g)| (*l, g)).collect();
         let grad = self.vgg.backward(&fw, &refs)?;
@@ -206,7 +249,7 @@ mod tests {
             let n = col.iter().map(|v| v * v).sum::<f32>().sqrt();
             col.mapv_inplace(|v| v / n);
         }
-        let (l0, g) = nnfm_loss_grad(f.view(), s.view(), 1.0);
+        let (l0, g) = nnfm_loss_grad(f.view(), s.view(), None, 1.0);
         assert!(l0 > 0.0 && l0 < 2.0);
         let eps = 1e-3f32;
         for i in 0..6 {
@@ -215,8 +258,8 @@ mod tests {
                 p[[i, j]] += eps;
                 let mut m = f.clone();
                 m[[i, j]] -= eps;
-                let fd = (nnfm_loss_grad(p.view(), s.view(), 1.0).0
-                    - nnfm_loss_grad(m.view(), s.view(), 1.0).0)
+                let fd = (nnfm_loss_grad(p.view(), s.view(), None, 1.0).0
+                    - nnfm_loss_grad(m.view(), s.view(), None, 1.0).0)
                     / (2.0 * eps as f64);
                 assert!(
                     (fd - g[[i, j]] as f64).abs() <= 1e-3,
@@ -225,6 +268,45 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Coverage weights: the weighted loss against central differences, weight-0
+    /// positions get no gradient, and all-ones weights give the unweighted loss.
+    #[test]
+    fn weighted_nnfm_gradient_matches_finite_differences() {
+        let f = rand(4, 5, 8);
+        let mut s = rand(5, 5, 11);
+        for mut col in s.columns_mut() {
+            let n = col.iter().map(|v| v * v).sum::<f32>().sqrt();
+            col.mapv_inplace(|v| v / n);
+        }
+        let w = [0.0f32, 0.3, 1.0, 0.0, 0.7, 1.0, 0.5, 0.9];
+        let (l0, g) = nnfm_loss_grad(f.view(), s.view(), Some(&w), 1.0);
+        assert!(l0 > 0.0);
+        let eps = 1e-3f32;
+        for i in 0..5 {
+            for j in 0..8 {
+                let (mut p, mut m) = (f.clone(), f.clone());
+                p[[i, j]] += eps;
+                m[[i, j]] -= eps;
+                let fd = (nnfm_loss_grad(p.view(), s.view(), Some(&w), 1.0).0
+                    - nnfm_loss_grad(m.view(), s.view(), Some(&w), 1.0).0)
+                    / (2.0 * eps as f64);
+                assert!(
+                    (fd - g[[i, j]] as f64).abs() <= 1e-3,
+                    "({i},{j}): fd {fd}, {}",
+                    g[[i, j]]
+                );
+                if w[j] == 0.0 {
+                    assert_eq!(g[[i, j]], 0.0);
+                }
+            }
+        }
+        let (lu, _) = nnfm_loss_grad(f.view(), s.view(), None, 1.0);
+        let (l1, _) = nnfm_loss_grad(f.view(), s.view(), Some(&[1.0; 8]), 1.0);
+        assert!((lu - l1).abs() < 1e-12, "{lu} vs {l1}");
+        let (lz, gz) = nnfm_loss_grad(f.view(), s.view(), Some(&[0.0; 8]), 1.0);
+        assert!(lz == 0.0 && gz.iter().all(|&v| v == 0.0));
     }
 
     /// A feature equal to a style column has zero loss there; the loss is in [0, 2].
@@ -236,7 +318,7 @@ mod tests {
             col.mapv_inplace(|v| v / n);
         }
         let f = s.mapv(|v| 3.0 * v);
-        let (l, _) = nnfm_loss_grad(f.view(), s.view(), 1.0);
+        let (l, _) = nnfm_loss_grad(f.view(), s.view(), None, 1.0);
         assert!(l.abs() < 1e-6, "{l}");
     }
 

@@ -540,8 +540,10 @@ pub fn colour_step(
         // The term on some of the window's views (rotating with the iteration), scaled so
         // its gradient is the same in expectation ([`TextureTerm::applies`]).
         if let Some((t, scale)) = tex.and_then(|t| t.applies(i, n, cs.iteration).map(|s| (t, s))) {
+            let ph = crate::timing::span("texture");
             let seen = prior_image(rgb, alpha[i], cs.background, cs.fill, (h, w));
             let tg = t.view_grad(&seen, alpha[i], h, w)?;
+            drop(ph);
             tex_loss += tg.loss * scale as f64 / n as f64;
             for (a, b) in g.iter_mut().zip(&tg.grad) {
                 *a += scale * t.weight * b;

@@ -21,6 +21,15 @@
 //! the fill of its own colours ([`super::fill`]), the image the prior sees too; the fill
 //! is held fixed, so dL/d(render) is dL/d(image) on covered pixels.
 //!
+//! With `--texture-loss nnfm` the statistic is instead ARF's nearest-neighbour feature
+//! matching (Zhang et al. 2022, Eq. 1; [`crate::baselines::nnfm`]) over the stacked
+//! features of one VGG block (default relu3_1..relu3_3, receptive field 40 px): each
+//! covered position is pulled toward its most similar style feature by cosine distance,
+//! weighted by its coverage, `L = sum_i m_i (1 - cos(f_i, s_j*(i))) / sum_i m_i`. The Gram
+//! statistic keeps only how often each feature occurs; matching whole relu3 features keeps
+//! local arrangements of 20-40 px (a brick's corner, a ring's arc), which is what a
+//! regular pattern's motif is made of.
+//!
 //! Cost: one forward and backward of VGG16 up to relu2_2 on the object's bounding box
 //! (plus 8 px) per view and iteration. With `downsample` D > 1 the crop, its coverage
 //! and the style image are box-averaged D x D before the network (D^2 times fewer
@@ -29,6 +38,7 @@
 //! average): the term then constrains the texture at periods of 2D pixels and longer,
 //! and leaves finer detail to the prior.
 
+use crate::baselines::nnfm::{nnfm_loss_grad, normalised_style, split_stacked, stacked};
 use crate::imageio::Image;
 use crate::metrics::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16};
@@ -38,13 +48,51 @@ use ndarray::{Array2, linalg::general_mat_mul};
 /// Margin around the object's bounding box, pixels.
 const MARGIN: usize = 8;
 
-/// The texture term: the network, the style's Gram matrices, the weight.
+/// The statistic the texture term matches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TextureLoss {
+    /// Masked Gram matrices (Gatys et al.): how often each feature occurs.
+    Gram,
+    /// Nearest-neighbour feature matching (ARF) over one VGG block's stacked features:
+    /// local arrangements of the block's receptive field.
+    Nnfm,
+}
+
+impl TextureLoss {
+    /// The layers used when none are given: relu1_2 and relu2_2 for Gram, the relu3
+    /// block for NNFM (as ARF).
+    pub fn default_layers(self) -> Vec<Layer> {
+        match self {
+            TextureLoss::Gram => vec![Layer::Relu1_2, Layer::Relu2_2],
+            TextureLoss::Nnfm => crate::baselines::nnfm::NNFM_LAYERS.to_vec(),
+        }
+    }
+}
+
+/// What the style is matched against: its Gram matrices or its normalised features.
+#[derive(Debug)]
+enum Targets {
+    /// Row-major `C x C` per layer.
+    Gram(Vec<Vec<f64>>),
+    /// Unit-length stacked style features `[C_total, N_style]`.
+    Nnfm(Array2<f32>),
+}
+
+/// One statistic of the term at its layers; the term's loss is the sum over its parts.
+#[derive(Debug)]
+struct Part {
+    layers: Vec<Layer>,
+    targets: Targets,
+}
+
+/// The texture term: the network, the style's statistics, the weight.
 #[derive(Debug)]
 pub struct TextureTerm {
     vgg: Vgg16,
+    parts: Vec<Part>,
+    /// Every part's layers (the crop's pooling and the forward's depth).
     layers: Vec<Layer>,
-    /// Row-major `C x C` per layer.
-    targets: Vec<Vec<f64>>,
     /// Weight of the term's gradient against the colour loss's.
     pub weight: f32,
     /// Box-average factor of crop and style before the network (1 = full resolution).
@@ -61,13 +109,14 @@ pub struct TextureGrad {
 }
 
 impl TextureTerm {
-    /// The style's Gram matrices at `layers` (the style image as given at the render's
-    /// scale: the caller sizes it, which sets the motif scale against the render's
-    /// pixels; it is box-averaged by `downsample` like the crops).
+    /// The style's statistics: for each `(loss, layers)` part, Gram matrices or
+    /// normalised stacked features at those layers (the style image as given at the
+    /// render's scale: the caller sizes it, which sets the motif scale against the
+    /// render's pixels; it is box-averaged by `downsample` like the crops).
     pub fn new(
         vgg: Vgg16,
         style: &Image,
-        layers: &[Layer],
+        parts: &[(TextureLoss, Vec<Layer>)],
         weight: f32,
         downsample: usize,
     ) -> Result<Self> {
@@ -77,21 +126,48 @@ impl TextureTerm {
             )));
         }
         let style = &crate::baselines::downsample(style, downsample);
-        if layers.is_empty() {
-            return Err(Error::param("texture term: at least one layer"));
+        if parts.is_empty() || parts.iter().any(|(_, l)| l.is_empty()) {
+            return Err(Error::param("texture term: at least one layer per loss"));
         }
         if !(weight.is_finite() && weight >= 0.0) {
             return Err(Error::param(format!(
                 "texture weight must be finite and >= 0, got {weight}"
             )));
         }
-        let deepest = *layers.iter().max().expect("non-empty");
+        for (loss, layers) in parts {
+            if *loss == TextureLoss::Nnfm && layers.iter().any(|l| l.pools() != layers[0].pools()) {
+                return Err(Error::param(format!(
+                    "texture loss nnfm stacks its layers' features, so they must come from \
+                     one VGG block (same resolution); got {}",
+                    layers
+                        .iter()
+                        .map(|l| l.name())
+                        .collect::<Vec<_>>()
+                        .join(",")
+                )));
+            }
+        }
+        let mut all: Vec<Layer> = parts.iter().flat_map(|(_, l)| l.iter().copied()).collect();
+        all.sort();
+        all.dedup();
+        let deepest = *all.last().expect("non-empty");
         let f = vgg.forward(&style.data, style.height, style.width, deepest)?;
-        let targets = layers.iter().map(|&l| gram(f.get(l))).collect();
+        let parts = parts
+            .iter()
+            .map(|(loss, layers)| Part {
+                layers: layers.clone(),
+                targets: match loss {
+                    TextureLoss::Gram => {
+                        Targets::Gram(layers.iter().map(|&l| gram(f.get(l))).collect())
+                    }
+                    TextureLoss::Nnfm => Targets::Nnfm(normalised_style(&f, layers)),
+                },
+            })
+            .collect();
         Ok(TextureTerm {
             vgg,
-            layers: layers.to_vec(),
-            targets,
+            parts,
+            layers: all,
             weight,
             downsample,
             views: 0,
@@ -158,19 +234,39 @@ impl TextureTerm {
             (crop, mask)
         };
         let deepest = *self.layers.iter().max().expect("non-empty");
+        let ph = crate::timing::span("vgg forward");
         let fw = self.vgg.forward(&small, sh, sw, deepest)?;
-        let scale = 1.0 / self.layers.len() as f32;
+        drop(ph);
+        let ph = crate::timing::span("statistic");
         let mut loss = 0.0;
         let mut grads: Vec<(Layer, Tensor3)> = Vec::new();
-        for (l, target) in self.layers.iter().zip(&self.targets) {
-            let f = fw.get(*l);
-            let m = pooled_mask(&small_mask, sh, sw, f.h, f.w);
-            let (v, g) = masked_gram_loss_grad(f, &m, target, scale);
-            loss += v * scale as f64;
-            grads.push((*l, g));
+        for part in &self.parts {
+            match &part.targets {
+                Targets::Gram(targets) => {
+                    let scale = 1.0 / part.layers.len() as f32;
+                    for (l, target) in part.layers.iter().zip(targets) {
+                        let f = fw.get(*l);
+                        let m = pooled_mask(&small_mask, sh, sw, f.h, f.w);
+                        let (v, g) = masked_gram_loss_grad(f, &m, target, scale);
+                        loss += v * scale as f64;
+                        grads.push((*l, g));
+                    }
+                }
+                Targets::Nnfm(style) => {
+                    let f0 = fw.get(part.layers[0]);
+                    let m = pooled_mask(&small_mask, sh, sw, f0.h, f0.w);
+                    let f = stacked(&fw, &part.layers);
+                    let (v, g) = nnfm_loss_grad(f.view(), style.view(), Some(&m), 1.0);
+                    loss += v;
+                    grads.extend(split_stacked(&fw, &part.layers, &g));
+                }
+            }
         }
+        drop(ph);
+        let ph = crate::timing::span("vgg backward");
         let refs: Vec<(Layer, &Tensor3)> = grads.iter().map(|(l, g)| (*l, g)).collect();
         let gc = self.vgg.backward(&fw, &refs)?;
+        drop(ph);
         // The adjoint of the D x D average: each pixel of a block gets 1/D^2 of its gradient.
         let inv = 1.0 / (d * d) as f32;
         for y in 0..ch {
@@ -360,8 +456,14 @@ mod tests {
             height: 8,
             data: vec![0.5; 8 * 8 * 3],
         };
-        let mut term =
-            TextureTerm::new(Vgg16::random(1, 16), &style, &[Layer::Relu1_2], 1.0, 1).unwrap();
+        let mut term = TextureTerm::new(
+            Vgg16::random(1, 16),
+            &style,
+            &[(TextureLoss::Gram, vec![Layer::Relu1_2])],
+            1.0,
+            1,
+        )
+        .unwrap();
         for (views, n) in [(1, 4), (2, 4), (3, 5), (0, 4), (6, 4)] {
             term.views = views;
             let k = term.views_per_iter(n);
@@ -381,8 +483,33 @@ mod tests {
         assert!((0..4).all(|i| term.applies(i, 4, 0).is_none()));
     }
 
+    #[test]
+    fn nnfm_needs_the_layers_of_one_block() {
+        let style = Image {
+            width: 16,
+            height: 16,
+            data: vec![0.3; 16 * 16 * 3],
+        };
+        let layers = vec![Layer::Relu1_2, Layer::Relu2_2];
+        let term = |loss| {
+            TextureTerm::new(
+                Vgg16::random(1, 8),
+                &style,
+                &[(loss, layers.clone())],
+                1.0,
+                1,
+            )
+        };
+        let err = term(TextureLoss::Nnfm).unwrap_err().to_string();
+        assert!(
+            err.contains("one") && err.contains("relu1_2,relu2_2"),
+            "{err}"
+        );
+        assert!(term(TextureLoss::Gram).is_ok());
+    }
+
     /// The whole term's image gradient (crop, optional D x D average, VGG forward and
-    /// backward, masked Gram, the average's adjoint) against central differences of its
+    /// backward, masked Gram or coverage-weighted NNFM, the average's adjoint) against central differences of its
     /// loss, with a small random-weight VGG; pixels outside the crop get exactly 0.
     #[test]
     fn view_gradient_matches_finite_differences_at_full_and_half_resolution() {
@@ -400,12 +527,21 @@ mod tests {
                 alpha[y * w + x] = if (x + y) % 4 == 0 { 0.6 } else { 1.0 };
             }
         }
-        for d in [1usize, 2] {
-            let layers = [Layer::Relu1_2, Layer::Relu2_2];
-            let term = TextureTerm::new(Vgg16::random(5, 16), &style, &layers, 1.0, d).unwrap();
+        let gram = (TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2]);
+        let nnfm = (TextureLoss::Nnfm, vec![Layer::Relu2_1, Layer::Relu2_2]);
+        let cases = [
+            (vec![gram.clone()], 1usize),
+            (vec![gram.clone()], 2),
+            (vec![nnfm.clone()], 1),
+            (vec![gram, nnfm], 2),
+        ];
+        for (parts, d) in cases {
+            let vgg = Vgg16::random(5, 16);
+            let term = TextureTerm::new(vgg, &style, &parts, 1.0, d).unwrap();
+            let layers = &term.layers;
             let g = term.view_grad(&image, &alpha, h, w).unwrap();
             assert!(g.loss > 0.0);
-            let (y0, y1, x0, x1) = crop_box(&alpha, h, w, &layers, d).unwrap();
+            let (y0, y1, x0, x1) = crop_box(&alpha, h, w, layers, d).unwrap();
             let loss = |img: &[f32]| term.view_grad(img, &alpha, h, w).unwrap().loss;
             let eps = 1e-3f32;
             // Relative L2 error of the sampled gradient: f32 features make single small
@@ -427,7 +563,10 @@ mod tests {
             }
             assert!(checked > 50, "{checked} pixels checked");
             let rel = (num / den).sqrt();
-            assert!(rel < 1e-2, "downsample {d}: relative L2 error {rel}");
+            assert!(
+                rel < 1e-2,
+                "{parts:?}, downsample {d}: relative L2 error {rel}"
+            );
         }
     }
 }

@@ -83,8 +83,9 @@ pub struct Args {
     pub fit_rest: bool,
     #[command(flatten)]
     pub csd: CsdParams,
-    /// Adam learning rate of the SH DC colours (f_rest: / 20).
-    #[arg(long, default_value_t = 0.01)]
+    /// Adam learning rate of the SH DC colours (f_rest: / 20); 0.05 as the sample and
+    /// quality DAGs use (BENCHMARKS.md "Colour-fit learning rate").
+    #[arg(long, default_value_t = 0.05)]
     pub lr_dc: f32,
     #[command(flatten)]
     pub mvfc: MvfcArgs,
@@ -94,6 +95,13 @@ pub struct Args {
     pub colour: ColourArgs,
     #[command(flatten)]
     pub texture: TextureArgs,
+    /// Before the first iteration, move the object's colour mean and covariance onto the
+    /// style image's (the colour-transfer baseline, `src/baselines/colour.rs`; ARF's
+    /// colour pre-transfer): the loop then starts from the style's palette. Only with
+    /// `--scene` (a resumed checkpoint has its colours already); not with
+    /// `--preserve-color`. The source branch still sees the original renders.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub colour_init: bool,
     /// Give the prior the raw render (object over the background) instead of the object
     /// over a fill of its own colours.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
@@ -152,7 +160,7 @@ pub fn run(a: Args) -> Result<()> {
     // Inputs, all checked before the prior is loaded.
     let p = a.params()?;
     let style = a.prior.load_style()?;
-    let start = a.start()?;
+    let mut start = a.start()?;
     let views = crate::timing::load(|| read_views(&a.source_views))?;
     let (cameras, source) = (views.cameras_per_view()?, SourceViews::from_views(&views));
     let (n, h, w) = views.dim();
@@ -163,6 +171,9 @@ pub fn run(a: Args) -> Result<()> {
             dir.join(CHECKPOINT_HF_PREV),
             format!("shape {shape:?}, but the source views need [{n}, 3, {h}, {w}]"),
         ));
+    }
+    if a.colour_init && a.prior.strength > 0.0 {
+        start.scene = colour_init(&a, &start, &source, p.background)?;
     }
     let (_, model_set) = model_timesteps(&a.prior.model)?;
     let outcome = if a.prior.strength == 0.0 || a.iters == 0 {
@@ -222,12 +233,47 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
+/// `--colour-init`: the start scene with the object's colour statistics (over the source
+/// views) moved onto the style image's.
+fn colour_init(
+    a: &Args,
+    start: &crate::artifacts::Start,
+    source: &SourceViews,
+    background: [f32; 3],
+) -> Result<crate::Scene> {
+    if a.resume.is_some() {
+        return Err(Error::param(
+            "--colour-init applies to a fresh start (--scene); a resumed checkpoint has its \
+             colours already",
+        ));
+    }
+    if a.preserve_color {
+        return Err(Error::param(
+            "--colour-init moves the colours onto the style's, --preserve-color keeps the \
+             scene's: choose one",
+        ));
+    }
+    let style = crate::imageio::read_rgb(&a.prior.style)?;
+    let views: Vec<(&[f32], &[f32])> = (0..source.rgb.len())
+        .map(|v| (&source.rgb[v][..], &source.alpha[v][..]))
+        .collect();
+    let (scene, tr) =
+        crate::baselines::colour::transfer_scene(&start.scene, &views, background, &style)?;
+    tracing::info!(
+        "colour init: object mean {:.3?} -> style mean {:.3?}",
+        tr.source.mean,
+        tr.style.mean
+    );
+    Ok(scene)
+}
+
 /// The checkpoint's producer: the stage and its flags.
 fn producer(a: &Args, start: u64) -> Producer {
     let own = serde_json::json!({
         "iters": a.iters, "start": start, "views_per_iter": a.views_per_iter,
         "preserve_color": a.preserve_color, "fit_rest": a.fit_rest, "csd": a.csd,
         "lr_dc": a.lr_dc, "fill": !a.no_fill, "seed": a.seed, "format": a.format,
+        "colour_init": a.colour_init,
     });
     let params = super::merge_params(&[
         own,

@@ -340,10 +340,16 @@ pub struct TextureArgs {
     /// are left to the prior). 1 = full resolution.
     #[arg(long, default_value_t = 1)]
     pub texture_downsample: usize,
-    /// VGG16 layers whose Gram matrices the texture term matches (receptive fields:
-    /// relu1_2 5 px, relu2_2 14 px, relu3_3 40 px; a deeper layer sees larger motifs and
-    /// costs more).
-    #[arg(long, value_delimiter = ',', default_value = "relu1_2,relu2_2")]
+    /// The statistics the texture term matches (their losses add): `gram` (masked Gram
+    /// matrices: which features occur, how often) and/or `nnfm` (ARF's nearest-neighbour
+    /// feature matching over one VGG block: local arrangements, e.g. a brick's corner).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "gram")]
+    pub texture_loss: Vec<crate::distill::texture::TextureLoss>,
+    /// VGG16 layers the texture term matches, with one `--texture-loss` (receptive
+    /// fields: relu1_2 5 px, relu2_2 14 px, relu3_3 40 px; a deeper layer sees larger
+    /// motifs and costs more); default relu1_2,relu2_2 for gram, relu3_1,relu3_2,relu3_3
+    /// for nnfm (one block).
+    #[arg(long, value_delimiter = ',')]
     pub texture_layers: Vec<crate::vgg::Layer>,
     /// The texture term on this many of each iteration's views (rotating; scaled so the
     /// gradient is the same in expectation); 0 = every view. 1 looks the same as every
@@ -383,7 +389,7 @@ impl TextureArgs {
         let mut term = crate::distill::texture::TextureTerm::new(
             vgg,
             &img,
-            &self.texture_layers,
+            &self.parts()?,
             self.texture_weight,
             self.texture_downsample,
         )?;
@@ -391,10 +397,37 @@ impl TextureArgs {
         Ok(Some(term))
     }
 
+    /// Each `--texture-loss` with its layers: `--texture-layers` (only with one loss)
+    /// or the loss's default layers.
+    pub fn parts(
+        &self,
+    ) -> Result<Vec<(crate::distill::texture::TextureLoss, Vec<crate::vgg::Layer>)>> {
+        if !self.texture_layers.is_empty() && self.texture_loss.len() != 1 {
+            return Err(Error::param(format!(
+                "--texture-layers goes with one --texture-loss, got {} losses; each loss \
+                 then uses its default layers",
+                self.texture_loss.len()
+            )));
+        }
+        Ok(self
+            .texture_loss
+            .iter()
+            .map(|&loss| {
+                let layers = if self.texture_layers.is_empty() {
+                    loss.default_layers()
+                } else {
+                    self.texture_layers.clone()
+                };
+                (loss, layers)
+            })
+            .collect())
+    }
+
     /// The flags as producer parameters.
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "texture_weight": self.texture_weight,
+            "texture_loss": self.texture_loss,
             "texture_style_size": self.texture_style_size,
             "texture_downsample": self.texture_downsample,
             "texture_views": self.texture_views,

@@ -414,15 +414,13 @@ fn transfer_colours(
 ) -> Result<Outcome> {
     let renders = render_originals(a, &scene, cams)?;
     let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
-    let src = colour::object_stats(&views, a.background.rgb)?;
-    let dst = colour::image_stats(style);
-    let (t, b) = colour::monge_kantorovich(&src, &dst);
+    let (out, tr) = colour::transfer_scene(&scene, &views, a.background.rgb, style)?;
+    let (src, dst) = (tr.source, tr.style);
     tracing::info!(
         "colour transfer: object mean {:.3?} -> style mean {:.3?}",
         src.mean,
         dst.mean
     );
-    let out = colour::apply_to_scene(&scene, &t, &b);
     let wall = t0.elapsed().as_secs_f64();
     Ok(Outcome {
         scene: out,
@@ -433,8 +431,8 @@ fn transfer_colours(
             hf_agree_adjacent_original: None,
             steps: Vec::new(),
             colour_map: Some(ColourMapLog {
-                t,
-                b,
+                t: tr.t,
+                b: tr.b,
                 source_mean: src.mean,
                 source_cov: src.cov,
                 style_mean: dst.mean,

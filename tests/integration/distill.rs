@@ -480,3 +480,100 @@ fn distill_bad_input_is_refused() {
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(!d.join("x").exists());
 }
+
+/// `--colour-init`: the start scene's object takes the style image's colour mean (checked
+/// on fresh renders of the written scene, `--iters 0`), and the flag is refused with
+/// `--resume` and with `--preserve-color` (exit 2, nothing written).
+#[test]
+fn colour_init_moves_the_object_to_the_style_colours() {
+    use fantasystyle::baselines::colour::{image_stats, object_stats};
+    let Some(stylizer) = stylizer_dir() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let scene = repo_root().join("data-sample/scene.ply");
+    render_source(&scene, "orbit:4,elev=30,radius=2.4", 48, &d.join("views"));
+    let stats_of = |dir: &Path| {
+        let v = fantasystyle::artifacts::read_views(dir).unwrap();
+        let (n, h, w) = v.dim();
+        let rgb: Vec<f32> = v.rgb.iter().copied().collect();
+        let alpha: Vec<f32> = v.alpha.iter().copied().collect();
+        let views: Vec<(&[f32], &[f32])> = (0..n)
+            .map(|i| {
+                (
+                    &rgb[i * h * w * 3..(i + 1) * h * w * 3],
+                    &alpha[i * h * w..(i + 1) * h * w],
+                )
+            })
+            .collect();
+        object_stats(&views, [0.0; 3]).unwrap()
+    };
+    // A red style with some spread in every channel (the sample's own style has about
+    // the sample scene's mean colour).
+    let style_path = d.join("red.png");
+    let px: Vec<u8> = (0..128 * 128 * 3)
+        .map(|i| {
+            let (p, c) = (i / 3, i % 3);
+            let v = [200usize, 30, 40][c] + (p * 7 + p / 128 * 13 + c * 5) % 40;
+            v as u8
+        })
+        .collect();
+    image::save_buffer(&style_path, &px, 128, 128, image::ColorType::Rgb8).unwrap();
+    let style_img = fantasystyle::imageio::read_rgb(&style_path).unwrap();
+    let style = image_stats(&style_img);
+    let gap = |m: [f64; 3]| {
+        (0..3)
+            .map(|k| (m[k] - style.mean[k]).abs())
+            .fold(0.0, f64::max)
+    };
+    let before = stats_of(&d.join("views"));
+    assert!(
+        gap(before.mean) > 0.1,
+        "the test needs an object far from the style's colours"
+    );
+    let mut base = distill_args(d, &stylizer);
+    let si = base.iter().position(|a| a == "--style").unwrap();
+    base[si + 1] = style_path.to_string_lossy().into_owned();
+    ok(bin("distill")
+        .args(&base)
+        .args(["--scene", &scene.to_string_lossy(), "--iters", "0"])
+        .args(["--colour-init", "true", "--out"])
+        .arg(d.join("init")));
+    let cams = d.join("views");
+    render_source(
+        &d.join("init"),
+        &cams.to_string_lossy(),
+        48,
+        &d.join("after"),
+    );
+    let after = stats_of(&d.join("after"));
+    assert!(
+        gap(after.mean) < 0.03,
+        "object mean {:?} after --colour-init, style mean {:?}",
+        after.mean,
+        style.mean
+    );
+    let refused: [Vec<std::ffi::OsString>; 2] = [
+        vec!["--resume".into(), d.join("init").into()],
+        vec![
+            "--scene".into(),
+            scene.clone().into(),
+            "--preserve-color".into(),
+            "true".into(),
+        ],
+    ];
+    for extra in refused {
+        let out = bin("distill")
+            .args(&base)
+            .args(&extra)
+            .args(["--iters", "1", "--colour-init", "true", "--out"])
+            .arg(d.join("x"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{extra:?}: {err}");
+        assert!(err.contains("--colour-init"), "{err}");
+        assert!(!d.join("x").exists());
+    }
+}

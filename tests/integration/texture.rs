@@ -7,7 +7,7 @@
 use fantasystyle::Camera;
 use fantasystyle::Scene;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::distill::texture::TextureTerm;
+use fantasystyle::distill::texture::{TextureLoss, TextureTerm};
 use fantasystyle::distill::{ColourLoss, DistillParams, Distiller, SourceViews};
 use fantasystyle::imageio::Image;
 use fantasystyle::metrics::warp::{surface_depth, warp_into};
@@ -169,7 +169,7 @@ fn a_plane_styled_with_stripes_shows_them_in_every_view() {
     let term = TextureTerm::new(
         Vgg16::load(&vgg_dir).unwrap(),
         &style,
-        &[Layer::Relu1_2, Layer::Relu2_2],
+        &[(TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2])],
         1.0,
         1,
     )
