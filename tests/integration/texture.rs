@@ -120,6 +120,18 @@ fn peak(power: &[f64]) -> (usize, f64) {
 
 #[test]
 fn a_plane_styled_with_stripes_shows_them_in_every_view() {
+    stripes_case(&[(TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2])]);
+}
+
+/// The same with the NNFM statistic over the relu3 block (the sample DAG's texture term).
+#[test]
+fn with_the_nnfm_term_too() {
+    stripes_case(&[(TextureLoss::Nnfm, TextureLoss::Nnfm.default_layers())]);
+}
+
+/// Distill a plane of small Gaussians after a stripe style with the texture term `parts`;
+/// every view then shows the stripes at their period, and neighbouring views agree.
+fn stripes_case(parts: &[(TextureLoss, Vec<Layer>)]) {
     let (Some(stylizer), Some(vgg_dir)) = (
         crate::harness::model("stylizer"),
         crate::harness::model_file("lpips/vgg16", "conv0_weight.npy")
@@ -166,14 +178,7 @@ fn a_plane_styled_with_stripes_shows_them_in_every_view() {
         colour_loss: ColourLoss::L2,
         ..DistillParams::default()
     };
-    let term = TextureTerm::new(
-        Vgg16::load(&vgg_dir).unwrap(),
-        &style,
-        &[(TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2])],
-        1.0,
-        1,
-    )
-    .unwrap();
+    let term = TextureTerm::new(Vgg16::load(&vgg_dir).unwrap(), &style, parts, 1.0, 1).unwrap();
     let mut d = Distiller::new(&scene, &cams, &src, p.as_mut(), set, params, 0)
         .unwrap()
         .with_texture(term);
