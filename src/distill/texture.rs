@@ -1,4 +1,4 @@
-//! A low-layer texture term inside the distillation loop (not part of FantasyStyle:
+//! A texture term inside the distillation loop (not part of FantasyStyle:
 //! added because the CPU prior cannot carry a style's motifs on its own, see
 //! BENCHMARKS.md "Texture").
 //!
@@ -28,10 +28,14 @@
 //! weighted by its coverage, `L = sum_i m_i (1 - cos(f_i, s_j*(i))) / sum_i m_i`. The Gram
 //! statistic keeps only how often each feature occurs; matching whole relu3 features keeps
 //! local arrangements of 20-40 px (a brick's corner, a ring's arc), which is what a
-//! regular pattern's motif is made of.
+//! regular pattern's motif is made of. Cosine distance is nearly blind to colour, so the
+//! sample DAG pairs it with `distill --colour-init` (BENCHMARKS.md "A texture term that
+//! carries arrangement"). `gram,nnfm` adds the two losses (their layers' gradients sum in
+//! one VGG backward).
 //!
-//! Cost: one forward and backward of VGG16 up to relu2_2 on the object's bounding box
-//! (plus 8 px) per view and iteration. With `downsample` D > 1 the crop, its coverage
+//! Cost: one forward and backward of VGG16 up to the deepest layer used (relu2_2 for
+//! Gram, relu3_3 for NNFM, about twice the Gram cost with the nearest-neighbour search) on
+//! the object's bounding box (plus 8 px) per view and iteration. With `downsample` D > 1 the crop, its coverage
 //! and the style image are box-averaged D x D before the network (D^2 times fewer
 //! pixels; the motif scale on screen is kept, since crop and style shrink alike) and the
 //! gradient is spread back evenly over each D x D block (the exact adjoint of the
