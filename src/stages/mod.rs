@@ -321,14 +321,16 @@ impl ColourArgs {
     }
 }
 
-/// `--texture-weight`, `--texture-style-size`, `--texture-vgg`: the low-layer texture
-/// term of the colour step ([`crate::distill::texture`]; `distill`, `update-gaussians`
+/// `--texture-weight`, `--texture-loss`, `--texture-layers`, `--texture-style-size`,
+/// `--texture-views`, `--texture-downsample`, `--texture-vgg`: the texture term of the
+/// colour step ([`crate::distill::texture`]; `distill`, `update-gaussians`
 /// on one iteration's targets).
 #[derive(clap::Args, Debug, Clone)]
 pub struct TextureArgs {
-    /// Weight of the low-layer texture term in the colour step (masked VGG16 Gram loss
-    /// at relu1_2 and relu2_2 of the object crop against the style image; not part of
-    /// FantasyStyle, see src/distill/texture.rs); 0 = off, the paper's method alone.
+    /// Weight of the texture term in the colour step (by default the masked VGG16 Gram
+    /// loss at relu1_2 and relu2_2 of the object crop against the style image; see
+    /// --texture-loss; not part of FantasyStyle, see src/distill/texture.rs); 0 = off,
+    /// the paper's method alone.
     #[arg(long, default_value_t = 1.0)]
     pub texture_weight: f32,
     /// The style image is resized so its shorter side is this many pixels for the
