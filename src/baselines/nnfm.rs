@@ -239,16 +239,22 @@ mod tests {
         Array2::from_shape_fn((r, c), |_| g.normal() as f32)
     }
 
+    /// Random style columns scaled to unit length (an `s_hat`).
+    fn unit_columns(seed: u64, r: usize, c: usize) -> Array2<f32> {
+        let mut s = rand(seed, r, c);
+        for mut col in s.columns_mut() {
+            let n = col.iter().map(|v| v * v).sum::<f32>().sqrt();
+            col.mapv_inplace(|v| v / n);
+        }
+        s
+    }
+
     /// NNFM gradient w.r.t. features vs central differences (the nearest neighbour does not
     /// switch within eps for these random features; checked by recomputing it).
     #[test]
     fn nnfm_gradient_matches_finite_differences() {
         let f = rand(1, 6, 9);
-        let mut s = rand(2, 6, 13);
-        for mut col in s.columns_mut() {
-            let n = col.iter().map(|v| v * v).sum::<f32>().sqrt();
-            col.mapv_inplace(|v| v / n);
-        }
+        let s = unit_columns(2, 6, 13);
         let (l0, g) = nnfm_loss_grad(f.view(), s.view(), None, 1.0);
         assert!(l0 > 0.0 && l0 < 2.0);
         let eps = 1e-3f32;
@@ -275,11 +281,7 @@ mod tests {
     #[test]
     fn weighted_nnfm_gradient_matches_finite_differences() {
         let f = rand(4, 5, 8);
-        let mut s = rand(5, 5, 11);
-        for mut col in s.columns_mut() {
-            let n = col.iter().map(|v| v * v).sum::<f32>().sqrt();
-            col.mapv_inplace(|v| v / n);
-        }
+        let s = unit_columns(5, 5, 11);
         let w = [0.0f32, 0.3, 1.0, 0.0, 0.7, 1.0, 0.5, 0.9];
         let (l0, g) = nnfm_loss_grad(f.view(), s.view(), Some(&w), 1.0);
         assert!(l0 > 0.0);
@@ -312,11 +314,7 @@ mod tests {
     /// A feature equal to a style column has zero loss there; the loss is in [0, 2].
     #[test]
     fn exact_match_has_zero_loss() {
-        let mut s = rand(3, 4, 5);
-        for mut col in s.columns_mut() {
-            let n = col.iter().map(|v| v * v).sum::<f32>().sqrt();
-            col.mapv_inplace(|v| v / n);
-        }
+        let s = unit_columns(3, 4, 5);
         let f = s.mapv(|v| 3.0 * v);
         let (l, _) = nnfm_loss_grad(f.view(), s.view(), None, 1.0);
         assert!(l.abs() < 1e-6, "{l}");

@@ -173,7 +173,7 @@ pub fn run(a: Args) -> Result<()> {
         ));
     }
     if a.colour_init && a.prior.strength > 0.0 {
-        start.scene = colour_init(&a, &start, &source, p.background)?;
+        start.scene = colour_init(&a, &start, &source, &style, p.background)?;
     }
     let (_, model_set) = model_timesteps(&a.prior.model)?;
     let outcome = if a.prior.strength == 0.0 || a.iters == 0 {
@@ -234,11 +234,12 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// `--colour-init`: the start scene with the object's colour statistics (over the source
-/// views) moved onto the style image's.
+/// views) moved onto those of the style image (as loaded for the prior).
 fn colour_init(
     a: &Args,
     start: &crate::artifacts::Start,
     source: &SourceViews,
+    style: &crate::imageio::Image,
     background: [f32; 3],
 ) -> Result<crate::Scene> {
     if a.resume.is_some() {
@@ -253,12 +254,11 @@ fn colour_init(
              scene's: choose one",
         ));
     }
-    let style = crate::imageio::read_rgb(&a.prior.style)?;
     let views: Vec<(&[f32], &[f32])> = (0..source.rgb.len())
         .map(|v| (&source.rgb[v][..], &source.alpha[v][..]))
         .collect();
     let (scene, tr) =
-        crate::baselines::colour::transfer_scene(&start.scene, &views, background, &style)?;
+        crate::baselines::colour::transfer_scene(&start.scene, &views, background, style)?;
     tracing::info!(
         "colour init: object mean {:.3?} -> style mean {:.3?}",
         tr.source.mean,

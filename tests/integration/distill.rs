@@ -496,16 +496,12 @@ fn colour_init_moves_the_object_to_the_style_colours() {
     render_source(&scene, "orbit:4,elev=30,radius=2.4", 48, &d.join("views"));
     let stats_of = |dir: &Path| {
         let v = fantasystyle::artifacts::read_views(dir).unwrap();
-        let (n, h, w) = v.dim();
-        let rgb: Vec<f32> = v.rgb.iter().copied().collect();
-        let alpha: Vec<f32> = v.alpha.iter().copied().collect();
-        let views: Vec<(&[f32], &[f32])> = (0..n)
-            .map(|i| {
-                (
-                    &rgb[i * h * w * 3..(i + 1) * h * w * 3],
-                    &alpha[i * h * w..(i + 1) * h * w],
-                )
-            })
+        let src = SourceViews::from_views(&v);
+        let views: Vec<(&[f32], &[f32])> = src
+            .rgb
+            .iter()
+            .zip(&src.alpha)
+            .map(|(r, a)| (&r[..], &a[..]))
             .collect();
         object_stats(&views, [0.0; 3]).unwrap()
     };
