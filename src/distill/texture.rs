@@ -31,7 +31,11 @@
 //! regular pattern's motif is made of. Cosine distance is nearly blind to colour, so the
 //! sample DAG pairs it with `distill --colour-init` (BENCHMARKS.md "A texture term that
 //! carries arrangement"). `gram,nnfm` adds the two losses (their layers' gradients sum in
-//! one VGG backward).
+//! one VGG backward), each with its own weight ([`Statistic::weight`],
+//! `--texture-loss-weights`): at equal weights the Gram gradient is much the larger and
+//! decides the picture; NNFM at 1 with Gram at 0.1 keeps NNFM's arrangements and adds
+//! more, smaller motifs in more of the style's colours (BENCHMARKS.md "NNFM plus a light
+//! Gram statistic").
 //!
 //! Cost: one forward and backward of VGG16 up to the deepest layer used (relu2_2 for
 //! Gram, relu3_3 for NNFM, about twice the Gram cost with the nearest-neighbour search) on
@@ -74,6 +78,26 @@ impl TextureLoss {
     }
 }
 
+/// One statistic of the term as the caller asks for it: what it matches, at which layers,
+/// and its weight within the term (the parts' weighted losses add).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Statistic {
+    pub loss: TextureLoss,
+    pub layers: Vec<Layer>,
+    pub weight: f32,
+}
+
+impl Statistic {
+    /// `loss` at `layers` with weight 1.
+    pub fn new(loss: TextureLoss, layers: Vec<Layer>) -> Self {
+        Statistic {
+            loss,
+            layers,
+            weight: 1.0,
+        }
+    }
+}
+
 /// What the style is matched against: its Gram matrices or its normalised features.
 #[derive(Debug)]
 enum Targets {
@@ -87,6 +111,7 @@ enum Targets {
 #[derive(Debug)]
 struct Part {
     layers: Vec<Layer>,
+    weight: f32,
     targets: Targets,
 }
 
@@ -113,14 +138,14 @@ pub struct TextureGrad {
 }
 
 impl TextureTerm {
-    /// The style's statistics: for each `(loss, layers)` part, Gram matrices or
+    /// The style's statistics: for each part, Gram matrices or
     /// normalised stacked features at those layers (the style image as given at the
     /// render's scale: the caller sizes it, which sets the motif scale against the
     /// render's pixels; it is box-averaged by `downsample` like the crops).
     pub fn new(
         vgg: Vgg16,
         style: &Image,
-        parts: &[(TextureLoss, Vec<Layer>)],
+        parts: &[Statistic],
         weight: f32,
         downsample: usize,
     ) -> Result<Self> {
@@ -130,15 +155,24 @@ impl TextureTerm {
             )));
         }
         let style = &crate::baselines::downsample(style, downsample);
-        if parts.is_empty() || parts.iter().any(|(_, l)| l.is_empty()) {
+        if parts.is_empty() || parts.iter().any(|p| p.layers.is_empty()) {
             return Err(Error::param("texture term: at least one layer per loss"));
+        }
+        if let Some(p) = parts
+            .iter()
+            .find(|p| !(p.weight.is_finite() && p.weight >= 0.0))
+        {
+            return Err(Error::param(format!(
+                "texture loss weights must be finite and >= 0, got {} for {:?}",
+                p.weight, p.loss
+            )));
         }
         if !(weight.is_finite() && weight >= 0.0) {
             return Err(Error::param(format!(
                 "texture weight must be finite and >= 0, got {weight}"
             )));
         }
-        for (loss, layers) in parts {
+        for Statistic { loss, layers, .. } in parts {
             if *loss == TextureLoss::Nnfm && layers.iter().any(|l| l.pools() != layers[0].pools()) {
                 return Err(Error::param(format!(
                     "texture loss nnfm stacks its layers' features, so they must come from \
@@ -151,22 +185,32 @@ impl TextureTerm {
                 )));
             }
         }
-        let mut all: Vec<Layer> = parts.iter().flat_map(|(_, l)| l.iter().copied()).collect();
+        let mut all: Vec<Layer> = parts
+            .iter()
+            .flat_map(|p| p.layers.iter().copied())
+            .collect();
         all.sort();
         all.dedup();
         let deepest = *all.last().expect("non-empty");
         let f = vgg.forward(&style.data, style.height, style.width, deepest)?;
         let parts = parts
             .iter()
-            .map(|(loss, layers)| Part {
-                layers: layers.clone(),
-                targets: match loss {
-                    TextureLoss::Gram => {
-                        Targets::Gram(layers.iter().map(|&l| gram(f.get(l))).collect())
-                    }
-                    TextureLoss::Nnfm => Targets::Nnfm(normalised_style(&f, layers)),
+            .map(
+                |Statistic {
+                     loss,
+                     layers,
+                     weight,
+                 }| Part {
+                    layers: layers.clone(),
+                    weight: *weight,
+                    targets: match loss {
+                        TextureLoss::Gram => {
+                            Targets::Gram(layers.iter().map(|&l| gram(f.get(l))).collect())
+                        }
+                        TextureLoss::Nnfm => Targets::Nnfm(normalised_style(&f, layers)),
+                    },
                 },
-            })
+            )
             .collect();
         Ok(TextureTerm {
             vgg,
@@ -247,7 +291,7 @@ impl TextureTerm {
         for part in &self.parts {
             match &part.targets {
                 Targets::Gram(targets) => {
-                    let scale = 1.0 / part.layers.len() as f32;
+                    let scale = part.weight / part.layers.len() as f32;
                     for (l, target) in part.layers.iter().zip(targets) {
                         let f = fw.get(*l);
                         let m = pooled_mask(&small_mask, sh, sw, f.h, f.w);
@@ -260,8 +304,8 @@ impl TextureTerm {
                     let f0 = fw.get(part.layers[0]);
                     let m = pooled_mask(&small_mask, sh, sw, f0.h, f0.w);
                     let f = stacked(&fw, &part.layers);
-                    let (v, g) = nnfm_loss_grad(f.view(), style.view(), Some(&m), 1.0);
-                    loss += v;
+                    let (v, g) = nnfm_loss_grad(f.view(), style.view(), Some(&m), part.weight);
+                    loss += v * part.weight as f64;
                     grads.extend(split_stacked(&fw, &part.layers, &g));
                 }
             }
@@ -354,17 +398,24 @@ pub fn masked_gram_loss_grad(f: &Tensor3, m: &[f32], target: &[f64], scale: f32)
     if msum <= 0.0 {
         return (0.0, Tensor3::zeros(c, f.h, f.w));
     }
-    // G via the crate's Gram of F sqrt(m), rescaled from 1/(HW) to 1/sum(m).
-    let mut fs = f.clone();
+    // G = (F D) F^T / sum(m) as one f32 GEMM (a loss gradient, not a reported measure:
+    // the metrics' bitwise-reproducible f64 `gram` cost 54 ms per iteration at relu1_2 +
+    // relu2_2 of a 256x256 crop, this a few).
     let mut fd = f.clone();
     for ch in 0..c {
         for p in 0..hw {
-            fs.data[ch * hw + p] *= m[p].sqrt();
             fd.data[ch * hw + p] *= m[p];
         }
     }
-    let rescale = hw as f64 / msum;
-    let g: Vec<f64> = gram(&fs).iter().map(|v| v * rescale).collect();
+    let mut g32 = Array2::<f32>::zeros((c, c));
+    general_mat_mul(
+        (1.0 / msum) as f32,
+        &fd.matrix(),
+        &f.matrix().t(),
+        0.0,
+        &mut g32,
+    );
+    let g: Vec<f64> = g32.iter().map(|&v| v as f64).collect();
     let c2 = (c * c) as f64;
     let d64: Vec<f64> = g.iter().zip(target).map(|(a, b)| a - b).collect();
     let loss = d64.iter().map(|d| d * d).sum::<f64>() / c2;
@@ -432,6 +483,35 @@ mod tests {
         }
     }
 
+    /// The f32 GEMM Gram of the loss against the metrics' f64 `gram` (an independent
+    /// computation: strip sums in f64), with every position fully covered so both define
+    /// the same G: loss within 1e-5 relative on 4096 positions of 32 channels.
+    #[test]
+    fn gemm_gram_matches_the_f64_gram() {
+        let mut rng = crate::rng::Rng::derive(11, "tex-gram");
+        let (c, h, w) = (32, 64, 64);
+        let f = Tensor3 {
+            c,
+            h,
+            w,
+            data: (0..c * h * w).map(|_| rng.uniform() as f32 * 2.0).collect(),
+        };
+        let target: Vec<f64> = (0..c * c)
+            .map(|i| if i % (c + 1) == 0 { 0.5 } else { 0.1 })
+            .collect();
+        let (loss, _) = masked_gram_loss_grad(&f, &vec![1.0; h * w], &target, 1.0);
+        let reference = gram(&f)
+            .iter()
+            .zip(&target)
+            .map(|(g, a)| (g - a) * (g - a))
+            .sum::<f64>()
+            / (c * c) as f64;
+        assert!(
+            (loss - reference).abs() <= 1e-5 * reference,
+            "GEMM {loss} vs f64 {reference}"
+        );
+    }
+
     #[test]
     fn crop_box_covers_the_object_and_fits_the_pooling() {
         let (h, w) = (40, 50);
@@ -463,7 +543,7 @@ mod tests {
         let mut term = TextureTerm::new(
             Vgg16::random(1, 16),
             &style,
-            &[(TextureLoss::Gram, vec![Layer::Relu1_2])],
+            &[Statistic::new(TextureLoss::Gram, vec![Layer::Relu1_2])],
             1.0,
             1,
         )
@@ -499,7 +579,7 @@ mod tests {
             TextureTerm::new(
                 Vgg16::random(1, 8),
                 &style,
-                &[(loss, layers.clone())],
+                &[Statistic::new(loss, layers.clone())],
                 1.0,
                 1,
             )
@@ -531,13 +611,19 @@ mod tests {
                 alpha[y * w + x] = if (x + y) % 4 == 0 { 0.6 } else { 1.0 };
             }
         }
-        let gram = (TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2]);
-        let nnfm = (TextureLoss::Nnfm, vec![Layer::Relu2_1, Layer::Relu2_2]);
+        let gram = Statistic::new(TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2]);
+        let nnfm = Statistic::new(TextureLoss::Nnfm, vec![Layer::Relu2_1, Layer::Relu2_2]);
+        // Unequal weights in the mix: each part's gradient carries its own weight.
+        let light_gram = Statistic {
+            weight: 0.3,
+            ..gram.clone()
+        };
         let cases = [
             (vec![gram.clone()], 1usize),
             (vec![gram.clone()], 2),
             (vec![nnfm.clone()], 1),
-            (vec![gram, nnfm], 2),
+            (vec![gram, nnfm.clone()], 2),
+            (vec![light_gram, nnfm], 1),
         ];
         for (parts, d) in cases {
             let vgg = Vgg16::random(5, 16);

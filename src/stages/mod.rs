@@ -321,10 +321,10 @@ impl ColourArgs {
     }
 }
 
-/// `--texture-weight`, `--texture-loss`, `--texture-layers`, `--texture-style-size`,
-/// `--texture-views`, `--texture-downsample`, `--texture-vgg`: the texture term of the
-/// colour step ([`crate::distill::texture`]; `distill`, `update-gaussians`
-/// on one iteration's targets).
+/// `--texture-weight`, `--texture-loss`, `--texture-loss-weights`, `--texture-layers`,
+/// `--texture-style-size`, `--texture-views`, `--texture-downsample`, `--texture-vgg`:
+/// the texture term of the colour step ([`crate::distill::texture`]; `distill`,
+/// `update-gaussians` on one iteration's targets).
 #[derive(clap::Args, Debug, Clone)]
 pub struct TextureArgs {
     /// Weight of the texture term in the colour step (by default the masked VGG16 Gram
@@ -347,6 +347,11 @@ pub struct TextureArgs {
     /// feature matching over one VGG block: local arrangements, e.g. a brick's corner).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "gram")]
     pub texture_loss: Vec<crate::distill::texture::TextureLoss>,
+    /// Weight of each `--texture-loss` within the term, in the same order (default 1
+    /// each; e.g. `--texture-loss nnfm,gram --texture-loss-weights 1,0.1`: the Gram
+    /// gradient is otherwise much the larger and decides the picture).
+    #[arg(long, value_delimiter = ',')]
+    pub texture_loss_weights: Vec<f32>,
     /// VGG16 layers the texture term matches, with one `--texture-loss` (receptive
     /// fields: relu1_2 5 px, relu2_2 14 px, relu3_3 40 px; a deeper layer sees larger
     /// motifs and costs more); default relu1_2,relu2_2 for gram, relu3_1,relu3_2,relu3_3
@@ -399,11 +404,19 @@ impl TextureArgs {
         Ok(Some(term))
     }
 
-    /// Each `--texture-loss` with its layers: `--texture-layers` (only with one loss)
-    /// or the loss's default layers.
-    pub fn parts(
-        &self,
-    ) -> Result<Vec<(crate::distill::texture::TextureLoss, Vec<crate::vgg::Layer>)>> {
+    /// Each `--texture-loss` with its layers (`--texture-layers`, only with one loss, or
+    /// the loss's default layers) and its weight (`--texture-loss-weights`, default 1).
+    pub fn parts(&self) -> Result<Vec<crate::distill::texture::Statistic>> {
+        if !self.texture_loss_weights.is_empty()
+            && self.texture_loss_weights.len() != self.texture_loss.len()
+        {
+            return Err(Error::param(format!(
+                "--texture-loss-weights gives {} weights for {} --texture-loss values; give \
+                 one per loss, in the same order",
+                self.texture_loss_weights.len(),
+                self.texture_loss.len()
+            )));
+        }
         if !self.texture_layers.is_empty() && self.texture_loss.len() != 1 {
             return Err(Error::param(format!(
                 "--texture-layers goes with one --texture-loss, got {} losses; each loss \
@@ -414,13 +427,18 @@ impl TextureArgs {
         Ok(self
             .texture_loss
             .iter()
-            .map(|&loss| {
+            .enumerate()
+            .map(|(i, &loss)| {
                 let layers = if self.texture_layers.is_empty() {
                     loss.default_layers()
                 } else {
                     self.texture_layers.clone()
                 };
-                (loss, layers)
+                crate::distill::texture::Statistic {
+                    loss,
+                    layers,
+                    weight: self.texture_loss_weights.get(i).copied().unwrap_or(1.0),
+                }
             })
             .collect())
     }
@@ -430,6 +448,7 @@ impl TextureArgs {
         serde_json::json!({
             "texture_weight": self.texture_weight,
             "texture_loss": self.texture_loss,
+            "texture_loss_weights": self.texture_loss_weights,
             "texture_style_size": self.texture_style_size,
             "texture_downsample": self.texture_downsample,
             "texture_views": self.texture_views,

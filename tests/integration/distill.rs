@@ -479,6 +479,26 @@ fn distill_bad_input_is_refused() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(!d.join("x").exists());
+    // One weight per texture loss, each finite and >= 0.
+    for (weights, says) in [("1", "1 weights for 2"), ("1,-0.5", "-0.5")] {
+        let out = bin("distill")
+            .args(distill_args(d, &stylizer))
+            .args(["--scene", &scene.to_string_lossy(), "--iters", "1"])
+            .args([
+                "--texture-loss",
+                "nnfm,gram",
+                "--texture-loss-weights",
+                weights,
+            ])
+            .arg("--out")
+            .arg(d.join("x"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{weights}: {err}");
+        assert!(err.contains(says), "{weights}: {err}");
+        assert!(!d.join("x").exists());
+    }
 }
 
 /// `--colour-init`: the start scene's object takes the style image's colour mean (checked

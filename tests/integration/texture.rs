@@ -7,7 +7,7 @@
 use fantasystyle::Camera;
 use fantasystyle::Scene;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::distill::texture::{TextureLoss, TextureTerm};
+use fantasystyle::distill::texture::{Statistic, TextureLoss, TextureTerm};
 use fantasystyle::distill::{ColourLoss, DistillParams, Distiller, SourceViews};
 use fantasystyle::imageio::Image;
 use fantasystyle::metrics::warp::{surface_depth, warp_into};
@@ -120,18 +120,24 @@ fn peak(power: &[f64]) -> (usize, f64) {
 
 #[test]
 fn a_plane_styled_with_stripes_shows_them_in_every_view() {
-    stripes_case(&[(TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2])]);
+    stripes_case(&[Statistic::new(
+        TextureLoss::Gram,
+        vec![Layer::Relu1_2, Layer::Relu2_2],
+    )]);
 }
 
 /// The same with the NNFM statistic over the relu3 block (the sample DAG's texture term).
 #[test]
 fn with_the_nnfm_term_too() {
-    stripes_case(&[(TextureLoss::Nnfm, TextureLoss::Nnfm.default_layers())]);
+    stripes_case(&[Statistic::new(
+        TextureLoss::Nnfm,
+        TextureLoss::Nnfm.default_layers(),
+    )]);
 }
 
 /// Distill a plane of small Gaussians after a stripe style with the texture term `parts`;
 /// every view then shows the stripes at their period, and neighbouring views agree.
-fn stripes_case(parts: &[(TextureLoss, Vec<Layer>)]) {
+fn stripes_case(parts: &[Statistic]) {
     let (Some(stylizer), Some(vgg_dir)) = (
         crate::harness::model("stylizer"),
         crate::harness::model_file("lpips/vgg16", "conv0_weight.npy")
