@@ -22,6 +22,16 @@
 //! rendered colour by exactly the same affine map (up to the renderer's clamp of negative
 //! colours to 0): the views' colour statistics become the style's. View-dependent colour
 //! is kept, transformed like the rest.
+//!
+//! **Clamping into the style's extent (`distill --colour-init` only).** The linear map
+//! reproduces the style's mean and covariance, not its shape: along an axis where the
+//! style is one-sided (an op-art print's red against its neutrals, with no cyan), the
+//! object's colours on the other side of its mean come out in a hue the style lacks (a
+//! salmon fish turned partly teal). [`clamp_to_extent`] moves each Gaussian's DC colour
+//! back into the style's extent along the style's principal axes (the 0.5th to 99.5th
+//! percentile of the style's pixels' coordinates on each axis, [`style_extent`]); a
+//! style present on both sides of its mean (a painting's blue and yellow) clamps almost
+//! nothing. The colour-transfer baseline stays the pure mean + covariance map.
 
 use crate::imageio::Image;
 use crate::metrics::linalg::{matmul, reconstruct, sym_eig};
@@ -168,6 +178,80 @@ pub fn apply_to_scene(scene: &Scene, t: &[f64; 9], b: &[f64; 3]) -> Scene {
     out
 }
 
+/// Share of the style's pixels left outside its extent at each end of an axis.
+pub const EXTENT_TAIL: f64 = 0.005;
+
+/// The style's colour extent along its principal axes: `axes[k]` the k-th eigenvector of
+/// its covariance, `lo[k]..hi[k]` the [`EXTENT_TAIL`] and `1 - EXTENT_TAIL` quantiles of
+/// the pixels' coordinates `axes[k] . (p - mean)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StyleExtent {
+    pub mean: [f64; 3],
+    pub axes: [[f64; 3]; 3],
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+}
+
+/// The extent of every pixel of `img` (see [`StyleExtent`]).
+pub fn style_extent(img: &Image) -> StyleExtent {
+    let st = image_stats(img);
+    let e = sym_eig(&st.cov, 3);
+    let axes: [[f64; 3]; 3] =
+        std::array::from_fn(|k| std::array::from_fn(|i| e.vectors[i * 3 + k]));
+    let (mut lo, mut hi) = ([0.0; 3], [0.0; 3]);
+    for k in 0..3 {
+        let mut coord: Vec<f64> = img
+            .data
+            .chunks_exact(3)
+            .map(|p| {
+                (0..3)
+                    .map(|i| axes[k][i] * (p[i] as f64 - st.mean[i]))
+                    .sum()
+            })
+            .collect();
+        if coord.is_empty() {
+            continue;
+        }
+        coord.sort_by(f64::total_cmp);
+        let at = |q: f64| coord[((coord.len() - 1) as f64 * q).round() as usize];
+        (lo[k], hi[k]) = (at(EXTENT_TAIL), at(1.0 - EXTENT_TAIL));
+    }
+    StyleExtent {
+        mean: st.mean,
+        axes,
+        lo,
+        hi,
+    }
+}
+
+/// The scene with every Gaussian's DC colour `0.5 + C0 f_dc` clamped into `ext` along
+/// the style's axes (coordinates outside `lo..hi` set to the nearer end; higher-order
+/// coefficients untouched), and how many Gaussians changed.
+pub fn clamp_to_extent(scene: &Scene, ext: &StyleExtent) -> (Scene, usize) {
+    let mut out = scene.clone();
+    let c0 = C0 as f64;
+    let mut changed = 0;
+    for dc in out.sh_dc.iter_mut() {
+        let c: [f64; 3] = std::array::from_fn(|k| 0.5 + c0 * dc[k] as f64);
+        let d: [f64; 3] = std::array::from_fn(|i| c[i] - ext.mean[i]);
+        let mut moved = [0.0f64; 3];
+        let mut any = false;
+        for k in 0..3 {
+            let x: f64 = (0..3).map(|i| ext.axes[k][i] * d[i]).sum();
+            let y = x.clamp(ext.lo[k], ext.hi[k]);
+            if y != x {
+                any = true;
+                (0..3).for_each(|i| moved[i] += (y - x) * ext.axes[k][i]);
+            }
+        }
+        if any {
+            changed += 1;
+            *dc = std::array::from_fn(|k| ((c[k] + moved[k] - 0.5) / c0) as f32);
+        }
+    }
+    (out, changed)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -270,6 +354,62 @@ mod tests {
         }
         assert_eq!(out.positions, scene.positions);
         assert_eq!(out.opacity_logits, scene.opacity_logits);
+    }
+
+    /// A one-sided style (an op-art print's red, white and black, no cyan): a cyan
+    /// Gaussian is pulled back toward the style's extent along the red-cyan axis (its
+    /// "redness" r - (g + b) / 2 from -0.4 to above -0.15: a box in the style's principal
+    /// frame, so not all the way to neutral), colours inside the extent are left bit for
+    /// bit, and only the moved Gaussian is counted.
+    #[test]
+    fn clamping_keeps_colours_inside_the_style_extent() {
+        let mut r = Rng::new(4);
+        let mut data = Vec::new();
+        for i in 0..4000 {
+            let base = [[0.85f32, 0.1, 0.1], [0.95, 0.95, 0.95], [0.05, 0.05, 0.05]][i % 3];
+            data.extend(base.map(|v| (v + 0.01 * r.normal() as f32).clamp(0.0, 1.0)));
+        }
+        let style = Image {
+            width: 80,
+            height: 50,
+            data,
+        };
+        let ext = style_extent(&style);
+        let to_dc = |c: [f64; 3]| c.map(|v| ((v - 0.5) / C0 as f64) as f32);
+        let inside = [
+            [0.5, 0.5, 0.5],
+            [0.8, 0.14, 0.13],
+            [0.9, 0.9, 0.9],
+            [0.1, 0.1, 0.1],
+        ];
+        let cyan = [0.2, 0.6, 0.6];
+        let n = inside.len() + 1;
+        let scene = Scene {
+            positions: vec![[0.0; 3]; n],
+            log_scales: vec![[0.0; 3]; n],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
+            opacity_logits: vec![0.0; n],
+            sh_degree: 0,
+            sh_dc: inside.iter().chain([&cyan]).map(|&c| to_dc(c)).collect(),
+            sh_rest: vec![],
+        };
+        let (out, changed) = clamp_to_extent(&scene, &ext);
+        assert_eq!(changed, 1);
+        assert_eq!(out.sh_dc[..4], scene.sh_dc[..4]);
+        let c: Vec<f64> = out.sh_dc[4]
+            .iter()
+            .map(|&v| 0.5 + C0 as f64 * v as f64)
+            .collect();
+        // "Redness" r - (g + b) / 2: the style's lies in [0, 0.75]; cyan's was -0.4.
+        let red = c[0] - 0.5 * (c[1] + c[2]);
+        assert!(red > -0.15, "still cyan after clamping: {c:?}");
+        for k in 0..3 {
+            let x: f64 = (0..3).map(|i| ext.axes[k][i] * (c[i] - ext.mean[i])).sum();
+            assert!(
+                x >= ext.lo[k] - 1e-6 && x <= ext.hi[k] + 1e-6,
+                "axis {k}: {x}"
+            );
+        }
     }
 
     #[test]

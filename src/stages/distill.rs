@@ -97,9 +97,11 @@ pub struct Args {
     pub texture: TextureArgs,
     /// Before the first iteration, move the object's colour mean and covariance onto the
     /// style image's (the colour-transfer baseline, `src/baselines/colour.rs`; ARF's
-    /// colour pre-transfer): the loop then starts from the style's palette. Only with
-    /// `--scene` (a resumed checkpoint has its colours already); not with
-    /// `--preserve-color`. The source branch still sees the original renders.
+    /// colour pre-transfer), each Gaussian's colour then clamped into the style's extent
+    /// along its principal axes (so a one-sided style brings in no opposite hue): the
+    /// loop then starts from the style's palette. Only with `--scene` (a resumed
+    /// checkpoint has its colours already); not with `--preserve-color`. The source
+    /// branch still sees the original renders.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub colour_init: bool,
     /// Give the prior the raw render (object over the background) instead of the object
@@ -257,12 +259,15 @@ fn colour_init(
     let views: Vec<(&[f32], &[f32])> = (0..source.rgb.len())
         .map(|v| (&source.rgb[v][..], &source.alpha[v][..]))
         .collect();
-    let (scene, tr) =
-        crate::baselines::colour::transfer_scene(&start.scene, &views, background, style)?;
+    use crate::baselines::colour;
+    let (scene, tr) = colour::transfer_scene(&start.scene, &views, background, style)?;
+    let (scene, clamped) = colour::clamp_to_extent(&scene, &colour::style_extent(style));
     tracing::info!(
-        "colour init: object mean {:.3?} -> style mean {:.3?}",
+        "colour init: object mean {:.3?} -> style mean {:.3?}; {clamped} of {} Gaussians \
+         clamped into the style's colour extent",
         tr.source.mean,
-        tr.style.mean
+        tr.style.mean,
+        scene.len()
     );
     Ok(scene)
 }
