@@ -369,11 +369,14 @@ pub struct TextureArgs {
 }
 
 impl TextureArgs {
-    /// The texture term against the style image `style` (VGG from `--texture-vgg` or the
-    /// models directory; the style at `--texture-style-size`); `None` at weight 0.
+    /// The texture term against the style image at `style` (VGG from `--texture-vgg` or
+    /// the models directory; the style at `--texture-style-size`); `None` at weight 0.
+    /// `loaded`: the image at `style` when the caller has read it already (`distill`
+    /// reads it for the prior), so it is not read twice.
     pub fn term(
         &self,
         style: Option<&Path>,
+        loaded: Option<&crate::imageio::Image>,
     ) -> Result<Option<crate::distill::texture::TextureTerm>> {
         use crate::vgg::Vgg16;
         if self.texture_weight == 0.0 {
@@ -386,17 +389,24 @@ impl TextureArgs {
                 self.texture_weight
             )));
         };
+        let parts = self.parts()?;
         let dir = match &self.texture_vgg {
             Some(p) => p.clone(),
             None => crate::models::model_path("lpips/vgg16")?,
         };
         let vgg = crate::timing::load(|| Vgg16::load(&dir))?;
-        let img = crate::imageio::read_rgb(style)?;
-        let img = crate::baselines::prepare_style(&img, self.texture_style_size, style)?;
+        let img = match loaded {
+            Some(img) => crate::baselines::prepare_style(img, self.texture_style_size, style)?,
+            None => crate::baselines::prepare_style(
+                &crate::imageio::read_rgb(style)?,
+                self.texture_style_size,
+                style,
+            )?,
+        };
         let mut term = crate::distill::texture::TextureTerm::new(
             vgg,
             &img,
-            &self.parts()?,
+            &parts,
             self.texture_weight,
             self.texture_downsample,
         )?;
