@@ -17,9 +17,9 @@ Prints a Markdown report:
   clipped object pixels, silhouette-fringe brightening, wall time (and steps);
 * per method: mean and 95% confidence interval (Student t over cases);
 * per baseline: in how many cases ours (and each ours_* variant) is lower (better) on relu1_2 / relu2_2 / KID;
-* with RUNS_DIR/speed present, the speed-accuracy table (ours by iterations, the VGG
-  baselines by steps) and, when matplotlib is importable, its plot (--plot, default
-  RUNS_DIR/speed/speed_accuracy.png).
+* with RUNS_DIR/speed present, the speed-accuracy table (ours and ours_nnfm_gram by
+  iterations, the VGG baselines by steps) and, when matplotlib is importable, its plot
+  (--plot, default RUNS_DIR/speed/speed_accuracy.png).
 
 It also writes one contact sheet per case, RUNS_DIR/sheets/<scene>.<style>.png: rows =
 style, original, per-view 2D stylizer (the refit baseline's targets), ours and its variants,
@@ -261,16 +261,19 @@ def speed(runs, lock, plot):
     if not os.path.isdir(d):
         return
     pts = []
-    t = stage_seconds(lock, "speed-init") or 0.0
-    k = 1
-    while os.path.isdir(os.path.join(d, f"ours-c{k}")):
-        s = stage_seconds(lock, f"speed-ours@c{k}")
-        st = load_json(os.path.join(d, f"ours-c{k}", "state.json")) or {}
-        t = None if s is None or t is None else t + s
-        m = load_json(os.path.join(d, f"ours-c{k}-eval", "metrics.json"))
-        if m and "texture" in m:
-            pts.append(("ours", st.get("iteration", k), t, m))
-        k += 1
+    # (method, checkpoint prefix under speed/, init stage, chunk stage)
+    for me, pre, init, chunk in [("ours", "ours", "speed-init", "speed-ours"),
+                                 ("ours_nnfm_gram", "ng", "speed-init-ng", "speed-ng")]:
+        t = stage_seconds(lock, init) or 0.0
+        k = 1
+        while os.path.isdir(os.path.join(d, f"{pre}-c{k}")):
+            s = stage_seconds(lock, f"{chunk}@c{k}")
+            st = load_json(os.path.join(d, f"{pre}-c{k}", "state.json")) or {}
+            t = None if s is None or t is None else t + s
+            m = load_json(os.path.join(d, f"{pre}-c{k}-eval", "metrics.json"))
+            if m and "texture" in m:
+                pts.append((me, st.get("iteration", k), t, m))
+            k += 1
     for me in ["gram", "nnfm"]:
         tm = load_json(os.path.join(d, me, "timing.json"))
         if not tm:
@@ -307,7 +310,8 @@ def speed(runs, lock, plot):
     for ax, (key, label) in zip(axes, [("g1", "Gram relu1_2, stylized / original"),
                                        ("g2", "Gram relu2_2, stylized / original"),
                                        ("kid", "KID_style"), ("spec", "spectrum distance, stylized / original")]):
-        for me, colour in [("ours", "tab:blue"), ("gram", "tab:red"), ("nnfm", "tab:green")]:
+        for me, colour in [("ours", "tab:blue"), ("ours_nnfm_gram", "tab:purple"), ("gram", "tab:red"),
+                           ("nnfm", "tab:green")]:
             xs = [(r["t"], r[key], r["n"]) for r in rows if r["method"] == me and r["t"] is not None and r[key] is not None]
             if xs:
                 xs.sort()
