@@ -192,9 +192,9 @@ pub struct StyleExtent {
     pub hi: [f64; 3],
 }
 
-/// The extent of every pixel of `img` (see [`StyleExtent`]).
-pub fn style_extent(img: &Image) -> StyleExtent {
-    let st = image_stats(img);
+/// The extent of every pixel of `img` (see [`StyleExtent`]), given its statistics `st`
+/// ([`image_stats`]; a [`Transfer`] holds them as `style`).
+pub fn style_extent(img: &Image, st: &ColourStats) -> StyleExtent {
     let e = sym_eig(&st.cov, 3);
     let axes: [[f64; 3]; 3] =
         std::array::from_fn(|k| std::array::from_fn(|i| e.vectors[i * 3 + k]));
@@ -374,7 +374,7 @@ mod tests {
             height: 50,
             data,
         };
-        let ext = style_extent(&style);
+        let ext = style_extent(&style, &image_stats(&style));
         let to_dc = |c: [f64; 3]| c.map(|v| ((v - 0.5) / C0 as f64) as f32);
         let inside = [
             [0.5, 0.5, 0.5],

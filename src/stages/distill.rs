@@ -261,7 +261,7 @@ fn colour_init(
         .collect();
     use crate::baselines::colour;
     let (scene, tr) = colour::transfer_scene(&start.scene, &views, background, style)?;
-    let (scene, clamped) = colour::clamp_to_extent(&scene, &colour::style_extent(style));
+    let (scene, clamped) = colour::clamp_to_extent(&scene, &colour::style_extent(style, &tr.style));
     tracing::info!(
         "colour init: object mean {:.3?} -> style mean {:.3?}; {clamped} of {} Gaussians \
          clamped into the style's colour extent",
