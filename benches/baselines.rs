@@ -1,9 +1,10 @@
 //! VGG16 forward + backward and the baseline objectives, per 256x256 image (issue 8).
 //!
-//! `cargo bench --bench baselines` times, with a rayon pool of 1 and of 2 threads in the
-//! same run: VGG16 forward to relu4_3, forward + backward (gradient of a loss on
-//! relu1_2..relu4_3 w.r.t. the image), one Gram objective evaluation (two scales, four
-//! layers, content) and one NNFM evaluation (relu3 block, 256x256 style). Real weights
+//! `cargo bench --bench baselines` times, on the Rust engine and on onnxruntime, each with
+//! 1 and 2 threads, in the same run: VGG16 forward to relu4_3, forward + backward
+//! (gradient of a loss on relu1_2..relu4_3 w.r.t. the image), one Gram objective
+//! evaluation (two scales, four layers, content) and one NNFM evaluation (relu3 block,
+//! 256x256 style). Real weights
 //! from `vendor/models/lpips/vgg16` when present, else He-random full-width weights.
 //! Prints the markdown table for BENCHMARKS.md. Times are medians of `BASELINES_BENCH_REPS`
 //! (default 5) runs.
@@ -59,20 +60,6 @@ fn main() {
     let x = image(1, s);
     let style = image(2, s);
     let orig = image(3, s);
-    let gram = GramObjective::new(
-        &vgg,
-        GramConfig::default(),
-        &style,
-        std::slice::from_ref(&orig),
-    )
-    .unwrap();
-    let nnfm = NnfmObjective::new(
-        &vgg,
-        NnfmConfig::default(),
-        &style,
-        std::slice::from_ref(&orig),
-    )
-    .unwrap();
     let taps = [
         Layer::Relu1_2,
         Layer::Relu2_2,
@@ -80,42 +67,82 @@ fn main() {
         Layer::Relu4_3,
     ];
     let mut rows = Vec::new();
-    for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
+    for engine in ["Rust", "onnxruntime"] {
+        for threads in [1usize, 2] {
+            let vgg = match engine {
+                "Rust" => vgg.clone(),
+                _ => match vgg.clone().on_onnxruntime(threads) {
+                    Ok(v) => v,
+                    Err(e) => {
+                        eprintln!("onnxruntime engine skipped: {e}");
+                        continue;
+                    }
+                },
+            };
+            let gram = GramObjective::new(
+                &vgg,
+                GramConfig::default(),
+                &style,
+                std::slice::from_ref(&orig),
+            )
             .unwrap();
-        pool.install(|| {
-            let fwd = time(reps, || {
-                vgg.forward(&x.data, s, s, Layer::Relu4_3).unwrap();
+            let nnfm = NnfmObjective::new(
+                &vgg,
+                NnfmConfig::default(),
+                &style,
+                std::slice::from_ref(&orig),
+            )
+            .unwrap();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let fwd = time(reps, || {
+                    vgg.forward(&x.data, s, s, Layer::Relu4_3).unwrap();
+                });
+                let fb = time(reps, || {
+                    let f = vgg.forward(&x.data, s, s, Layer::Relu4_3).unwrap();
+                    let g: Vec<(Layer, Tensor3)> =
+                        taps.iter().map(|&l| (l, f.get(l).clone())).collect();
+                    let r: Vec<(Layer, &Tensor3)> = g.iter().map(|(l, t)| (*l, t)).collect();
+                    vgg.backward(&f, &r).unwrap();
+                });
+                let g = time(reps, || {
+                    gram.eval(0, &x).unwrap();
+                });
+                let n = time(reps, || {
+                    nnfm.eval(0, &x).unwrap();
+                });
+                rows.push((engine, threads, fwd, fb, g, n));
             });
-            let fb = time(reps, || {
-                let f = vgg.forward(&x.data, s, s, Layer::Relu4_3).unwrap();
-                let g: Vec<(Layer, Tensor3)> =
-                    taps.iter().map(|&l| (l, f.get(l).clone())).collect();
-                let r: Vec<(Layer, &Tensor3)> = g.iter().map(|(l, t)| (*l, t)).collect();
-                vgg.backward(&f, &r).unwrap();
-            });
-            let g = time(reps, || {
-                gram.eval(0, &x).unwrap();
-            });
-            let n = time(reps, || {
-                nnfm.eval(0, &x).unwrap();
-            });
-            rows.push((threads, fwd, fb, g, n));
-        });
+        }
     }
     println!("VGG16 to relu4_3 on one 256x256 image, {which}, median of {reps} (ms):\n");
     println!(
-        "| threads | forward | forward + backward | Gram objective (2 scales) | NNFM objective |"
+        "| engine | threads | forward | forward + backward | Gram objective (2 scales) | NNFM objective |"
     );
-    println!("|---|---|---|---|---|");
-    for (t, a, b, c, d) in &rows {
-        println!("| {t} | {a:.0} | {b:.0} | {c:.0} | {d:.0} |");
+    println!("|---|---|---|---|---|---|");
+    for (e, t, a, b, c, d) in &rows {
+        println!("| {e} | {t} | {a:.0} | {b:.0} | {c:.0} | {d:.0} |");
     }
-    let (a1, b1) = (rows[0].2, rows[1].2);
-    println!(
-        "\nforward + backward speed-up 2 threads vs 1: {:.2}x",
-        a1 / b1
-    );
+    for e in ["Rust", "onnxruntime"] {
+        let fb: Vec<f64> = rows.iter().filter(|r| r.0 == e).map(|r| r.3).collect();
+        if let [one, two] = fb[..] {
+            println!(
+                "\n{e}: forward + backward speed-up 2 threads vs 1: {:.2}x",
+                one / two
+            );
+        }
+    }
+    if let (Some(r), Some(o)) = (
+        rows.iter().find(|r| r.0 == "Rust" && r.1 == 2),
+        rows.iter().find(|r| r.0 == "onnxruntime" && r.1 == 2),
+    ) {
+        println!(
+            "onnxruntime vs Rust at 2 threads: forward {:.2}x, forward + backward {:.2}x faster",
+            r.2 / o.2,
+            r.3 / o.3
+        );
+    }
 }

@@ -17,7 +17,9 @@ use crate::imageio::Image;
 use crate::vgg::{Forward, Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
 use ndarray::{Array2, ArrayView2, Axis, linalg::general_mat_mul};
+use ort::session::Session;
 use rayon::prelude::*;
+use std::sync::Mutex;
 
 /// The layers whose features are matched.
 pub const NNFM_LAYERS: [Layer; 3] = [Layer::Relu3_1, Layer::Relu3_2, Layer::Relu3_3];
@@ -87,34 +89,135 @@ pub fn split_stacked(fw: &Forward, layers: &[Layer], g: &Array2<f32>) -> Vec<(La
 /// NNFM loss of stacked features `f` against normalised style columns `s_hat`, and
 /// dL/df scaled by `scale`. With `weights` (one per position, >= 0) the loss is the
 /// weighted mean `sum_i w_i (1 - cos_i) / sum_i w_i` (a coverage mask: positions of
-/// weight 0 are not searched and get no gradient); without, the plain mean.
+/// weight 0 are not searched and get no gradient); without, the plain mean. The nearest
+/// columns are searched in Rust ([`StyleColumns`] can search on onnxruntime instead).
 pub fn nnfm_loss_grad(
     f: ArrayView2<'_, f32>,
     s_hat: ArrayView2<'_, f32>,
     weights: Option<&[f32]>,
     scale: f32,
 ) -> (f64, Array2<f32>) {
-    let (c, n) = f.dim();
-    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
-    let wsum: f64 = (0..n).map(|i| w(i) as f64).sum();
-    if wsum <= 0.0 {
-        return (0.0, Array2::zeros((c, n)));
+    let search = |ft: ArrayView2<'_, f32>| Ok(nearest_tiled(ft, s_hat));
+    loss_grad_with(f, s_hat, weights, scale, search).expect("the Rust search cannot fail")
+}
+
+/// The style's unit columns `s_hat` (`[C, N_style]`) with the search for each render
+/// position's nearest one, `argmax_j f_i . s_hat_j`: one GEMM and a row argmax, on
+/// onnxruntime (one `MatMul` + `ArgMax` graph holding `s_hat` as a constant; the first
+/// maximum on ties, as the Rust search) or, without, in Rust ([`nnfm_loss_grad`]).
+/// The search is most of the NNFM statistic's cost (`2 n C N_style` flops).
+pub struct StyleColumns {
+    s_hat: Array2<f32>,
+    search: Option<Mutex<Session>>,
+}
+
+impl std::fmt::Debug for StyleColumns {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StyleColumns")
+            .field("shape", &self.s_hat.dim())
+            .field("on_onnxruntime", &self.search.is_some())
+            .finish()
     }
-    let norms: Vec<f32> = (0..n)
-        .map(|i| (f.column(i).iter().map(|v| v * v).sum::<f32>() + NORM_EPS).sqrt())
-        .collect();
-    // Nearest style column per searched position (weight > 0), tile by tile; the
-    // positions' columns gathered first so that weight-0 ones cost nothing.
-    let active: Vec<usize> = (0..n).filter(|&i| w(i) > 0.0).collect();
-    let starts: Vec<usize> = (0..active.len()).step_by(TILE).collect();
-    let found: Vec<usize> = starts
+}
+
+impl StyleColumns {
+    /// `s_hat` searched on onnxruntime with that many intra-op threads when
+    /// `onnxruntime` is `Some` (the VGG's engine, [`Vgg16::onnxruntime_threads`]), else
+    /// in Rust.
+    pub fn new(s_hat: Array2<f32>, onnxruntime: Option<usize>) -> Result<Self> {
+        let search = match onnxruntime {
+            None => None,
+            Some(threads) => Some(Mutex::new(search_session(s_hat.view(), threads)?)),
+        };
+        Ok(StyleColumns { s_hat, search })
+    }
+
+    /// [`nnfm_loss_grad`] against these columns.
+    pub fn loss_grad(
+        &self,
+        f: ArrayView2<'_, f32>,
+        weights: Option<&[f32]>,
+        scale: f32,
+    ) -> Result<(f64, Array2<f32>)> {
+        let s_hat = self.s_hat.view();
+        match &self.search {
+            None => Ok(nnfm_loss_grad(f, s_hat, weights, scale)),
+            Some(session) => loss_grad_with(f, s_hat, weights, scale, |ft| {
+                let mut session = session.lock().map_err(|e| Error::Onnx(e.to_string()))?;
+                nearest_onnx(&mut session, ft, s_hat.ncols())
+            }),
+        }
+    }
+}
+
+fn onnx(e: impl std::fmt::Display) -> Error {
+    Error::Onnx(format!("NNFM search on onnxruntime: {e}"))
+}
+
+/// `nearest = ArgMax(MatMul(ft, s_hat), axis 1)` for `ft` = `[n, C]`.
+fn search_session(s_hat: ArrayView2<'_, f32>, threads: usize) -> Result<Session> {
+    use crate::runtime::graph::{constant, int, model, node, outlet};
+    use ort::value::TensorElementType as T;
+    crate::runtime::environment()?;
+    let (c, ns) = s_hat.dim();
+    let mut g = ort::editor::Graph::new().map_err(onnx)?;
+    g.set_inputs([outlet("f", T::Float32, &[-1, c as i64], &["n", ""])])
+        .map_err(onnx)?;
+    let data: Vec<f32> = s_hat.iter().copied().collect();
+    constant(&mut g, "s", &[c, ns], &data).map_err(onnx)?;
+    node(&mut g, "MatMul", &["f", "s"], &["sims"], vec![]).map_err(onnx)?;
+    let attrs = vec![
+        int("axis", 1).map_err(onnx)?,
+        int("keepdims", 0).map_err(onnx)?,
+    ];
+    node(&mut g, "ArgMax", &["sims"], &["nearest"], attrs).map_err(onnx)?;
+    g.set_outputs([outlet("nearest", T::Int64, &[-1], &["n"])])
+        .map_err(onnx)?;
+    let cfg = crate::runtime::SessionConfig {
+        threads,
+        ..Default::default()
+    };
+    crate::runtime::session_from_model(model(g).map_err(onnx)?, &cfg, "NNFM search graph")
+}
+
+fn nearest_onnx(session: &mut Session, ft: ArrayView2<'_, f32>, ns: usize) -> Result<Vec<usize>> {
+    let ft = ft.as_standard_layout();
+    let input = ort::value::TensorRef::from_array_view((
+        [ft.nrows(), ft.ncols()],
+        ft.as_slice().expect("standard layout"),
+    ))
+    .map_err(onnx)?;
+    let out = session.run(ort::inputs!["f" => input]).map_err(onnx)?;
+    let (_, nn) = out
+        .get("nearest")
+        .ok_or_else(|| onnx("no output nearest"))?
+        .try_extract_tensor::<i64>()
+        .map_err(onnx)?;
+    nn.iter()
+        .map(|&j| {
+            usize::try_from(j)
+                .ok()
+                .filter(|&j| j < ns)
+                .ok_or_else(|| onnx(format!("index {j} out of range")))
+        })
+        .collect()
+}
+
+/// Nearest column of `s_hat` for each row of `ft` (`[n, C]`), tile by tile in parallel.
+fn nearest_tiled(ft: ArrayView2<'_, f32>, s_hat: ArrayView2<'_, f32>) -> Vec<usize> {
+    let starts: Vec<usize> = (0..ft.nrows()).step_by(TILE).collect();
+    starts
         .par_iter()
         .flat_map_iter(|&k0| {
-            let k1 = (k0 + TILE).min(active.len());
-            let ft = Array2::from_shape_fn((k1 - k0, c), |(r, ch)| f[[ch, active[k0 + r]]]);
+            let k1 = (k0 + TILE).min(ft.nrows());
             let mut sims = Array2::zeros((k1 - k0, s_hat.ncols()));
-            // Unnormalised f suffices for the argmax over j.
-            general_mat_mul(1.0, &ft, &s_hat, 0.0, &mut sims);
+            general_mat_mul(
+                1.0,
+                &ft.slice(ndarray::s![k0..k1, ..]),
+                &s_hat,
+                0.0,
+                &mut sims,
+            );
             (0..k1 - k0)
                 .map(|r| {
                     let row = sims.row(r);
@@ -128,33 +231,73 @@ pub fn nnfm_loss_grad(
                 })
                 .collect::<Vec<_>>()
         })
-        .collect();
+        .collect()
+}
+
+/// The loss and gradient with the nearest columns found by `search` (given the searched
+/// positions' features as rows, `[n_active, C]`; unnormalised `f` suffices for the argmax).
+fn loss_grad_with(
+    f: ArrayView2<'_, f32>,
+    s_hat: ArrayView2<'_, f32>,
+    weights: Option<&[f32]>,
+    scale: f32,
+    search: impl FnOnce(ArrayView2<'_, f32>) -> Result<Vec<usize>>,
+) -> Result<(f64, Array2<f32>)> {
+    let (c, n) = f.dim();
+    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
+    let wsum: f64 = (0..n).map(|i| w(i) as f64).sum();
+    if wsum <= 0.0 {
+        return Ok((0.0, Array2::zeros((c, n))));
+    }
+    // `f` is `[C, N]` row-major: per-position sums run along its rows (contiguous), not
+    // down its columns.
+    let mut sq = vec![0.0f32; n];
+    for row in f.rows() {
+        for (s, v) in sq.iter_mut().zip(row) {
+            *s += v * v;
+        }
+    }
+    let norms: Vec<f32> = sq.iter().map(|s| (s + NORM_EPS).sqrt()).collect();
+    // Only searched positions (weight > 0) are gathered: weight-0 ones cost nothing.
+    let active: Vec<usize> = (0..n).filter(|&i| w(i) > 0.0).collect();
+    let ft = Array2::from_shape_fn((active.len(), c), |(r, ch)| f[[ch, active[r]]]);
+    let found = search(ft.view())?;
     let mut nn = vec![0usize; n];
     for (&i, j) in active.iter().zip(found) {
         nn[i] = j;
     }
-    let mut grad = Array2::zeros((c, n));
-    let mut loss = 0.0f64;
-    for i in 0..n {
-        let wi = w(i);
-        if wi == 0.0 {
-            continue;
-        }
-        let k = match weights {
-            None => scale / n as f32,
-            Some(_) => scale * (wi as f64 / wsum) as f32,
-        };
-        let s = s_hat.column(nn[i]);
-        let fi = f.column(i);
-        let nrm = norms[i];
-        let cos = fi.dot(&s) / nrm;
-        loss += wi as f64 * (1.0 - cos as f64);
-        let mut g = grad.column_mut(i);
-        for ch in 0..c {
-            g[ch] = -k * (s[ch] / nrm - cos * fi[ch] / (nrm * nrm));
+    let mut dot = vec![0.0f32; n];
+    for (frow, srow) in f.rows().into_iter().zip(s_hat.rows()) {
+        for i in 0..n {
+            dot[i] += frow[i] * srow[nn[i]];
         }
     }
-    (loss / wsum, grad)
+    let cos: Vec<f32> = dot.iter().zip(&norms).map(|(d, m)| d / m).collect();
+    // dL/df_i = -k_i (s_hat_j*(i) / |f_i| - cos_i f_i / |f_i|^2), k_i the position's share
+    // of `scale` (0 where unsearched).
+    let k: Vec<f32> = (0..n)
+        .map(|i| match (w(i), weights) {
+            (0.0, _) => 0.0,
+            (_, None) => scale / n as f32,
+            (wi, Some(_)) => scale * (wi as f64 / wsum) as f32,
+        })
+        .collect();
+    let loss: f64 = (0..n)
+        .filter(|&i| w(i) > 0.0)
+        .map(|i| w(i) as f64 * (1.0 - cos[i] as f64))
+        .sum();
+    let mut grad = vec![0.0f32; c * n];
+    grad.par_chunks_mut(n).enumerate().for_each(|(ch, g)| {
+        let (frow, srow) = (f.row(ch), s_hat.row(ch));
+        for i in 0..n {
+            if k[i] != 0.0 {
+                let nrm = norms[i];
+                g[i] = -k[i] * (srow[nn[i]] / nrm - cos[i] * frow[i] / (nrm * nrm));
+            }
+        }
+    });
+    let grad = Array2::from_shape_vec((c, n), grad).expect("c x n values");
+    Ok((loss / wsum, grad))
 }
 
 /// The NNFM baseline's objective over a fixed set of views.
@@ -163,7 +306,7 @@ pub struct NnfmObjective<'a> {
     vgg: &'a Vgg16,
     cfg: NnfmConfig,
     /// Normalised style features `[C_total, N_style]`.
-    style: Array2<f32>,
+    style: StyleColumns,
     content: Vec<Tensor3>,
 }
 
@@ -176,7 +319,10 @@ impl<'a> NnfmObjective<'a> {
     ) -> Result<Self> {
         super::check_views(originals)?;
         let fw = vgg.forward(&style.data, style.height, style.width, Layer::Relu3_3)?;
-        let s = normalised_style(&fw, &NNFM_LAYERS);
+        let s = StyleColumns::new(
+            normalised_style(&fw, &NNFM_LAYERS),
+            vgg.onnxruntime_threads(),
+        )?;
         let content = originals
             .iter()
             .map(|v| {
@@ -210,12 +356,9 @@ impl Objective for NnfmObjective<'_> {
             )));
         }
         let f = stacked(&fw, &NNFM_LAYERS);
-        let (style, g) = nnfm_loss_grad(
-            f.view(),
-            self.style.view(),
-            None,
-            self.cfg.style_weight as f32,
-        );
+        let (style, g) = self
+            .style
+            .loss_grad(f.view(), None, self.cfg.style_weight as f32)?;
         let (content, gc) = content_loss_grad(f3, c0, self.cfg.content_weight as f32);
         let mut grads = split_stacked(&fw, &NNFM_LAYERS, &g);
         grads.push((Layer::Relu3_3, gc));

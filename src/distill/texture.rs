@@ -39,19 +39,21 @@
 //!
 //! Cost: one forward and backward of VGG16 up to the deepest layer used (relu2_2 for
 //! Gram, relu3_3 for NNFM, about twice the Gram cost with the nearest-neighbour search) on
-//! the object's bounding box (plus 8 px) per view and iteration. With `downsample` D > 1 the crop, its coverage
+//! the object's bounding box (plus 8 px) per view and iteration; the stages run the VGG
+//! and the NNFM search on onnxruntime ([`crate::vgg`], [`StyleColumns`]). With `downsample` D > 1 the crop, its coverage
 //! and the style image are box-averaged D x D before the network (D^2 times fewer
 //! pixels; the motif scale on screen is kept, since crop and style shrink alike) and the
 //! gradient is spread back evenly over each D x D block (the exact adjoint of the
 //! average): the term then constrains the texture at periods of 2D pixels and longer,
 //! and leaves finer detail to the prior.
 
-use crate::baselines::nnfm::{nnfm_loss_grad, normalised_style, split_stacked, stacked};
+use crate::baselines::nnfm::{StyleColumns, normalised_style, split_stacked, stacked};
 use crate::imageio::Image;
 use crate::metrics::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
-use ndarray::{Array2, linalg::general_mat_mul};
+use ndarray::{Array2, Axis, linalg::general_mat_mul};
+use rayon::prelude::*;
 
 /// Margin around the object's bounding box, pixels.
 const MARGIN: usize = 8;
@@ -104,7 +106,7 @@ enum Targets {
     /// Row-major `C x C` per layer.
     Gram(Vec<Vec<f64>>),
     /// Unit-length stacked style features `[C_total, N_style]`.
-    Nnfm(Array2<f32>),
+    Nnfm(StyleColumns),
 }
 
 /// One statistic of the term at its layers; the term's loss is the sum over its parts.
@@ -200,18 +202,24 @@ impl TextureTerm {
                      loss,
                      layers,
                      weight,
-                 }| Part {
-                    layers: layers.clone(),
-                    weight: *weight,
-                    targets: match loss {
+                 }| {
+                    let targets = match loss {
                         TextureLoss::Gram => {
                             Targets::Gram(layers.iter().map(|&l| gram(f.get(l))).collect())
                         }
-                        TextureLoss::Nnfm => Targets::Nnfm(normalised_style(&f, layers)),
-                    },
+                        TextureLoss::Nnfm => Targets::Nnfm(StyleColumns::new(
+                            normalised_style(&f, layers),
+                            vgg.onnxruntime_threads(),
+                        )?),
+                    };
+                    Ok(Part {
+                        layers: layers.clone(),
+                        weight: *weight,
+                        targets,
+                    })
                 },
             )
-            .collect();
+            .collect::<Result<Vec<_>>>()?;
         Ok(TextureTerm {
             vgg,
             parts,
@@ -304,7 +312,7 @@ impl TextureTerm {
                     let f0 = fw.get(part.layers[0]);
                     let m = pooled_mask(&small_mask, sh, sw, f0.h, f0.w);
                     let f = stacked(&fw, &part.layers);
-                    let (v, g) = nnfm_loss_grad(f.view(), style.view(), Some(&m), part.weight);
+                    let (v, g) = style.loss_grad(f.view(), Some(&m), part.weight)?;
                     loss += v * part.weight as f64;
                     grads.extend(split_stacked(&fw, &part.layers, &g));
                 }
@@ -407,14 +415,22 @@ pub fn masked_gram_loss_grad(f: &Tensor3, m: &[f32], target: &[f64], scale: f32)
             fd.data[ch * hw + p] *= m[p];
         }
     }
-    let mut g32 = Array2::<f32>::zeros((c, c));
-    general_mat_mul(
-        (1.0 / msum) as f32,
-        &fd.matrix(),
-        &f.matrix().t(),
-        0.0,
-        &mut g32,
-    );
+    // Both GEMMs split the positions into one block per thread (the Gram as a sum of
+    // per-block Grams, the gradient block by block).
+    let block = hw.div_ceil(rayon::current_num_threads()).max(1);
+    let (fdm, fm) = (fd.matrix(), f.matrix());
+    let blocks: Vec<_> = fdm
+        .axis_chunks_iter(Axis(1), block)
+        .zip(fm.axis_chunks_iter(Axis(1), block))
+        .collect();
+    let g32 = blocks
+        .par_iter()
+        .map(|(a, b)| {
+            let mut g = Array2::<f32>::zeros((c, c));
+            general_mat_mul((1.0 / msum) as f32, a, &b.t(), 0.0, &mut g);
+            g
+        })
+        .reduce(|| Array2::zeros((c, c)), |a, b| a + b);
     let g: Vec<f64> = g32.iter().map(|&v| v as f64).collect();
     let c2 = (c * c) as f64;
     let d64: Vec<f64> = g.iter().zip(target).map(|(a, b)| a - b).collect();
@@ -423,7 +439,12 @@ pub fn masked_gram_loss_grad(f: &Tensor3, m: &[f32], target: &[f64], scale: f32)
         Array2::from_shape_vec((c, c), d64.iter().map(|&d| d as f32).collect()).expect("C x C");
     let mut grad = Array2::zeros((c, hw));
     let k = (scale as f64 * 4.0 / (c2 * msum)) as f32;
-    general_mat_mul(k, &diff, &fd.matrix(), 0.0, &mut grad);
+    let out: Vec<_> = grad
+        .axis_chunks_iter_mut(Axis(1), block)
+        .zip(fdm.axis_chunks_iter(Axis(1), block))
+        .collect();
+    out.into_par_iter()
+        .for_each(|(mut g, a)| general_mat_mul(k, &diff, &a, 0.0, &mut g));
     (
         loss,
         Tensor3 {

@@ -189,7 +189,9 @@ pub fn run(a: Args) -> Result<()> {
         csd::check_mode(a.csd.mode, prior.info())?;
         let set = a.timesteps.set(&prior.info().scheduler, model_set)?;
         let cost = CostModel::for_model(&a.prior.model, a.threads.n, a.prior.device.device)?;
-        let texture = a.texture.term(Some(&a.prior.style), Some(&style))?;
+        let texture = a
+            .texture
+            .term(Some(&a.prior.style), Some(&style), a.threads)?;
         let run = Run {
             params: p,
             set,

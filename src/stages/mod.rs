@@ -372,11 +372,13 @@ impl TextureArgs {
     /// The texture term against the style image at `style` (VGG from `--texture-vgg` or
     /// the models directory; the style at `--texture-style-size`); `None` at weight 0.
     /// `loaded`: the image at `style` when the caller has read it already (`distill`
-    /// reads it for the prior), so it is not read twice.
+    /// reads it for the prior), so it is not read twice. The VGG runs on onnxruntime with
+    /// `threads` intra-op threads.
     pub fn term(
         &self,
         style: Option<&Path>,
         loaded: Option<&crate::imageio::Image>,
+        threads: Threads,
     ) -> Result<Option<crate::distill::texture::TextureTerm>> {
         use crate::vgg::Vgg16;
         if self.texture_weight == 0.0 {
@@ -394,7 +396,7 @@ impl TextureArgs {
             Some(p) => p.clone(),
             None => crate::models::model_path("lpips/vgg16")?,
         };
-        let vgg = crate::timing::load(|| Vgg16::load(&dir))?;
+        let vgg = crate::timing::load(|| Vgg16::load(&dir)?.on_onnxruntime(threads.n))?;
         let img = match loaded {
             Some(img) => crate::baselines::prepare_style(img, self.texture_style_size, style)?,
             None => crate::baselines::prepare_style(

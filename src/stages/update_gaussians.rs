@@ -227,7 +227,7 @@ fn texture_inputs(
     w: &IterationWindow,
     (h, wd): (usize, usize),
 ) -> Result<(Option<TextureTerm>, Vec<Vec<f32>>)> {
-    let texture = a.texture.term(a.style.as_deref(), None)?;
+    let texture = a.texture.term(a.style.as_deref(), None, a.threads)?;
     let alpha: Vec<Vec<f32>> = match (&texture, &a.source_views) {
         (None, _) => vec![vec![0.0; h * wd]; w.window.views.len()],
         (Some(_), None) => {

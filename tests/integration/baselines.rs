@@ -4,10 +4,34 @@ use crate::harness::repo_root;
 use fantasystyle::vgg::{Layer, Vgg16};
 use std::path::Path;
 
-/// Compare our VGG16 forward with `scripts/reference/vgg_ref.py`'s output in `golden`
-/// (float64 direct convolution). Tolerance: max |ours - ref| <= 1e-4 * max |ref| per tap.
+/// `vgg` on the Rust engine, and on onnxruntime when the library is there
+/// ([`crate::harness::onnxruntime`]: required under CI).
+fn engines(vgg: Vgg16) -> Vec<Vgg16> {
+    let mut v = vec![vgg.clone()];
+    if crate::harness::onnxruntime() {
+        v.push(vgg.on_onnxruntime(0).unwrap());
+    }
+    v
+}
+
+/// max |a - b| and max |b|.
+fn max_err(a: &[f32], b: &[f32]) -> (f32, f32) {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+    let err = a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+    (err, scale)
+}
+
+/// Compare our VGG16 forward, on both engines, with `scripts/reference/vgg_ref.py`'s
+/// output in `golden` (float64 direct convolution). Tolerance: max |ours - ref| <= 1e-4 *
+/// max |ref| per tap.
 fn check_golden(weights: &Path, golden: &Path) {
-    let vgg = Vgg16::load(weights).unwrap();
+    for vgg in engines(Vgg16::load(weights).unwrap()) {
+        check_golden_with(&vgg, golden);
+    }
+}
+
+fn check_golden_with(vgg: &Vgg16, golden: &Path) {
     let input = fantasystyle_schemas::read_npy_f32(&golden.join("input.npy")).unwrap();
     let (h, w) = (input.shape[0], input.shape[1]);
     let f = vgg.forward(&input.data, h, w, Layer::Relu4_3).unwrap();
@@ -29,8 +53,62 @@ fn check_golden(weights: &Path, golden: &Path) {
             .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
         assert!(
             err <= 1e-4 * scale,
-            "{}: max err {err}, scale {scale}",
-            l.name()
+            "{} (onnxruntime: {}): max err {err}, scale {scale}",
+            l.name(),
+            vgg.onnxruntime_threads().is_some()
+        );
+    }
+}
+
+/// The onnxruntime engine's forward activations and input gradient against the Rust
+/// engine's (itself checked against finite differences and the f64 golden), on an odd-sized
+/// image (floor pooling drops a row and a column) with gradients at five layers, one of
+/// them given twice; and with one tap. Tolerance: 1e-4 x the largest magnitude.
+#[test]
+fn vgg_on_onnxruntime_matches_the_rust_engine() {
+    if !crate::harness::onnxruntime() {
+        return;
+    }
+    let rust = Vgg16::random(3, 8);
+    let ort = rust.clone().on_onnxruntime(0).unwrap();
+    let (h, w) = (37, 29);
+    let mut r = fantasystyle::rng::Rng::new(9);
+    let img: Vec<f32> = (0..h * w * 3).map(|_| r.uniform() as f32).collect();
+    let fr = rust.forward(&img, h, w, Layer::Relu4_3).unwrap();
+    let fo = ort.forward(&img, h, w, Layer::Relu4_3).unwrap();
+    for (i, (a, b)) in fo.acts.iter().zip(&fr.acts).enumerate() {
+        assert_eq!((a.c, a.h, a.w), (b.c, b.h, b.w), "layer {i}");
+        let (err, scale) = max_err(&a.data, &b.data);
+        assert!(
+            err <= 1e-4 * scale,
+            "layer {i}: forward err {err}, scale {scale}"
+        );
+    }
+    let grad = |l: Layer, r: &mut fantasystyle::rng::Rng| {
+        let a = fr.get(l);
+        let mut g = fantasystyle::vgg::Tensor3::zeros(a.c, a.h, a.w);
+        g.data.iter_mut().for_each(|v| *v = r.normal() as f32);
+        g
+    };
+    let taps = [
+        Layer::Relu1_2,
+        Layer::Relu2_2,
+        Layer::Relu2_2,
+        Layer::Relu3_1,
+        Layer::Relu3_3,
+        Layer::Relu4_3,
+    ];
+    let gs: Vec<_> = taps.iter().map(|&l| (l, grad(l, &mut r))).collect();
+    let refs: Vec<_> = gs.iter().map(|(l, g)| (*l, g)).collect();
+    for refs in [&refs[..], &refs[1..2]] {
+        let gr = rust.backward(&fr, refs).unwrap();
+        // The onnxruntime engine's own forward, as a caller would pass it.
+        let go = ort.backward(&fo, refs).unwrap();
+        let (err, scale) = max_err(&go, &gr);
+        assert!(
+            err <= 1e-4 * scale && scale > 0.0,
+            "{} taps: backward err {err}, scale {scale}",
+            refs.len()
         );
     }
 }
@@ -508,5 +586,38 @@ mod stage {
             serde_json::from_slice(&std::fs::read(out.join("loss.json")).unwrap()).unwrap();
         assert_eq!(log["method"], "colour-transfer");
         assert_eq!(log["colour_map"]["t"].as_array().unwrap().len(), 9);
+    }
+}
+
+/// The NNFM search on onnxruntime (MatMul + ArgMax) against the Rust search: the same
+/// loss and gradient on random features (with a coverage mask that leaves some positions
+/// unsearched), where no two style columns are within float error of a tie.
+/// Tolerance: loss 1e-5 relative, gradient 1e-4 x its largest magnitude.
+#[test]
+fn nnfm_search_on_onnxruntime_matches_the_rust_search() {
+    use fantasystyle::baselines::nnfm::{StyleColumns, nnfm_loss_grad};
+    use ndarray::Array2;
+    if !crate::harness::onnxruntime() {
+        return;
+    }
+    let mut r = fantasystyle::rng::Rng::new(4);
+    let (c, n, ns) = (48, 700, 530);
+    let f = Array2::from_shape_fn((c, n), |_| r.normal().max(0.0) as f32);
+    let mut s = Array2::from_shape_fn((c, ns), |_| r.normal().max(0.0) as f32 + 1e-3);
+    for mut col in s.columns_mut() {
+        let norm = col.iter().map(|v| v * v).sum::<f32>().sqrt();
+        col.mapv_inplace(|v| v / norm);
+    }
+    let mask: Vec<f32> = (0..n).map(|i| [0.0, 0.5, 1.0][i % 3]).collect();
+    let ort = StyleColumns::new(s.clone(), Some(0)).unwrap();
+    for weights in [None, Some(&mask[..])] {
+        let (lr, gr) = nnfm_loss_grad(f.view(), s.view(), weights, 0.7);
+        let (lo, go) = ort.loss_grad(f.view(), weights, 0.7).unwrap();
+        assert!((lr - lo).abs() <= 1e-5 * lr.abs(), "loss {lr} vs {lo}");
+        let (err, scale) = max_err(go.as_slice().unwrap(), gr.as_slice().unwrap());
+        assert!(
+            err <= 1e-4 * scale && scale > 0.0,
+            "gradient err {err}, scale {scale}"
+        );
     }
 }

@@ -12,6 +12,8 @@ use ort::session::Session;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+pub mod graph;
+
 /// File name of the onnxruntime shared library we load.
 pub const ORT_LIB_NAME: &str = "libonnxruntime.so.1.31.1";
 
@@ -220,10 +222,29 @@ pub fn load_session(path: &Path, threads: usize) -> Result<Session> {
 
 /// Load an ONNX graph with explicit session options.
 pub fn load_session_with(path: &Path, cfg: &SessionConfig) -> Result<Session> {
-    use ort::session::builder::GraphOptimizationLevel as L;
     if !path.is_file() {
         return Err(Error::input(path, "ONNX graph not found"));
     }
+    builder(cfg)?
+        .commit_from_file(path)
+        .map_err(|e| Error::input(path, format!("cannot load ONNX graph: {e}")))
+}
+
+/// A session for a graph built in memory with onnxruntime's model editor (`what` names it
+/// in errors), with the same session options as [`load_session_with`].
+pub fn session_from_model(
+    model: ort::editor::Model,
+    cfg: &SessionConfig,
+    what: &str,
+) -> Result<Session> {
+    model
+        .into_session(&builder(cfg)?)
+        .map_err(|e| Error::Onnx(format!("{what}: cannot create the session: {e}")))
+}
+
+/// A session builder with `cfg`'s options.
+fn builder(cfg: &SessionConfig) -> Result<ort::session::builder::SessionBuilder> {
+    use ort::session::builder::GraphOptimizationLevel as L;
     let env = environment()?;
     let mut b = Session::builder(env).map_err(|e| Error::Onnx(e.to_string()))?;
     if cfg.threads > 0 {
@@ -250,9 +271,7 @@ pub fn load_session_with(path: &Path, cfg: &SessionConfig) -> Result<Session> {
     b = b
         .with_inter_op_spinning(false)
         .map_err(|e| Error::Onnx(e.to_string()))?;
-    b = with_device(b, cfg.device)?;
-    b.commit_from_file(path)
-        .map_err(|e| Error::input(path, format!("cannot load ONNX graph: {e}")))
+    with_device(b, cfg.device)
 }
 
 #[cfg(test)]

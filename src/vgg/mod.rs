@@ -1,5 +1,6 @@
 //! VGG16 (Simonyan & Zisserman 2015) feature extractor with its input gradient, for the
-//! VGG-based stylization baselines ([`crate::baselines`]).
+//! VGG-based stylization baselines ([`crate::baselines`]) and `distill`'s texture term
+//! ([`crate::distill::texture`]).
 //!
 //! What it computes: ImageNet normalisation `(x - mean) / std` of an `[H, W, 3]` image in
 //! [0, 1], then the VGG16 conv stack — 3x3 convolutions (stride 1, zero padding 1) each
@@ -13,17 +14,19 @@
 //! 512-channel convolution and raise the receptive field to 132 px for no loss term.
 //! Receptive field of relu4_3: 92 px ([`receptive_field`]).
 //!
-//! Why Rust on a GEMM and not an ONNX VJP graph: onnxruntime runs forward graphs only, so a
-//! VJP graph would need hand-built transposed convolutions and max-unpooling with indices,
-//! plus a second session and tensor round-trips per step; in Rust the backward pass is the
-//! same convolution routine on flipped, channel-transposed weights, a ReLU mask and an
-//! argmax routing, all testable against finite differences in-process. Convolutions are
-//! im2col + SGEMM on `matrixmultiply` (through `ndarray::linalg::general_mat_mul`, so no new
-//! dependency: ndarray already links it). It was measured against the `gemm` crate on this
-//! machine (BENCHMARKS.md, "Baselines"): as fast or faster single-threaded on the VGG
-//! shapes. Parallelism is rayon over bands of output rows (each band: its own im2col
-//! buffer and a single-threaded GEMM into its column block of the output), which bounds the
-//! im2col memory (never the whole `[9 C, H W]` matrix) and needs no synchronisation.
+//! Two engines compute these passes. The Rust engine (this module) is the reference:
+//! convolutions are im2col + SGEMM on `matrixmultiply` (through
+//! `ndarray::linalg::general_mat_mul`; measured against the `gemm` crate, BENCHMARKS.md
+//! "Baselines"), parallel over bands of output rows (each band: its own im2col buffer and
+//! a single-threaded GEMM into its column block of the output), which bounds the im2col
+//! memory and needs no synchronisation; it is tested against finite differences and an
+//! f64 forward in-process. The onnxruntime engine ([`onnx`], after
+//! [`Vgg16::on_onnxruntime`]) builds the forward pass and the backward pass as forward
+//! graphs from the same weights (the backward's transposed convolutions, ReLU masks and
+//! max-unpooling written out as operators) and runs them on onnxruntime's convolution
+//! kernels, 1.6-1.8x faster on 2 cores (BENCHMARKS.md, "VGG16 and the NNFM search on
+//! onnxruntime"); it is tested against the Rust engine. The stages use it; tests and the
+//! golden check use both.
 //!
 //! The input gradient of a stride-1, pad-1 3x3 convolution is the convolution of the output
 //! gradient with the kernel flipped in both axes and its in/out channels swapped (the
@@ -33,6 +36,9 @@ use crate::{Error, Result};
 use ndarray::{Array2, ArrayView2, ArrayViewMut2, Axis, linalg::general_mat_mul};
 use rayon::prelude::*;
 use std::path::Path;
+use std::sync::Arc;
+
+mod onnx;
 
 /// ImageNet channel means for inputs in [0, 1] (torchvision convention, which the
 /// LPIPS/torchvision VGG16 weights were trained with).
@@ -194,9 +200,15 @@ impl Conv {
 
 /// The VGG16 conv stack up to relu4_3. Channel widths come from the weights, so a narrow
 /// network with the same topology (the golden test's) runs through the same code.
+///
+/// Two engines compute the same passes: the Rust one of this module (the reference, tested
+/// against finite differences and an f64 forward) and, after [`Vgg16::on_onnxruntime`],
+/// onnxruntime graphs built from the same weights ([`onnx`], tested against the Rust one).
 #[derive(Debug, Clone)]
 pub struct Vgg16 {
     convs: Vec<Conv>,
+    /// onnxruntime sessions, shared by clones; `None` = the Rust engine.
+    engine: Option<Arc<onnx::Engine>>,
 }
 
 /// Forward activations kept for the backward pass.
@@ -284,7 +296,10 @@ impl Vgg16 {
             convs.push(Conv::new(cout, cin, &wd, bd));
             cin = cout;
         }
-        Ok(Vgg16 { convs })
+        Ok(Vgg16 {
+            convs,
+            engine: None,
+        })
     }
 
     /// A network with He-initialised random weights (for tests and benchmarks), channel
@@ -303,7 +318,24 @@ impl Vgg16 {
             convs.push(Conv::new(cout, cin, &w, b));
             cin = cout;
         }
-        Vgg16 { convs }
+        Vgg16 {
+            convs,
+            engine: None,
+        }
+    }
+
+    /// The same network on onnxruntime ([`onnx`]: about 1.7x faster here), with `threads`
+    /// intra-op threads (0 = onnxruntime's default). Errors when onnxruntime cannot be
+    /// loaded.
+    pub fn on_onnxruntime(mut self, threads: usize) -> Result<Self> {
+        self.engine = Some(Arc::new(onnx::Engine::new(threads)?));
+        Ok(self)
+    }
+
+    /// The onnxruntime engine's intra-op threads, `None` on the Rust engine (statistics
+    /// that run their own graphs next to the VGG's follow it: [`crate::baselines::nnfm`]).
+    pub fn onnxruntime_threads(&self) -> Option<usize> {
+        self.engine.as_ref().map(|e| e.threads())
     }
 
     /// Output channels of `layer`.
@@ -332,6 +364,10 @@ impl Vgg16 {
             for p in 0..h * w {
                 x.data[c * h * w + p] = (rgb[p * 3 + c] - IMAGENET_MEAN[c]) / IMAGENET_STD[c];
             }
+        }
+        if let Some(engine) = &self.engine {
+            let acts = engine.forward(&self.convs, &x, upto)?;
+            return Ok(Forward { h, w, acts });
         }
         let mut acts: Vec<Tensor3> = Vec::with_capacity(upto.index() + 1);
         for i in 0..=upto.index() {
@@ -387,6 +423,22 @@ impl Vgg16 {
                 )));
             }
         }
+        let g = match &self.engine {
+            Some(engine) => engine.backward(&self.convs, &fwd.acts, grads)?,
+            None => self.backward_rust(fwd, last, grads),
+        };
+        let (h, w) = (fwd.h, fwd.w);
+        let mut out = vec![0.0; h * w * 3];
+        for c in 0..3 {
+            for p in 0..h * w {
+                out[p * 3 + c] = g.data[c * h * w + p] / IMAGENET_STD[c];
+            }
+        }
+        Ok(out)
+    }
+
+    /// The Rust engine's backward pass to the normalised input, `[3, H, W]`.
+    fn backward_rust(&self, fwd: &Forward, last: Layer, grads: &[(Layer, &Tensor3)]) -> Tensor3 {
         let mut g = Tensor3::zeros(0, 0, 0);
         for i in (0..=last.index()).rev() {
             let act = &fwd.acts[i];
@@ -411,14 +463,7 @@ impl Vgg16 {
                 g = max_pool_backward(&g, &fwd.acts[i - 1]);
             }
         }
-        let (h, w) = (fwd.h, fwd.w);
-        let mut out = vec![0.0; h * w * 3];
-        for c in 0..3 {
-            for p in 0..h * w {
-                out[p * 3 + c] = g.data[c * h * w + p] / IMAGENET_STD[c];
-            }
-        }
-        Ok(out)
+        g
     }
 }
 
