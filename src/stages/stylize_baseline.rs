@@ -290,7 +290,7 @@ pub fn run(a: Args) -> Result<()> {
             Some(p) => p.clone(),
             None => crate::models::model_path("lpips/vgg16")?,
         };
-        Some(Vgg16::load(&vgg_dir)?.on_onnxruntime(a.threads.n)?)
+        Some(super::fast_vgg(Vgg16::load(&vgg_dir)?, a.threads)?)
     };
     let mut params = serde_json::json!({
         "method": a.method, "cameras": a.input.cameras, "steps": a.steps, "width": a.width,

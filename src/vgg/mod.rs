@@ -20,13 +20,14 @@
 //! "Baselines"), parallel over bands of output rows (each band: its own im2col buffer and
 //! a single-threaded GEMM into its column block of the output), which bounds the im2col
 //! memory and needs no synchronisation; it is tested against finite differences and an
-//! f64 forward in-process. The onnxruntime engine ([`onnx`], after
+//! f64 forward in-process. The onnxruntime engine (`src/vgg/onnx.rs`, after
 //! [`Vgg16::on_onnxruntime`]) builds the forward pass and the backward pass as forward
 //! graphs from the same weights (the backward's transposed convolutions, ReLU masks and
 //! max-unpooling written out as operators) and runs them on onnxruntime's convolution
 //! kernels, 1.6-1.8x faster on 2 cores (BENCHMARKS.md, "VGG16 and the NNFM search on
-//! onnxruntime"); it is tested against the Rust engine. The stages use it; tests and the
-//! golden check use both.
+//! onnxruntime"); it is tested against the Rust engine. The stages use it (the Rust engine,
+//! with a warning, where the onnxruntime library is missing:
+//! [`crate::stages::fast_vgg`]); tests and the golden check use both.
 //!
 //! The input gradient of a stride-1, pad-1 3x3 convolution is the convolution of the output
 //! gradient with the kernel flipped in both axes and its in/out channels swapped (the
@@ -203,7 +204,7 @@ impl Conv {
 ///
 /// Two engines compute the same passes: the Rust one of this module (the reference, tested
 /// against finite differences and an f64 forward) and, after [`Vgg16::on_onnxruntime`],
-/// onnxruntime graphs built from the same weights ([`onnx`], tested against the Rust one).
+/// onnxruntime graphs built from the same weights (`onnx.rs`, tested against the Rust one).
 #[derive(Debug, Clone)]
 pub struct Vgg16 {
     convs: Vec<Conv>,
@@ -324,7 +325,7 @@ impl Vgg16 {
         }
     }
 
-    /// The same network on onnxruntime ([`onnx`]: about 1.7x faster here), with `threads`
+    /// The same network on onnxruntime (`onnx.rs`: about 1.7x faster here), with `threads`
     /// intra-op threads (0 = onnxruntime's default). Errors when onnxruntime cannot be
     /// loaded.
     pub fn on_onnxruntime(mut self, threads: usize) -> Result<Self> {

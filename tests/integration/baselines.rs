@@ -299,6 +299,42 @@ mod stage {
         .unwrap();
     }
 
+    /// Without the onnxruntime library the VGG baselines run on the Rust engine (the same
+    /// passes, slower) with a warning saying why, instead of failing. A subprocess: the
+    /// onnxruntime environment is per process.
+    #[test]
+    fn gram_baseline_falls_back_to_the_rust_vgg_without_onnxruntime() {
+        let d = tempfile::tempdir().unwrap();
+        let out = d.path().join("out");
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_stylize-baseline"))
+            .env("FANTASYSTYLE_ORT_LIB", d.path().join("no-such-library.so"))
+            .arg("--method=gram")
+            .arg("--scene")
+            .arg(repo_root().join("data-sample/scene.ply"))
+            .args([
+                "--cameras=orbit:2",
+                "--steps=1",
+                "--width=48",
+                "--height=48",
+            ])
+            .args(["--style-size=128", "--threads=2"])
+            .arg("--style")
+            .arg(sample_style())
+            .arg("--vgg")
+            .arg(vgg_dir())
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        assert!(
+            err.contains("Rust engine") && err.contains("no-such-library.so"),
+            "{err}"
+        );
+        assert!(out.join("scene.ply").is_file());
+    }
+
     /// A style image below relu4_3's receptive field (92 px) is refused with exit code 2,
     /// naming the file; nothing is written.
     #[test]
