@@ -143,7 +143,7 @@ impl StyleColumns {
         match &self.search {
             None => Ok(nnfm_loss_grad(f, s_hat, weights, scale)),
             Some(session) => loss_grad_with(f, s_hat, weights, scale, |ft| {
-                let mut session = session.lock().map_err(|e| Error::Onnx(e.to_string()))?;
+                let mut session = session.lock().map_err(onnx)?;
                 nearest_onnx(&mut session, ft, s_hat.ncols())
             }),
         }
@@ -163,8 +163,9 @@ fn search_session(s_hat: ArrayView2<'_, f32>, threads: usize) -> Result<Session>
     let mut g = ort::editor::Graph::new().map_err(onnx)?;
     g.set_inputs([outlet("f", T::Float32, &[-1, c as i64], &["n", ""])])
         .map_err(onnx)?;
-    let data: Vec<f32> = s_hat.iter().copied().collect();
-    constant(&mut g, "s", &[c, ns], &data).map_err(onnx)?;
+    let data = s_hat.as_standard_layout();
+    let data = data.as_slice().expect("standard layout");
+    constant(&mut g, "s", &[c, ns], data).map_err(onnx)?;
     node(&mut g, "MatMul", &["f", "s"], &["sims"], vec![]).map_err(onnx)?;
     let attrs = vec![
         int("axis", 1).map_err(onnx)?,

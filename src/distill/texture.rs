@@ -40,12 +40,12 @@
 //! Cost: one forward and backward of VGG16 up to the deepest layer used (relu2_2 for
 //! Gram, relu3_3 for NNFM, about twice the Gram cost with the nearest-neighbour search) on
 //! the object's bounding box (plus 8 px) per view and iteration; the stages run the VGG
-//! and the NNFM search on onnxruntime ([`crate::vgg`], [`StyleColumns`]). With `downsample` D > 1 the crop, its coverage
-//! and the style image are box-averaged D x D before the network (D^2 times fewer
-//! pixels; the motif scale on screen is kept, since crop and style shrink alike) and the
-//! gradient is spread back evenly over each D x D block (the exact adjoint of the
-//! average): the term then constrains the texture at periods of 2D pixels and longer,
-//! and leaves finer detail to the prior.
+//! and the NNFM search on onnxruntime ([`crate::vgg`], [`StyleColumns`]). With
+//! `downsample` D > 1 the crop, its coverage and the style image are box-averaged D x D
+//! before the network (D^2 times fewer pixels; the motif scale on screen is kept, since
+//! crop and style shrink alike) and the gradient is spread back evenly over each D x D
+//! block (the exact adjoint of the average): the term then constrains the texture at
+//! periods of 2D pixels and longer, and leaves finer detail to the prior.
 
 use crate::baselines::nnfm::{StyleColumns, normalised_style, split_stacked, stacked};
 use crate::imageio::Image;

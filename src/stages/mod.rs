@@ -493,8 +493,8 @@ pub fn model_manifest(model: &Path) -> PathBuf {
 /// the onnxruntime library is not installed, on the Rust engine (the same passes, about
 /// 1.7x slower) with a warning.
 pub fn fast_vgg(vgg: crate::vgg::Vgg16, threads: Threads) -> Result<crate::vgg::Vgg16> {
-    match vgg.clone().on_onnxruntime(threads.n) {
-        Ok(v) => Ok(v),
+    match crate::runtime::environment() {
+        Ok(_) => vgg.on_onnxruntime(threads.n),
         Err(Error::Missing(why)) => {
             tracing::warn!("VGG16 runs on its slower Rust engine: {why}");
             Ok(vgg)

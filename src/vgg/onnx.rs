@@ -74,14 +74,13 @@ impl Engine {
     /// ReLU outputs `F_0..=F_upto` of the normalised `[3, H, W]` input `x`.
     pub(super) fn forward(&self, convs: &[Conv], x: &Tensor3, upto: Layer) -> Result<Vec<Tensor3>> {
         let mut sessions = self.forward.lock().map_err(onnx)?;
-        let session = match sessions.entry(upto) {
-            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => e.insert(session_from_model(
+        let session = cached(&mut sessions, upto, || {
+            session_from_model(
                 forward_graph(convs, upto)?,
                 &self.cfg,
                 "VGG16 forward graph",
-            )?),
-        };
+            )
+        })?;
         let input = view(x)?;
         let out = session.run(ort::inputs!["x" => input]).map_err(onnx)?;
         (0..=upto.index())
@@ -90,8 +89,8 @@ impl Engine {
     }
 
     /// dLoss/dx (normalised input space, `[3, H, W]`) given `acts` (the forward's ReLU
-    /// outputs, at least to the deepest tapped layer) and `grads` (one per tapped
-    /// layer, distinct, as checked by the caller).
+    /// outputs, at least to the deepest tapped layer) and `grads` (shapes checked by the
+    /// caller; several at one layer add up).
     pub(super) fn backward(
         &self,
         convs: &[Conv],
@@ -103,14 +102,13 @@ impl Engine {
         taps.dedup();
         let last = *taps.last().ok_or_else(|| onnx("no layer gradient"))?;
         let mut sessions = self.backward.lock().map_err(onnx)?;
-        let session = match sessions.entry(taps.clone()) {
-            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => e.insert(session_from_model(
+        let session = cached(&mut sessions, taps.clone(), || {
+            session_from_model(
                 backward_graph(convs, &taps)?,
                 &self.cfg,
                 "VGG16 backward graph",
-            )?),
-        };
+            )
+        })?;
         // Several gradients at one layer add up, as in the Rust engine.
         let summed: Vec<(Layer, Cow<'_, Tensor3>)> = taps
             .iter()
@@ -135,6 +133,18 @@ impl Engine {
         let out = session.run(inputs).map_err(onnx)?;
         tensor3(&out, "back0")
     }
+}
+
+/// The session under `key`, built by `build` on first use.
+fn cached<K: std::hash::Hash + Eq>(
+    sessions: &mut HashMap<K, Session>,
+    key: K,
+    build: impl FnOnce() -> Result<Session>,
+) -> Result<&mut Session> {
+    Ok(match sessions.entry(key) {
+        std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+        std::collections::hash_map::Entry::Vacant(e) => e.insert(build()?),
+    })
 }
 
 /// A `[1, C, H, W]` view of a feature map (no copy).
