@@ -23,8 +23,8 @@
 //! colours to 0): the views' colour statistics become the style's. View-dependent colour
 //! is kept, transformed like the rest.
 //!
-//! **Clamping into the style's extent (`distill --colour-init` only).** The linear map
-//! reproduces the style's mean and covariance, not its shape: along an axis where the
+//! **Clamping into the style's extent (`distill --colour-init`, `--colour-finish`).** The
+//! linear map reproduces the style's mean and covariance, not its shape: along an axis where the
 //! style is one-sided (an op-art print's red against its neutrals, with no cyan), the
 //! object's colours on the other side of its mean come out in a hue the style lacks (a
 //! salmon fish turned partly teal). [`clamp_to_extent`] moves each Gaussian's DC colour
@@ -32,6 +32,13 @@
 //! percentile of the style's pixels' coordinates on each axis, [`style_extent`]); a
 //! style present on both sides of its mean (a painting's blue and yellow) clamps almost
 //! nothing. The colour-transfer baseline stays the pure mean + covariance map.
+//!
+//! **Before and after distillation** ([`move_palette`]). ARF (Zhang et al., ECCV 2022)
+//! transfers the colour statistics onto the style's before its NNFM optimisation and
+//! again on the result (its reference code's pre- and post-colour-transfer steps). `distill --colour-init` is the first (statistics of the
+//! source views), `--colour-finish` the second (statistics of the result's own renders
+//! from the same cameras): a map of colours only, so the texture the loop drew keeps its
+//! arrangement while its palette drift is taken back to the style's mean and covariance.
 
 use crate::imageio::Image;
 use crate::metrics::linalg::{matmul, reconstruct, sym_eig};
@@ -250,6 +257,21 @@ pub fn clamp_to_extent(scene: &Scene, ext: &StyleExtent) -> (Scene, usize) {
         }
     }
     (out, changed)
+}
+
+/// The palette move of `distill --colour-init` and `--colour-finish`: [`transfer_scene`]
+/// (the object's statistics over `views`, rendered over `background`, onto `style`'s),
+/// then [`clamp_to_extent`] into the style's extent. Returns the scene, the transfer and
+/// how many Gaussians the clamp moved.
+pub fn move_palette(
+    scene: &Scene,
+    views: &[(&[f32], &[f32])],
+    background: [f32; 3],
+    style: &Image,
+) -> Result<(Scene, Transfer, usize)> {
+    let (mapped, tr) = transfer_scene(scene, views, background, style)?;
+    let (clamped, n) = clamp_to_extent(&mapped, &style_extent(style, &tr.style));
+    Ok((clamped, tr, n))
 }
 
 #[cfg(test)]

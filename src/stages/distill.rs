@@ -104,6 +104,13 @@ pub struct Args {
     /// branch still sees the original renders.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub colour_init: bool,
+    /// After the iterations, move the result's colour mean and covariance (over its
+    /// renders from the source views' cameras) onto the style image's, clamped like
+    /// --colour-init (ARF's colour transfer after the optimisation): the palette drift of
+    /// the loop taken back, the texture's arrangement kept. Works on a resumed checkpoint
+    /// with --iters 0 (the sample DAG's final stage); not with --preserve-color.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub colour_finish: bool,
     /// Give the prior the raw render (object over the background) instead of the object
     /// over a fill of its own colours.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
@@ -161,6 +168,7 @@ impl Args {
 pub fn run(a: Args) -> Result<()> {
     // Inputs, all checked before the prior is loaded.
     let p = a.params()?;
+    let background = p.background;
     let style = a.prior.load_style()?;
     let mut start = a.start()?;
     let views = crate::timing::load(|| read_views(&a.source_views))?;
@@ -172,6 +180,12 @@ pub fn run(a: Args) -> Result<()> {
         return Err(Error::input(
             dir.join(CHECKPOINT_HF_PREV),
             format!("shape {shape:?}, but the source views need [{n}, 3, {h}, {w}]"),
+        ));
+    }
+    if a.preserve_color && (a.colour_init || a.colour_finish) {
+        return Err(Error::param(
+            "--colour-init and --colour-finish move the colours onto the style's, \
+             --preserve-color keeps the scene's: choose one",
         ));
     }
     if a.colour_init && a.prior.strength > 0.0 {
@@ -202,6 +216,11 @@ pub fn run(a: Args) -> Result<()> {
         a.threads
             .install(|| distill(&start, &cameras, &source, pr, run, c))??
     };
+
+    let mut outcome = outcome;
+    if a.colour_finish && a.prior.strength > 0.0 {
+        outcome.scene = colour_finish(&outcome.scene, &cameras, &style, background)?;
+    }
 
     // The checkpoint.
     crate::distill::guard::checkpoint(&outcome.scene, &outcome.state)?;
@@ -252,20 +271,42 @@ fn colour_init(
              colours already",
         ));
     }
-    if a.preserve_color {
-        return Err(Error::param(
-            "--colour-init moves the colours onto the style's, --preserve-color keeps the \
-             scene's: choose one",
-        ));
-    }
     let views: Vec<(&[f32], &[f32])> = (0..source.rgb.len())
         .map(|v| (&source.rgb[v][..], &source.alpha[v][..]))
         .collect();
-    use crate::baselines::colour;
-    let (scene, tr) = colour::transfer_scene(&start.scene, &views, background, style)?;
-    let (scene, clamped) = colour::clamp_to_extent(&scene, &colour::style_extent(style, &tr.style));
+    move_palette("colour init", &start.scene, &views, background, style)
+}
+
+/// `--colour-finish`: `scene` with the colour statistics of its own renders from
+/// `cameras` moved onto those of the style image.
+fn colour_finish(
+    scene: &Scene,
+    cameras: &[crate::Camera],
+    style: &crate::imageio::Image,
+    background: [f32; 3],
+) -> Result<Scene> {
+    let _ph = crate::timing::span("colour finish");
+    let opts = crate::render::RenderOptions { background };
+    let renders = cameras
+        .iter()
+        .map(|c| crate::render::render(scene, c, &opts))
+        .collect::<Result<Vec<_>>>()?;
+    let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
+    move_palette("colour finish", scene, &views, background, style)
+}
+
+/// [`crate::baselines::colour::move_palette`], logged as `what`.
+fn move_palette(
+    what: &str,
+    scene: &Scene,
+    views: &[(&[f32], &[f32])],
+    background: [f32; 3],
+    style: &crate::imageio::Image,
+) -> Result<Scene> {
+    let (scene, tr, clamped) =
+        crate::baselines::colour::move_palette(scene, views, background, style)?;
     tracing::info!(
-        "colour init: object mean {:.3?} -> style mean {:.3?}; {clamped} of {} Gaussians \
+        "{what}: object mean {:.3?} -> style mean {:.3?}; {clamped} of {} Gaussians \
          clamped into the style's colour extent",
         tr.source.mean,
         tr.style.mean,
@@ -280,7 +321,7 @@ fn producer(a: &Args, start: u64) -> Producer {
         "iters": a.iters, "start": start, "views_per_iter": a.views_per_iter,
         "preserve_color": a.preserve_color, "fit_rest": a.fit_rest, "csd": a.csd,
         "lr_dc": a.lr_dc, "fill": !a.no_fill, "seed": a.seed, "format": a.format,
-        "colour_init": a.colour_init,
+        "colour_init": a.colour_init, "colour_finish": a.colour_finish,
     });
     let params = super::merge_params(&[
         own,

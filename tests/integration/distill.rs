@@ -503,9 +503,11 @@ fn distill_bad_input_is_refused() {
 
 /// `--colour-init`: the start scene's object takes the style image's colour mean (checked
 /// on fresh renders of the written scene, `--iters 0`), and the flag is refused with
-/// `--resume` and with `--preserve-color` (exit 2, nothing written).
+/// `--resume` and with `--preserve-color` (exit 2, nothing written). `--colour-finish`
+/// does the same to the result of the iterations (two, from the scene's own colours),
+/// and is refused with `--preserve-color`.
 #[test]
-fn colour_init_moves_the_object_to_the_style_colours() {
+fn colour_init_and_finish_move_the_object_to_the_style_colours() {
     use fantasystyle::baselines::colour::{image_stats, object_stats};
     let Some(stylizer) = stylizer_dir() else {
         return;
@@ -592,4 +594,37 @@ fn colour_init_moves_the_object_to_the_style_colours() {
         assert!(err.contains("--colour-init"), "{err}");
         assert!(!d.join("x").exists());
     }
+
+    // --colour-finish: two iterations from the scene's own colours, then the move.
+    let scene_arg = ["--scene".to_string(), scene.to_string_lossy().into_owned()];
+    ok(bin("distill")
+        .args(&base)
+        .args(&scene_arg)
+        .args(["--iters", "2", "--colour-finish", "true", "--out"])
+        .arg(d.join("fin")));
+    render_source(
+        &d.join("fin"),
+        &cams.to_string_lossy(),
+        48,
+        &d.join("fin-views"),
+    );
+    let fin = stats_of(&d.join("fin-views"));
+    assert!(
+        gap(fin.mean) < 0.03,
+        "object mean {:?} after --colour-finish, style mean {:?}",
+        fin.mean,
+        style.mean
+    );
+    let out = bin("distill")
+        .args(&base)
+        .args(&scene_arg)
+        .args(["--iters", "1", "--colour-finish", "true"])
+        .args(["--preserve-color", "true", "--out"])
+        .arg(d.join("y"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--colour-finish"), "{err}");
+    assert!(!d.join("y").exists());
 }
