@@ -24,8 +24,8 @@ Prints a Markdown report:
 It also writes one contact sheet per case, RUNS_DIR/sheets/<scene>.<style>.png: rows =
 style, original, per-view 2D stylizer (the refit baseline's targets), ours and its variants,
 gram, nnfm,
-then the other methods (ng_nomvfc, ng_sds, nomvfc, sds, colour, refit); columns = views 0,
-4, 8, 12.
+then the other methods (ng_nomvfc, ng_sds, ng_noprior, nomvfc, sds, colour, refit);
+columns = views 0, 4, 8, 12.
 """
 import argparse
 import json
@@ -38,10 +38,10 @@ import numpy as np
 
 from make_styles import write_png
 
-METHODS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "ng_nomvfc", "ng_sds", "nomvfc", "sds", "colour", "gram",
-           "nnfm", "refit"]
-SHEET_ROWS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "gram", "nnfm", "ng_nomvfc", "ng_sds", "nomvfc", "sds",
-              "colour", "refit"]
+METHODS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "ng_nomvfc", "ng_sds", "ng_noprior", "nomvfc", "sds",
+           "colour", "gram", "nnfm", "refit"]
+SHEET_ROWS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "gram", "nnfm", "ng_nomvfc", "ng_sds", "ng_noprior",
+              "nomvfc", "sds", "colour", "refit"]
 LAYERS = ["relu1_2", "relu2_2", "relu3_3", "relu4_3"]
 T95 = {1: 12.71, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
        9: 2.262, 10: 2.228, 11: 2.201, 12: 2.179, 15: 2.131, 20: 2.086, 30: 2.042}
@@ -192,7 +192,8 @@ def wins(res, cases):
     keys = [("gram_relu1_2", "Gram relu1_2"), ("gram_relu2_2", "Gram relu2_2"), ("kid", "KID_style"),
             ("spec", "spectrum distance"), ("short", "short-range LPIPS")]
     for mine in ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2"]:
-        for other in ["colour", "gram", "nnfm", "refit", "nomvfc", "sds", "ng_nomvfc", "ng_sds", "ours", "ours_nnfm"]:
+        for other in ["colour", "gram", "nnfm", "refit", "nomvfc", "sds", "ng_nomvfc", "ng_sds", "ng_noprior", "ours",
+                      "ours_nnfm"]:
             if other == mine:
                 continue
             pairs = [(res[(sc, sty, mine)], res[(sc, sty, other)]) for sc, sty in cases
