@@ -24,8 +24,8 @@
 //! is kept, transformed like the rest.
 //!
 //! **Clamping into the style's extent (`distill --colour-init`, `--colour-finish`).** The
-//! linear map reproduces the style's mean and covariance, not its shape: along an axis where the
-//! style is one-sided (an op-art print's red against its neutrals, with no cyan), the
+//! linear map reproduces the style's mean and covariance, not its shape: along an axis
+//! where the style is one-sided (an op-art print's red against its neutrals, with no cyan), the
 //! object's colours on the other side of its mean come out in a hue the style lacks (a
 //! salmon fish turned partly teal). [`clamp_to_extent`] moves each Gaussian's DC colour
 //! back into the style's extent along the style's principal axes (the 0.5th to 99.5th
@@ -35,10 +35,12 @@
 //!
 //! **Before and after distillation** ([`move_palette`]). ARF (Zhang et al., ECCV 2022)
 //! transfers the colour statistics onto the style's before its NNFM optimisation and
-//! again on the result (its reference code's pre- and post-colour-transfer steps). `distill --colour-init` is the first (statistics of the
-//! source views), `--colour-finish` the second (statistics of the result's own renders
-//! from the same cameras): a map of colours only, so the texture the loop drew keeps its
-//! arrangement while its palette drift is taken back to the style's mean and covariance.
+//! again on the result (its reference code's pre- and post-colour-transfer steps).
+//! `distill --colour-init` is the first (statistics of the source views),
+//! `--colour-finish` the second (statistics of the result's own renders from the same
+//! cameras, [`render_views`]): a map of colours only, so the texture the loop drew keeps
+//! its arrangement while its palette drift is taken back to the style's mean and
+//! covariance.
 
 use crate::imageio::Image;
 use crate::metrics::linalg::{matmul, reconstruct, sym_eig};
@@ -257,6 +259,20 @@ pub fn clamp_to_extent(scene: &Scene, ext: &StyleExtent) -> (Scene, usize) {
         }
     }
     (out, changed)
+}
+
+/// Renders of `scene` from every camera over `background`: the views whose object
+/// statistics [`transfer_scene`] and [`move_palette`] read (as `(rgb, alpha)` slices).
+pub fn render_views(
+    scene: &Scene,
+    cameras: &[crate::Camera],
+    background: [f32; 3],
+) -> Result<Vec<crate::render::RenderOutput>> {
+    let opts = crate::render::RenderOptions { background };
+    cameras
+        .iter()
+        .map(|c| crate::render::render(scene, c, &opts))
+        .collect()
 }
 
 /// The palette move of `distill --colour-init` and `--colour-finish`: [`transfer_scene`]

@@ -192,7 +192,7 @@ pub fn run(a: Args) -> Result<()> {
         start.scene = colour_init(&a, &start, &source, &style, p.background)?;
     }
     let (_, model_set) = model_timesteps(&a.prior.model)?;
-    let outcome = if a.prior.strength == 0.0 || a.iters == 0 {
+    let mut outcome = if a.prior.strength == 0.0 || a.iters == 0 {
         // Strength 0 is "unchanged" exactly; 0 iterations only re-packages the input.
         if a.prior.strength == 0.0 && a.iters > 0 {
             tracing::info!("strength 0: the scene is left unchanged");
@@ -217,9 +217,11 @@ pub fn run(a: Args) -> Result<()> {
             .install(|| distill(&start, &cameras, &source, pr, run, c))??
     };
 
-    let mut outcome = outcome;
     if a.colour_finish && a.prior.strength > 0.0 {
-        outcome.scene = colour_finish(&outcome.scene, &cameras, &style, background)?;
+        let scene = &outcome.scene;
+        outcome.scene = a
+            .threads
+            .install(|| colour_finish(scene, &cameras, &style, background))??;
     }
 
     // The checkpoint.
@@ -286,11 +288,7 @@ fn colour_finish(
     background: [f32; 3],
 ) -> Result<Scene> {
     let _ph = crate::timing::span("colour finish");
-    let opts = crate::render::RenderOptions { background };
-    let renders = cameras
-        .iter()
-        .map(|c| crate::render::render(scene, c, &opts))
-        .collect::<Result<Vec<_>>>()?;
+    let renders = crate::baselines::colour::render_views(scene, cameras, background)?;
     let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
     move_palette("colour finish", scene, &views, background, style)
 }

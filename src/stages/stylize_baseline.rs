@@ -395,12 +395,7 @@ fn render_originals(
     scene: &crate::Scene,
     cams: &[crate::Camera],
 ) -> Result<Vec<crate::render::RenderOutput>> {
-    let ropts = crate::render::RenderOptions {
-        background: a.background.rgb,
-    };
-    cams.iter()
-        .map(|c| crate::render::render(scene, c, &ropts))
-        .collect()
+    colour::render_views(scene, cams, a.background.rgb)
 }
 
 /// `colour-transfer`: the statistics of the object in the original renders, the map onto
