@@ -493,9 +493,9 @@ pub struct CheckpointParts<'a> {
 }
 
 /// Write a checkpoint's optimizer state (`adam_dc.npy`, `adam_rest.npy`, `state.json`),
-/// `history.json`, `hf_prev.npy` (if any), the last iteration's `last_z0.npy`, `last_z_tgt.npy`,
-/// `last_z_src.npy` `[N, C, h, w]` and `last_targets.npy` `[N, H, W, 3]` (if any) and
-/// the manifest's meta into `out`, a scene artifact whose scene files (`scene.ply`, at
+/// `history.json`, `hf_prev.npy` (if any), the last iteration's `last_targets.npy`
+/// `[N, H, W, 3]` and, if the prior was called, `last_z0.npy`, `last_z_tgt.npy`,
+/// `last_z_src.npy` `[N, C, h, w]` (if an iteration ran) and the manifest's meta into `out`, a scene artifact whose scene files (`scene.ply`, at
 /// least) the caller writes: what [`read_checkpoint`] reads.
 pub fn write_checkpoint(
     out: &mut fantasystyle_schemas::ArtifactWriter,
@@ -518,14 +518,16 @@ pub fn write_checkpoint(
         out.write_tensor(CHECKPOINT_HF_PREV, shape, data)?;
     }
     if let Some(l) = c.last {
-        for (name, x) in [
-            ("last_z0.npy", &l.z0),
-            ("last_z_tgt.npy", &l.z_tgt),
-            ("last_z_src.npy", &l.z_src),
-            ("last_targets.npy", &l.targets),
-        ] {
-            write_array(out, name, x)?;
+        if let Some(z) = &l.latents {
+            for (name, x) in [
+                ("last_z0.npy", &z.z0),
+                ("last_z_tgt.npy", &z.z_tgt),
+                ("last_z_src.npy", &z.z_src),
+            ] {
+                write_array(out, name, x)?;
+            }
         }
+        write_array(out, "last_targets.npy", &l.targets)?;
     }
     out.set_meta(serde_json::json!({
         "iteration": c.iteration,

@@ -88,7 +88,9 @@ pub struct CsdParams {
     /// Distillation gradient: csd (paper), sds, dds, or csd-no-neg (no negative content guidance).
     #[arg(long, value_enum, default_value = "csd")]
     pub mode: Mode,
-    /// Classifier-free guidance scale beta.
+    /// Classifier-free guidance scale beta. At 0, csd and csd-no-neg ask nothing of the
+    /// prior and `distill` skips its calls (the texture term alone, in a fraction of the
+    /// time).
     #[arg(long, default_value_t = 7.5)]
     pub guidance: f32,
     /// Timestep weighting w(t): 1-ab, uniform, or sqrt-ab-1-ab (= sqrt(ab)(1-ab)).
@@ -115,6 +117,14 @@ impl CsdParams {
     pub fn conds(&self) -> usize {
         let (t, s) = conds(self.mode);
         t.len() + s.len()
+    }
+
+    /// Whether a step's gradient is exactly zero whatever the prior predicts: `csd` and
+    /// `csd-no-neg` at guidance 0, where both Phi terms are scaled by beta (`sds` and
+    /// `dds` keep an unguided term). `distill` then skips the prior's calls: the texture
+    /// term alone, the same bits ([`crate::distill`]).
+    pub fn asks_nothing(&self) -> bool {
+        matches!(self.mode, Mode::Csd | Mode::CsdNoNeg) && self.guidance == 0.0
     }
 
     /// Refuse a non-finite guidance scale and a negative or non-finite step size.

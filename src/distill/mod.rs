@@ -266,12 +266,19 @@ impl IterReport {
 #[derive(Debug, Clone)]
 pub struct LastIteration {
     pub report: IterReport,
-    /// `[N, C, h, w]` each.
+    /// The latents of both branches (None when the prior was not called:
+    /// [`CsdParams::asks_nothing`]).
+    pub latents: Option<LastLatents>,
+    /// `[N, H, W, 3]`.
+    pub targets: Array4<f32>,
+}
+
+/// The last iteration's latents, `[N, C, h, w]` each.
+#[derive(Debug, Clone)]
+pub struct LastLatents {
     pub z0: Array4<f32>,
     pub z_tgt: Array4<f32>,
     pub z_src: Array4<f32>,
-    /// `[N, H, W, 3]`.
-    pub targets: Array4<f32>,
 }
 
 /// The distillation state: the colour fit (scene + optimizer + caches), the prior, the
@@ -426,8 +433,77 @@ impl<'a> Distiller<'a> {
 
     /// One iteration (module docs), step by step through [`step`], unchecked:
     /// [`Self::iterate`] (in [`guard`]) names the iteration in errors and refuses a
-    /// non-finite result.
+    /// non-finite result. When the gradient is zero whatever the prior says
+    /// ([`CsdParams::asks_nothing`]: csd at guidance 0) the prior is not called.
     fn iterate_unguarded(&mut self) -> Result<IterReport> {
+        if self.params.csd.asks_nothing() {
+            self.iterate_without_prior()
+        } else {
+            self.iterate_with_prior()
+        }
+    }
+
+    /// The iteration without the prior's calls, for a zero gradient: targets = the
+    /// renders (what a zero image change gives, bit for bit, [`step::targets`]), so only
+    /// the texture term moves the colours; the same timestep draw and report (no
+    /// agreement: there is no change to measure), no latents.
+    fn iterate_without_prior(&mut self) -> Result<IterReport> {
+        let p = &self.params;
+        let (h, w) = (self.source.height, self.source.width);
+        let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views_per_iter);
+        let t = draws.timestep(p.t_schedule, &self.timesteps);
+        let views = draws.window().window.views.clone();
+        let ph = crate::timing::span("render");
+        let renders = step::render_window(&self.fit, &views);
+        drop(ph);
+        let ph = crate::timing::span("targets");
+        let alpha: Vec<&[f32]> = views.iter().map(|&v| &self.source.alpha[v][..]).collect();
+        let colour: Vec<&[f32]> = views.iter().map(|&v| &self.source_colour[v][..]).collect();
+        let (targets, stats) = step::targets(
+            &renders.iter().map(|r| r.as_slice()).collect::<Vec<_>>(),
+            &alpha,
+            &colour,
+            Array4::zeros((views.len(), 3, h, w)).view(),
+            TargetParams {
+                background: p.background,
+                preserve_color: p.preserve_color,
+            },
+        )?;
+        drop(ph);
+        let losses = self.colour_step(&views, &targets, &alpha)?;
+        let report = IterReport::new(draws.window(), t, stats, losses);
+        self.last = Some(LastIteration {
+            report: report.clone(),
+            latents: None,
+            targets,
+        });
+        self.iteration += 1;
+        Ok(report)
+    }
+
+    /// One colour step on the window's `views` towards `targets` (with the texture term,
+    /// if any): `(loss, texture loss)`.
+    fn colour_step(
+        &mut self,
+        views: &[usize],
+        targets: &Array4<f32>,
+        alpha: &[&[f32]],
+    ) -> Result<(f64, f64)> {
+        let p = &self.params;
+        let _ph = crate::timing::span("colour step");
+        let cs = ColourStep {
+            loss: p.colour_loss,
+            ssim_weight: p.ssim_weight,
+            texture: self.texture.as_ref(),
+            background: p.background,
+            fill: p.fill_background,
+            iteration: self.iteration,
+        };
+        step::colour_step(&mut self.fit, views, targets.view(), alpha, &cs)
+    }
+
+    /// The whole iteration: render, encode, noise, MVFC, CSD, targets, colour step.
+    fn iterate_with_prior(&mut self) -> Result<IterReport> {
         let p = &self.params;
         let size = (self.source.height, self.source.width);
         let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views_per_iter);
@@ -489,25 +565,17 @@ impl<'a> Distiller<'a> {
         drop(ph);
 
         // One colour step on the window (with the texture term, if any).
-        let ph = crate::timing::span("colour step");
-        let cs = ColourStep {
-            loss: p.colour_loss,
-            ssim_weight: p.ssim_weight,
-            texture: self.texture.as_ref(),
-            background: p.background,
-            fill: p.fill_background,
-            iteration: self.iteration,
-        };
-        let losses = step::colour_step(&mut self.fit, &views, targets.view(), &alpha, &cs)?;
-        drop(ph);
+        let losses = self.colour_step(&views, &targets, &alpha)?;
         let mut report = IterReport::new(draws.window(), t, stats, losses);
         report.hf_agree_revisit = agree.revisit;
         report.hf_agree_adjacent = agree.adjacent;
         self.last = Some(LastIteration {
             report: report.clone(),
-            z0: x.z0,
-            z_tgt: x.z_tgt,
-            z_src: x.z_src,
+            latents: Some(LastLatents {
+                z0: x.z0,
+                z_tgt: x.z_tgt,
+                z_src: x.z_src,
+            }),
             targets,
         });
         self.iteration += 1;
@@ -625,6 +693,16 @@ pub fn distill(
     let per_iter = params.views_per_iter.min(cameras.len());
     let (h, w) = (source.height, source.width);
     let plan = |n: u64| Plan::csd_steps(n as usize, per_iter, conds, (h, w), f, 1);
+    let cost = if params.csd.asks_nothing() {
+        tracing::info!(
+            "distill: {:?} at guidance 0 asks nothing of the prior; it is not called (the \
+             texture term alone moves the colours)",
+            params.csd.mode
+        );
+        None
+    } else {
+        cost
+    };
     crate::prior::cost::announce(cost, "distill", &plan(iters));
     let it = start.iteration;
     let ph = crate::timing::span("setup");

@@ -169,3 +169,125 @@ fn keep_chroma_takes_luma_from_one_and_chroma_from_the_other() {
     }
     assert_eq!(keep_chroma(src, src), src);
 }
+
+/// A prior that counts its noise predictions (the closed-form Gaussian prior inside).
+struct Counting {
+    inner: crate::prior::gaussian::GaussianPrior,
+    predictions: usize,
+}
+
+impl Prior for Counting {
+    fn info(&self) -> &crate::prior::PriorInfo {
+        self.inner.info()
+    }
+    fn encode(&mut self, x: ndarray::ArrayView4<'_, f32>) -> Result<Array4<f32>> {
+        self.inner.encode(x)
+    }
+    fn decode(&mut self, z: ndarray::ArrayView4<'_, f32>) -> Result<Array4<f32>> {
+        self.inner.decode(z)
+    }
+    fn predict_eps(
+        &mut self,
+        z_t: ndarray::ArrayView4<'_, f32>,
+        t: usize,
+        conds: &[crate::prior::Cond],
+        control: Option<ndarray::ArrayView4<'_, f32>>,
+    ) -> Result<Vec<Array4<f32>>> {
+        self.predictions += 1;
+        self.inner.predict_eps(z_t, t, conds, control)
+    }
+}
+
+/// csd at guidance 0 asks nothing of the prior: `distill` then skips the prior's calls
+/// (no prediction made) and gives the same colours bit for bit, and the same reports
+/// but for the agreement measure, as the whole iteration with its zero gradient, while
+/// the texture term moves the colours (so the comparison is not of two unchanged scenes).
+#[test]
+fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
+    use crate::imageio::Image;
+    use crate::scheduler::SchedulerConfig;
+    use crate::vgg::{Layer, Vgg16};
+    use texture::{Statistic, TextureLoss, TextureTerm};
+
+    let scene = random_scene(300, 0, 21);
+    let cams: Vec<Camera> = [-0.3f32, -0.1, 0.1, 0.3]
+        .iter()
+        .map(|&x| {
+            let mut c = front_camera(32, 32, 40.0, 3.0);
+            c.translation[0] = x;
+            c
+        })
+        .collect();
+    let mut src = SourceViews {
+        width: 32,
+        height: 32,
+        rgb: Vec::new(),
+        alpha: Vec::new(),
+        depth: Vec::new(),
+    };
+    for c in &cams {
+        let r = render(&scene, c, &RenderOptions::default()).unwrap();
+        src.rgb.push(r.rgb);
+        src.alpha.push(r.alpha);
+        src.depth.push(r.depth);
+    }
+    let mut rng = Rng::new(8);
+    let style = Image {
+        width: 24,
+        height: 24,
+        data: (0..24 * 24 * 3).map(|_| rng.uniform() as f32).collect(),
+    };
+    let params = DistillParams {
+        views_per_iter: 2,
+        lr_dc: 0.05,
+        csd: CsdParams {
+            guidance: 0.0,
+            ..CsdParams::default()
+        },
+        ..DistillParams::default()
+    };
+    assert!(params.csd.asks_nothing());
+    let run = |skip: bool| {
+        let inner = crate::prior::gaussian::GaussianPrior::with_default_text(Some(
+            style.to_chw().insert_axis(Axis(0)).view(),
+        ))
+        .unwrap();
+        let mut prior = Counting {
+            inner,
+            predictions: 0,
+        };
+        let set = TimestepSet::new(&SchedulerConfig::stable_diffusion(), 20, 980, 50).unwrap();
+        let gram = Statistic::new(TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2]);
+        let term = TextureTerm::new(Vgg16::random(5, 8), &style, &[gram], 1.0, 1).unwrap();
+        let mut d = Distiller::new(&scene, &cams, &src, &mut prior, set, params.clone(), 0)
+            .unwrap()
+            .with_texture(term);
+        let reports: Vec<IterReport> = (0..4)
+            .map(|_| {
+                if skip {
+                    d.iterate_without_prior()
+                } else {
+                    d.iterate_with_prior()
+                }
+                .unwrap()
+            })
+            .collect();
+        let (scene, last) = (d.scene().clone(), d.last().cloned().unwrap());
+        (scene, reports, last, prior.predictions)
+    };
+    let (full, full_reports, full_last, full_calls) = run(false);
+    let (fast, fast_reports, fast_last, fast_calls) = run(true);
+    assert!(full_calls > 0, "the whole iteration asks the prior");
+    assert_eq!(fast_calls, 0, "guidance 0 must not call the prior");
+    assert!(
+        full.sh_dc != scene.sh_dc,
+        "the texture term must move the colours for this comparison to mean anything"
+    );
+    assert_eq!(fast.sh_dc, full.sh_dc, "the same colours, bit for bit");
+    for (f, mut g) in fast_reports.into_iter().zip(full_reports) {
+        (g.hf_agree_revisit, g.hf_agree_adjacent) = (None, None);
+        assert_eq!(f, g);
+    }
+    assert_eq!(fast_last.targets, full_last.targets);
+    assert!(fast_last.latents.is_none() && full_last.latents.is_some());
+}

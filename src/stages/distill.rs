@@ -19,8 +19,10 @@
 //! high-frequency change across visits and neighbouring views,
 //! [`crate::distill::agreement`]: a measurement only `distill` makes, not the stage
 //! chain), `hf_prev.npy` `[V, 3, H, W]` (each view's last high-pass change, which the
-//! next chunk's revisit agreement compares with) and the last iteration's tensors for `pipeline inspect`: `last_z0.npy`, `last_z_tgt.npy`,
-//! `last_z_src.npy` `[N, C, h, w]` and `last_targets.npy` `[N, H, W, 3]`. Every draw
+//! next chunk's revisit agreement compares with) and the last iteration's tensors for
+//! `pipeline inspect`: `last_targets.npy` `[N, H, W, 3]` and, when the prior was called
+//! (not for csd at `--guidance 0`, which asks nothing of it), `last_z0.npy`,
+//! `last_z_tgt.npy`, `last_z_src.npy` `[N, C, h, w]`. Every draw
 //! depends only on (seed, iteration), so chunks of any size, and a resume after a kill,
 //! give the same bytes as one uninterrupted run.
 
