@@ -285,14 +285,19 @@ pub fn evaluate(
             Ok((vgg, Inception::load(&models, threads)?))
         })
     };
-    let ph = crate::timing::span("lpips content");
     let oi: Vec<&Image> = orig.images.iter().collect();
     let si: Vec<&Image> = styl.images.iter().collect();
-    let lpips_per_view = lpips::pairwise(&mut lp, &oi, &si)?;
-    let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
+    // With the VGG16 LPIPS net, LPIPS_content is computed in the Gram loop below from the
+    // same forward passes (one per image instead of two); with another net, here.
+    let shared_vgg = p.lpips_net == LpipsNet::Vgg16;
+    let mut lpips_per_view = if shared_vgg {
+        Vec::with_capacity(n)
+    } else {
+        let _ph = crate::timing::span("lpips content");
+        lpips::pairwise(&mut lp, &oi, &si)?
+    };
     pb.inc(1);
 
-    drop(ph);
     // Consistency (geometry from the original views; cameras are checked equal).
     let ph = crate::timing::span("consistency");
     let (short, short_warps) =
@@ -315,6 +320,9 @@ pub fn evaluate(
     let mut object_gram = texture::ObjectGram::new(&gs);
     for i in 0..n {
         let f = crate::timing::phase("vgg", || vgg.features(&[&styl.images[i], &orig.images[i]]))?;
+        if shared_vgg {
+            lpips_per_view.push(lpips::distance(&f[1], &f[0], &vgg.lin, None));
+        }
         object_gram.add_view(&f[0], &f[1], orig.geometry(i).1, w, h);
         let (a, b) =
             crate::timing::phase("gram matrices", || (gram::grams(&f[0]), gram::grams(&f[1])));
@@ -322,6 +330,7 @@ pub fn evaluate(
         gram_orig.push(gram::gram_distance(&b, &gs));
     }
     drop(vgg);
+    let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
     let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     pb.inc(1);
 
