@@ -66,7 +66,7 @@ use crate::prior::cost::{CostModel, Plan, about};
 use crate::rng::Rng;
 use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Camera, Error, Result, Scene};
-use ndarray::{Array3, Array4, Axis};
+use ndarray::{Array3, Array4, ArrayView4, Axis};
 use path::{ViewPath, Window};
 pub use step::{ColourStep, Draws, TargetParams};
 
@@ -456,21 +456,9 @@ impl<'a> Distiller<'a> {
         let ph = crate::timing::span("render");
         let renders = step::render_window(&self.fit, &views);
         drop(ph);
-        let ph = crate::timing::span("targets");
-        let alpha: Vec<&[f32]> = views.iter().map(|&v| &self.source.alpha[v][..]).collect();
-        let colour: Vec<&[f32]> = views.iter().map(|&v| &self.source_colour[v][..]).collect();
-        let (targets, stats) = step::targets(
-            &renders.iter().map(|r| r.as_slice()).collect::<Vec<_>>(),
-            &alpha,
-            &colour,
-            Array4::zeros((views.len(), 3, h, w)).view(),
-            TargetParams {
-                background: p.background,
-                preserve_color: p.preserve_color,
-            },
-        )?;
-        drop(ph);
-        let losses = self.colour_step(&views, &targets, &alpha)?;
+        let zero = Array4::zeros((views.len(), 3, h, w));
+        let (targets, stats) = self.window_targets(&views, &renders, zero.view())?;
+        let losses = self.colour_step(&views, &targets)?;
         let report = IterReport::new(draws.window(), t, stats, losses);
         self.last = Some(LastIteration {
             report: report.clone(),
@@ -481,16 +469,36 @@ impl<'a> Distiller<'a> {
         Ok(report)
     }
 
-    /// One colour step on the window's `views` towards `targets` (with the texture term,
-    /// if any): `(loss, texture loss)`.
-    fn colour_step(
-        &mut self,
+    /// The targets of the window's `views` (`renders`: their renders) for the image
+    /// change `delta` `[N, 3, H, W]` ([`step::targets`]), and what they asked for.
+    fn window_targets(
+        &self,
         views: &[usize],
-        targets: &Array4<f32>,
-        alpha: &[&[f32]],
-    ) -> Result<(f64, f64)> {
+        renders: &[Vec<f32>],
+        delta: ArrayView4<'_, f32>,
+    ) -> Result<(Array4<f32>, step::TargetStats)> {
+        let _ph = crate::timing::span("targets");
+        let alpha: Vec<&[f32]> = views.iter().map(|&v| &self.source.alpha[v][..]).collect();
+        let colour: Vec<&[f32]> = views.iter().map(|&v| &self.source_colour[v][..]).collect();
+        step::targets(
+            &renders.iter().map(|r| r.as_slice()).collect::<Vec<_>>(),
+            &alpha,
+            &colour,
+            delta,
+            TargetParams {
+                background: self.params.background,
+                preserve_color: self.params.preserve_color,
+            },
+        )
+    }
+
+    /// One colour step on the window's `views` towards `targets` (with the texture term,
+    /// if any, masked by the source coverage): `(loss, texture loss)`.
+    fn colour_step(&mut self, views: &[usize], targets: &Array4<f32>) -> Result<(f64, f64)> {
         let p = &self.params;
         let _ph = crate::timing::span("colour step");
+        let source = self.source;
+        let alpha: Vec<&[f32]> = views.iter().map(|&v| &source.alpha[v][..]).collect();
         let cs = ColourStep {
             loss: p.colour_loss,
             ssim_weight: p.ssim_weight,
@@ -499,7 +507,7 @@ impl<'a> Distiller<'a> {
             fill: p.fill_background,
             iteration: self.iteration,
         };
-        step::colour_step(&mut self.fit, views, targets.view(), alpha, &cs)
+        step::colour_step(&mut self.fit, views, targets.view(), &alpha, &cs)
     }
 
     /// The whole iteration: render, encode, noise, MVFC, CSD, targets, colour step.
@@ -549,23 +557,10 @@ impl<'a> Distiller<'a> {
             .agreement
             .measure(&views, circular, change.delta.view(), a, s);
         drop(ph);
-        let ph = crate::timing::span("targets");
-        let alpha: Vec<&[f32]> = views.iter().map(|&v| &self.source.alpha[v][..]).collect();
-        let colour: Vec<&[f32]> = views.iter().map(|&v| &self.source_colour[v][..]).collect();
-        let (targets, stats) = step::targets(
-            &renders.iter().map(|r| r.as_slice()).collect::<Vec<_>>(),
-            &alpha,
-            &colour,
-            change.delta.view(),
-            TargetParams {
-                background: p.background,
-                preserve_color: p.preserve_color,
-            },
-        )?;
-        drop(ph);
+        let (targets, stats) = self.window_targets(&views, &renders, change.delta.view())?;
 
         // One colour step on the window (with the texture term, if any).
-        let losses = self.colour_step(&views, &targets, &alpha)?;
+        let losses = self.colour_step(&views, &targets)?;
         let mut report = IterReport::new(draws.window(), t, stats, losses);
         report.hf_agree_revisit = agree.revisit;
         report.hf_agree_adjacent = agree.adjacent;
