@@ -17,7 +17,7 @@ Prints a Markdown report:
   clipped object pixels, silhouette-fringe brightening, wall time (and steps);
 * per method: mean and 95% confidence interval (Student t over cases);
 * per baseline: in how many cases ours (and each ours_* variant) is lower (better) on relu1_2 / relu2_2 / KID;
-* with RUNS_DIR/speed present, the speed-accuracy table (ours and ours_nnfm_gram by
+* with RUNS_DIR/speed present, the speed-accuracy table (ours, ours_nnfm_gram and ng_noprior by
   iterations, the VGG baselines by steps) and, when matplotlib is importable, its plot
   (--plot, default RUNS_DIR/speed/speed_accuracy.png).
 
@@ -271,7 +271,8 @@ def speed(runs, lock, plot):
     pts = []
     # (method, checkpoint prefix under speed/, init stage, chunk stage)
     for me, pre, init, chunk in [("ours", "ours", "speed-init", "speed-ours"),
-                                 ("ours_nnfm_gram", "ng", "speed-init-ng", "speed-ng")]:
+                                 ("ours_nnfm_gram", "ng", "speed-init-ng", "speed-ng"),
+                                 ("ng_noprior", "np", "speed-init-np", "speed-np")]:
         t = stage_seconds(lock, init) or 0.0
         k = 1
         while os.path.isdir(os.path.join(d, f"{pre}-c{k}")):
@@ -318,8 +319,8 @@ def speed(runs, lock, plot):
     for ax, (key, label) in zip(axes, [("g1", "Gram relu1_2, stylized / original"),
                                        ("g2", "Gram relu2_2, stylized / original"),
                                        ("kid", "KID_style"), ("spec", "spectrum distance, stylized / original")]):
-        for me, colour in [("ours", "tab:blue"), ("ours_nnfm_gram", "tab:purple"), ("gram", "tab:red"),
-                           ("nnfm", "tab:green")]:
+        for me, colour in [("ours", "tab:blue"), ("ours_nnfm_gram", "tab:purple"), ("ng_noprior", "tab:orange"),
+                           ("gram", "tab:red"), ("nnfm", "tab:green")]:
             xs = [(r["t"], r[key], r["n"]) for r in rows if r["method"] == me and r["t"] is not None and r[key] is not None]
             if xs:
                 xs.sort()
