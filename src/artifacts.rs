@@ -493,10 +493,11 @@ pub struct CheckpointParts<'a> {
 }
 
 /// Write a checkpoint's optimizer state (`adam_dc.npy`, `adam_rest.npy`, `state.json`),
-/// `history.json`, `hf_prev.npy` (if any), the last iteration's `last_targets.npy`
-/// `[N, H, W, 3]` and, if the prior was called, `last_z0.npy`, `last_z_tgt.npy`,
-/// `last_z_src.npy` `[N, C, h, w]` (if an iteration ran) and the manifest's meta into `out`, a scene artifact whose scene files (`scene.ply`, at
-/// least) the caller writes: what [`read_checkpoint`] reads.
+/// `history.json`, `hf_prev.npy` (if any), the last iteration's tensors if one ran
+/// (`last_targets.npy` `[N, H, W, 3]`; when the prior was called also `last_z0.npy`,
+/// `last_z_tgt.npy`, `last_z_src.npy` `[N, C, h, w]`) and the manifest's meta into `out`,
+/// a scene artifact whose scene files (`scene.ply`, at least) the caller writes: what
+/// [`read_checkpoint`] reads.
 pub fn write_checkpoint(
     out: &mut fantasystyle_schemas::ArtifactWriter,
     c: &CheckpointParts<'_>,
