@@ -199,6 +199,36 @@ impl SourceViews {
         }
     }
 
+    /// The source views of `scene` rendered from `cameras` over `background` (the
+    /// original renders without a `views` artifact); the cameras must share one size.
+    pub fn render(scene: &Scene, cameras: &[Camera], background: [f32; 3]) -> Result<SourceViews> {
+        let Some(first) = cameras.first() else {
+            return Err(Error::param("source views: no camera"));
+        };
+        let (w, h) = (first.width, first.height);
+        let mut src = SourceViews {
+            width: w as usize,
+            height: h as usize,
+            rgb: Vec::with_capacity(cameras.len()),
+            alpha: Vec::with_capacity(cameras.len()),
+            depth: Vec::with_capacity(cameras.len()),
+        };
+        let opts = crate::render::RenderOptions { background };
+        for c in cameras {
+            if (c.width, c.height) != (w, h) {
+                return Err(Error::param(format!(
+                    "source views: camera {:?} is {}x{}, the first is {w}x{h}",
+                    c.name, c.width, c.height
+                )));
+            }
+            let r = crate::render::render(scene, c, &opts)?;
+            src.rgb.push(r.rgb);
+            src.alpha.push(r.alpha);
+            src.depth.push(r.depth);
+        }
+        Ok(src)
+    }
+
     /// Image `rgb` `[H, W, 3]` of view `v` as the prior sees it, `[3, H, W]`
     /// ([`step::prior_view`] with this view's coverage).
     pub fn seen(&self, rgb: &[f32], v: usize, background: [f32; 3], fill: bool) -> Array3<f32> {

@@ -218,19 +218,7 @@ fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
             c
         })
         .collect();
-    let mut src = SourceViews {
-        width: 32,
-        height: 32,
-        rgb: Vec::new(),
-        alpha: Vec::new(),
-        depth: Vec::new(),
-    };
-    for c in &cams {
-        let r = render(&scene, c, &RenderOptions::default()).unwrap();
-        src.rgb.push(r.rgb);
-        src.alpha.push(r.alpha);
-        src.depth.push(r.depth);
-    }
+    let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
     let mut rng = Rng::new(8);
     let style = Image {
         width: 24,
@@ -290,4 +278,28 @@ fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
     }
     assert_eq!(fast_last.targets, full_last.targets);
     assert!(fast_last.latents.is_none() && full_last.latents.is_some());
+}
+
+/// Source views rendered from cameras: one per camera at the cameras' size; no camera,
+/// or cameras of two sizes, are refused with a message naming the problem.
+#[test]
+fn source_views_render_every_camera_and_refuse_mixed_sizes() {
+    let scene = random_scene(50, 0, 4);
+    let cams = [
+        front_camera(16, 12, 20.0, 3.0),
+        front_camera(16, 12, 24.0, 3.0),
+    ];
+    let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
+    assert_eq!((src.width, src.height, src.rgb.len()), (16, 12, 2));
+    assert_eq!(src.rgb[1], render_rgb(&scene, &cams[1]));
+    assert_eq!((src.alpha[0].len(), src.depth[0].len()), (16 * 12, 16 * 12));
+    let e = SourceViews::render(&scene, &[], [0.0; 3])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no camera"), "{e}");
+    let mixed = [cams[0].clone(), front_camera(8, 12, 20.0, 3.0)];
+    let e = SourceViews::render(&scene, &mixed, [0.0; 3])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("8x12") && e.contains("16x12"), "{e}");
 }

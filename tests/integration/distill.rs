@@ -10,7 +10,6 @@ use crate::harness::repo_root;
 use fantasystyle::camera::load_cameras;
 use fantasystyle::distill::{DistillParams, Distiller, SourceViews, fill};
 use fantasystyle::prior::{self, PriorOptions};
-use fantasystyle::render::{RenderOptions, render};
 use fantasystyle::scheduler::TimestepSet;
 use fantasystyle::{Camera, Scene};
 use ndarray::Array4;
@@ -36,19 +35,7 @@ fn source(scene: &Scene, n: usize, size: u32) -> (Vec<Camera>, SourceViews) {
         size,
     )
     .unwrap();
-    let mut src = SourceViews {
-        width: size as usize,
-        height: size as usize,
-        rgb: Vec::new(),
-        alpha: Vec::new(),
-        depth: Vec::new(),
-    };
-    for c in &cams {
-        let r = render(scene, c, &RenderOptions::default()).unwrap();
-        src.rgb.push(r.rgb);
-        src.alpha.push(r.alpha);
-        src.depth.push(r.depth);
-    }
+    let src = SourceViews::render(scene, &cams, [0.0; 3]).unwrap();
     (cams, src)
 }
 

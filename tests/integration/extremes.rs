@@ -12,7 +12,6 @@ use crate::harness::{self, repo_root};
 use fantasystyle::csd::CsdParams;
 use fantasystyle::distill::{DistillParams, Distiller, SourceViews};
 use fantasystyle::prior::{Cond, Prior, PriorInfo};
-use fantasystyle::render::{RenderOptions, render};
 use fantasystyle::scheduler::{Schedule, SchedulerConfig, TimestepSet};
 use fantasystyle::{Camera, Scene};
 use ndarray::{Array4, ArrayView4};
@@ -109,19 +108,7 @@ fn setup_away(scene: &Scene, away: &[usize]) -> (Vec<Camera>, SourceViews) {
             c.translation[k] = -c.translation[k];
         }
     }
-    let mut src = SourceViews {
-        width: 24,
-        height: 24,
-        rgb: Vec::new(),
-        alpha: Vec::new(),
-        depth: Vec::new(),
-    };
-    for c in &cams {
-        let r = render(scene, c, &RenderOptions::default()).unwrap();
-        src.rgb.push(r.rgb);
-        src.alpha.push(r.alpha);
-        src.depth.push(r.depth);
-    }
+    let src = SourceViews::render(scene, &cams, [0.0; 3]).unwrap();
     (cams, src)
 }
 

@@ -12,7 +12,6 @@ use fantasystyle::distill::{ColourLoss, DistillParams, Distiller, SourceViews};
 use fantasystyle::imageio::Image;
 use fantasystyle::metrics::warp::{surface_depth, warp_into};
 use fantasystyle::prior::{self, PriorOptions};
-use fantasystyle::render::{RenderOptions, render};
 use fantasystyle::rng::Rng;
 use fantasystyle::vgg::{Layer, Vgg16};
 
@@ -147,19 +146,7 @@ fn stripes_case(parts: &[Statistic]) {
     };
     let scene = plane();
     let cams = cameras(&scene);
-    let mut src = SourceViews {
-        width: SIZE,
-        height: SIZE,
-        rgb: Vec::new(),
-        alpha: Vec::new(),
-        depth: Vec::new(),
-    };
-    for c in &cams {
-        let r = render(&scene, c, &RenderOptions::default()).unwrap();
-        src.rgb.push(r.rgb);
-        src.alpha.push(r.alpha);
-        src.depth.push(r.depth);
-    }
+    let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
     let expected = 32 / PERIOD;
     for (v, rgb) in src.rgb.iter().enumerate() {
         let (k, ratio) = peak(&row_spectrum(rgb));
