@@ -38,7 +38,7 @@
 //! again on the result (its reference code's pre- and post-colour-transfer steps).
 //! `distill --colour-init` is the first (statistics of the source views),
 //! `--colour-finish` the second (statistics of the result's own renders from the same
-//! cameras, [`render_views`]): a map of colours only, so the texture the loop drew keeps
+//! cameras, [`crate::render::render_all`]): a map of colours only, so the texture the loop drew keeps
 //! its arrangement while its palette drift is taken back to the style's mean and
 //! covariance.
 
@@ -259,20 +259,6 @@ pub fn clamp_to_extent(scene: &Scene, ext: &StyleExtent) -> (Scene, usize) {
         }
     }
     (out, changed)
-}
-
-/// Renders of `scene` from every camera over `background`: the views whose object
-/// statistics [`transfer_scene`] and [`move_palette`] read (as `(rgb, alpha)` slices).
-pub fn render_views(
-    scene: &Scene,
-    cameras: &[crate::Camera],
-    background: [f32; 3],
-) -> Result<Vec<crate::render::RenderOutput>> {
-    let opts = crate::render::RenderOptions { background };
-    cameras
-        .iter()
-        .map(|c| crate::render::render(scene, c, &opts))
-        .collect()
 }
 
 /// The palette move of `distill --colour-init` and `--colour-finish`: [`transfer_scene`]

@@ -206,6 +206,12 @@ impl SourceViews {
             return Err(Error::param("source views: no camera"));
         };
         let (w, h) = (first.width, first.height);
+        if let Some(c) = cameras.iter().find(|c| (c.width, c.height) != (w, h)) {
+            return Err(Error::param(format!(
+                "source views: camera {:?} is {}x{}, the first is {w}x{h}",
+                c.name, c.width, c.height
+            )));
+        }
         let mut src = SourceViews {
             width: w as usize,
             height: h as usize,
@@ -213,15 +219,7 @@ impl SourceViews {
             alpha: Vec::with_capacity(cameras.len()),
             depth: Vec::with_capacity(cameras.len()),
         };
-        let opts = crate::render::RenderOptions { background };
-        for c in cameras {
-            if (c.width, c.height) != (w, h) {
-                return Err(Error::param(format!(
-                    "source views: camera {:?} is {}x{}, the first is {w}x{h}",
-                    c.name, c.width, c.height
-                )));
-            }
-            let r = crate::render::render(scene, c, &opts)?;
+        for r in crate::render::render_all(scene, cameras, background)? {
             src.rgb.push(r.rgb);
             src.alpha.push(r.alpha);
             src.depth.push(r.depth);
@@ -325,8 +323,10 @@ pub struct Distiller<'a> {
     /// The source views as the prior sees them, `[3, H, W]` per view (the encoder's
     /// input for z0_src, and the control image of a `ControlKind::Source` prior).
     source_seen: Vec<Array3<f32>>,
-    /// z0_src of every view, `[V, C, h, w]`.
-    z0_src: Array4<f32>,
+    /// z0_src of every view, `[V, C, h, w]`: encoded once, by the first iteration that
+    /// calls the prior (never when it asks nothing, [`CsdParams::asks_nothing`]: an SD
+    /// VAE would encode every view for nothing).
+    z0_src: Option<Array4<f32>>,
     path: ViewPath,
     iteration: u64,
     last: Option<LastIteration>,
@@ -337,9 +337,10 @@ pub struct Distiller<'a> {
 }
 
 impl<'a> Distiller<'a> {
-    /// Set up: caches of every view, the source latents. `iteration` is the number of
-    /// iterations already done (0 for a fresh start; a checkpoint's count to resume,
-    /// with its optimizer state given to [`Self::set_optimizer_state`]).
+    /// Set up: caches of every view (the source latents follow on the first iteration
+    /// that calls the prior). `iteration` is the number of iterations already done (0 for
+    /// a fresh start; a checkpoint's count to resume, with its optimizer state given to
+    /// [`Self::set_optimizer_state`]).
     pub fn new(
         scene: &Scene,
         cameras: &'a [Camera],
@@ -385,8 +386,6 @@ impl<'a> Distiller<'a> {
         let source_seen: Vec<Array3<f32>> = (0..n)
             .map(|v| source.seen(&source.rgb[v], v, bg, params.fill_background))
             .collect();
-        // The source latents, encoded once, a window's worth of views per call.
-        let z0_src = step::encode_views(prior, &source_seen, params.views_per_iter)?;
         Ok(Distiller {
             fit,
             prior,
@@ -396,7 +395,7 @@ impl<'a> Distiller<'a> {
             source,
             source_colour,
             source_seen,
-            z0_src,
+            z0_src: None,
             path: ViewPath::of(cameras),
             iteration,
             last: None,
@@ -562,7 +561,16 @@ impl<'a> Distiller<'a> {
         drop(ph);
         let ph = crate::timing::span("encode");
         let z0 = step::encode_views(self.prior, &seen, views.len())?;
-        let z0_src = self.z0_src.select(Axis(0), &views);
+        if self.z0_src.is_none() {
+            // The source latents, once, a window's worth of views per call.
+            let per_call = p.views_per_iter;
+            self.z0_src = Some(step::encode_views(self.prior, &self.source_seen, per_call)?);
+        }
+        let z0_src = self
+            .z0_src
+            .as_ref()
+            .expect("encoded above")
+            .select(Axis(0), &views);
         drop(ph);
         let sh = z0.shape();
         let noise = draws.noise([sh[0], sh[1], sh[2], sh[3]]);

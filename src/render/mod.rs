@@ -162,6 +162,17 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Result<Re
     Ok(composite(&frame, &colours, opts.background))
 }
 
+/// Render `scene` from every camera of `cameras` over `background`, in order (one view
+/// after another, each on all cores).
+pub fn render_all(
+    scene: &Scene,
+    cameras: &[Camera],
+    background: [f32; 3],
+) -> Result<Vec<RenderOutput>> {
+    let opts = RenderOptions { background };
+    cameras.iter().map(|c| render(scene, c, &opts)).collect()
+}
+
 struct ForwardSink<'a> {
     /// Colour and depth per splat.
     cz: &'a [[f32; 4]],

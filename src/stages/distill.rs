@@ -290,7 +290,7 @@ fn colour_finish(
     background: [f32; 3],
 ) -> Result<Scene> {
     let _ph = crate::timing::span("colour finish");
-    let renders = crate::baselines::colour::render_views(scene, cameras, background)?;
+    let renders = crate::render::render_all(scene, cameras, background)?;
     let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
     move_palette("colour finish", scene, &views, background, style)
 }

@@ -395,7 +395,7 @@ fn render_originals(
     scene: &crate::Scene,
     cams: &[crate::Camera],
 ) -> Result<Vec<crate::render::RenderOutput>> {
-    colour::render_views(scene, cams, a.background.rgb)
+    crate::render::render_all(scene, cams, a.background.rgb)
 }
 
 /// `colour-transfer`: the statistics of the object in the original renders, the map onto

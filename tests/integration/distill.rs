@@ -546,19 +546,19 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
         .args(["--colour-init", "true", "--out"])
         .arg(d.join("init")));
     let cams = d.join("views");
-    render_source(
-        &d.join("init"),
-        &cams.to_string_lossy(),
-        48,
-        &d.join("after"),
-    );
-    let after = stats_of(&d.join("after"));
-    assert!(
-        gap(after.mean) < 0.03,
-        "object mean {:?} after --colour-init, style mean {:?}",
-        after.mean,
-        style.mean
-    );
+    // The scene in `dir`, rendered from the source cameras into `views`, has the
+    // style's object colour mean (within 0.03) after `flag`.
+    let on_style_mean = |dir: &std::path::Path, views: &std::path::Path, flag: &str| {
+        render_source(dir, &cams.to_string_lossy(), 48, views);
+        let got = stats_of(views);
+        assert!(
+            gap(got.mean) < 0.03,
+            "object mean {:?} after {flag}, style mean {:?}",
+            got.mean,
+            style.mean
+        );
+    };
+    on_style_mean(&d.join("init"), &d.join("after"), "--colour-init");
     let refused: [Vec<std::ffi::OsString>; 2] = [
         vec!["--resume".into(), d.join("init").into()],
         vec![
@@ -569,17 +569,11 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
         ],
     ];
     for extra in refused {
-        let out = bin("distill")
-            .args(&base)
+        let mut cmd = bin("distill");
+        cmd.args(&base)
             .args(&extra)
-            .args(["--iters", "1", "--colour-init", "true", "--out"])
-            .arg(d.join("x"))
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{extra:?}: {err}");
-        assert!(err.contains("--colour-init"), "{err}");
-        assert!(!d.join("x").exists());
+            .args(["--iters", "1", "--colour-init", "true"]);
+        refused_with(cmd, "--colour-init", &d.join("x"));
     }
 
     // --colour-finish: two iterations from the scene's own colours, then the move.
@@ -589,29 +583,20 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
         .args(&scene_arg)
         .args(["--iters", "2", "--colour-finish", "true", "--out"])
         .arg(d.join("fin")));
-    render_source(
-        &d.join("fin"),
-        &cams.to_string_lossy(),
-        48,
-        &d.join("fin-views"),
-    );
-    let fin = stats_of(&d.join("fin-views"));
-    assert!(
-        gap(fin.mean) < 0.03,
-        "object mean {:?} after --colour-finish, style mean {:?}",
-        fin.mean,
-        style.mean
-    );
-    let out = bin("distill")
-        .args(&base)
+    on_style_mean(&d.join("fin"), &d.join("fin-views"), "--colour-finish");
+    let mut cmd = bin("distill");
+    cmd.args(&base)
         .args(&scene_arg)
         .args(["--iters", "1", "--colour-finish", "true"])
-        .args(["--preserve-color", "true", "--out"])
-        .arg(d.join("y"))
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("--colour-finish"), "{err}");
-    assert!(!d.join("y").exists());
+        .args(["--preserve-color", "true"]);
+    refused_with(cmd, "--colour-finish", &d.join("y"));
+}
+
+/// `cmd` with `--out out` exits 2 naming `flag` in its message and writes nothing.
+fn refused_with(mut cmd: std::process::Command, flag: &str, out: &std::path::Path) {
+    let run = cmd.arg("--out").arg(out).output().unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{cmd:?}: {err}");
+    assert!(err.contains(flag), "{err}");
+    assert!(!out.exists());
 }
