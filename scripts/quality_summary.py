@@ -11,7 +11,8 @@ Prints a Markdown report:
 
 * per case and method: Gram distance over the object per VGG layer (relu1_2, relu2_2,
   relu3_3, relu4_3) as stylized / original (below 1 = closer to the style than the
-  original), KID_style (± 1.96 jackknife se), the luminance-spectrum distance to the style
+  original), KID_style (± 1.96 jackknife se), the KID of squares of the object's surface
+  against squares of the style (and the original's, in brackets), the luminance-spectrum distance to the style
   (stylized / original) and the spectrum's peak period, LPIPS to the original, short- and
   long-range consistency (LPIPS after warping; the original's own value is the floor),
   clipped object pixels, silhouette-fringe brightening, wall time (and steps);
@@ -38,7 +39,9 @@ import numpy as np
 
 from make_styles import write_png
 
-METHODS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "ng_nomvfc", "ng_sds", "ng_noprior", "nomvfc", "sds",
+# "original": the untouched original renders evaluated as if stylized (runs/<scene>/<style>/original-eval,
+# the DAG's eval_original stages), the reference row.
+METHODS = ["original", "ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "ng_nomvfc", "ng_sds", "ng_noprior", "nomvfc", "sds",
            "colour", "gram", "nnfm", "refit", "gram_fast", "nnfm_fast"]
 SHEET_ROWS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "gram", "nnfm", "ng_nomvfc", "ng_sds", "ng_noprior",
               "gram_fast", "nnfm_fast", "nomvfc", "sds", "colour", "refit"]
@@ -117,6 +120,9 @@ def case(runs, scene, style, method, lock):
     sp, ob = t["spectrum"], t["object"]
     r.update({
         "kid": kid["value"], "kid_se": kid["se"],
+        # KID over squares of the object's surface (absent from older metrics.json).
+        "kid_obj": t.get("kid_object", {}).get("value"),
+        "kid_obj_orig": t.get("kid_object_original", {}).get("value"),
         "spec": sp["distance_stylized"], "spec_ratio": sp["distance_ratio"],
         "peak": sp["peak_stylized"], "peak_style": sp["peak_style"],
         "lpips_content": m["lpips_content"],
@@ -149,7 +155,7 @@ def ci(xs, d=3):
 
 COLUMNS = [("gram_relu1_2", "Gram relu1_2 (s/o)", 3), ("gram_relu2_2", "Gram relu2_2 (s/o)", 3),
            ("gram_relu3_3", "Gram relu3_3 (s/o)", 3), ("gram_relu4_3", "Gram relu4_3 (s/o)", 3),
-           ("kid", "KID_style", 4), ("spec_ratio", "spectrum dist. (s/o)", 3),
+           ("kid", "KID_style", 4), ("kid_obj", "KID object squares", 4), ("spec_ratio", "spectrum dist. (s/o)", 3),
            ("lpips_content", "LPIPS content", 3), ("short", "short-range LPIPS", 4),
            ("long", "long-range LPIPS", 4), ("clip", "clipped obj. px", 3),
            ("fringe", "fringe brightening", 4), ("wall", "wall s", 1)]
@@ -163,6 +169,8 @@ def case_table(res):
         for k, _, d in COLUMNS:
             if k == "kid" and r["kid"] is not None and r["kid_se"] is not None:
                 vals.append(f"{r['kid']:.4f} ± {1.96 * r['kid_se']:.4f}")
+            elif k == "kid_obj":
+                vals.append(f"{fmt(r['kid_obj'], 4)} (orig {fmt(r['kid_obj_orig'], 4)})")
             elif k == "short":
                 vals.append(f"{fmt(r['short'], 4)} (orig {fmt(r['short_orig'], 4)})")
             elif k == "clip":
@@ -186,11 +194,17 @@ def method_table(res):
         rs = [r for (_, _, m), r in res.items() if m == me]
         if rs:
             print(f"| {me} | {len(rs)} | " + " | ".join(ci([r[k] for r in rs], d) for k, _, d in COLUMNS) + " |")
+    # The reference: the original renders' squares (the same in every method's metrics.json).
+    orig = {(sc, sty): r["kid_obj_orig"] for (sc, sty, _), r in res.items() if r["kid_obj_orig"] is not None}
+    if orig:
+        print()
+        print(f"KID object squares of the original renders (the value of a method that changes nothing): "
+              f"{ci(list(orig.values()), 4)} over {len(orig)} cases")
 
 
 def wins(res, cases):
     keys = [("gram_relu1_2", "Gram relu1_2"), ("gram_relu2_2", "Gram relu2_2"), ("kid", "KID_style"),
-            ("spec", "spectrum distance"), ("short", "short-range LPIPS")]
+            ("kid_obj", "KID object squares"), ("spec", "spectrum distance"), ("short", "short-range LPIPS")]
     for mine in ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_nnfm_d2", "ng_noprior"]:
         others = ["colour", "gram", "nnfm", "refit", "nomvfc", "sds", "ng_nomvfc", "ng_sds", "ng_noprior", "ours",
                   "ours_nnfm"]

@@ -196,6 +196,16 @@ impl Image {
         self.resized(w, h, Filter::Bilinear)
     }
 
+    /// Resized so the shorter side is `side` pixels (aspect kept, [`Filter::Bilinear`]):
+    /// the scale at which the style is drawn (the texture term, the VGG baselines, the
+    /// object KID).
+    pub fn with_shorter_side(&self, side: usize) -> Image {
+        let s = side as f64 / self.width.min(self.height).max(1) as f64;
+        let w = ((self.width as f64 * s).round() as usize).max(1);
+        let h = ((self.height as f64 * s).round() as usize).max(1);
+        self.resized(w, h, Filter::Bilinear)
+    }
+
     /// The sub-image `[x0, x0 + w) x [y0, y0 + h)` (must lie inside).
     pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Image {
         assert!(

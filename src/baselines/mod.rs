@@ -28,7 +28,7 @@ pub mod fit;
 pub mod gram;
 pub mod nnfm;
 
-use crate::imageio::{Filter, Image};
+use crate::imageio::Image;
 use crate::metrics::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16, receptive_field};
 use crate::{Error, Result};
@@ -59,7 +59,7 @@ pub trait Objective: Sync {
 }
 
 /// Check that a style image is large enough (see module docs) and resize it so its
-/// shorter side is `style_size` ([`Filter::Bilinear`]; aspect kept). `path` names it in
+/// shorter side is `style_size` ([`Image::with_shorter_side`]; aspect kept). `path` names it in
 /// errors.
 pub fn prepare_style(img: &Image, style_size: usize, path: &std::path::Path) -> Result<Image> {
     debug_assert_eq!(receptive_field(Layer::Relu4_3), MIN_STYLE_SIDE);
@@ -78,10 +78,7 @@ pub fn prepare_style(img: &Image, style_size: usize, path: &std::path::Path) -> 
             "--style-size {style_size} is below the VGG receptive field ({MIN_STYLE_SIDE} px)"
         )));
     }
-    let s = style_size as f64 / short as f64;
-    let nw = ((img.width as f64 * s).round() as usize).max(1);
-    let nh = ((img.height as f64 * s).round() as usize).max(1);
-    Ok(img.resized(nw, nh, Filter::Bilinear))
+    Ok(img.with_shorter_side(style_size))
 }
 
 /// Box-downsample by an integer `factor` (floor: trailing rows/columns dropped).

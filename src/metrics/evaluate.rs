@@ -6,7 +6,9 @@
 //! of the style image) and FID_content (stylized vs original renders), each with KID;
 //! ArtFID = (1 + LPIPS_content)(1 + FID_style) with the standard FID Inception;
 //! short/long-range consistency (LPIPS and RMSE after depth warping), also on the
-//! original renders as a floor; a VGG16 Gram-matrix distance to the style image.
+//! original renders as a floor; a VGG16 Gram-matrix distance to the style image; and the
+//! texture measures of [`super::texture`] (among them KID over squares of the object's
+//! surface against squares of the style, which the whole-view KID cannot see).
 //!
 //! Style crops for FID_style: `K = max(N, 2)` crops at the views' aspect ratio, each
 //! spanning half the style image's height (or its full width if that is smaller), at
@@ -39,8 +41,10 @@ pub struct EvalParams {
     /// Short- and long-range pair offsets (>= 1).
     pub short_range: usize,
     pub long_range: usize,
-    /// Seed of the style crops.
+    /// Seed of the style crops and of the object KID's squares.
     pub seed: u64,
+    /// Object squares per view for the object KID (0: not computed).
+    pub object_squares: usize,
     /// onnxruntime intra-op threads (0 = all cores).
     pub threads: usize,
 }
@@ -342,6 +346,18 @@ pub fn evaluate(
     let fs = inc.pool3(&si)?;
     let fo = inc.pool3(&oi)?;
     let fc = inc.pool3(&crops.iter().collect::<Vec<_>>())?;
+    // The object's surface against the style's (texture::kid_object docs).
+    let squares = crate::timing::span("object squares");
+    let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
+    let mut pool3 = |v: Vec<Image>| inc.pool3(&v.iter().collect::<Vec<_>>());
+    let fps = pool3(texture::object_patches(styl, &at))?;
+    let fpo = pool3(texture::object_patches(orig, &at))?;
+    let fpc = if at.is_empty() {
+        Vec::new()
+    } else {
+        pool3(texture::style_patches(style, p.seed))?
+    };
+    drop(squares);
     pb.inc(1);
     drop(ph);
     let ph = crate::timing::span("fid kid");
@@ -349,7 +365,13 @@ pub fn evaluate(
     let (fid_content, kid_content) = set_distances(&fs, &fo, "FID_content", &mut warnings);
     let texture = TextureMetrics {
         gram_object: object_gram.finish(),
-        kid_style: texture::kid_interval(&fs, &fc),
+        kid_style: texture::kid_interval(&fs, &fc, ["stylized views", "style crops"]),
+        kid_object: texture::kid_interval(&fps, &fpc, ["object squares", "style squares"]),
+        kid_object_original: texture::kid_interval(
+            &fpo,
+            &fpc,
+            ["original object squares", "style squares"],
+        ),
         spectrum: texture::spectrum_metrics(orig, styl, &style_small),
         object: texture::object_colour(orig, styl, style),
         notes: texture::NOTES.to_vec(),

@@ -44,9 +44,14 @@ pub struct Args {
     /// View offset of the long-range consistency pairs (i, i+k).
     #[arg(long, default_value_t = 5)]
     pub long_range: usize,
-    /// Seed of the style-image crops used by FID_style.
+    /// Seed of the style-image crops used by FID_style and of the object KID's squares.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Squares (32 px, inside the object) per view for the KID of the object's surface
+    /// against the style's; 0 skips that measure (its Inception passes, about 80 ms each,
+    /// are most of its cost).
+    #[arg(long, default_value_t = crate::metrics::texture::PATCHES_PER_VIEW)]
+    pub object_squares: usize,
     #[command(flatten)]
     pub threads: Threads,
     /// A sweep.json (from the `sweep` stage) to include as the speed-accuracy section.
@@ -76,6 +81,7 @@ pub fn run(a: Args) -> Result<Metrics> {
         short_range: a.short_range,
         long_range: a.long_range,
         seed: a.seed,
+        object_squares: a.object_squares,
         threads: a.threads.n,
     };
     p.validate()?;
@@ -121,6 +127,7 @@ pub fn run(a: Args) -> Result<Metrics> {
     // Start the artifact now so an unusable --out fails before the slow part.
     let params = serde_json::json!({
         "lpips_net": p.lpips_net.name(), "short_range": p.short_range, "long_range": p.long_range, "seed": p.seed,
+        "object_squares": p.object_squares,
     });
     let mut wr = super::create_artifact(
         &a.out,

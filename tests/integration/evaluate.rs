@@ -92,6 +92,7 @@ fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         short_range: 1,
         long_range: 5,
         seed: 0,
+        object_squares: fantasystyle::metrics::texture::PATCHES_PER_VIEW,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
         original_scene: None,
@@ -175,6 +176,22 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
     let [lo, hi] = t.kid_style.ci95.unwrap();
     assert!(lo < kid && kid < hi && !t.kid_style.reliable);
     assert!(t.spectrum.distance_original.is_some() && t.spectrum.peak_style.is_some());
+    // The object KID: squares inside the rendered plane, the same ones in the originals,
+    // the style's 64 squares; the restyle changes the value.
+    let (ko, kor) = (&t.kid_object, &t.kid_object_original);
+    eprintln!(
+        "object squares: {} per set, KID {:?} (original {:?})",
+        ko.n_a, ko.value, kor.value
+    );
+    assert!(
+        ko.n_a >= 7 && ko.n_a == kor.n_a,
+        "{} vs {}",
+        ko.n_a,
+        kor.n_a
+    );
+    assert_eq!((ko.n_b, kor.n_b), (64, 64));
+    let (v, vo) = (ko.value.unwrap(), kor.value.unwrap());
+    assert!(v.is_finite() && vo.is_finite() && v != vo, "{v} {vo}");
     assert!(t.object.clipped_stylized.is_some() && t.object.stats_distance_stylized.is_some());
     assert_eq!(
         json["texture"]["spectrum"]["style"]
@@ -186,6 +203,7 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
 
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(html.contains("<h2>Texture</h2>") && html.contains("Radially averaged luminance"));
+    assert!(html.contains("KID of object squares vs style squares"));
     assert!(html.contains("ArtFID") && html.contains("standard FID Inception"));
     assert!(html.contains("<svg") && html.contains("short range: LPIPS per view pair"));
     // style + 7 originals + 7 stylized + 2 x 4 consistency examples + 7 crops

@@ -297,6 +297,7 @@ fn report_viewer_shows_both_splats_in_chromium() {
         short_range: 1,
         long_range: 2,
         seed: 0,
+        object_squares: 0,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
         original_scene: Some(orig_scene.clone()),
