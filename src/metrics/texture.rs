@@ -783,6 +783,21 @@ mod tests {
         );
     }
 
+    /// The note written beside kid_object states the constants the code uses.
+    #[test]
+    fn object_kid_note_states_the_constants() {
+        let note = NOTES.iter().find(|n| n.starts_with("kid_object")).unwrap();
+        for want in [
+            format!("{PATCH_SIDE} px squares"),
+            format!("mean alpha >= {PATCH_COVERAGE}"),
+            format!("up to {PATCHES_PER_VIEW} per view"),
+            format!("vs {STYLE_PATCHES} squares"),
+            format!("shorter side {PATCH_STYLE_SIDE}"),
+        ] {
+            assert!(note.contains(&want), "the note lacks `{want}`: {note}");
+        }
+    }
+
     /// The style squares: the right count and side, crops of the style at shorter side
     /// 256 (a style already that size is cropped as it is; a twice larger one is halved
     /// first, which a square's span of a linear ramp shows).
