@@ -407,6 +407,10 @@ pub const STYLE_PATCHES: usize = 64;
 /// The style's shorter side for its squares (the texture term's and the VGG baselines'
 /// default `--style-size`).
 pub const PATCH_STYLE_SIDE: usize = 256;
+const _: () = assert!(
+    PATCH_STYLE_SIDE >= PATCH_SIDE,
+    "a style square must fit the style"
+);
 
 /// Where the object squares lie: `(view, x0, y0)` of [`PATCH_SIDE`]-pixel squares whose
 /// mean alpha is at least [`PATCH_COVERAGE`], on a grid of stride `PATCH_SIDE / 4`, drawn
@@ -426,7 +430,7 @@ pub fn object_patch_positions(
     if w < p || h < p {
         return out;
     }
-    let stride = (p / 4).max(1);
+    let stride = p / 4;
     for (i, alpha) in alpha.chunks_exact(w * h).enumerate() {
         // Summed-area table, (h + 1) x (w + 1).
         let mut sat = vec![0.0f64; (h + 1) * (w + 1)];
@@ -471,8 +475,8 @@ pub fn object_patches(views: &ViewSet, positions: &[(usize, usize, usize)]) -> V
 
 /// [`STYLE_PATCHES`] seeded squares of the style at shorter side [`PATCH_STYLE_SIDE`].
 pub fn style_patches(style: &Image, seed: u64) -> Vec<Image> {
-    let s = style.with_shorter_side(PATCH_STYLE_SIDE);
-    let p = PATCH_SIDE.min(s.width).min(s.height);
+    // Shorter side PATCH_STYLE_SIDE >= PATCH_SIDE: every square fits.
+    let (s, p) = (style.with_shorter_side(PATCH_STYLE_SIDE), PATCH_SIDE);
     let mut rng = crate::rng::Rng::derive(seed, "evaluate-style-patches");
     (0..STYLE_PATCHES)
         .map(|_| {
