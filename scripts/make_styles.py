@@ -8,10 +8,12 @@ Writes three procedural styles far from the sample's style and from each other:
   painting.png  swirling brush strokes along a curl flow field, night-sky palette
   opart.png     concentric zig-zag rings, black / white / red, hard edges
   mosaic.png    stained glass: Voronoi cells in a warm palette with dark leading
-and with --dev, instead, two development styles (for choosing settings outside the
+and with --dev, instead, three development styles (for choosing settings outside the
 benchmark; BENCHMARKS.md "A texture term that carries arrangement"):
   tiles.png     coloured bricks in running bond with dark mortar (a regular arrangement)
   dots.png      yellow, red and green discs on a navy ground (small isolated motifs)
+  waves.png     wavy parallel bands, navy / yellow / white, hard edges (a banded motif
+                like opart's rings, without their centre)
 and one photographic texture:
   brick.png     scikit-image's `brick` (a brick-wall photo, CC0, see
                 benches/quality/styles/CREDITS.md), 512x512 grayscale box-averaged to SIZE
@@ -132,6 +134,13 @@ def dots(size, seed=3):
     return img
 
 
+def waves(size):
+    y, x = (np.mgrid[0:size, 0:size]) / size
+    band = (x + y) * 11 + 0.6 * np.sin((x - y) * 2 * np.pi * 3)
+    k = np.floor(band).astype(int) % 3
+    return np.array([[20, 30, 90], [250, 205, 40], [245, 245, 235]], float)[k]
+
+
 def read_png_gray8(data):
     """An 8-bit grayscale, non-interlaced PNG (scikit-image's textures) as uint8 [H, W]."""
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
@@ -216,7 +225,7 @@ def main():
     os.makedirs(out, exist_ok=True)
     styles = [("painting", painting), ("opart", opart), ("mosaic", mosaic)]
     if dev:
-        styles = [("tiles", tiles), ("dots", dots)]
+        styles = [("tiles", tiles), ("dots", dots), ("waves", waves)]
     for name, f in styles:
         path = os.path.join(out, name + ".png")
         write_png(path, f(size))

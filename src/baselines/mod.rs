@@ -12,6 +12,9 @@
 //!   distillation.
 //! * [`colour`]: the object's colour mean and covariance moved onto the style image's
 //!   (linear Monge-Kantorovich map on the SH colours), no texture, no optimisation.
+//! * [`projection`]: the style image texture-mapped onto the object (triplanar projection
+//!   along each Gaussian's normal, at the texture term's motif scale), no optimisation;
+//!   also `distill --project-style`'s start.
 //!
 //! The VGG losses are image-space objectives ([`Objective`]): per view they return the
 //! loss and dL/d(rgb) as an `[H, W, 3]` image, which the colour fit chains through the
@@ -27,6 +30,7 @@ pub mod colour;
 pub mod fit;
 pub mod gram;
 pub mod nnfm;
+pub mod projection;
 
 use crate::imageio::Image;
 use crate::metrics::gram::gram;

@@ -106,6 +106,14 @@ pub struct Args {
     /// branch still sees the original renders.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub colour_init: bool,
+    /// Before the first iteration, texture-map the style image onto the object instead:
+    /// triplanar projection along each Gaussian's normal at the texture term's motif
+    /// scale (--texture-style-size pixels of style per render pixel's width at the
+    /// object), shaded by each Gaussian's relative brightness (`src/baselines/projection.rs`;
+    /// not part of FantasyStyle). The loop then starts from the style's motifs, the same
+    /// from every view. Only with `--scene`; not with --colour-init or --preserve-color.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
+    pub project_style: bool,
     /// After the iterations, move the result's colour mean and covariance (over its
     /// renders from the source views' cameras) onto the style image's, clamped like
     /// --colour-init (ARF's colour transfer after the optimisation): the palette drift of
@@ -190,8 +198,17 @@ pub fn run(a: Args) -> Result<()> {
              --preserve-color keeps the scene's: choose one",
         ));
     }
+    if a.project_style && (a.colour_init || a.preserve_color) {
+        return Err(Error::param(
+            "--project-style paints the style onto the object, --colour-init moves the \
+             object's colours and --preserve-color keeps them: choose one",
+        ));
+    }
     if a.colour_init && a.prior.strength > 0.0 {
         start.scene = colour_init(&a, &start, &source, &style, p.background)?;
+    }
+    if a.project_style && a.prior.strength > 0.0 {
+        start.scene = project_style(&a, &start, &cameras, &style)?;
     }
     let (_, model_set) = model_timesteps(&a.prior.model)?;
     let mut outcome = if a.prior.strength == 0.0 || a.iters == 0 {
@@ -281,6 +298,34 @@ fn colour_init(
     move_palette("colour init", &start.scene, &views, background, style)
 }
 
+/// `--project-style`: the start scene with the style image (at the texture term's size)
+/// texture-mapped onto it.
+fn project_style(
+    a: &Args,
+    start: &crate::artifacts::Start,
+    cameras: &[crate::Camera],
+    style: &crate::imageio::Image,
+) -> Result<crate::Scene> {
+    use crate::baselines::projection::{Placement, project_style};
+    if a.resume.is_some() {
+        return Err(Error::param(
+            "--project-style applies to a fresh start (--scene); a resumed checkpoint has \
+             its colours already",
+        ));
+    }
+    let _ph = crate::timing::span("style projection");
+    let at = Placement::of(&start.scene, cameras)?;
+    let img = crate::baselines::prepare_style(style, a.texture.texture_style_size, &a.prior.style)?;
+    tracing::info!(
+        "style projection: {}x{} style px, {:.3e} world units per px, centre {:.3?}",
+        img.width,
+        img.height,
+        at.world_per_pixel,
+        at.centre
+    );
+    Ok(project_style(&start.scene, &img, &at))
+}
+
 /// `--colour-finish`: `scene` with the colour statistics of its own renders from
 /// `cameras` moved onto those of the style image.
 fn colour_finish(
@@ -322,6 +367,7 @@ fn producer(a: &Args, start: u64) -> Producer {
         "preserve_color": a.preserve_color, "fit_rest": a.fit_rest, "csd": a.csd,
         "lr_dc": a.lr_dc, "fill": !a.no_fill, "seed": a.seed, "format": a.format,
         "colour_init": a.colour_init, "colour_finish": a.colour_finish,
+        "project_style": a.project_style,
     });
     let params = super::merge_params(&[
         own,

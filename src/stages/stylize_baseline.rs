@@ -8,7 +8,10 @@
 //!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation;
 //! * `colour-transfer`: the object's colour mean and covariance moved onto the style
 //!   image's by the linear Monge-Kantorovich map, written into the SH colours
-//!   ([`crate::baselines::colour`]); no steps.
+//!   ([`crate::baselines::colour`]); no steps;
+//! * `project`: the style image (at `--style-size`) texture-mapped onto the object by
+//!   triplanar projection along each Gaussian's normal, one style pixel per render pixel
+//!   at the object ([`crate::baselines::projection`]); no steps.
 //!
 //! Output (schema `scene` v1): `scene.ply` (geometry bit-identical to the input, colours
 //! changed), `loss.json` (`method`, and per step the objective, its style and content
@@ -59,6 +62,9 @@ pub enum Method {
     /// The object's colour mean and covariance moved onto the style image's (linear
     /// Monge-Kantorovich map on the SH colours; no steps).
     ColourTransfer,
+    /// The style image texture-mapped onto the object (triplanar projection along each
+    /// Gaussian's normal, shaded by its relative brightness; no steps).
+    Project,
 }
 
 /// Restyle a scene's colours with a baseline (VGG Gram, VGG NNFM, per-view 2D stylize +
@@ -278,12 +284,13 @@ pub fn run(a: Args) -> Result<()> {
     }
     let raw_style = crate::imageio::read_rgb(&a.style)?;
     let transfer = a.method == Method::ColourTransfer;
+    let no_steps = transfer || a.method == Method::Project;
     let style = if transfer {
         raw_style
     } else {
         prepare_style(&raw_style, a.style_size, &a.style)?
     };
-    let vgg = if transfer {
+    let vgg = if no_steps {
         None
     } else {
         let vgg_dir = match &a.vgg {
@@ -334,7 +341,8 @@ pub fn run(a: Args) -> Result<()> {
     );
     let out = a.threads.install(|| match &vgg {
         Some(vgg) => optimise(&a, scene, &cams, vgg, &style, t0, budget_s),
-        None => transfer_colours(&a, scene, &cams, &style, t0),
+        None if transfer => transfer_colours(&a, scene, &cams, &style, t0),
+        None => project(&a, scene, &cams, &style, t0),
     })??;
     let Outcome {
         scene,
@@ -446,6 +454,45 @@ fn transfer_colours(
     })
 }
 
+/// `project`: the style texture-mapped onto the object ([`crate::baselines::projection`]).
+fn project(
+    a: &Args,
+    scene: crate::Scene,
+    cams: &[crate::Camera],
+    style: &Image,
+    t0: Instant,
+) -> Result<Outcome> {
+    use crate::baselines::projection::{Placement, project_style};
+    let at = Placement::of(&scene, cams)?;
+    tracing::info!(
+        "style projection: {:.3e} world units per style px, centre {:.3?}",
+        at.world_per_pixel,
+        at.centre
+    );
+    let out = project_style(&scene, style, &at);
+    let wall = t0.elapsed().as_secs_f64();
+    Ok(Outcome {
+        scene: out,
+        log: LossLog {
+            method: a.method,
+            targets_gram_distance: None,
+            hf_agree_adjacent: None,
+            hf_agree_adjacent_original: None,
+            steps: Vec::new(),
+            colour_map: None,
+        },
+        targets: Vec::new(),
+        checkpoints: Vec::new(),
+        timing: TimingLog {
+            budget_s: None,
+            wall_s: wall,
+            steps_done: 0,
+            setup_s: wall,
+            checkpoints: Vec::new(),
+        },
+    })
+}
+
 /// Render the originals, build the objective and the monitor, and run the fit.
 fn optimise(
     a: &Args,
@@ -479,10 +526,11 @@ fn optimise(
     let mut targets_gram = None;
     let (mut hf_agree, mut hf_agree_orig) = (None, None);
     let obj: Option<Box<dyn Objective + '_>> = match a.method {
-        Method::ColourTransfer => {
-            return Err(Error::Other(
-                "colour-transfer has no objective to optimise".into(),
-            ));
+        Method::ColourTransfer | Method::Project => {
+            return Err(Error::Other(format!(
+                "{:?} has no objective to optimise",
+                a.method
+            )));
         }
         Method::Gram => Some(Box::new(GramObjective::new(
             vgg,
