@@ -397,6 +397,39 @@ struct Outcome {
     timing: TimingLog,
 }
 
+impl Outcome {
+    /// The outcome of a method without steps (colour transfer, projection): its scene and
+    /// log, no targets or checkpoints, the wall time since `t0` all set-up.
+    fn without_steps(
+        a: &Args,
+        scene: crate::Scene,
+        colour_map: Option<ColourMapLog>,
+        t0: Instant,
+    ) -> Outcome {
+        let wall = t0.elapsed().as_secs_f64();
+        Outcome {
+            scene,
+            log: LossLog {
+                method: a.method,
+                targets_gram_distance: None,
+                hf_agree_adjacent: None,
+                hf_agree_adjacent_original: None,
+                steps: Vec::new(),
+                colour_map,
+            },
+            targets: Vec::new(),
+            checkpoints: Vec::new(),
+            timing: TimingLog {
+                budget_s: None,
+                wall_s: wall,
+                steps_done: 0,
+                setup_s: wall,
+                checkpoints: Vec::new(),
+            },
+        }
+    }
+}
+
 /// The original renders (rgb, alpha) of every camera.
 fn render_originals(
     a: &Args,
@@ -424,34 +457,15 @@ fn transfer_colours(
         src.mean,
         dst.mean
     );
-    let wall = t0.elapsed().as_secs_f64();
-    Ok(Outcome {
-        scene: out,
-        log: LossLog {
-            method: a.method,
-            targets_gram_distance: None,
-            hf_agree_adjacent: None,
-            hf_agree_adjacent_original: None,
-            steps: Vec::new(),
-            colour_map: Some(ColourMapLog {
-                t: tr.t,
-                b: tr.b,
-                source_mean: src.mean,
-                source_cov: src.cov,
-                style_mean: dst.mean,
-                style_cov: dst.cov,
-            }),
-        },
-        targets: Vec::new(),
-        checkpoints: Vec::new(),
-        timing: TimingLog {
-            budget_s: None,
-            wall_s: wall,
-            steps_done: 0,
-            setup_s: wall,
-            checkpoints: Vec::new(),
-        },
-    })
+    let map = ColourMapLog {
+        t: tr.t,
+        b: tr.b,
+        source_mean: src.mean,
+        source_cov: src.cov,
+        style_mean: dst.mean,
+        style_cov: dst.cov,
+    };
+    Ok(Outcome::without_steps(a, out, Some(map), t0))
 }
 
 /// `project`: the style texture-mapped onto the object ([`crate::baselines::projection`]).
@@ -470,27 +484,7 @@ fn project(
         at.centre
     );
     let out = project_style(&scene, style, &at);
-    let wall = t0.elapsed().as_secs_f64();
-    Ok(Outcome {
-        scene: out,
-        log: LossLog {
-            method: a.method,
-            targets_gram_distance: None,
-            hf_agree_adjacent: None,
-            hf_agree_adjacent_original: None,
-            steps: Vec::new(),
-            colour_map: None,
-        },
-        targets: Vec::new(),
-        checkpoints: Vec::new(),
-        timing: TimingLog {
-            budget_s: None,
-            wall_s: wall,
-            steps_done: 0,
-            setup_s: wall,
-            checkpoints: Vec::new(),
-        },
-    })
+    Ok(Outcome::without_steps(a, out, None, t0))
 }
 
 /// Render the originals, build the objective and the monitor, and run the fit.

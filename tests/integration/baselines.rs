@@ -623,6 +623,52 @@ mod stage {
         assert_eq!(log["method"], "colour-transfer");
         assert_eq!(log["colour_map"]["t"].as_array().unwrap().len(), 9);
     }
+
+    /// project: no network, geometry untouched, and the colours written are the style at
+    /// `--style-size` projected from the cameras' placement (the library's map; its own
+    /// tests check the map), so the stage passes the resized style and the cameras on;
+    /// a different `--style-size` gives different colours.
+    #[test]
+    fn project_writes_the_projected_style() {
+        use fantasystyle::baselines::projection::{Placement, project_style};
+        let d = tempfile::tempdir().unwrap();
+        let before =
+            fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
+                .unwrap();
+        let cams =
+            fantasystyle::artifacts::load_cameras("orbit:2", &before.bounds(), 48, 48).unwrap();
+        let raw = fantasystyle::imageio::read_rgb(&sample_style()).unwrap();
+        let mut written = Vec::new();
+        for size in [128, 256] {
+            let out = d.path().join(format!("p{size}"));
+            let mut a = args(Method::Project, &out, &sample_style(), 0);
+            a.style_size = size;
+            a.vgg = Some(d.path().join("no-vgg-needed"));
+            run(a).unwrap();
+            let after = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
+            assert_eq!(before.positions, after.positions);
+            assert_eq!(before.log_scales, after.log_scales);
+            assert_eq!(before.opacity_logits, after.opacity_logits);
+            let want = project_style(
+                &before,
+                &raw.with_shorter_side(size),
+                &Placement::of(&before, &cams).unwrap(),
+            );
+            let err = want
+                .sh_dc
+                .iter()
+                .zip(&after.sh_dc)
+                .flat_map(|(a, b)| (0..3).map(move |k| (a[k] - b[k]).abs()))
+                .fold(0.0f32, f32::max);
+            // The PLY stores f32: the same values.
+            assert!(err < 1e-6, "style size {size}: max |dc - want| {err}");
+            let log: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(out.join("loss.json")).unwrap()).unwrap();
+            assert_eq!(log["method"], "project");
+            written.push(after.sh_dc);
+        }
+        assert_ne!(written[0], written[1]);
+    }
 }
 
 /// The NNFM search on onnxruntime (MatMul + ArgMax) against the Rust search: the same
