@@ -207,7 +207,7 @@ def wins(res, cases):
             ("kid_obj", "KID object squares"), ("spec", "spectrum distance"), ("short", "short-range LPIPS")]
     for mine in ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_nnfm_d2", "ng_noprior"]:
         others = ["colour", "project", "gram", "nnfm", "refit", "nomvfc", "sds", "ng_nomvfc", "ng_sds", "ng_noprior", "ours",
-                  "ours_nnfm", "ours_nnfm_gram"]
+                  "ours_nnfm", "ours_nnfm_gram", "ours_proj"]
         if mine == "ng_noprior":
             # The default without the prior's calls, against the baselines at its own time.
             others = ["colour", "gram_fast", "nnfm_fast", "ours_nnfm_gram"]

@@ -314,7 +314,9 @@ fn project_style(
         ));
     }
     let _ph = crate::timing::span("style projection");
-    let at = Placement::of(&start.scene, cameras)?;
+    // The cameras are the source views': a placement error is about them.
+    let at = Placement::of(&start.scene, cameras)
+        .map_err(|e| Error::input(&a.source_views, e.to_string()))?;
     let img = crate::baselines::prepare_style(style, a.texture.texture_style_size, &a.prior.style)?;
     tracing::info!(
         "style projection: {}x{} style px, {:.3e} world units per px, centre {:.3?}",

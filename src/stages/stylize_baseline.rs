@@ -477,7 +477,8 @@ fn project(
     t0: Instant,
 ) -> Result<Outcome> {
     use crate::baselines::projection::{Placement, project_style};
-    let at = Placement::of(&scene, cams)?;
+    let at =
+        Placement::of(&scene, cams).map_err(|e| Error::input(&a.input.cameras, e.to_string()))?;
     tracing::info!(
         "style projection: {:.3e} world units per style px, centre {:.3?}",
         at.world_per_pixel,
