@@ -11,7 +11,10 @@
 //!
 //! **Normals.** A trained splat's Gaussians are flat (the plant's median ratio of largest
 //! to smallest scale is 11): the axis of the smallest scale is the surface normal, as 2DGS
-//! and GaussianShader take it. It is the rotation matrix's column of that axis.
+//! and GaussianShader take it. It is the rotation matrix's column of that axis. Where the
+//! two smallest scales are close (a needle, or a round blob: 19% of the plant's Gaussians
+//! have them within 1.5x) the normal is ill-defined and the plane it picks is arbitrary;
+//! no neighbourhood estimate is made.
 //!
 //! **Triplanar mapping** (the terrain-texturing technique of GPU Gems 3, ch. 1): the
 //! Gaussian's mean is projected on the three axis planes; each projection samples the
@@ -19,8 +22,8 @@
 //! and the three colours are blended with weights `|n_k|^SHARPNESS / sum`, so a surface
 //! facing an axis takes that plane's texture undistorted and the seams between planes are
 //! narrow. Plane coordinates: `(z, y)` for the x axis, `(x, z)` for y, `(x, y)` for z,
-//! image rows along +y (the INRIA/COLMAP convention: +y points down in the world, so
-//! motifs stand upright on the side planes).
+//! image rows along +y (the captures here have -y up, as COLMAP's cameras do, so motifs
+//! stand upright on the side planes; a z-up scene gets them turned, nothing worse).
 //!
 //! **Scale and origin.** One style pixel spans the world length of one render pixel at the
 //! object: `d / f`, with `d` the depth of the object's centre in a camera and `f` its focal

@@ -107,11 +107,12 @@ pub struct Args {
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub colour_init: bool,
     /// Before the first iteration, texture-map the style image onto the object instead:
-    /// triplanar projection along each Gaussian's normal at the texture term's motif
-    /// scale (--texture-style-size pixels of style per render pixel's width at the
-    /// object), shaded by each Gaussian's relative brightness (`src/baselines/projection.rs`;
-    /// not part of FantasyStyle). The loop then starts from the style's motifs, the same
-    /// from every view. Only with `--scene`; not with --colour-init or --preserve-color.
+    /// triplanar projection along each Gaussian's normal, the style resized to
+    /// --texture-style-size and one style pixel per render pixel at the object (the
+    /// texture term's motif scale), shaded by each Gaussian's relative brightness
+    /// (`src/baselines/projection.rs`; not part of FantasyStyle). The loop then starts
+    /// from the style's motifs, the same from every view. Only with `--scene`; not with
+    /// --colour-init or --preserve-color.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub project_style: bool,
     /// After the iterations, move the result's colour mean and covariance (over its
