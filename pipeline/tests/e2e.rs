@@ -444,21 +444,31 @@ fn sample_dag_is_valid() {
     let o = pipeline(&ds, &["dag", "--dag", "stylize.toml"], &[]);
     let txt = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The chunk stages run c1..c{distill.chunks} of params.toml.
+    let params = std::fs::read_to_string(ds.join("params.toml")).unwrap();
+    let chunks: usize = params
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("chunks = "))
+        .and_then(|v| v.trim().parse().ok())
+        .expect("params.toml sets distill.chunks");
+    let has = |s: &str| {
+        txt.lines()
+            .any(|l| l == s || l.starts_with(&format!("{s}  --")))
+    };
+    let last = format!("distill@c{chunks}");
     for s in [
         "source-views",
         "init",
         "distill@c1",
-        "distill@c4",
+        &last,
         "final-scene",
         "final-views",
         "evaluate",
     ] {
-        assert!(
-            txt.lines()
-                .any(|l| l == s || l.starts_with(&format!("{s}  --"))),
-            "{s} missing:\n{txt}"
-        );
+        assert!(has(s), "{s} missing:\n{txt}");
     }
+    let past = format!("distill@c{}", chunks + 1);
+    assert!(!has(&past), "{past} present:\n{txt}");
 }
 
 #[test]
