@@ -559,22 +559,14 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
         );
     };
     on_style_mean(&d.join("init"), &d.join("after"), "--colour-init");
-    let refused: [Vec<std::ffi::OsString>; 2] = [
-        vec!["--resume".into(), d.join("init").into()],
-        vec![
-            "--scene".into(),
-            scene.clone().into(),
-            "--preserve-color".into(),
-            "true".into(),
-        ],
-    ];
-    for extra in refused {
-        let mut cmd = bin("distill");
-        cmd.args(&base)
-            .args(&extra)
-            .args(["--iters", "1", "--colour-init", "true"]);
-        refused_with(cmd, "--colour-init", &d.join("x"));
-    }
+    start_flag_refused(
+        &base,
+        "--colour-init",
+        &d.join("init"),
+        &scene,
+        "--preserve-color",
+        &d.join("x"),
+    );
 
     // --colour-finish: two iterations from the scene's own colours, then the move.
     let scene_arg = ["--scene".to_string(), scene.to_string_lossy().into_owned()];
@@ -692,21 +684,42 @@ fn project_style_paints_the_stripes_in_every_view() {
     }
     let projected = fantasystyle::scene::read_scene_file(&d.join("proj/scene.ply")).unwrap();
     assert!(projected.sh_rest.iter().all(|&v| v == 0.0));
+    start_flag_refused(
+        &base,
+        "--project-style",
+        &d.join("init"),
+        &scene,
+        "--colour-init",
+        &d.join("x"),
+    );
+}
+
+/// A start flag (`flag true`, which sets the colours of a fresh start) is refused with
+/// `--resume resumed` and, on `--scene scene`, beside `conflicting true`
+/// ([`refused_with`]: exit 2 naming `flag`, nothing written at `out`).
+fn start_flag_refused(
+    base: &[String],
+    flag: &str,
+    resumed: &Path,
+    scene: &Path,
+    conflicting: &str,
+    out: &Path,
+) {
     let refused: [Vec<std::ffi::OsString>; 2] = [
-        vec!["--resume".into(), d.join("init").into()],
+        vec!["--resume".into(), resumed.into()],
         vec![
             "--scene".into(),
-            scene.clone().into(),
-            "--colour-init".into(),
+            scene.into(),
+            conflicting.into(),
             "true".into(),
         ],
     ];
     for extra in refused {
         let mut cmd = bin("distill");
-        cmd.args(&base)
+        cmd.args(base)
             .args(&extra)
-            .args(["--iters", "1", "--project-style", "true"]);
-        refused_with(cmd, "--project-style", &d.join("x"));
+            .args(["--iters", "1", flag, "true"]);
+        refused_with(cmd, flag, out);
     }
 }
 
