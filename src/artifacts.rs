@@ -12,6 +12,7 @@
 //! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
 //! | `scene` | update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] |
 //! | `scene` with optimizer state (a checkpoint) | distill, update-gaussians (one iteration) | [`read_checkpoint`], [`Start::load`]; written by [`write_checkpoint`] |
+//! | `eval-reference` | evaluate --reference-only | [`read_eval_reference`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`write_eval_reference`] |
 //!
 //! Artifacts of one iteration of the stage chain (`render-views --window` ->
 //! `encode-latents` -> `mvfc-filter` -> `csd-step`) record the iteration and its window
@@ -413,6 +414,108 @@ pub fn read_baseline_log(dir: &Path) -> Result<serde_json::Value> {
         ));
     }
     Ok(art.read_json("loss.json")?)
+}
+
+/// The Inception pool3 feature files of an `eval-reference` artifact, in the order of
+/// [`crate::metrics::reference::Reference`]'s fields.
+const REFERENCE_POOL3: [&str; 4] = [
+    "views_pool3.npy",
+    "crops_pool3.npy",
+    "object_squares_pool3.npy",
+    "style_squares_pool3.npy",
+];
+/// Its scores.
+const REFERENCE_SCORES: &str = "reference.json";
+
+fn style_gram_file(tap: usize) -> String {
+    format!("style_gram_{tap}.npy")
+}
+
+/// Write an evaluation reference into `out` (an `eval-reference` artifact): what
+/// [`read_eval_reference`] reads.
+pub fn write_eval_reference(
+    out: &mut fantasystyle_schemas::ArtifactWriter,
+    r: &crate::metrics::reference::Reference,
+) -> Result<()> {
+    let sets = [
+        &r.views_pool3,
+        &r.crops_pool3,
+        &r.object_squares_pool3,
+        &r.style_squares_pool3,
+    ];
+    for (name, rows) in REFERENCE_POOL3.iter().zip(sets) {
+        out.write_tensor(
+            name,
+            &[rows.len(), crate::metrics::nets::POOL3],
+            &rows.concat(),
+        )?;
+    }
+    for (tap, g) in r.style_grams.iter().enumerate() {
+        let c = g.len().isqrt();
+        out.write_tensor(&style_gram_file(tap), &[c, c], g)?;
+    }
+    out.write_json(REFERENCE_SCORES, &r.scores)?;
+    out.set_meta(serde_json::json!({"style_gram_taps": r.style_grams.len()}));
+    Ok(())
+}
+
+/// Read an `eval-reference` artifact (see [`crate::metrics::reference`]).
+pub fn read_eval_reference(dir: &Path) -> Result<(Artifact, crate::metrics::reference::Reference)> {
+    let art = Artifact::open(dir, ArtifactKind::EvalReference)?;
+    let mut sets = Vec::new();
+    for name in REFERENCE_POOL3 {
+        let a = art.read_tensor::<f32>(name)?;
+        if a.shape.len() != 2 || a.shape[1] != crate::metrics::nets::POOL3 {
+            return Err(Error::input(
+                art.path(name),
+                format!(
+                    "shape {:?}, expected [M, {}]",
+                    a.shape,
+                    crate::metrics::nets::POOL3
+                ),
+            ));
+        }
+        sets.push(
+            a.data
+                .chunks(crate::metrics::nets::POOL3)
+                .map(<[f32]>::to_vec)
+                .collect(),
+        );
+    }
+    let taps = art.manifest.meta["style_gram_taps"]
+        .as_u64()
+        .ok_or_else(|| Error::input(dir.join("manifest.json"), "meta.style_gram_taps missing"))?
+        as usize;
+    let mut style_grams = Vec::with_capacity(taps);
+    for tap in 0..taps {
+        let name = style_gram_file(tap);
+        let a = art.read_tensor::<f64>(&name)?;
+        if a.shape.len() != 2 || a.shape[0] != a.shape[1] {
+            return Err(Error::input(
+                art.path(&name),
+                format!("shape {:?}, expected [C, C]", a.shape),
+            ));
+        }
+        style_grams.push(a.data);
+    }
+    let scores = art.read_json(REFERENCE_SCORES)?;
+    let [
+        views_pool3,
+        crops_pool3,
+        object_squares_pool3,
+        style_squares_pool3,
+    ]: [Vec<Vec<f32>>; 4] = sets.try_into().expect("four sets");
+    Ok((
+        art,
+        crate::metrics::reference::Reference {
+            scores,
+            views_pool3,
+            crops_pool3,
+            object_squares_pool3,
+            style_squares_pool3,
+            style_grams,
+        },
+    ))
 }
 
 /// Where a run of the loop starts: a scene and the iterations done on it, with the

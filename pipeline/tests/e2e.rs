@@ -463,6 +463,7 @@ fn sample_dag_is_valid() {
         &last,
         "final-scene",
         "final-views",
+        "eval-reference",
         "evaluate",
     ] {
         assert!(has(s), "{s} missing:\n{txt}");

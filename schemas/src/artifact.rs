@@ -905,6 +905,13 @@ mod fixtures {
             ArtifactKind::Evaluation => {
                 w.write_json("metrics.json", &serde_json::json!({"lpips": 0.25}))?
             }
+            ArtifactKind::EvalReference => {
+                w.write_json(
+                    "reference.json",
+                    &serde_json::json!({"gram_original": [0.5]}),
+                )?;
+                w.write_tensor("views_pool3.npy", &[1, 2], &ramp(2))?;
+            }
         }
         w.commit()
     }

@@ -36,16 +36,21 @@ pub enum ArtifactKind {
     Scene,
     /// Evaluation results: `metrics.json`, `report.html`.
     Evaluation,
+    /// What an evaluation computes from the original views and the style image alone
+    /// (Inception features, the style's Gram matrices, the original's scores):
+    /// `reference.json` and `.npy` features; `meta` holds the settings it was made with.
+    EvalReference,
 }
 
 impl ArtifactKind {
-    pub const ALL: [ArtifactKind; 6] = [
+    pub const ALL: [ArtifactKind; 7] = [
         ArtifactKind::Views,
         ArtifactKind::Latents,
         ArtifactKind::NoisedLatents,
         ArtifactKind::Targets,
         ArtifactKind::Scene,
         ArtifactKind::Evaluation,
+        ArtifactKind::EvalReference,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -56,6 +61,7 @@ impl ArtifactKind {
             ArtifactKind::Targets => "targets",
             ArtifactKind::Scene => "scene",
             ArtifactKind::Evaluation => "evaluation",
+            ArtifactKind::EvalReference => "eval-reference",
         }
     }
 
@@ -78,6 +84,7 @@ impl ArtifactKind {
             ArtifactKind::Targets => &["rgb.npy", "cameras.json"],
             ArtifactKind::Scene => &["scene.ply"],
             ArtifactKind::Evaluation => &["metrics.json"],
+            ArtifactKind::EvalReference => &["reference.json"],
         }
     }
 }

@@ -34,7 +34,8 @@ pub fn pairs(n: usize, offset: usize) -> Vec<(usize, usize)> {
 }
 
 /// One measured pair.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PairScore {
     pub i: usize,
     pub j: usize,

@@ -19,7 +19,8 @@ use super::consistency::{self, PairScore};
 use super::fid::{self, FeatureSet};
 use super::gram;
 use super::lpips;
-use super::nets::{Inception, LpipsModel, LpipsNet};
+use super::nets::{LpipsModel, LpipsNet};
+use super::reference::{Nets, Reference};
 use super::texture::{self, TextureMetrics};
 use super::views::ViewSet;
 use super::warp::Warped;
@@ -209,13 +210,14 @@ fn set_distances(
     )
 }
 
-fn range_consistency(
+/// The stylized views' pairs at one offset, scored against the original's geometry.
+fn score_range(
     model: &mut LpipsModel,
     orig: &ViewSet,
     styl: &ViewSet,
     offset: usize,
     warnings: &mut Vec<String>,
-) -> Result<(RangeConsistency, Vec<Warped>)> {
+) -> Result<(Vec<PairScore>, Vec<Warped>)> {
     let pairs = consistency::pairs(orig.n, offset);
     if pairs.is_empty() {
         warnings.push(format!(
@@ -224,7 +226,6 @@ fn range_consistency(
         ));
     }
     let (s, warps) = consistency::score_pairs(model, orig, &styl.images, &pairs)?;
-    let (o, _) = consistency::score_pairs(model, orig, &orig.images, &pairs)?;
     let skipped = s.iter().filter(|p| p.lpips.is_none()).count();
     if skipped > 0 {
         warnings.push(format!(
@@ -233,7 +234,13 @@ fn range_consistency(
             consistency::MIN_OVERLAP * 100.0
         ));
     }
-    Ok((
+    Ok((s, warps))
+}
+
+impl RangeConsistency {
+    /// The stylized pairs' scores `s` beside the original views' own `original`.
+    fn new(offset: usize, s: Vec<PairScore>, original: &[PairScore]) -> RangeConsistency {
+        let o = original;
         RangeConsistency {
             offset,
             lpips_mean: consistency::mean_of(s.iter().map(|p| p.lpips)),
@@ -241,10 +248,9 @@ fn range_consistency(
             original_lpips_mean: consistency::mean_of(o.iter().map(|p| p.lpips)),
             original_rmse_mean: consistency::mean_of(o.iter().map(|p| p.rmse)),
             stylized: s,
-            original: o,
-        },
-        warps,
-    ))
+            original: o.to_vec(),
+        }
+    }
 }
 
 fn progress(len: u64, msg: &'static str) -> indicatif::ProgressBar {
@@ -258,13 +264,16 @@ fn progress(len: u64, msg: &'static str) -> indicatif::ProgressBar {
 
 /// Evaluate `styl` against `orig` (the same views, checked by
 /// [`ViewSet::check_same_views`]) and the style image, with the metric networks of the
-/// models directory `models` (see [`crate::models`]).
+/// models directory `models` (see [`crate::models`]). `reference`: the half that depends
+/// only on `orig` and `style` ([`Reference`]; the caller checks it was made from them,
+/// with [`Reference::check`]); `None` computes it here, through the same function.
 pub fn evaluate(
     models: &Path,
     orig: &ViewSet,
     styl: &ViewSet,
     style: &Image,
     p: &EvalParams,
+    reference: Option<&Reference>,
 ) -> Result<Evaluation> {
     p.validate()?;
     orig.check_same_views(styl)?;
@@ -275,108 +284,111 @@ pub fn evaluate(
         p.lpips_net.name()
     );
     let pb = progress(5, "evaluate");
-
-    // LPIPS content.
+    // LPIPS first; the other networks load on a second thread while LPIPS content and
+    // consistency run (creating a session is mostly one thread's work; the wait for them
+    // counts as load).
     let mut lp = crate::timing::load(|| LpipsModel::load(models, p.lpips_net, p.threads))?;
-    // The other networks load on a second thread while LPIPS and consistency run
-    // (creating a session is mostly one thread's work; the wait for it counts as load).
     let loading = {
         let (models, net, threads) = (models.to_path_buf(), p.lpips_net, p.threads);
-        std::thread::spawn(move || -> Result<(Option<LpipsModel>, Inception)> {
-            let vgg = (net != LpipsNet::Vgg16)
-                .then(|| LpipsModel::load(&models, LpipsNet::Vgg16, threads))
-                .transpose()?;
-            Ok((vgg, Inception::load(&models, threads)?))
-        })
+        std::thread::spawn(move || Nets::load_rest(&models, net, threads))
     };
+
+    // LPIPS content.
     let oi: Vec<&Image> = orig.images.iter().collect();
     let si: Vec<&Image> = styl.images.iter().collect();
-    // With the VGG16 LPIPS net, LPIPS_content is computed in the Gram loop below from the
-    // same forward passes (one per image instead of two); with another net, here.
-    let shared_vgg = p.lpips_net == LpipsNet::Vgg16;
-    let mut lpips_per_view = if shared_vgg {
-        Vec::with_capacity(n)
-    } else {
-        let _ph = crate::timing::span("lpips content");
-        lpips::pairwise(&mut lp, &oi, &si)?
-    };
+    let ph = crate::timing::span("lpips content");
+    let lpips_per_view = lpips::pairwise(&mut lp, &oi, &si)?;
+    let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
+    drop(ph);
     pb.inc(1);
 
     // Consistency (geometry from the original views; cameras are checked equal).
     let ph = crate::timing::span("consistency");
-    let (short, short_warps) =
-        range_consistency(&mut lp, orig, styl, p.short_range, &mut warnings)?;
-    pb.inc(1);
-    let (long, long_warps) = range_consistency(&mut lp, orig, styl, p.long_range, &mut warnings)?;
+    let (short, short_warps) = score_range(&mut lp, orig, styl, p.short_range, &mut warnings)?;
+    let (long, long_warps) = score_range(&mut lp, orig, styl, p.long_range, &mut warnings)?;
+    drop(ph);
     pb.inc(1);
 
-    drop(ph);
-    // Gram distance to the style image (VGG16).
-    let (vgg_own, mut inc) = crate::timing::load(|| loading.join())
+    let (vgg, inception) = crate::timing::load(|| loading.join())
         .map_err(|_| Error::Other("loading the metric networks panicked".into()))??;
-    let ph = crate::timing::span("gram");
-    let mut vgg = vgg_own.unwrap_or(lp);
-    let style_small = style.fit_within(GRAM_MAX_SIDE);
-    let f = crate::timing::phase("vgg", || vgg.features(&[&style_small]))?;
-    let gs = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
-    let mut gram_per_view = Vec::with_capacity(n);
-    let mut gram_orig = Vec::with_capacity(n);
-    let mut object_gram = texture::ObjectGram::new(&gs);
-    for i in 0..n {
-        let f = crate::timing::phase("vgg", || vgg.features(&[&styl.images[i], &orig.images[i]]))?;
-        if shared_vgg {
-            lpips_per_view.push(lpips::distance(&f[1], &f[0], &vgg.lin, None));
+    let mut nets = Nets {
+        lpips: lp,
+        vgg,
+        inception,
+    };
+    let owned;
+    let r = match reference {
+        Some(r) => r,
+        None => {
+            owned = Reference::compute(&mut nets, orig, style, p)?;
+            &owned
         }
-        object_gram.add_view(&f[0], &f[1], orig.geometry(i).1, w, h);
-        let (a, b) =
-            crate::timing::phase("gram matrices", || (gram::grams(&f[0]), gram::grams(&f[1])));
-        gram_per_view.push(gram::gram_distance(&a, &gs));
-        gram_orig.push(gram::gram_distance(&b, &gs));
+    };
+    let rs = &r.scores;
+    let short = RangeConsistency::new(p.short_range, short, &rs.short_original);
+    let long = RangeConsistency::new(p.long_range, long, &rs.long_original);
+
+    // Gram distance to the style image (VGG16).
+    let ph = crate::timing::span("gram");
+    let vgg = nets.vgg();
+    let mut gram_per_view = Vec::with_capacity(n);
+    let mut object_gram = texture::ObjectGram::new(&r.style_grams);
+    for i in 0..n {
+        let f = crate::timing::phase("vgg", || vgg.features(&[&styl.images[i]]))?;
+        let d = object_gram.view_distances(&f[0], orig.geometry(i).1, w, h);
+        object_gram.push(&d, &rs.object_gram_original[i]);
+        let g = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
+        gram_per_view.push(gram::gram_distance(&g, &r.style_grams));
     }
-    drop(vgg);
-    let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
     let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+    drop(ph);
     pb.inc(1);
 
-    drop(ph);
     // FID / KID.
     let ph = crate::timing::span("inception");
     let k = n.max(fid::MIN_IMAGES);
     let crops = style_crops(style, k, w, h, p.seed);
-    let fs = inc.pool3(&si)?;
-    let fo = inc.pool3(&oi)?;
-    let fc = inc.pool3(&crops.iter().collect::<Vec<_>>())?;
+    let fs = nets.inception.pool3(&si)?;
     // The object's surface against the style's (texture::kid_object docs).
     let squares = crate::timing::span("object squares");
     let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
-    let mut pool3 = |v: Vec<Image>| inc.pool3(&v.iter().collect::<Vec<_>>());
-    let fps = pool3(texture::object_patches(styl, &at))?;
-    let fpo = pool3(texture::object_patches(orig, &at))?;
-    let fpc = if at.is_empty() {
-        Vec::new()
-    } else {
-        pool3(texture::style_patches(style, p.seed))?
-    };
+    if at.len() != r.object_squares_pool3.len() {
+        return Err(Error::param(
+            "the reference's object squares differ from this evaluation's: it was made from another original views set",
+        ));
+    }
+    let fps = nets.inception.pool3(
+        &texture::object_patches(styl, &at)
+            .iter()
+            .collect::<Vec<_>>(),
+    )?;
     drop(squares);
-    pb.inc(1);
     drop(ph);
+    pb.inc(1);
     let ph = crate::timing::span("fid kid");
-    let (fid_style, kid_style) = set_distances(&fs, &fc, "FID_style", &mut warnings);
-    let (fid_content, kid_content) = set_distances(&fs, &fo, "FID_content", &mut warnings);
+    let (fc, fo, fpo, fpc) = (
+        &r.crops_pool3,
+        &r.views_pool3,
+        &r.object_squares_pool3,
+        &r.style_squares_pool3,
+    );
+    let (fid_style, kid_style) = set_distances(&fs, fc, "FID_style", &mut warnings);
+    let (fid_content, kid_content) = set_distances(&fs, fo, "FID_content", &mut warnings);
     let texture = TextureMetrics {
         gram_object: object_gram.finish(),
-        kid_style: texture::kid_interval(&fs, &fc, ["stylized views", "style crops"]),
-        kid_object: texture::kid_interval(&fps, &fpc, ["object squares", "style squares"]),
+        kid_style: texture::kid_interval(&fs, fc, ["stylized views", "style crops"]),
+        kid_object: texture::kid_interval(&fps, fpc, ["object squares", "style squares"]),
         kid_object_original: texture::kid_interval(
-            &fpo,
-            &fpc,
+            fpo,
+            fpc,
             ["original object squares", "style squares"],
         ),
-        spectrum: texture::spectrum_metrics(orig, styl, &style_small),
+        spectrum: texture::spectrum_metrics(orig, styl, &style.fit_within(GRAM_MAX_SIDE)),
         object: texture::object_colour(orig, styl, style),
         notes: texture::NOTES.to_vec(),
     };
     drop(ph);
+    pb.inc(1);
     let artfid = match (lpips_content, fid_style.value) {
         (Some(l), Some(f)) => Some(fid::artfid(l, f)),
         _ => None,
@@ -405,7 +417,7 @@ pub fn evaluate(
         short_range: short,
         long_range: long,
         gram_style: mean(&gram_per_view),
-        gram_style_original: mean(&gram_orig),
+        gram_style_original: mean(&rs.gram_original_per_view),
         gram_style_per_view: gram_per_view,
         style_crops: format!(
             "{k} crops of the style image at the views' aspect ratio spanning half its height, seeded positions (seed {}), resized to {w}x{h}",

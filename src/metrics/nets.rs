@@ -19,6 +19,8 @@ use std::path::{Path, PathBuf};
 
 /// Images per onnxruntime call (bounds memory: VGG tap 0 is 64 x H x W floats per image).
 const BATCH: usize = 4;
+/// Length of an Inception pool3 feature vector.
+pub const POOL3: usize = 2048;
 
 /// Which LPIPS backbone.
 #[derive(
@@ -188,7 +190,7 @@ impl Inception {
         out.into_iter()
             .map(|mut t| {
                 let (s, d) = t.remove(0);
-                if s != [2048] {
+                if s != [POOL3] {
                     return Err(Error::input(&self.path, format!("pool3 has shape {s:?}")));
                 }
                 Ok(d)

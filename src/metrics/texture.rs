@@ -242,27 +242,33 @@ impl ObjectGram {
         }
     }
 
-    /// One view: its stylized and original features and its alpha (`h x w`, the image's).
-    pub fn add_view(
-        &mut self,
-        styl: &Features,
-        orig: &Features,
+    /// One view's distance to the style per layer of [`GRAM_LAYERS`] (`None` where the
+    /// view covers less than [`MIN_COVERAGE`]), from its features and its alpha (`h x w`,
+    /// the image's).
+    pub fn view_distances(
+        &self,
+        f: &Features,
         alpha: &[f32],
         w: usize,
         h: usize,
-    ) {
+    ) -> Vec<Option<f64>> {
         let covered = alpha.iter().map(|&a| a as f64).sum::<f64>() >= MIN_COVERAGE;
+        (0..GRAM_LAYERS.len())
+            .map(|k| {
+                let f = &f[k];
+                covered
+                    .then(|| weighted_gram(f, &pool_alpha(alpha, w, h, f.w, f.h)))
+                    .flatten()
+                    .map(|g| mean_sq_diff(&g, &self.style[k]))
+            })
+            .collect()
+    }
+
+    /// One view: the [`Self::view_distances`] of its stylized and of its original render.
+    pub fn push(&mut self, stylized: &[Option<f64>], original: &[Option<f64>]) {
         for k in 0..GRAM_LAYERS.len() {
-            let d = |f: &Tensor3| {
-                if !covered {
-                    return None;
-                }
-                let wts = pool_alpha(alpha, w, h, f.w, f.h);
-                weighted_gram(f, &wts).map(|g| mean_sq_diff(&g, &self.style[k]))
-            };
-            let (s, o) = (d(&styl[k]), d(&orig[k]));
-            self.stylized[k].push(s);
-            self.original[k].push(o);
+            self.stylized[k].push(stylized[k]);
+            self.original[k].push(original[k]);
         }
     }
 

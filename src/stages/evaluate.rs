@@ -1,5 +1,7 @@
 //! `evaluate`: compare a stylized views artifact with the original one and the style image,
-//! and write an `evaluation` artifact (`metrics.json`, `report.html`).
+//! and write an `evaluation` artifact (`metrics.json`, `report.html`). With
+//! `--reference-only` it writes instead the `eval-reference` artifact of the original
+//! views and the style ([`crate::metrics::reference`]), which `--reference` then reuses.
 //!
 //! The metrics are [`crate::metrics::evaluate`] (FantasyStyle's experiments: LPIPS_content,
 //! FID/KID, ArtFID, short/long-range consistency, Gram distance), the page
@@ -10,6 +12,7 @@ use super::Threads;
 use crate::imageio::Image;
 use crate::metrics::evaluate::{EvalParams, Metrics, evaluate};
 use crate::metrics::nets::LpipsNet;
+use crate::metrics::reference::{Nets, Reference};
 use crate::metrics::report::{ReportPaths, evaluation_report, fmt_opt};
 use crate::metrics::views::ViewSet;
 use crate::sweep::Sweep;
@@ -27,14 +30,24 @@ pub struct Args {
     #[arg(long)]
     pub original: PathBuf,
     /// Views artifact of the stylized scene, rendered from the same cameras.
-    #[arg(long)]
-    pub stylized: PathBuf,
+    #[arg(long, required_unless_present = "reference_only")]
+    pub stylized: Option<PathBuf>,
     /// The style image (PNG or JPEG).
     #[arg(long)]
     pub style: PathBuf,
     /// Output evaluation artifact directory (written atomically).
     #[arg(long)]
     pub out: PathBuf,
+    /// Write only the part of the evaluation that depends on --original and --style (an
+    /// `eval-reference` artifact: their Inception features, the style's Gram matrices,
+    /// the original's own scores) to --out, for --reference to reuse.
+    #[arg(long, conflicts_with_all = ["stylized", "reference", "sweep", "original_scene", "history"])]
+    pub reference_only: bool,
+    /// An `eval-reference` artifact (`--reference-only`) made from the same --original,
+    /// --style and options: its part is read instead of computed (about 120 of the 152
+    /// Inception passes of an 8-view evaluation). The metrics are the same bit for bit.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
     /// LPIPS backbone for LPIPS_content and the consistency metrics.
     #[arg(long, value_enum, default_value = "alex")]
     pub lpips_net: LpipsNet,
@@ -74,8 +87,9 @@ pub struct Args {
     pub refit_baseline: Option<PathBuf>,
 }
 
-/// The stage: read the views and the style, evaluate, write the artifact.
-pub fn run(a: Args) -> Result<Metrics> {
+/// The stage: read the views and the style, evaluate (or compute the reference only,
+/// then `None`), write the artifact.
+pub fn run(a: Args) -> Result<Option<Metrics>> {
     let p = EvalParams {
         lpips_net: a.lpips_net,
         short_range: a.short_range,
@@ -86,9 +100,16 @@ pub fn run(a: Args) -> Result<Metrics> {
     };
     p.validate()?;
     let orig = crate::timing::load(|| ViewSet::load(&a.original))?;
-    let styl = crate::timing::load(|| ViewSet::load(&a.stylized))?;
+    let Some(stylized) = &a.stylized else {
+        return run_reference(&a, &orig, &p).map(|()| None);
+    };
+    let styl = crate::timing::load(|| ViewSet::load(stylized))?;
     orig.check_same_views(&styl)?;
     let style = Image::load(&a.style)?;
+    let reference = match &a.reference {
+        Some(dir) => Some(crate::timing::load(|| reference_for(dir, &a, &orig, &p))?),
+        None => None,
+    };
     let sweep = a.sweep.as_deref().map(Sweep::load).transpose()?;
     let viewer = match (&a.original_scene, &a.stylized_scene) {
         (Some(o), Some(s)) => Some(crate::timing::load(|| viewer_inputs(o, s, &orig))?),
@@ -115,29 +136,24 @@ pub fn run(a: Args) -> Result<Metrics> {
         }
         None => None,
     };
-    let models = crate::models::models_dir()?;
-    if !models.join("metrics").is_dir() {
-        return Err(Error::Missing(format!(
-            "the metric networks are not installed in {} (run scripts/setup.sh, or set {} \
-             to a models directory that has metrics/)",
-            models.display(),
-            crate::models::MODELS_ENV
-        )));
-    }
+    let models = metric_models()?;
     // Start the artifact now so an unusable --out fails before the slow part.
-    let params = serde_json::json!({
-        "lpips_net": p.lpips_net.name(), "short_range": p.short_range, "long_range": p.long_range, "seed": p.seed,
-        "object_squares": p.object_squares,
-    });
     let mut wr = super::create_artifact(
         &a.out,
         ArtifactKind::Evaluation,
-        Producer::new("evaluate", crate::VERSION, params),
+        Producer::new("evaluate", crate::VERSION, params_json(&p)),
     )?;
-    let ev = evaluate(&models, &orig, &styl, &style, &p)?;
+    let ev = evaluate(
+        &models,
+        &orig,
+        &styl,
+        &style,
+        &p,
+        reference.as_ref().map(|(_, r)| r),
+    )?;
     let paths = ReportPaths {
         original: &a.original,
-        stylized: &a.stylized,
+        stylized,
         style: &a.style,
     };
     let ph = crate::timing::span("report");
@@ -158,8 +174,11 @@ pub fn run(a: Args) -> Result<Metrics> {
     drop(ph);
 
     wr.add_input("original", &a.original)?;
-    wr.add_input("stylized", &a.stylized)?;
+    wr.add_input("stylized", stylized)?;
     wr.add_input("style", &a.style)?;
+    if let Some((dir, _)) = &reference {
+        wr.add_input("reference", dir)?;
+    }
     if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
         wr.add_input("original-scene", o)?;
         wr.add_input("stylized-scene", s)?;
@@ -182,7 +201,90 @@ pub fn run(a: Args) -> Result<Metrics> {
         fmt_opt(m.short_range.lpips_mean, 4),
         a.out.display()
     );
-    Ok(m)
+    Ok(Some(m))
+}
+
+/// The models directory, with the metric networks in it.
+fn metric_models() -> Result<PathBuf> {
+    let models = crate::models::models_dir()?;
+    if !models.join("metrics").is_dir() {
+        return Err(Error::Missing(format!(
+            "the metric networks are not installed in {} (run scripts/setup.sh, or set {} \
+             to a models directory that has metrics/)",
+            models.display(),
+            crate::models::MODELS_ENV
+        )));
+    }
+    Ok(models)
+}
+
+/// The options an evaluation (and its reference) records.
+fn params_json(p: &EvalParams) -> serde_json::Value {
+    serde_json::json!({
+        "lpips_net": p.lpips_net.name(), "short_range": p.short_range, "long_range": p.long_range, "seed": p.seed,
+        "object_squares": p.object_squares,
+    })
+}
+
+/// `--reference-only`: the reference of `orig` and `--style`, written to `--out`.
+fn run_reference(a: &Args, orig: &ViewSet, p: &EvalParams) -> Result<()> {
+    let style = Image::load(&a.style)?;
+    let models = metric_models()?;
+    let mut wr = super::create_artifact(
+        &a.out,
+        ArtifactKind::EvalReference,
+        Producer::new("evaluate", crate::VERSION, params_json(p)),
+    )?;
+    let mut nets = crate::timing::load(|| Nets::load(&models, p.lpips_net, p.threads))?;
+    let r = Reference::compute(&mut nets, orig, &style, p)?;
+    wr.add_input("original", &a.original)?;
+    wr.add_input("style", &a.style)?;
+    crate::artifacts::write_eval_reference(&mut wr, &r)?;
+    crate::timing::io(|| wr.commit())?;
+    tracing::info!(
+        "evaluate: reference of {} views -> {}",
+        orig.n,
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// `--reference DIR`, checked to be made from this evaluation's original views, style
+/// image and options.
+fn reference_for(
+    dir: &Path,
+    a: &Args,
+    orig: &ViewSet,
+    p: &EvalParams,
+) -> Result<(PathBuf, Reference)> {
+    let (art, r) = crate::artifacts::read_eval_reference(dir)?;
+    for (role, path) in [("original", &a.original), ("style", &a.style)] {
+        let here = fantasystyle_schemas::hash_path(path)?;
+        let made_from = art.manifest.inputs.iter().find(|i| i.role == role);
+        if made_from.map(|i| &i.blake3) != Some(&here) {
+            return Err(Error::input(
+                dir,
+                format!(
+                    "this reference was made from another {role} ({}), not {}: make it again \
+                     with `evaluate --reference-only`",
+                    made_from.map_or("none recorded", |i| i.path.as_str()),
+                    path.display()
+                ),
+            ));
+        }
+    }
+    if art.manifest.producer.params.get("lpips_net") != Some(&serde_json::json!(p.lpips_net.name()))
+    {
+        return Err(Error::input(
+            dir,
+            format!(
+                "this reference was made with another --lpips-net (this evaluation: {})",
+                p.lpips_net.name()
+            ),
+        ));
+    }
+    r.check(dir, orig, p)?;
+    Ok((dir.to_path_buf(), r))
 }
 
 /// The report's 3D viewer section for the two scenes, starting at the first original

@@ -290,9 +290,11 @@ fn report_viewer_shows_both_splats_in_chromium() {
     let t_eval = std::time::Instant::now();
     run(Args {
         original: orig.clone(),
-        stylized: styl.clone(),
+        stylized: Some(styl.clone()),
         style: root.join("data-sample/style.png"),
         out: out.clone(),
+        reference_only: false,
+        reference: None,
         lpips_net: LpipsNet::Alex,
         short_range: 1,
         long_range: 2,

@@ -1,0 +1,232 @@
+//! The half of an evaluation that depends only on the original views and the style image
+//! (the `eval-reference` artifact, `evaluate --reference-only`).
+//!
+//! Of the sample's 152 Inception passes, 120 are of the original views, the style crops,
+//! the original's object squares and the style's squares; the VGG16 pass of the style
+//! image alone costs four views'. None of it changes while a user re-runs `distill` with
+//! other settings, nor between the methods of the quality benchmark on one scene and
+//! style. [`Reference::compute`] does that half once; [`super::evaluate::evaluate`] takes
+//! it (or computes it itself, through the same function, so that both ways give the same
+//! `metrics.json` bit for bit) and adds the stylized views' half.
+//!
+//! What it holds, per measure of [`super::evaluate`]: the Inception pool3 features of the
+//! original views (FID/KID_content), of the style crops (FID/KID_style), of the original's
+//! object squares and of the style's squares ([`super::texture::kid_object`]); the style
+//! image's VGG16 Gram matrices per tap and, per original view, its Gram distance to them
+//! (whole view, and per layer over the object); the original views' own short- and
+//! long-range consistency (the floor the report shows). [`Settings`] records what it was
+//! made with; a reference made with other settings is refused.
+
+use super::consistency::{self, PairScore};
+use super::evaluate::{EvalParams, GRAM_MAX_SIDE, style_crops};
+use super::fid;
+use super::gram;
+use super::nets::{Inception, LpipsModel, LpipsNet};
+use super::texture;
+use super::views::ViewSet;
+use crate::imageio::Image;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+
+/// The settings a reference was computed with: an evaluation must use the same.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Settings {
+    pub views: usize,
+    pub width: usize,
+    pub height: usize,
+    pub short_range: usize,
+    pub long_range: usize,
+    pub seed: u64,
+    pub object_squares: usize,
+}
+
+impl Settings {
+    /// The settings of evaluating `orig` with `p`.
+    pub fn of(orig: &ViewSet, p: &EvalParams) -> Settings {
+        Settings {
+            views: orig.n,
+            width: orig.width,
+            height: orig.height,
+            short_range: p.short_range,
+            long_range: p.long_range,
+            seed: p.seed,
+            object_squares: p.object_squares,
+        }
+    }
+
+    /// The fields where `self` differs from `other`, as `name a vs b`.
+    pub fn differences(&self, other: &Settings) -> Vec<String> {
+        let (a, b) = (
+            serde_json::to_value(self).unwrap_or_default(),
+            serde_json::to_value(other).unwrap_or_default(),
+        );
+        let Some(a) = a.as_object() else {
+            return Vec::new();
+        };
+        a.iter()
+            .filter(|(k, v)| b.get(k.as_str()) != Some(*v))
+            .map(|(k, v)| format!("{k} {v} vs {}", b.get(k.as_str()).unwrap_or_default()))
+            .collect()
+    }
+}
+
+/// The scalar part (`reference.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scores {
+    pub settings: Settings,
+    /// Per original view, its VGG16 Gram distance to the style (all taps).
+    pub gram_original_per_view: Vec<f64>,
+    /// Per original view, per layer of [`texture::GRAM_LAYERS`], the object's Gram
+    /// distance to the style's (`None`: too little coverage).
+    pub object_gram_original: Vec<Vec<Option<f64>>>,
+    /// The original views' own consistency at the short and the long offset.
+    pub short_original: Vec<PairScore>,
+    pub long_original: Vec<PairScore>,
+}
+
+/// The reference half of an evaluation (module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reference {
+    pub scores: Scores,
+    /// Inception pool3 features (2048 each) of the original views, the style crops, the
+    /// original's object squares and the style's squares.
+    pub views_pool3: Vec<Vec<f32>>,
+    pub crops_pool3: Vec<Vec<f32>>,
+    pub object_squares_pool3: Vec<Vec<f32>>,
+    pub style_squares_pool3: Vec<Vec<f32>>,
+    /// The style image's (at most [`GRAM_MAX_SIDE`] px) VGG16 Gram matrices, per tap.
+    pub style_grams: Vec<Vec<f64>>,
+}
+
+/// The metric networks an evaluation runs.
+pub struct Nets {
+    /// LPIPS (the evaluation's backbone) for consistency.
+    pub lpips: LpipsModel,
+    /// VGG16 LPIPS model for the Gram distances (`None`: `lpips` is VGG16 itself).
+    pub vgg: Option<LpipsModel>,
+    pub inception: Inception,
+}
+
+impl Nets {
+    /// The VGG16 model (its own or the LPIPS one).
+    pub fn vgg(&mut self) -> &mut LpipsModel {
+        self.vgg.as_mut().unwrap_or(&mut self.lpips)
+    }
+
+    /// Load the networks for `net` from the models directory.
+    pub fn load(models: &std::path::Path, net: LpipsNet, threads: usize) -> Result<Nets> {
+        let lpips = LpipsModel::load(models, net, threads)?;
+        let (vgg, inception) = Self::load_rest(models, net, threads)?;
+        Ok(Nets {
+            lpips,
+            vgg,
+            inception,
+        })
+    }
+
+    /// The networks beside LPIPS: VGG16 (unless `net` is VGG16) and Inception.
+    pub fn load_rest(
+        models: &std::path::Path,
+        net: LpipsNet,
+        threads: usize,
+    ) -> Result<(Option<LpipsModel>, Inception)> {
+        let vgg = (net != LpipsNet::Vgg16)
+            .then(|| LpipsModel::load(models, LpipsNet::Vgg16, threads))
+            .transpose()?;
+        Ok((vgg, Inception::load(models, threads)?))
+    }
+}
+
+impl Reference {
+    /// Compute the reference of evaluating against `orig` and `style` with `p`.
+    pub fn compute(
+        nets: &mut Nets,
+        orig: &ViewSet,
+        style: &Image,
+        p: &EvalParams,
+    ) -> Result<Reference> {
+        p.validate()?;
+        let (n, w, h) = (orig.n, orig.width, orig.height);
+        let ph = crate::timing::span("reference");
+        let pairs = |offset| consistency::pairs(n, offset);
+        let (short_original, _) =
+            consistency::score_pairs(&mut nets.lpips, orig, &orig.images, &pairs(p.short_range))?;
+        let (long_original, _) =
+            consistency::score_pairs(&mut nets.lpips, orig, &orig.images, &pairs(p.long_range))?;
+
+        let vgg = nets.vgg();
+        let f = crate::timing::phase("vgg", || vgg.features(&[&style.fit_within(GRAM_MAX_SIDE)]))?;
+        let style_grams = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
+        let object_gram = texture::ObjectGram::new(&style_grams);
+        let (mut gram_original_per_view, mut object_gram_original) = (Vec::new(), Vec::new());
+        for i in 0..n {
+            let f = crate::timing::phase("vgg", || vgg.features(&[&orig.images[i]]))?;
+            object_gram_original.push(object_gram.view_distances(&f[0], orig.geometry(i).1, w, h));
+            let g = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
+            gram_original_per_view.push(gram::gram_distance(&g, &style_grams));
+        }
+
+        let inc = &mut nets.inception;
+        let mut pool3 = |v: &[Image]| inc.pool3(&v.iter().collect::<Vec<_>>());
+        let views_pool3 = pool3(&orig.images)?;
+        let crops_pool3 = pool3(&style_crops(style, n.max(fid::MIN_IMAGES), w, h, p.seed))?;
+        let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
+        let object_squares_pool3 = pool3(&texture::object_patches(orig, &at))?;
+        let style_squares_pool3 = if at.is_empty() {
+            Vec::new()
+        } else {
+            pool3(&texture::style_patches(style, p.seed))?
+        };
+        drop(ph);
+        Ok(Reference {
+            scores: Scores {
+                settings: Settings::of(orig, p),
+                gram_original_per_view,
+                object_gram_original,
+                short_original,
+                long_original,
+            },
+            views_pool3,
+            crops_pool3,
+            object_squares_pool3,
+            style_squares_pool3,
+            style_grams,
+        })
+    }
+
+    /// Error (naming `origin`, where the reference came from) unless it was made for
+    /// evaluating `orig` with `p`, and its parts have the sizes those settings give.
+    pub fn check(&self, origin: &std::path::Path, orig: &ViewSet, p: &EvalParams) -> Result<()> {
+        let want = Settings::of(orig, p);
+        let diff = self.scores.settings.differences(&want);
+        if !diff.is_empty() {
+            return Err(Error::input(
+                origin,
+                format!(
+                    "this reference was made with other settings ({}; reference vs this evaluation): \
+                     make it again with `evaluate --reference-only` and the same options",
+                    diff.join(", ")
+                ),
+            ));
+        }
+        let s = &self.scores;
+        let sizes_ok = self.views_pool3.len() == want.views
+            && s.gram_original_per_view.len() == want.views
+            && s.object_gram_original.len() == want.views
+            && s.object_gram_original
+                .iter()
+                .all(|v| v.len() == texture::GRAM_LAYERS.len())
+            && self.style_grams.len() >= texture::GRAM_LAYERS.len()
+            && s.short_original.len() == consistency::pairs(want.views, want.short_range).len()
+            && s.long_original.len() == consistency::pairs(want.views, want.long_range).len();
+        if !sizes_ok {
+            return Err(Error::input(
+                origin,
+                "the reference's parts do not match its settings (a damaged or hand-edited artifact)",
+            ));
+        }
+        Ok(())
+    }
+}
