@@ -10,6 +10,10 @@
 //! texture measures of [`super::texture`] (among them KID over squares of the object's
 //! surface against squares of the style, which the whole-view KID cannot see).
 //!
+//! The half of it that depends only on the original views and the style image is
+//! [`super::reference::Reference`], computed here or read from an `eval-reference`
+//! artifact (`evaluate --reference`): the same metrics either way.
+//!
 //! Style crops for FID_style: `K = max(N, 2)` crops at the views' aspect ratio, each
 //! spanning half the style image's height (or its full width if that is smaller), at
 //! positions drawn uniformly with the seeded [`crate::rng::Rng`], each resized to the
