@@ -199,6 +199,45 @@ impl Inception {
     }
 }
 
+/// The metric networks an evaluation runs.
+pub struct Nets {
+    /// LPIPS (the evaluation's backbone) for consistency.
+    pub lpips: LpipsModel,
+    /// VGG16 LPIPS model for the Gram distances (`None`: `lpips` is VGG16 itself).
+    pub vgg: Option<LpipsModel>,
+    pub inception: Inception,
+}
+
+impl Nets {
+    /// The VGG16 model (its own or the LPIPS one).
+    pub fn vgg(&mut self) -> &mut LpipsModel {
+        self.vgg.as_mut().unwrap_or(&mut self.lpips)
+    }
+
+    /// Load the networks for `net` from the models directory.
+    pub fn load(models: &Path, net: LpipsNet, threads: usize) -> Result<Nets> {
+        let lpips = LpipsModel::load(models, net, threads)?;
+        let (vgg, inception) = Self::load_rest(models, net, threads)?;
+        Ok(Nets {
+            lpips,
+            vgg,
+            inception,
+        })
+    }
+
+    /// The networks beside LPIPS: VGG16 (unless `net` is VGG16) and Inception.
+    pub fn load_rest(
+        models: &Path,
+        net: LpipsNet,
+        threads: usize,
+    ) -> Result<(Option<LpipsModel>, Inception)> {
+        let vgg = (net != LpipsNet::Vgg16)
+            .then(|| LpipsModel::load(models, LpipsNet::Vgg16, threads))
+            .transpose()?;
+        Ok((vgg, Inception::load(models, threads)?))
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     //! Each converted network against the numpy reference (set-up step 32).

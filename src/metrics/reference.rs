@@ -21,7 +21,7 @@ use super::consistency::{self, PairScore};
 use super::evaluate::{EvalParams, GRAM_MAX_SIDE, style_crops};
 use super::fid;
 use super::gram;
-use super::nets::{Inception, LpipsModel, LpipsNet};
+use super::nets::Nets;
 use super::texture;
 use super::views::ViewSet;
 use crate::imageio::Image;
@@ -98,45 +98,6 @@ pub struct Reference {
     pub style_squares_pool3: Vec<Vec<f32>>,
     /// The style image's (at most [`GRAM_MAX_SIDE`] px) VGG16 Gram matrices, per tap.
     pub style_grams: Vec<Vec<f64>>,
-}
-
-/// The metric networks an evaluation runs.
-pub struct Nets {
-    /// LPIPS (the evaluation's backbone) for consistency.
-    pub lpips: LpipsModel,
-    /// VGG16 LPIPS model for the Gram distances (`None`: `lpips` is VGG16 itself).
-    pub vgg: Option<LpipsModel>,
-    pub inception: Inception,
-}
-
-impl Nets {
-    /// The VGG16 model (its own or the LPIPS one).
-    pub fn vgg(&mut self) -> &mut LpipsModel {
-        self.vgg.as_mut().unwrap_or(&mut self.lpips)
-    }
-
-    /// Load the networks for `net` from the models directory.
-    pub fn load(models: &std::path::Path, net: LpipsNet, threads: usize) -> Result<Nets> {
-        let lpips = LpipsModel::load(models, net, threads)?;
-        let (vgg, inception) = Self::load_rest(models, net, threads)?;
-        Ok(Nets {
-            lpips,
-            vgg,
-            inception,
-        })
-    }
-
-    /// The networks beside LPIPS: VGG16 (unless `net` is VGG16) and Inception.
-    pub fn load_rest(
-        models: &std::path::Path,
-        net: LpipsNet,
-        threads: usize,
-    ) -> Result<(Option<LpipsModel>, Inception)> {
-        let vgg = (net != LpipsNet::Vgg16)
-            .then(|| LpipsModel::load(models, LpipsNet::Vgg16, threads))
-            .transpose()?;
-        Ok((vgg, Inception::load(models, threads)?))
-    }
 }
 
 impl Reference {

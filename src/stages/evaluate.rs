@@ -11,8 +11,8 @@
 use super::Threads;
 use crate::imageio::Image;
 use crate::metrics::evaluate::{EvalParams, Metrics, evaluate};
-use crate::metrics::nets::LpipsNet;
-use crate::metrics::reference::{Nets, Reference};
+use crate::metrics::nets::{LpipsNet, Nets};
+use crate::metrics::reference::Reference;
 use crate::metrics::report::{ReportPaths, evaluation_report, fmt_opt};
 use crate::metrics::views::ViewSet;
 use crate::sweep::Sweep;
