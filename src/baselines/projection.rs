@@ -9,12 +9,20 @@
 //! colours (BENCHMARKS.md "Style projection"). A motif painted once on the surface is the
 //! same motif from every view by construction; the loop then refines it.
 //!
-//! **Normals.** A trained splat's Gaussians are flat (the plant's median ratio of largest
-//! to smallest scale is 11): the axis of the smallest scale is the surface normal, as 2DGS
-//! and GaussianShader take it. It is the rotation matrix's column of that axis. Where the
-//! two smallest scales are close (a needle, or a round blob: 19% of the plant's Gaussians
-//! have them within 1.5x) the normal is ill-defined and the plane it picks is arbitrary;
-//! no neighbourhood estimate is made.
+//! **Normals** ([`surface_normals`]). Each Gaussian takes the normal of the rendered
+//! surface where it is seen: its centre is projected into every source view; where the
+//! view's surface (expected depth over coverage) lies within [`SEEN_TOL`] of the centre's
+//! depth, the surface normal there is the cross product of the back-projected depth map's
+//! central differences (a view with a depth edge or a background pixel in the 3x3 is
+//! skipped), turned toward the camera and into world space; the views' normals are
+//! averaged, each weighted by how squarely it faces its camera. A Gaussian no view sees
+//! (inside the object, or hidden by others) keeps the axis of its smallest scale
+//! ([`normal`]): trained splats are flat (the plant's median ratio of largest to smallest
+//! scale is 11), so that axis is the normal 2DGS and GaussianShader take. That axis alone
+//! was the first version: on a smooth surface it is noisy (on the plant's pot, only half
+//! of the covered area has it within 37 degrees of the pot's radial direction), and a
+//! Gaussian whose axis picks the wrong plane takes an unrelated style sample, so bands
+//! blurred into gradients there (BENCHMARKS.md "Normals from the rendered surface").
 //!
 //! **Triplanar mapping** (the terrain-texturing technique of GPU Gems 3, ch. 1): the
 //! Gaussian's mean is projected on the three axis planes; each projection samples the
@@ -54,6 +62,13 @@ pub const SHADING_RANGE: (f64, f64) = (0.3, 2.0);
 
 /// Opacity above which a Gaussian counts for the object's centre.
 const SOLID: f32 = 0.5;
+
+/// A Gaussian is on a view's surface where its centre's depth is within this fraction of
+/// the surface's depth there.
+pub const SEEN_TOL: f64 = 0.02;
+
+/// Coverage above which a pixel is on the object (for the surface normals).
+const COVERED: f32 = 0.5;
 
 /// Where the style sits on the object: its centre in world coordinates and the world
 /// length of one style pixel.
@@ -123,6 +138,140 @@ pub fn normal(scene: &Scene, i: usize) -> DVec3 {
     }
 }
 
+/// A source view as `render-views` writes it: `depth` is the expected depth
+/// `sum_i w_i z_i` and `alpha` the coverage, both `[H, W]` at the camera's size.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthView<'a> {
+    pub camera: &'a Camera,
+    pub depth: &'a [f32],
+    pub alpha: &'a [f32],
+}
+
+impl DepthView<'_> {
+    /// The surface point of pixel `(x, y)` in camera coordinates: the pixel centre's ray
+    /// at the surface depth `depth / alpha`; `None` off the object.
+    fn point(&self, x: usize, y: usize) -> Option<DVec3> {
+        let i = y * self.camera.width as usize + x;
+        let a = self.alpha[i];
+        if a < COVERED {
+            return None;
+        }
+        let z = (self.depth[i] / a) as f64;
+        let c = self.camera;
+        Some(DVec3::new(
+            (x as f64 + 0.5 - c.cx as f64) * z / c.fx as f64,
+            (y as f64 + 0.5 - c.cy as f64) * z / c.fy as f64,
+            z,
+        ))
+    }
+
+    /// The surface normal (world, unit, toward the camera) where world point `p` is seen,
+    /// and the cosine between it and the viewing ray; `None` where `p` is outside the
+    /// frame, not on the surface (hidden, or in front of it), or next to a depth edge.
+    fn normal_at(&self, p: [f32; 3]) -> Option<(DVec3, f64)> {
+        let c = self.camera;
+        let ([u, v], z) = c.project(p);
+        let (w, h) = (c.width as usize, c.height as usize);
+        if !(z > 0.0 && u >= 1.0 && v >= 1.0 && u < (w - 1) as f32 && v < (h - 1) as f32) {
+            return None;
+        }
+        let (x, y) = (u as usize, v as usize);
+        let centre = self.point(x, y)?;
+        let tol = SEEN_TOL * centre.z;
+        if (centre.z - z as f64).abs() > tol {
+            return None;
+        }
+        let near = |q: DVec3| ((q.z - centre.z).abs() <= tol).then_some(q);
+        let dx = near(self.point(x + 1, y)?)? - near(self.point(x - 1, y)?)?;
+        let dy = near(self.point(x, y + 1)?)? - near(self.point(x, y - 1)?)?;
+        let n = dx.cross(dy).try_normalize()?;
+        let ray = centre.normalize();
+        let n = if n.dot(ray) > 0.0 { -n } else { n };
+        // Camera to world: the transpose of the world-to-camera rotation.
+        let r = c.rotation;
+        let world = DVec3::new(
+            (r[0][0] as f64) * n.x + (r[1][0] as f64) * n.y + (r[2][0] as f64) * n.z,
+            (r[0][1] as f64) * n.x + (r[1][1] as f64) * n.y + (r[2][1] as f64) * n.z,
+            (r[0][2] as f64) * n.x + (r[1][2] as f64) * n.y + (r[2][2] as f64) * n.z,
+        );
+        Some((world, -n.dot(ray)))
+    }
+}
+
+/// Every Gaussian's normal, from [`surface_normals`].
+#[derive(Debug, Clone)]
+pub struct Normals {
+    /// One unit normal per Gaussian.
+    pub normals: Vec<DVec3>,
+    /// How many took the rendered surface's normal (the rest kept their own axis).
+    pub seen: usize,
+    /// Mean `|cos|` between the surface normal and the Gaussian's own axis over the seen
+    /// ones (1: the axes were the surface's already; 0.5: unrelated).
+    pub axis_agreement: f64,
+}
+
+impl std::fmt::Display for Normals {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} of {} Gaussians on the views' surface take its normal (mean |cos| to their own \
+             axis {:.2})",
+            self.seen,
+            self.normals.len(),
+            self.axis_agreement
+        )
+    }
+}
+
+/// Every Gaussian's normal: the rendered surface's where a view sees it (the views'
+/// normals averaged, each weighted by its cosine to the viewing ray), the axis of its
+/// smallest scale elsewhere ([`normal`]).
+pub fn surface_normals(scene: &Scene, views: &[DepthView<'_>]) -> Normals {
+    use rayon::prelude::*;
+    let found: Vec<(DVec3, Option<f64>)> = (0..scene.len())
+        .into_par_iter()
+        .map(|i| {
+            let p = scene.positions[i];
+            let sum = views
+                .iter()
+                .filter_map(|v| v.normal_at(p))
+                .fold(DVec3::ZERO, |acc, (n, w)| acc + w * n);
+            let own = normal(scene, i);
+            match sum.try_normalize() {
+                Some(n) => (n, Some(n.dot(own).abs())),
+                None => (own, None),
+            }
+        })
+        .collect();
+    let agree: Vec<f64> = found.iter().filter_map(|(_, c)| *c).collect();
+    Normals {
+        seen: agree.len(),
+        axis_agreement: agree.iter().sum::<f64>() / agree.len().max(1) as f64,
+        normals: found.into_iter().map(|(n, _)| n).collect(),
+    }
+}
+
+/// [`surface_normals`] from `scene`'s own renders at `cameras` (for callers without the
+/// source views at hand).
+pub fn rendered_normals(scene: &Scene, cameras: &[Camera]) -> Result<Normals> {
+    let renders = crate::render::render_all(scene, cameras, [0.0; 3])?;
+    let views: Vec<DepthView<'_>> = cameras
+        .iter()
+        .zip(&renders)
+        .map(|(camera, r)| DepthView {
+            camera,
+            depth: &r.depth,
+            alpha: &r.alpha,
+        })
+        .collect();
+    Ok(surface_normals(scene, &views))
+}
+
+/// Every Gaussian's own normal ([`normal`]): the axis of its smallest scale.
+pub fn axis_normals(scene: &Scene) -> Vec<DVec3> {
+    (0..scene.len()).map(|i| normal(scene, i)).collect()
+}
+
 /// Mirrored repeat of a continuous pixel coordinate onto `[0, n - 1]` (period `2 (n - 1)`,
 /// continuous across the edges).
 pub fn mirror(u: f64, n: usize) -> f64 {
@@ -170,10 +319,11 @@ fn luminance(c: [f64; 3]) -> f64 {
     0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]
 }
 
-/// `scene` with its DC colours replaced by the style projected at `at` (shaded by each
-/// Gaussian's relative luminance) and its higher-order SH coefficients zeroed; geometry
-/// and opacities unchanged.
-pub fn project_style(scene: &Scene, style: &Image, at: &Placement) -> Scene {
+/// `scene` with its DC colours replaced by the style projected at `at` along `normals`
+/// (one per Gaussian: [`surface_normals`]; shaded by each Gaussian's relative luminance)
+/// and its higher-order SH coefficients zeroed; geometry and opacities unchanged.
+pub fn project_style(scene: &Scene, style: &Image, at: &Placement, normals: &[DVec3]) -> Scene {
+    assert_eq!(normals.len(), scene.len(), "one normal per Gaussian");
     let lum: Vec<f64> = scene
         .sh_dc
         .iter()
@@ -187,7 +337,7 @@ pub fn project_style(scene: &Scene, style: &Image, at: &Placement) -> Scene {
     let mut out = scene.clone();
     for i in 0..scene.len() {
         let p = scene.positions[i].map(|v| v as f64);
-        let c = colour_at(style, at, p, normal(scene, i));
+        let c = colour_at(style, at, p, normals[i]);
         let shade = if mean > 1e-6 {
             (lum[i] / mean).clamp(SHADING_RANGE.0, SHADING_RANGE.1)
         } else {
@@ -311,7 +461,7 @@ mod tests {
             }
         }
         let s = scene(&pos, DMat3::IDENTITY);
-        let out = project_style(&s, &style, &at);
+        let out = project_style(&s, &style, &at, &axis_normals(&s));
         for (i, p) in pos.iter().enumerate() {
             // Style pixel (x + 4, y + 3), mirrored past column 8.
             let px = (p[0] / 0.1).round() as i64 + 4;
@@ -331,6 +481,64 @@ mod tests {
         assert_eq!(out.log_scales, s.log_scales);
     }
 
+    /// Normals from the rendered surface: a grid of Gaussians whose own axis of smallest
+    /// scale lies in the plane (scales 0.02, 0.02, 0.015 with the thin axis along x: the
+    /// wrong normal, and barely the smallest), in a plane tilted 30 degrees about y, seen
+    /// by a camera looking along +z. The Gaussians the view sees get the plane's normal
+    /// (at least 90% of them within 0.02 in cosine, all within 0.2); a smaller grid hidden 0.3 behind the first keeps its own
+    /// axis (x).
+    #[test]
+    fn surface_normals_come_from_the_rendered_depth() {
+        let tilt = DMat3::from_rotation_y(std::f64::consts::FRAC_PI_6);
+        let mut pos = Vec::new();
+        // The hidden grid is smaller (21 x 21), so that all of it is behind the first.
+        for (layer, half) in [(0.0, 30), (0.3, 10)] {
+            for y in -half..=half {
+                for x in -half..=half {
+                    let p = tilt * DVec3::new(x as f64 * 0.01, y as f64 * 0.01, layer);
+                    pos.push(p.as_vec3().to_array());
+                }
+            }
+        }
+        // Local x (the thin axis) is world x before the tilt.
+        let mut s = scene(&pos, tilt);
+        s.log_scales = vec![[0.015f32.ln(), 0.02f32.ln(), 0.02f32.ln()]; pos.len()];
+        let cam = camera(2.0, 100.0);
+        let r = crate::render::render(&s, &cam, &Default::default()).unwrap();
+        let view = DepthView {
+            camera: &cam,
+            depth: &r.depth,
+            alpha: &r.alpha,
+        };
+        let Normals { normals, seen, .. } = surface_normals(&s, &[view]);
+        let plane = tilt * DVec3::Z;
+        let own = tilt * DVec3::X;
+        let front = 61 * 61;
+        assert!(seen > front / 2 && seen <= front, "{seen} of {front} seen");
+        // |cos| to the plane's normal (the own axis would give 0): near 1 for most, the
+        // rest at the grid's rim, where a 3x3 of depths includes partly covered pixels.
+        let cos: Vec<f64> = normals[..front]
+            .iter()
+            .map(|n| n.dot(plane).abs())
+            .collect();
+        let close = cos.iter().filter(|&&c| c > 0.98).count();
+        let worst = cos.iter().copied().fold(1.0, f64::min);
+        assert!(
+            close * 10 >= seen * 9 && worst > 0.8,
+            "{close} of {seen} seen Gaussians within 0.02 of the plane's normal, worst {worst}"
+        );
+        for (i, n) in normals[front..].iter().enumerate() {
+            assert!(n.dot(own).abs() > 0.999, "hidden Gaussian {i}: {n:?}");
+        }
+        // Seen Gaussians' normals face the camera (at -z).
+        assert!(
+            normals[..front]
+                .iter()
+                .filter(|n| n.dot(plane).abs() > 0.98)
+                .all(|n| n.z < 0.0)
+        );
+    }
+
     /// Shading: a Gaussian twice as bright as the mean gets twice the style's colour
     /// (within the clamp), one at a third of the mean is clamped to 0.3.
     #[test]
@@ -345,7 +553,7 @@ mod tests {
         for (i, g) in [0.6f32, 0.3, 0.1].into_iter().enumerate() {
             s.sh_dc[i] = [(g - 0.5) / C0; 3];
         }
-        let out = project_style(&s, &style, &at);
+        let out = project_style(&s, &style, &at, &axis_normals(&s));
         for (i, f) in [1.8f32, 0.9, 0.3].into_iter().enumerate() {
             let got = out.sh_dc[i].map(|d| 0.5 + C0 * d);
             for (k, base) in [0.4f32, 0.2, 0.1].into_iter().enumerate() {

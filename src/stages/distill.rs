@@ -205,11 +205,24 @@ pub fn run(a: Args) -> Result<()> {
              object's colours and --preserve-color keeps them: choose one",
         ));
     }
+    // Both starts recolour a fresh scene; a resumed checkpoint has its colours already.
+    // Checked before the strength test, so that `--strength 0` does not hide the mistake.
+    for (set, flag) in [
+        (a.colour_init, "--colour-init"),
+        (a.project_style, "--project-style"),
+    ] {
+        if set && a.resume.is_some() {
+            return Err(Error::param(format!(
+                "{flag} applies to a fresh start (--scene); a resumed checkpoint has its \
+                 colours already"
+            )));
+        }
+    }
     if a.colour_init && a.prior.strength > 0.0 {
-        start.scene = colour_init(&a, &start, &source, &style, p.background)?;
+        start.scene = colour_init(&start, &source, &style, p.background)?;
     }
     if a.project_style && a.prior.strength > 0.0 {
-        start.scene = project_style(&a, &start, &cameras, &style)?;
+        start.scene = project_style(&a, &start, &cameras, &source, &style)?;
     }
     let (_, model_set) = model_timesteps(&a.prior.model)?;
     let mut outcome = if a.prior.strength == 0.0 || a.iters == 0 {
@@ -281,18 +294,11 @@ pub fn run(a: Args) -> Result<()> {
 /// `--colour-init`: the start scene with the object's colour statistics (over the source
 /// views) moved onto those of the style image (as loaded for the prior).
 fn colour_init(
-    a: &Args,
     start: &crate::artifacts::Start,
     source: &SourceViews,
     style: &crate::imageio::Image,
     background: [f32; 3],
 ) -> Result<crate::Scene> {
-    if a.resume.is_some() {
-        return Err(Error::param(
-            "--colour-init applies to a fresh start (--scene); a resumed checkpoint has its \
-             colours already",
-        ));
-    }
     let views: Vec<(&[f32], &[f32])> = (0..source.rgb.len())
         .map(|v| (&source.rgb[v][..], &source.alpha[v][..]))
         .collect();
@@ -305,15 +311,10 @@ fn project_style(
     a: &Args,
     start: &crate::artifacts::Start,
     cameras: &[crate::Camera],
+    source: &SourceViews,
     style: &crate::imageio::Image,
 ) -> Result<crate::Scene> {
-    use crate::baselines::projection::{Placement, project_style};
-    if a.resume.is_some() {
-        return Err(Error::param(
-            "--project-style applies to a fresh start (--scene); a resumed checkpoint has \
-             its colours already",
-        ));
-    }
+    use crate::baselines::projection::{DepthView, Placement, project_style, surface_normals};
     let _ph = crate::timing::span("style projection");
     // The cameras are the source views': a placement error is about them.
     let at = Placement::of(&start.scene, cameras)
@@ -326,7 +327,18 @@ fn project_style(
         at.world_per_pixel,
         at.centre
     );
-    Ok(project_style(&start.scene, &img, &at))
+    let views: Vec<DepthView<'_>> = cameras
+        .iter()
+        .zip(source.depth.iter().zip(&source.alpha))
+        .map(|(camera, (depth, alpha))| DepthView {
+            camera,
+            depth,
+            alpha,
+        })
+        .collect();
+    let normals = surface_normals(&start.scene, &views);
+    tracing::info!("style projection: {normals}");
+    Ok(project_style(&start.scene, &img, &at, &normals.normals))
 }
 
 /// `--colour-finish`: `scene` with the colour statistics of its own renders from

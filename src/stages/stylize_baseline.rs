@@ -476,7 +476,7 @@ fn project(
     style: &Image,
     t0: Instant,
 ) -> Result<Outcome> {
-    use crate::baselines::projection::{Placement, project_style};
+    use crate::baselines::projection::{Placement, project_style, rendered_normals};
     let at =
         Placement::of(&scene, cams).map_err(|e| Error::input(&a.input.cameras, e.to_string()))?;
     tracing::info!(
@@ -484,7 +484,9 @@ fn project(
         at.world_per_pixel,
         at.centre
     );
-    let out = project_style(&scene, style, &at);
+    let normals = rendered_normals(&scene, cams)?;
+    tracing::info!("style projection: {normals}");
+    let out = project_style(&scene, style, &at, &normals.normals);
     Ok(Outcome::without_steps(a, out, None, t0))
 }
 

@@ -695,8 +695,9 @@ fn project_style_paints_the_stripes_in_every_view() {
 }
 
 /// A start flag (`flag true`, which sets the colours of a fresh start) is refused with
-/// `--resume resumed` and, on `--scene scene`, beside `conflicting true`
-/// ([`refused_with`]: exit 2 naming `flag`, nothing written at `out`).
+/// `--resume resumed` (also at `--strength 0`, where nothing else would run) and, on
+/// `--scene scene`, beside `conflicting true` ([`refused_with`]: exit 2 naming `flag`,
+/// nothing written at `out`).
 fn start_flag_refused(
     base: &[String],
     flag: &str,
@@ -705,8 +706,14 @@ fn start_flag_refused(
     conflicting: &str,
     out: &Path,
 ) {
-    let refused: [Vec<std::ffi::OsString>; 2] = [
+    let refused: [Vec<std::ffi::OsString>; 3] = [
         vec!["--resume".into(), resumed.into()],
+        vec![
+            "--resume".into(),
+            resumed.into(),
+            "--strength".into(),
+            "0".into(),
+        ],
         vec![
             "--scene".into(),
             scene.into(),
