@@ -25,21 +25,30 @@ import sys
 import numpy as np
 
 
-def main(scene, cameras):
+def load(scene, cameras):
+    """The .splat's raw records [n, 32], positions, scales (as stored), opacities, the
+    solid Gaussians (opacity >= 0.5), their per-axis median centre and the world length
+    of one render pixel there (median over the cameras of depth / fx)."""
     b = np.fromfile(scene, dtype=np.uint8)
     n = len(b) // 32
     a = b[: n * 32].reshape(n, 32)
     pos = a[:, :12].copy().view(np.float32).reshape(n, 3).astype(np.float64)
-    scale = np.sort(a[:, 12:24].copy().view(np.float32).reshape(n, 3), axis=1)
-    keep = a[:, 27] / 255.0 >= 0.5
-    centre = np.median(pos[keep], axis=0)
+    scale = a[:, 12:24].copy().view(np.float32).reshape(n, 3).astype(np.float64)
+    op = a[:, 27] / 255.0
+    solid = op >= 0.5
+    centre = np.median(pos[solid], axis=0)
     per_px = []
     for c in json.load(open(cameras)):
         forward = np.array(c["rotation"])[:, 2]  # camera-to-world: third column is +z
         depth = float((centre - np.array(c["position"])) @ forward)
         per_px.append(depth / c["fx"])
-    wpp = float(np.median(per_px))
-    print(f"{scene}: {n} Gaussians, {keep.sum()} of opacity >= 0.5, {wpp:.3e} world units per px")
+    return a, pos, scale, op, solid, centre, float(np.median(per_px))
+
+
+def main(scene, cameras):
+    a, _, scale, _, keep, _, wpp = load(scene, cameras)
+    scale = np.sort(scale, axis=1)
+    print(f"{scene}: {len(a)} Gaussians, {keep.sum()} of opacity >= 0.5, {wpp:.3e} world units per px")
     for name, axis in [("middle axis", 1), ("longest axis", 2)]:
         px = 2.0 * scale[keep, axis] / wpp
         q = np.percentile(px, [25, 50, 75, 90])
@@ -66,18 +75,8 @@ def weighted_quantiles(x, w, qs):
 
 
 def by_height(scene, cameras):
-    b = np.fromfile(scene, dtype=np.uint8)
-    n = len(b) // 32
-    a = b[: n * 32].reshape(n, 32)
-    pos = a[:, :12].copy().view(np.float32).reshape(n, 3).astype(np.float64)
-    scale = a[:, 12:24].copy().view(np.float32).reshape(n, 3).astype(np.float64)
-    op = a[:, 27] / 255.0
-    solid = op >= 0.5
-    centre = np.median(pos[solid], axis=0)
-    wpp = float(np.median([
-        float((centre - np.array(c["position"])) @ np.array(c["rotation"])[:, 2]) / c["fx"]
-        for c in json.load(open(cameras))
-    ]))
+    a, pos, scale, op, solid, centre, wpp = load(scene, cameras)
+    n = len(a)
     s = np.sort(scale, axis=1)
     area = op * s[:, 1] * s[:, 2]
     normal = quat_axes(a)[np.arange(n), :, np.argmin(scale, axis=1)]

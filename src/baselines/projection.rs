@@ -52,6 +52,7 @@
 
 use crate::geometry::quat_to_mat;
 use crate::imageio::Image;
+use crate::metrics::warp::surface_depth;
 use crate::render::sh::C0;
 use crate::{Camera, Error, Result, Scene};
 use glam::DVec3;
@@ -68,9 +69,6 @@ const SOLID: f32 = 0.5;
 /// A Gaussian is on a view's surface where its centre's depth is within this fraction of
 /// the surface's depth there.
 pub const SEEN_TOL: f64 = 0.02;
-
-/// Coverage above which a pixel is on the object (for the surface normals).
-const COVERED: f32 = 0.5;
 
 /// Where the style sits on the object: its centre in world coordinates and the world
 /// length of one style pixel.
@@ -140,31 +138,28 @@ pub fn normal(scene: &Scene, i: usize) -> DVec3 {
     }
 }
 
-/// A source view as `render-views` writes it: `depth` is the expected depth
-/// `sum_i w_i z_i` and `alpha` the coverage, both `[H, W]` at the camera's size.
+/// A source view for the surface normals: its camera and its surface depth
+/// ([`crate::metrics::warp::surface_depth`]: `depth / alpha` where the view covers the
+/// object, NaN elsewhere), `[H, W]` at the camera's size.
 #[derive(Debug, Clone, Copy)]
 pub struct DepthView<'a> {
     pub camera: &'a Camera,
-    pub depth: &'a [f32],
-    pub alpha: &'a [f32],
+    pub surface: &'a [f32],
 }
 
 impl DepthView<'_> {
     /// The surface point of pixel `(x, y)` in camera coordinates: the pixel centre's ray
-    /// at the surface depth `depth / alpha`; `None` off the object.
+    /// at the surface depth; `None` off the object.
     fn point(&self, x: usize, y: usize) -> Option<DVec3> {
-        let i = y * self.camera.width as usize + x;
-        let a = self.alpha[i];
-        if a < COVERED {
-            return None;
-        }
-        let z = (self.depth[i] / a) as f64;
+        let z = self.surface[y * self.camera.width as usize + x] as f64;
         let c = self.camera;
-        Some(DVec3::new(
-            (x as f64 + 0.5 - c.cx as f64) * z / c.fx as f64,
-            (y as f64 + 0.5 - c.cy as f64) * z / c.fy as f64,
-            z,
-        ))
+        z.is_finite().then(|| {
+            DVec3::new(
+                (x as f64 + 0.5 - c.cx as f64) * z / c.fx as f64,
+                (y as f64 + 0.5 - c.cy as f64) * z / c.fy as f64,
+                z,
+            )
+        })
     }
 
     /// The surface normal (world, unit, toward the camera) where world point `p` is seen,
@@ -189,14 +184,10 @@ impl DepthView<'_> {
         let n = dx.cross(dy).try_normalize()?;
         let ray = centre.normalize();
         let n = if n.dot(ray) > 0.0 { -n } else { n };
-        // Camera to world: the transpose of the world-to-camera rotation.
-        let r = c.rotation;
-        let world = DVec3::new(
-            (r[0][0] as f64) * n.x + (r[1][0] as f64) * n.y + (r[2][0] as f64) * n.z,
-            (r[0][1] as f64) * n.x + (r[1][1] as f64) * n.y + (r[2][1] as f64) * n.z,
-            (r[0][2] as f64) * n.x + (r[1][2] as f64) * n.y + (r[2][2] as f64) * n.z,
-        );
-        Some((world, -n.dot(ray)))
+        // Camera to world: the transpose of the world-to-camera rotation (its rows, read
+        // as columns).
+        let to_world = glam::DMat3::from_cols_array_2d(&c.rotation.map(|r| r.map(f64::from)));
+        Some((to_world * n, -n.dot(ray)))
     }
 }
 
@@ -256,22 +247,20 @@ pub fn surface_normals(scene: &Scene, views: &[DepthView<'_>]) -> Normals {
 /// [`surface_normals`] from `scene`'s own renders at `cameras` (for callers without the
 /// source views at hand).
 pub fn rendered_normals(scene: &Scene, cameras: &[Camera]) -> Result<Normals> {
-    let renders = crate::render::render_all(scene, cameras, [0.0; 3])?;
-    let views: Vec<DepthView<'_>> = cameras
+    let surfaces: Vec<Vec<f32>> = crate::render::render_all(scene, cameras, [0.0; 3])?
         .iter()
-        .zip(&renders)
-        .map(|(camera, r)| DepthView {
-            camera,
-            depth: &r.depth,
-            alpha: &r.alpha,
-        })
+        .map(|r| surface_depth(&r.depth, &r.alpha))
         .collect();
-    Ok(surface_normals(scene, &views))
+    Ok(surface_normals(scene, &depth_views(cameras, &surfaces)))
 }
 
-/// Every Gaussian's own normal ([`normal`]): the axis of its smallest scale.
-pub fn axis_normals(scene: &Scene) -> Vec<DVec3> {
-    (0..scene.len()).map(|i| normal(scene, i)).collect()
+/// The [`DepthView`]s of `cameras` with their surface depths (one per camera).
+pub fn depth_views<'a>(cameras: &'a [Camera], surfaces: &'a [Vec<f32>]) -> Vec<DepthView<'a>> {
+    cameras
+        .iter()
+        .zip(surfaces)
+        .map(|(camera, surface)| DepthView { camera, surface })
+        .collect()
 }
 
 /// Mirrored repeat of a continuous pixel coordinate onto `[0, n - 1]` (period `2 (n - 1)`,
@@ -354,6 +343,11 @@ pub fn project_style(scene: &Scene, style: &Image, at: &Placement, normals: &[DV
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every Gaussian's own normal ([`normal`]): the axis of its smallest scale.
+    fn axis_normals(scene: &Scene) -> Vec<DVec3> {
+        (0..scene.len()).map(|i| normal(scene, i)).collect()
+    }
     use crate::geometry::mat_to_quat;
     use glam::DMat3;
 
@@ -507,10 +501,10 @@ mod tests {
         s.log_scales = vec![[0.015f32.ln(), 0.02f32.ln(), 0.02f32.ln()]; pos.len()];
         let cam = camera(2.0, 100.0);
         let r = crate::render::render(&s, &cam, &Default::default()).unwrap();
+        let surface = surface_depth(&r.depth, &r.alpha);
         let view = DepthView {
             camera: &cam,
-            depth: &r.depth,
-            alpha: &r.alpha,
+            surface: &surface,
         };
         let Normals { normals, seen, .. } = surface_normals(&s, &[view]);
         let plane = tilt * DVec3::Z;

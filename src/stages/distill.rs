@@ -314,7 +314,8 @@ fn project_style(
     source: &SourceViews,
     style: &crate::imageio::Image,
 ) -> Result<crate::Scene> {
-    use crate::baselines::projection::{DepthView, Placement, project_style, surface_normals};
+    use crate::baselines::projection::{Placement, depth_views, project_style, surface_normals};
+    use crate::metrics::warp::surface_depth;
     let _ph = crate::timing::span("style projection");
     // The cameras are the source views': a placement error is about them.
     let at = Placement::of(&start.scene, cameras)
@@ -327,16 +328,10 @@ fn project_style(
         at.world_per_pixel,
         at.centre
     );
-    let views: Vec<DepthView<'_>> = cameras
-        .iter()
-        .zip(source.depth.iter().zip(&source.alpha))
-        .map(|(camera, (depth, alpha))| DepthView {
-            camera,
-            depth,
-            alpha,
-        })
+    let surfaces: Vec<Vec<f32>> = (source.depth.iter().zip(&source.alpha))
+        .map(|(depth, alpha)| surface_depth(depth, alpha))
         .collect();
-    let normals = surface_normals(&start.scene, &views);
+    let normals = surface_normals(&start.scene, &depth_views(cameras, &surfaces));
     tracing::info!("style projection: {normals}");
     Ok(project_style(&start.scene, &img, &at, &normals.normals))
 }
