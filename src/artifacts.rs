@@ -459,8 +459,46 @@ pub fn write_eval_reference(
     Ok(())
 }
 
+/// Read the `eval-reference` artifact `dir` (see [`crate::metrics::reference`]) for an
+/// evaluation of `original` against `style` with the LPIPS backbone `lpips_net`: refused,
+/// naming `dir` and what differs, when it was made from other files (their blake3 in its
+/// manifest) or with another backbone. The caller checks the evaluation's settings
+/// ([`crate::metrics::reference::Reference::check`]).
+pub fn read_eval_reference_for(
+    dir: &Path,
+    original: &Path,
+    style: &Path,
+    lpips_net: &str,
+) -> Result<crate::metrics::reference::Reference> {
+    let (art, r) = read_eval_reference(dir)?;
+    for (role, path) in [("original", original), ("style", style)] {
+        let here = fantasystyle_schemas::hash_path(path)?;
+        let made_from = art.manifest.inputs.iter().find(|i| i.role == role);
+        if made_from.map(|i| &i.blake3) != Some(&here) {
+            return Err(Error::input(
+                dir,
+                format!(
+                    "this reference was made from another {role} ({}), not {}: make it again \
+                     with `evaluate --reference-only`",
+                    made_from.map_or("none recorded", |i| i.path.as_str()),
+                    path.display()
+                ),
+            ));
+        }
+    }
+    if art.manifest.producer.params.get("lpips_net") != Some(&serde_json::json!(lpips_net)) {
+        return Err(Error::input(
+            dir,
+            format!(
+                "this reference was made with another --lpips-net (this evaluation: {lpips_net})"
+            ),
+        ));
+    }
+    Ok(r)
+}
+
 /// Read an `eval-reference` artifact (see [`crate::metrics::reference`]).
-pub fn read_eval_reference(dir: &Path) -> Result<(Artifact, crate::metrics::reference::Reference)> {
+fn read_eval_reference(dir: &Path) -> Result<(Artifact, crate::metrics::reference::Reference)> {
     let art = Artifact::open(dir, ArtifactKind::EvalReference)?;
     let mut sets = Vec::new();
     for name in REFERENCE_POOL3 {

@@ -257,32 +257,8 @@ fn reference_for(
     orig: &ViewSet,
     p: &EvalParams,
 ) -> Result<(PathBuf, Reference)> {
-    let (art, r) = crate::artifacts::read_eval_reference(dir)?;
-    for (role, path) in [("original", &a.original), ("style", &a.style)] {
-        let here = fantasystyle_schemas::hash_path(path)?;
-        let made_from = art.manifest.inputs.iter().find(|i| i.role == role);
-        if made_from.map(|i| &i.blake3) != Some(&here) {
-            return Err(Error::input(
-                dir,
-                format!(
-                    "this reference was made from another {role} ({}), not {}: make it again \
-                     with `evaluate --reference-only`",
-                    made_from.map_or("none recorded", |i| i.path.as_str()),
-                    path.display()
-                ),
-            ));
-        }
-    }
-    if art.manifest.producer.params.get("lpips_net") != Some(&serde_json::json!(p.lpips_net.name()))
-    {
-        return Err(Error::input(
-            dir,
-            format!(
-                "this reference was made with another --lpips-net (this evaluation: {})",
-                p.lpips_net.name()
-            ),
-        ));
-    }
+    let r =
+        crate::artifacts::read_eval_reference_for(dir, &a.original, &a.style, p.lpips_net.name())?;
     r.check(dir, orig, p)?;
     Ok((dir.to_path_buf(), r))
 }
