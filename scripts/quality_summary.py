@@ -41,9 +41,9 @@ from make_styles import write_png
 
 # "original": the untouched original renders evaluated as if stylized (runs/<scene>/<style>/original-eval,
 # the DAG's eval_original stages), the reference row.
-METHODS = ["original", "ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80", "ours_nnfm_d2", "ng_nomvfc", "ng_sds", "ng_noprior", "nomvfc", "sds",
+METHODS = ["original", "ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80", "ours_split", "ours_nnfm_d2", "ng_nomvfc", "ng_sds", "ng_noprior", "nomvfc", "sds",
            "colour", "project", "gram", "nnfm", "refit", "gram_fast", "nnfm_fast"]
-SHEET_ROWS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "project", "ours_nnfm_d2", "gram", "nnfm", "ng_nomvfc", "ng_sds", "ng_noprior",
+SHEET_ROWS = ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_split", "project", "ours_nnfm_d2", "gram", "nnfm", "ng_nomvfc", "ng_sds", "ng_noprior",
               "gram_fast", "nnfm_fast", "nomvfc", "sds", "colour", "refit"]
 LAYERS = ["relu1_2", "relu2_2", "relu3_3", "relu4_3"]
 T95 = {1: 12.71, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
@@ -205,9 +205,9 @@ def method_table(res):
 def wins(res, cases):
     keys = [("gram_relu1_2", "Gram relu1_2"), ("gram_relu2_2", "Gram relu2_2"), ("kid", "KID_style"),
             ("kid_obj", "KID object squares"), ("spec", "spectrum distance"), ("short", "short-range LPIPS")]
-    for mine in ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80", "ours_nnfm_d2", "ng_noprior"]:
+    for mine in ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80", "ours_split", "ours_nnfm_d2", "ng_noprior"]:
         others = ["colour", "project", "gram", "nnfm", "refit", "nomvfc", "sds", "ng_nomvfc", "ng_sds", "ng_noprior", "ours",
-                  "ours_nnfm", "ours_nnfm_gram", "ours_proj"]
+                  "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80"]
         if mine == "ng_noprior":
             # The default without the prior's calls, against the baselines at its own time.
             others = ["colour", "gram_fast", "nnfm_fast", "ours_nnfm_gram"]

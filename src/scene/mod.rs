@@ -3,10 +3,12 @@
 //! A [`Scene`] stores parameters exactly as the INRIA `.ply` does: log-scales, opacity
 //! logits, unnormalised quaternions (w, x, y, z) and spherical-harmonic coefficients,
 //! so that reading and writing a `.ply` round-trips every field bit-exactly.
-//! Only colour (`sh_dc`, `sh_rest`) changes during stylization; geometry is frozen.
+//! Only colour (`sh_dc`, `sh_rest`) changes during stylization's iterations; geometry is
+//! frozen (`--split-px` may subdivide it once, before the first).
 //!
 //! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout),
-//! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3).
+//! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3); [`split`] splits long Gaussians
+//! in two so that colours can carry a finer texture (`--split-px`).
 //! [`read_scene_file`] picks the reader from the path (stages read their `--scene`
 //! through [`crate::artifacts::load_scene`], which also takes scene artifacts); every reader ends with
 //! [`Scene::validate`]. Scenes know nothing of cameras: [`Scene::bounds`] is what a
@@ -15,6 +17,7 @@
 
 pub mod ply;
 pub mod splat;
+pub mod split;
 pub mod spz;
 
 use crate::geometry::Bounds;

@@ -26,7 +26,7 @@
 //! depends only on (seed, iteration), so chunks of any size, and a resume after a kill,
 //! give the same bytes as one uninterrupted run.
 
-use super::{ColourArgs, MvfcArgs, PriorArgs, TextureArgs, Threads, TimestepArgs};
+use super::{ColourArgs, MvfcArgs, PriorArgs, SplitArgs, TextureArgs, Threads, TimestepArgs};
 use crate::artifacts::{
     CHECKPOINT_HF_PREV, CheckpointParts, Start, extend_history, load_scene, read_views,
     write_checkpoint,
@@ -115,6 +115,8 @@ pub struct Args {
     /// --colour-init or --preserve-color.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
     pub project_style: bool,
+    #[command(flatten)]
+    pub split: SplitArgs,
     /// After the iterations, move the result's colour mean and covariance (over its
     /// renders from the source views' cameras) onto the style image's, clamped like
     /// --colour-init (ARF's colour transfer after the optimisation): the palette drift of
@@ -205,18 +207,23 @@ pub fn run(a: Args) -> Result<()> {
              object's colours and --preserve-color keeps them: choose one",
         ));
     }
-    // Both starts recolour a fresh scene; a resumed checkpoint has its colours already.
+    let split = a.split.wanted()?;
+    // The starts change a fresh scene; a resumed checkpoint has been through them.
     // Checked before the strength test, so that `--strength 0` does not hide the mistake.
     for (set, flag) in [
         (a.colour_init, "--colour-init"),
         (a.project_style, "--project-style"),
+        (split, "--split-px"),
     ] {
         if set && a.resume.is_some() {
             return Err(Error::param(format!(
-                "{flag} applies to a fresh start (--scene); a resumed checkpoint has its \
-                 colours already"
+                "{flag} applies to a fresh start (--scene); a resumed checkpoint has been \
+                 through it already"
             )));
         }
+    }
+    if split && a.prior.strength > 0.0 {
+        start.scene = a.split.split(&start.scene, &cameras, &a.source_views)?;
     }
     if a.colour_init && a.prior.strength > 0.0 {
         start.scene = colour_init(&start, &source, &style, p.background)?;
@@ -377,7 +384,7 @@ fn producer(a: &Args, start: u64) -> Producer {
         "preserve_color": a.preserve_color, "fit_rest": a.fit_rest, "csd": a.csd,
         "lr_dc": a.lr_dc, "fill": !a.no_fill, "seed": a.seed, "format": a.format,
         "colour_init": a.colour_init, "colour_finish": a.colour_finish,
-        "project_style": a.project_style,
+        "project_style": a.project_style, "split_px": a.split.split_px,
     });
     let params = super::merge_params(&[
         own,

@@ -321,6 +321,50 @@ impl ColourArgs {
     }
 }
 
+/// `--split-px`: split the scene's long Gaussians before stylizing it
+/// ([`crate::scene::split`]; `distill`, `stylize-baseline`).
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct SplitArgs {
+    /// Before stylizing, split every Gaussian longer than this many render pixels at the
+    /// object (2 sigma along its longest axis; one pixel is the style projection's: the
+    /// object centre's depth over the focal length, median over the cameras) in two along
+    /// that axis, for up to 8 rounds (`src/scene/split.rs`; not part of FantasyStyle):
+    /// with the geometry frozen, a colour changes only as finely as the Gaussians that
+    /// carry it. Each pair keeps its parent's mean and covariance, so the renders stay
+    /// close; the result has more Gaussians. 0: off. In `distill`, only with --scene (a
+    /// resumed checkpoint is split already).
+    #[arg(long, default_value_t = 0.0)]
+    pub split_px: f64,
+}
+
+/// Rounds of `--split-px`: one Gaussian becomes at most 2^8 (the rounds stop earlier
+/// once none is above the length; each shortens the axis it splits by 0.7).
+pub const SPLIT_ROUNDS: usize = 8;
+
+impl SplitArgs {
+    /// Whether a split was asked for; an error for a negative or non-finite length.
+    pub fn wanted(&self) -> Result<bool> {
+        if !(self.split_px.is_finite() && self.split_px >= 0.0) {
+            return Err(Error::param("--split-px must be finite and >= 0 (0: off)"));
+        }
+        Ok(self.split_px > 0.0)
+    }
+
+    /// `scene` split for `cameras` (named by `cameras_from` in errors).
+    pub fn split(&self, scene: &Scene, cameras: &[Camera], cameras_from: &Path) -> Result<Scene> {
+        let _ph = crate::timing::span("split");
+        let at = crate::baselines::projection::Placement::of(scene, cameras)
+            .map_err(|e| Error::input(cameras_from, e.to_string()))?;
+        let max_extent = self.split_px * at.world_per_pixel;
+        let (scene, report) = crate::scene::split::split_large(scene, max_extent, SPLIT_ROUNDS);
+        tracing::info!(
+            "split to {} px ({max_extent:.3e} world units): {report}",
+            self.split_px
+        );
+        Ok(scene)
+    }
+}
+
 /// `--texture-weight`, `--texture-loss`, `--texture-loss-weights`, `--texture-layers`,
 /// `--texture-style-size`, `--texture-views`, `--texture-downsample`, `--texture-vgg`:
 /// the texture term of the colour step ([`crate::distill::texture`]; `distill`,

@@ -158,7 +158,7 @@ fn vgg_missing_or_malformed_weights_are_clear_errors() {
 mod stage {
     use crate::harness::repo_root;
     use fantasystyle::stages::stylize_baseline::{Args, Method, run};
-    use fantasystyle::stages::{Background, SceneInput, Threads};
+    use fantasystyle::stages::{Background, SceneInput, SplitArgs, Threads};
     use std::path::{Path, PathBuf};
 
     /// Real VGG16 weights when set-up has made them, else the golden test's narrow
@@ -201,6 +201,7 @@ mod stage {
             no_monitor: false,
             vgg: Some(vgg_dir()),
             stylizer: Some(repo_root().join("vendor/models/stylizer")),
+            split: SplitArgs { split_px: 0.0 },
             threads: Threads::new(2),
         }
     }
@@ -280,6 +281,47 @@ mod stage {
             return;
         }
         check_method(Method::Refit, 150);
+    }
+
+    /// `--split-px`: the baseline optimises the split scene's colours (more Gaussians in
+    /// the result, the Gram distance still falls), and the length is recorded in the
+    /// producer's params only when a split was asked for.
+    #[test]
+    fn a_baseline_stylizes_the_split_scene() {
+        let d = tempfile::tempdir().unwrap();
+        let out = d.path().join("out");
+        let mut a = args(Method::Gram, &out, &sample_style(), 3);
+        a.split.split_px = 0.25;
+        run(a).unwrap();
+        let before =
+            fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
+                .unwrap();
+        let after = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
+        assert!(
+            after.len() > before.len(),
+            "{} -> {}",
+            before.len(),
+            after.len()
+        );
+        let log: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("loss.json")).unwrap()).unwrap();
+        let steps = log["steps"].as_array().unwrap();
+        let gram = |i: usize| steps[i]["gram_distance"].as_f64().unwrap();
+        assert!(
+            gram(3) < gram(0),
+            "Gram distance {} -> {}",
+            gram(0),
+            gram(3)
+        );
+        let params = |dir: &Path| {
+            let m: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap();
+            m["producer"]["params"].clone()
+        };
+        assert_eq!(params(&out)["split_px"], serde_json::json!(0.25));
+        let plain = d.path().join("plain");
+        run(args(Method::ColourTransfer, &plain, &sample_style(), 0)).unwrap();
+        assert!(params(&plain).get("split_px").is_none());
     }
 
     fn write_png(path: &Path, w: u32, h: u32, channels: u8) {
