@@ -13,7 +13,8 @@
 //! `--style`, `--prompt`, `--strength`, `--motif-scale` and the device flags of `distill`
 //! and `csd-step`), [`MvfcArgs`] (`--no-mvfc`, `--mvfc-source`, `--gamma`, ... of
 //! `distill` and `mvfc-filter`), [`TimestepArgs`] (`--timesteps`, `--anneal-iters` of
-//! `distill` and `mvfc-filter`), [`ColourArgs`] (`--colour-loss`) and [`TextureArgs`]
+//! `distill` and `mvfc-filter`), [`ColourArgs`] (`--colour-loss`), [`SplitArgs`]
+//! (`--split-px` of `distill` and `stylize-baseline`) and [`TextureArgs`]
 //! (`--texture-weight`, ... of `distill` and `update-gaussians`);
 //! a stage's own numerics parameters are the library's
 //! parameter structs flattened the same way (`csd::CsdParams`, `mvfc::MvfcParams`).
