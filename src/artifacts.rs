@@ -12,7 +12,7 @@
 //! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
 //! | `scene` | update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] |
 //! | `scene` with optimizer state (a checkpoint) | distill, update-gaussians (one iteration) | [`read_checkpoint`], [`Start::load`]; written by [`write_checkpoint`] |
-//! | `eval-reference` | evaluate --reference-only | [`read_eval_reference`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`write_eval_reference`] |
+//! | `eval-reference` | evaluate --reference-only | [`read_eval_reference_for`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`write_eval_reference`] |
 //!
 //! Artifacts of one iteration of the stage chain (`render-views --window` ->
 //! `encode-latents` -> `mvfc-filter` -> `csd-step`) record the iteration and its window
@@ -432,7 +432,7 @@ fn style_gram_file(tap: usize) -> String {
 }
 
 /// Write an evaluation reference into `out` (an `eval-reference` artifact): what
-/// [`read_eval_reference`] reads.
+/// [`read_eval_reference_for`] reads.
 pub fn write_eval_reference(
     out: &mut fantasystyle_schemas::ArtifactWriter,
     r: &crate::metrics::reference::Reference,

@@ -6,7 +6,7 @@
 //!   then per camera i32 id, i32 model id, u64 width, u64 height, f64 params.
 //! * `images.txt`: per image two lines, `IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME` and
 //!   the 2D points (ignored, possibly empty); `images.bin`: u64 count, then per image
-//!   i32 id, f64 qvec[4], f64 tvec[3], i32 camera id, NUL-terminated name, u64 point
+//!   i32 id, f64 `qvec[4]`, f64 `tvec[3]`, i32 camera id, NUL-terminated name, u64 point
 //!   count, 24 bytes per point.
 //!
 //! `qvec` (w, x, y, z) and `tvec` are world-to-camera, OpenCV axes: exactly [`Camera`]'s
