@@ -16,7 +16,8 @@
 //! of the parent's integral, the price of two lobes for one), so the renders stay close: on the plant capture,
 //! split to 2 px, PSNR 48.5-49.1 dB against the unsplit renders. Repeated for a number of
 //! rounds (each shortens the axis it splits by `c`), so one Gaussian becomes at most
-//! `2^rounds`.
+//! `2^rounds`, and up to a cap on the total (a round that would pass it splits only the
+//! longest that fit; a floater far larger than the object doubles every round).
 //!
 //! INRIA 3DGS's densification (Kerbl et al. 2023, Sec. 5.2) also splits a large Gaussian
 //! in two, sampling the children's positions from the parent and dividing its scales by
@@ -39,16 +40,27 @@ pub struct SplitReport {
     pub splits: usize,
     /// Rounds that split something.
     pub rounds: usize,
-    /// Gaussians still longer than the limit when the rounds ran out.
+    /// Gaussians still longer than the limit when the rounds or the count ran out.
     pub left_above: usize,
+    /// Whether the count cap stopped the splitting (the longest were split first).
+    pub capped: bool,
 }
 
 impl std::fmt::Display for SplitReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} -> {} Gaussians ({} splits in {} rounds; {} still above the limit)",
-            self.before, self.after, self.splits, self.rounds, self.left_above
+            "{} -> {} Gaussians ({} splits in {} rounds; {} still above the limit{})",
+            self.before,
+            self.after,
+            self.splits,
+            self.rounds,
+            self.left_above,
+            if self.capped {
+                "; stopped at the count cap, the longest split first"
+            } else {
+                ""
+            }
         )
     }
 }
@@ -67,8 +79,15 @@ pub fn child_opacity(o: f64) -> f64 {
 }
 
 /// `scene` with every Gaussian longer than `max_extent` (2 sigma along its longest axis,
-/// world units) split in two, for at most `rounds` rounds (module docs).
-pub fn split_large(scene: &Scene, max_extent: f64, rounds: usize) -> (Scene, SplitReport) {
+/// world units) split in two, for at most `rounds` rounds and up to `max_count`
+/// Gaussians: a round that would pass the cap splits only the longest that fit, then
+/// the splitting stops (module docs).
+pub fn split_large(
+    scene: &Scene,
+    max_extent: f64,
+    rounds: usize,
+    max_count: usize,
+) -> (Scene, SplitReport) {
     let mut out = scene.clone();
     let mut report = SplitReport {
         before: scene.len(),
@@ -76,26 +95,39 @@ pub fn split_large(scene: &Scene, max_extent: f64, rounds: usize) -> (Scene, Spl
         splits: 0,
         rounds: 0,
         left_above: 0,
-    };
-    let above = |s: &Scene| {
-        (0..s.len())
-            .filter(|&i| longest(s, i).0 > max_extent)
-            .count()
+        capped: false,
     };
     for _ in 0..rounds {
-        let big: Vec<bool> = (0..out.len())
-            .map(|i| longest(&out, i).0 > max_extent)
-            .collect();
-        let count = big.iter().filter(|&&b| b).count();
+        let extent: Vec<f64> = (0..out.len()).map(|i| longest(&out, i).0).collect();
+        let mut big: Vec<bool> = extent.iter().map(|&e| e > max_extent).collect();
+        let mut count = big.iter().filter(|&&b| b).count();
         if count == 0 {
             break;
         }
-        report.rounds += 1;
-        report.splits += count;
-        out = split_once(&out, &big);
+        let room = max_count.saturating_sub(out.len());
+        if count > room {
+            // Keep the `room` longest (ties by index, so the result is deterministic).
+            let mut ids: Vec<usize> = (0..out.len()).filter(|&i| big[i]).collect();
+            ids.sort_by(|&a, &b| extent[b].total_cmp(&extent[a]).then(a.cmp(&b)));
+            for &i in &ids[room..] {
+                big[i] = false;
+            }
+            count = room;
+            report.capped = true;
+        }
+        if count > 0 {
+            report.rounds += 1;
+            report.splits += count;
+            out = split_once(&out, &big);
+        }
+        if report.capped {
+            break;
+        }
     }
     report.after = out.len();
-    report.left_above = above(&out);
+    report.left_above = (0..out.len())
+        .filter(|&i| longest(&out, i).0 > max_extent)
+        .count();
     (out, report)
 }
 
@@ -174,7 +206,7 @@ mod tests {
     fn a_split_keeps_the_mean_and_covariance() {
         // Longest axis: the second local axis, turned by a rotation about (1, 1, 1).
         let scene = one([-2.0, -0.5, -3.0], [0.9, 0.3, 0.3, 0.1], 0.6);
-        let (out, report) = split_large(&scene, 0.5, 1);
+        let (out, report) = split_large(&scene, 0.5, 1, usize::MAX);
         assert_eq!((report.before, report.after, report.splits), (1, 2, 1));
         let p: [glam::DVec3; 2] =
             [0, 1].map(|i| glam::DVec3::from(out.positions[i].map(|v| v as f64)));
@@ -234,16 +266,36 @@ mod tests {
     fn rounds_split_until_the_limit_or_the_count_runs_out() {
         // 2 sigma = 2 e^0 = 2 along x; each round multiplies it by 0.7.
         let scene = one([0.0, -4.0, -4.0], [1.0, 0.0, 0.0, 0.0], 0.5);
-        let (out, r) = split_large(&scene, 1.0, 8);
+        let (out, r) = split_large(&scene, 1.0, 8, usize::MAX);
         // 2 * 0.7^2 = 0.98 <= 1: two rounds, four Gaussians, none left above.
         assert_eq!((r.rounds, r.splits, r.after, r.left_above), (2, 3, 4, 0));
         assert_eq!(out.len(), 4);
-        let (out, r) = split_large(&scene, 1.0, 1);
+        let (out, r) = split_large(&scene, 1.0, 1, usize::MAX);
         assert_eq!((r.rounds, r.after, r.left_above), (1, 2, 2));
         assert_eq!(out.sh_rest.len(), 2 * 9);
         // Nothing above the limit: the scene comes back unchanged.
-        let (same, r) = split_large(&scene, 2.5, 8);
+        let (same, r) = split_large(&scene, 2.5, 8, usize::MAX);
         assert_eq!(same, scene);
         assert_eq!((r.rounds, r.after), (0, 1));
+        // A cap of 3: the second round has room for one of its two, then it stops.
+        let (_, r) = split_large(&scene, 1.0, 8, 3);
+        assert_eq!((r.rounds, r.splits, r.after, r.left_above), (2, 2, 3, 1));
+        assert!(r.capped);
+        // Under the cap the longest goes first: of a 2-long and a 3-long, the 3-long.
+        let mut two = one([0.0, -4.0, -4.0], [1.0, 0.0, 0.0, 0.0], 0.5);
+        two.positions.push([5.0, 0.0, 0.0]);
+        two.log_scales.push([1.5f32.ln(), -4.0, -4.0]);
+        two.rotations.push([1.0, 0.0, 0.0, 0.0]);
+        two.opacity_logits.push(0.0);
+        two.sh_dc.push([0.0; 3]);
+        two.sh_rest.extend([0.0; 9]);
+        let (out, r) = split_large(&two, 1.0, 8, 3);
+        assert_eq!((r.splits, r.after, r.capped), (1, 3, true));
+        assert_eq!(out.log_scales[0], two.log_scales[0], "the 2-long one stays");
+        let (a, b) = (out.positions[1][0], out.positions[2][0]);
+        assert!(
+            (a + b - 10.0).abs() < 1e-5 && a - b > 2.0,
+            "children at {a}, {b}"
+        );
     }
 }

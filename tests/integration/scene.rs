@@ -1054,7 +1054,7 @@ fn a_split_patch_renders_as_before() {
         rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
         translation: [0.0, 0.0, 2.0],
     };
-    let (split, r) = fantasystyle::scene::split::split_large(&scene, 0.05, 8);
+    let (split, r) = fantasystyle::scene::split::split_large(&scene, 0.05, 8, usize::MAX);
     assert_eq!((r.rounds, r.left_above), (3, 0), "{r}");
     let opts = Default::default();
     let before = fantasystyle::render::render(&scene, &cam, &opts).unwrap();
