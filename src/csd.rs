@@ -3,7 +3,7 @@
 //!
 //! Inputs: the clean target latents z0 (current renders), the noised target latents
 //! z_tgt (MVFC-filtered), the noised source latents z_src (original renders) and the
-//! shared noise eps, all `[N, C, h, w]`, at training timestep t with ab = alphas_cumprod[t].
+//! shared noise eps, all `[N, C, h, w]`, at training timestep t with ab = `alphas_cumprod[t]`.
 //! e(z, c) is the prior's noise prediction under conditioning c ([`Cond`]); beta is the
 //! guidance scale (paper: 7.5).
 //!

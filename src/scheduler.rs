@@ -64,7 +64,7 @@ impl SchedulerConfig {
         }
     }
 
-    /// alphas_cumprod[t] for t in 0..num_train_timesteps, in f64.
+    /// `alphas_cumprod[t]` for t in 0..num_train_timesteps, in f64.
     pub fn alphas_cumprod(&self) -> Vec<f64> {
         let n = self.num_train_timesteps;
         let mut ab = Vec::with_capacity(n);

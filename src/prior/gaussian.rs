@@ -7,8 +7,8 @@
 //! sqrt(1-ab) eps, the MMSE noise prediction is
 //! E[eps | z_t] = sqrt(1-ab) (z_t - sqrt(ab) mu) / (ab var + 1 - ab).
 //!
-//! **VAE.** Encoder: image in [0,1] -> x = 2 img - 1 -> 8x8 average pool -> latent
-//! z_c = SCALING_FACTOR * sum_k ENC[c][k] x_k. ENC's columns are orthogonal (norm 2), so
+//! **VAE.** Encoder: image in `[0,1]` -> x = 2 img - 1 -> 8x8 average pool -> latent
+//! z_c = SCALING_FACTOR * sum_k `ENC[c][k]` x_k. ENC's columns are orthogonal (norm 2), so
 //! the decoder DEC = pinv(ENC) = ENC^T / 4 followed by 8x8 nearest upsampling inverts the
 //! encoder exactly on block-constant images.
 //!
@@ -44,7 +44,7 @@ pub const SCALING_FACTOR: f32 = 0.5;
 pub const TOKEN_DIM: usize = 1 + 2 * CHANNELS;
 /// Side of the (square) image the image encoder takes.
 pub const ENCODER_SIZE: usize = 64;
-/// Raw encoder: latent channel c = sum_k ENC[c][k] x_k on pooled images in [-1, 1].
+/// Raw encoder: latent channel c = sum_k `ENC[c][k]` x_k on pooled images in `[-1, 1]`.
 pub const ENC: [[f32; 3]; CHANNELS] = [
     [1.0, 1.0, 1.0],
     [1.0, -1.0, 1.0],

@@ -109,7 +109,7 @@ pub struct ControlNetGraph {
     pub sample: String,
     pub timestep: String,
     pub encoder_hidden_states: String,
-    /// The control image input `[B,3,H,W]` in [0,1].
+    /// The control image input `[B,3,H,W]` in `[0,1]`.
     pub cond: String,
     #[serde(default)]
     pub text_embeds: Option<String>,

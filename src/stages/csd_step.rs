@@ -40,7 +40,7 @@ use std::path::PathBuf;
 /// One controllable stylized distillation (CSD) step as distill makes it: from the
 /// noised latents (mvfc-filter), the clean latents and the window's renders, compute
 /// z0' = z0 - lr w(t) grad and write the colour targets render + alpha (c' - c),
-/// c' = c + decode(z0') - decode(z0), as a targets artifact (rgb.npy [N,H,W,3],
+/// c' = c + decode(z0') - decode(z0), as a targets artifact (rgb.npy `[N,H,W,3]`,
 /// cameras.json, delta.npy, PNG previews).
 #[derive(clap::Parser, Debug, Clone)]
 #[command(name = "csd-step", version)]

@@ -23,11 +23,11 @@ use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use ndarray::{Array3, Array4, Axis};
 use std::path::PathBuf;
 
-/// VAE-encode a views artifact's renders into a latents artifact (latents.npy [N,C,h,w]).
+/// VAE-encode a views artifact's renders into a latents artifact (latents.npy `[N,C,h,w]`).
 #[derive(clap::Parser, Debug, Clone)]
 #[command(name = "encode-latents", version)]
 pub struct Args {
-    /// Views artifact directory (rgb.npy [N,H,W,3] in [0,1]).
+    /// Views artifact directory (rgb.npy `[N,H,W,3]` in `[0,1]`).
     #[arg(long)]
     pub views: PathBuf,
     /// Model directory holding model.json (e.g. vendor/models/gaussian-prior).

@@ -1,9 +1,9 @@
 //! `render-views`: render a scene from a set of cameras into a `views` artifact.
 //!
-//! Output (schema `views` v1): `rgb.npy` [N,H,W,3] f32 composited over the background
-//! and clamped to [0,1] (3DGS colours `max(0, SH + 0.5)` have no upper bound; INRIA clamps
-//! the same way when it saves renders), `depth.npy` [N,H,W] (expected depth, not divided by alpha), `alpha.npy`
-//! [N,H,W], `cameras.json` (INRIA format, at W x H), and `view_000.png`.. previews.
+//! Output (schema `views` v1): `rgb.npy` `[N,H,W,3]` f32 composited over the background
+//! and clamped to `[0,1]` (3DGS colours `max(0, SH + 0.5)` have no upper bound; INRIA clamps
+//! the same way when it saves renders), `depth.npy` `[N,H,W]` (expected depth, not divided by alpha), `alpha.npy`
+//! `[N,H,W]`, `cameras.json` (INRIA format, at W x H), and `view_000.png`.. previews.
 //! The manifest records the scene and cameras as inputs (hashes) and the parameters.
 //!
 //! With `--window N` it renders one iteration's window for the stage chain instead: the

@@ -45,7 +45,7 @@ pub struct Args {
     /// The scene, and the cameras: one per target image, at the targets' size.
     #[command(flatten)]
     pub input: SceneInput,
-    /// Targets: a `targets` or `views` artifact directory whose rgb.npy is [N,H,W,3].
+    /// Targets: a `targets` or `views` artifact directory whose rgb.npy is `[N,H,W,3]`.
     #[arg(long)]
     pub targets: PathBuf,
     /// Number of Adam steps; each step renders every view once (>= 1). Required for a
