@@ -343,13 +343,13 @@ pub fn project_style(scene: &Scene, style: &Image, at: &Placement, normals: &[DV
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::mat_to_quat;
+    use glam::DMat3;
 
     /// Every Gaussian's own normal ([`normal`]): the axis of its smallest scale.
     fn axis_normals(scene: &Scene) -> Vec<DVec3> {
         (0..scene.len()).map(|i| normal(scene, i)).collect()
     }
-    use crate::geometry::mat_to_quat;
-    use glam::DMat3;
 
     /// A camera at `(0, 0, -d)` looking along +z at the origin.
     fn camera(d: f32, fx: f32) -> Camera {
