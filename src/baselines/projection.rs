@@ -184,10 +184,8 @@ impl DepthView<'_> {
         let n = dx.cross(dy).try_normalize()?;
         let ray = centre.normalize();
         let n = if n.dot(ray) > 0.0 { -n } else { n };
-        // Camera to world: the transpose of the world-to-camera rotation (its rows, read
-        // as columns).
-        let to_world = glam::DMat3::from_cols_array_2d(&c.rotation.map(|r| r.map(f64::from)));
-        Some((to_world * n, -n.dot(ray)))
+        // Camera to world: the transpose of the world-to-camera rotation.
+        Some((c.w2c().0.transpose() * n, -n.dot(ray)))
     }
 }
 

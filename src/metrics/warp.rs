@@ -53,13 +53,6 @@ impl Warped {
     }
 }
 
-fn f64m(c: &Camera) -> ([[f64; 3]; 3], [f64; 3]) {
-    (
-        c.rotation.map(|r| r.map(|v| v as f64)),
-        c.translation.map(|v| v as f64),
-    )
-}
-
 /// Warp `src_img` (view `src_cam`, surface depth `src_z`) into the frame of `dst_cam`
 /// (surface depth `dst_z`). Depths are from [`surface_depth`]; images share one size.
 pub fn warp_into(
@@ -83,14 +76,7 @@ pub fn warp_with_tolerance(
     depth_rel_tol: f64,
 ) -> Warped {
     let (w, h) = (src_img.width, src_img.height);
-    let (rd, td) = f64m(dst_cam);
-    let (rs, ts) = f64m(src_cam);
-    let (dfx, dfy, dcx, dcy) = (
-        dst_cam.fx as f64,
-        dst_cam.fy as f64,
-        dst_cam.cx as f64,
-        dst_cam.cy as f64,
-    );
+    let (rs, ts) = src_cam.w2c();
     let (sfx, sfy, scx, scy) = (
         src_cam.fx as f64,
         src_cam.fy as f64,
@@ -106,23 +92,14 @@ pub fn warp_with_tolerance(
             if !z.is_finite() {
                 continue;
             }
-            // destination camera -> world: p = R^T (c - t)
-            let c = [
-                (x as f64 + 0.5 - dcx) / dfx * z - td[0],
-                (y as f64 + 0.5 - dcy) / dfy * z - td[1],
-                z - td[2],
-            ];
-            let p: [f64; 3] =
-                std::array::from_fn(|j| rd[0][j] * c[0] + rd[1][j] * c[1] + rd[2][j] * c[2]);
-            // world -> source camera
-            let q: [f64; 3] = std::array::from_fn(|i| {
-                rs[i][0] * p[0] + rs[i][1] * p[1] + rs[i][2] * p[2] + ts[i]
-            });
-            if q[2] <= 1e-9 {
+            // destination pixel centre -> world -> source camera
+            let p = dst_cam.unproject(x as f64 + 0.5, y as f64 + 0.5, z);
+            let q = rs * p + ts;
+            if q.z <= 1e-9 {
                 continue;
             }
-            let u = sfx * q[0] / q[2] + scx - 0.5;
-            let v = sfy * q[1] / q[2] + scy - 0.5;
+            let u = sfx * q.x / q.z + scx - 0.5;
+            let v = sfy * q.y / q.z + scy - 0.5;
             // Inside the bilinear support of the source pixel centres (a rounding-level
             // excess, as in a view warped into itself, is snapped back).
             const SNAP: f64 = 1e-3;
@@ -159,7 +136,7 @@ pub fn warp_with_tolerance(
                 continue;
             }
             let zsrc = zsum / wsum;
-            if (q[2] - zsrc).abs() > depth_rel_tol * q[2] {
+            if (q.z - zsrc).abs() > depth_rel_tol * q.z {
                 continue;
             }
             let (u, v) = (uc, vc);
@@ -173,8 +150,10 @@ pub fn warp_with_tolerance(
     Warped { image, mask, valid }
 }
 
-/// A pinhole camera at `eye` looking at `target` (world up `+z` unless nearly parallel),
-/// focal length `f` pixels, principal point at the image centre. For synthetic cases.
+/// A pinhole camera at `eye` looking at `target`, image-down as close to world `-z` as
+/// possible (`-y` when looking nearly straight up or down;
+/// [`crate::geometry::look_at_c2w`]), focal length `f` pixels, principal point
+/// at the image centre. For synthetic cases.
 pub fn look_at(
     name: &str,
     eye: [f64; 3],
@@ -183,26 +162,22 @@ pub fn look_at(
     height: u32,
     f: f64,
 ) -> Camera {
-    use crate::geometry::{DMat3, DVec3, unit};
-    let (eye, target) = (DVec3::from_array(eye), DVec3::from_array(target));
-    let fwd = unit(target - eye);
-    let up = if fwd.z.abs() > 0.99 {
-        DVec3::Y
+    use crate::geometry::{DVec3, look_at_c2w, rows, unit};
+    let (eye_v, target_v) = (DVec3::from_array(eye), DVec3::from_array(target));
+    // Image-down along world -z, or -y when looking (nearly) straight up or down.
+    let down = if unit(target_v - eye_v).z.abs() > 0.99 {
+        -DVec3::Y
     } else {
-        DVec3::Z
+        -DVec3::Z
     };
-    let right = unit(fwd.cross(up));
-    let down = fwd.cross(right);
-    // World-to-camera: rows right, down, forward.
-    let r = DMat3::from_cols(right, down, fwd).transpose();
-    let t = -(r * eye);
-    Camera::from_w2c(
+    let c2w = look_at_c2w(eye_v, target_v, down);
+    Camera::from_c2w(
         name.into(),
         width,
         height,
         [f, f, 0.5 * width as f64, 0.5 * height as f64],
-        crate::geometry::rows(r),
-        t.to_array(),
+        rows(c2w),
+        eye,
     )
 }
 
@@ -227,25 +202,17 @@ pub mod synthetic {
     /// Ray-cast camera `cam`; the occluder is the square `|x|, |y| < half` at height `z`.
     pub fn render(cam: &Camera, occluder: Option<(f64, f64)>) -> (Image, Vec<f32>, Vec<f32>) {
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let (r, t) = f64m(cam);
-        let eye: [f64; 3] =
-            std::array::from_fn(|j| -(r[0][j] * t[0] + r[1][j] * t[1] + r[2][j] * t[2]));
+        let eye = cam.unproject(cam.cx as f64, cam.cy as f64, 0.0);
         let mut img = Image::filled(w, h, [0.0; 3]);
         let mut depth = vec![0.0f32; w * h];
         let mut alpha = vec![0.0f32; w * h];
         for y in 0..h {
             for x in 0..w {
-                let dc = [
-                    (x as f64 + 0.5 - cam.cx as f64) / cam.fx as f64,
-                    (y as f64 + 0.5 - cam.cy as f64) / cam.fy as f64,
-                    1.0,
-                ];
                 // world direction with unit camera-z: points are eye + s * d, camera depth s
-                let d: [f64; 3] =
-                    std::array::from_fn(|j| r[0][j] * dc[0] + r[1][j] * dc[1] + r[2][j] * dc[2]);
+                let d = cam.unproject(x as f64 + 0.5, y as f64 + 0.5, 1.0) - eye;
                 let hit = |zp: f64| {
-                    let s = (zp - eye[2]) / d[2];
-                    (s > 1e-6).then(|| (s, eye[0] + s * d[0], eye[1] + s * d[1]))
+                    let s = (zp - eye.z) / d.z;
+                    (s > 1e-6).then_some((s, eye.x + s * d.x, eye.y + s * d.y))
                 };
                 let mut best: Option<(f64, [f32; 3])> =
                     hit(0.0).map(|(s, px, py)| (s, ground(px, py)));
