@@ -1,6 +1,6 @@
 //! The crate's one error type. Every fallible function of the runner returns
-//! [`Result`]; `main` maps [`Error::Stage`]-free errors to exit code 2 (a DAG or usage
-//! problem) and prints them as they display: the file (and line, for DAG problems)
+//! [`Result`]; `main` maps these errors to exit code 2 (a DAG or usage problem; a
+//! failed stage is exit code 1) and prints them as they display: the file (and line, for DAG problems)
 //! first, then the problem.
 
 use std::path::PathBuf;

@@ -24,7 +24,7 @@ struct DagArgs {
     /// file go here (default: the DAG's directory).
     #[arg(long, short = 'w')]
     workdir: Option<PathBuf>,
-    /// Override a [vars] value or a params value (dotted key): NAME=VALUE. A value that
+    /// Override a value of the DAG's vars table or of its params (dotted key): NAME=VALUE. A value that
     /// names an existing path is taken relative to the current directory. Repeatable.
     #[arg(long = "set", short = 's', value_name = "NAME=VALUE")]
     sets: Vec<String>,
@@ -90,7 +90,7 @@ enum Cmd {
         /// Draw a tensor into this PNG.
         #[arg(long)]
         png: Option<PathBuf>,
-        /// How to draw latents [N,C,h,w].
+        /// How to draw latents (N, C, h, w).
         #[arg(long, value_enum, default_value_t = inspect::LatentMode::Grid)]
         mode: inspect::LatentMode,
         /// Which tensor to draw (default: latents, z_tgt, rgb, else the first).

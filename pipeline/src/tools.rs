@@ -64,7 +64,7 @@ fn splitmix(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// Run the fake stage: `latents.npy` [1,2,4,4] is half the sum of the inputs' latents,
+/// Run the fake stage: `latents.npy` `[1,2,4,4]` is half the sum of the inputs' latents,
 /// plus `value`, plus uniform noise from (seed, index); one `part{k}.npy` is written per
 /// step, with a sleep before each step.
 pub fn test_stage(a: &TestStage) -> Result<(), SchemaError> {

@@ -23,14 +23,15 @@ pub const FORMAT: &str = "fantasystyle-artifact";
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ArtifactKind {
-    /// Rendered views: `rgb.npy` [N,H,W,3], `depth.npy` [N,H,W], `alpha.npy` [N,H,W], `cameras.json`.
+    /// Rendered views: `rgb.npy` `[N,H,W,3]`, `depth.npy` `[N,H,W]`, `alpha.npy` `[N,H,W]`,
+    /// `cameras.json`.
     Views,
-    /// VAE latents: `latents.npy` [N,C,h,w].
+    /// VAE latents: `latents.npy` `[N,C,h,w]`.
     Latents,
     /// Noised source and (MVFC-filtered) target latents sharing one eps: `z_src.npy`,
-    /// `z_tgt.npy`, `eps.npy` [N,C,h,w]; `meta.timestep`.
+    /// `z_tgt.npy`, `eps.npy` `[N,C,h,w]`; `meta.timestep`.
     NoisedLatents,
-    /// Target images for the colour fit: `rgb.npy` [N,H,W,3], `cameras.json`.
+    /// Target images for the colour fit: `rgb.npy` `[N,H,W,3]`, `cameras.json`.
     Targets,
     /// A Gaussian scene: `scene.ply`, optionally `loss.json`.
     Scene,

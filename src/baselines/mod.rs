@@ -1,7 +1,7 @@
 //! Baselines users compare FantasyStyle against, run through the same renderer, colour
 //! fit and evaluation (issue: baselines; the paper's comparisons in its experiments).
 //!
-//! * [`gram`]: Gram-matrix style loss (Gatys et al. 2016) over VGG16 relu1_2, relu2_2,
+//! * [`gram`](mod@gram): Gram-matrix style loss (Gatys et al. 2016) over VGG16 relu1_2, relu2_2,
 //!   relu3_3, relu4_3 at image scales 1 and 1/2, plus a content loss at relu4_3 against
 //!   the original render — the loss SGSST-style 3DGS stylization optimises.
 //! * [`nnfm`]: nearest-neighbour feature matching (ARF, Zhang et al. 2022): every

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 ///
 /// Each entry is the sum over positions, in position order, of `f_a f_b` (products in
 /// f64), divided by `H W`. For speed the features are laid out position-major and the
-/// upper triangle is computed in strips of [`TILE`] rows (in parallel; a strip runs from
+/// upper triangle is computed in strips of `TILE` rows (in parallel; a strip runs from
 /// the diagonal to the last column, so the features are read once per strip rather
 /// than once per square tile) whose entries all advance one position at a time, so the
 /// inner loop runs over contiguous channels; that changes no entry's summation order

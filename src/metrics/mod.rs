@@ -13,7 +13,7 @@
 //! | [`spectrum`] | radially averaged luminance power spectrum (the motif scale) |
 //! | [`texture`] | measures that see texture: per-layer object Gram, KID interval, spectrum, object colour |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
-//! | [`reference`] | the half of an evaluation that depends only on the original views and the style |
+//! | [`reference`](mod@reference) | the half of an evaluation that depends only on the original views and the style |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
 //! | [`report`] | the self-contained `report.html` of an evaluation |
 //! | [`viewer`] | the report's interactive side-by-side 3D viewer (Spark, embedded `.spz`) |

@@ -11,7 +11,7 @@
 //!
 //! What it holds, per measure of [`super::evaluate`]: the Inception pool3 features of the
 //! original views (FID/KID_content), of the style crops (FID/KID_style), of the original's
-//! object squares and of the style's squares ([`super::texture::kid_object`]); the style
+//! object squares and of the style's squares (`kid_object` of [`super::texture::TextureMetrics`]); the style
 //! image's VGG16 Gram matrices per tap and, per original view, its Gram distance to them
 //! (whole view, and per layer over the object); the original views' own short- and
 //! long-range consistency (the floor the report shows). [`Settings`] records what it was

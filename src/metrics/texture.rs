@@ -243,7 +243,7 @@ impl ObjectGram {
     }
 
     /// One view's distance to the style per layer of [`GRAM_LAYERS`] (`None` where the
-    /// view covers less than [`MIN_COVERAGE`]), from its features and its alpha (`h x w`,
+    /// view covers less than `MIN_COVERAGE`), from its features and its alpha (`h x w`,
     /// the image's).
     pub fn view_distances(
         &self,

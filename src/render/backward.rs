@@ -176,7 +176,7 @@ fn sh_backward_one(
 }
 
 /// The colour gradients of one view for [`sh_backward_views`]: `ids` ascending (as
-/// [`super::ViewCache::gaussians`] and [`super::Splats::ids`] are), `raw` and `grad_c`
+/// [`super::ViewCache::gaussians`] and [`super::project::Splats::ids`] are), `raw` and `grad_c`
 /// indexed like `ids`.
 #[derive(Debug, Clone, Copy)]
 pub struct ViewGrad<'a> {

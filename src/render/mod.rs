@@ -3,7 +3,7 @@
 //! frozen-geometry contribution cache used by stylization.
 //!
 //! Pipeline of one view ([`render`]):
-//! 1. [`project`]: cull, project means, EWA 2D covariance `J W Sigma W^T J^T + 0.3 I`,
+//! 1. [`project`](mod@project): cull, project means, EWA 2D covariance `J W Sigma W^T J^T + 0.3 I`,
 //!    conic, 3-sigma radius; [`bin`]: 16x16 tile lists in a deterministic depth order;
 //! 2. [`sh`]: colour per splat for the view direction, `max(0, SH(d) + 0.5)`;
 //! 3. [`raster`]: per-tile front-to-back compositing (parallel over tile rows with

@@ -28,7 +28,7 @@
 //! `((a - c) / 2)^2 + b^2`: sums of non-negative terms, so thin Gaussians lose no
 //! precision to cancellation. A Gaussian whose f32 evaluation overflows or meets a
 //! non-finite value (absurd scales or positions) is projected again by the f64 code
-//! ([`project_one_f64`]), which is also the reference the f32 path is tested against.
+//! (`project_one_f64`), which is also the reference the f32 path is tested against.
 //!
 //! Binning into tiles: [`super::bin`].
 

@@ -138,8 +138,8 @@ impl Threads {
 /// `--device`: where a model's ONNX graphs run.
 #[derive(clap::Args, Debug, Clone, Copy, Default)]
 pub struct DeviceArg {
-    /// Execution provider of the model's graphs: cpu, cuda[:N] or tensorrt[:N] (GPU N;
-    /// needs onnxruntime's GPU build, see README "Running on a GPU").
+    /// Execution provider of the model's graphs: cpu, cuda, cuda:N, tensorrt or
+    /// tensorrt:N (GPU N; needs onnxruntime's GPU build, see README "Running on a GPU").
     #[arg(long = "device", value_name = "DEVICE", default_value = "cpu")]
     pub device: crate::runtime::Device,
 }
