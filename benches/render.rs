@@ -1,10 +1,13 @@
 //! Rasterizer and colour-fit benchmarks (issue: foundation, issue: update-gaussians).
 //!
-//! `cargo bench --bench render` prints two markdown tables sections ("Rasterizer",
+//! `cargo bench --bench render` prints markdown tables ("Rasterizer", its thread scaling,
 //! "Colour fit") and writes them to `bench-out/render.md`. Every case runs in a child
-//! process (this binary with `--case ...`) on a 2-thread rayon pool, so that its peak
-//! resident memory (`VmHWM` from `/proc/self/status`, which includes the loaded scene
-//! and the process baseline) belongs to that case alone.
+//! process (this binary with `--case THREADS ...`) on a rayon pool of that many threads
+//! (2 unless the table says otherwise), so that its peak resident memory (`VmHWM` from
+//! `/proc/self/status`, which includes the loaded scene and the process baseline)
+//! belongs to that case alone. The thread-scaling table runs each case on 1 and on 2
+//! threads in turn, [`SCALING_ROUNDS`] times, and takes medians: pairing the two keeps
+//! the ratio meaningful while the machine's speed drifts.
 //!
 //! Cameras: the default orbit of `../shared/TARGETS.md` (`orbit:N`: radius 2.2 x the
 //! largest extent, 15 degrees elevation, 50 degrees fov), black background.
@@ -21,6 +24,8 @@ use std::process::Command;
 use std::time::Instant;
 
 const THREADS: usize = 2;
+/// Rounds of the thread-scaling table (each: one child on 1 thread, one on 2).
+const SCALING_ROUNDS: usize = 3;
 
 fn scenes_dir() -> PathBuf {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/scenes");
@@ -182,12 +187,15 @@ fn case_profile(scene_name: &str, size: u32) -> serde_json::Value {
     use fantasystyle::render::{clamp_colours, composite, raw_colours};
     let scene = load(scene_name);
     let cam = &cams(&scene, 8, size)[0];
-    // CPU ms per call over 10 calls (robust to other processes on a shared machine).
-    let time = |f: &mut dyn FnMut()| {
-        let c = cpu_ms();
+    // CPU ms per call over 10 calls (robust to other processes on a shared machine) and
+    // wall ms per call (what the pool's threads buy).
+    let mut wall = Vec::new();
+    let mut time = |f: &mut dyn FnMut()| {
+        let (c, t) = (cpu_ms(), Instant::now());
         for _ in 0..10 {
             f();
         }
+        wall.push(t.elapsed().as_secs_f64() * 1e3 / 10.0);
         (cpu_ms() - c) / 10.0
     };
     let frame = project(&scene, cam);
@@ -217,12 +225,15 @@ fn case_profile(scene_name: &str, size: u32) -> serde_json::Value {
     serde_json::json!({
         "splats": frame.splats.ids.len(), "pairs": pairs, "pixel_evals": row_evals * 16,
         "project_cpu_ms": t_project, "colour_cpu_ms": t_colour, "composite_cpu_ms": t_composite,
+        "project_ms": wall[0], "colour_ms": wall[1], "composite_ms": wall[2],
     })
 }
 
 fn child(args: &[String]) {
+    let threads: usize = args[0].parse().expect("--case THREADS");
+    let args = &args[1..];
     let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(THREADS)
+        .num_threads(threads)
         .build()
         .unwrap();
     let v = pool.install(|| match args[0].as_str() {
@@ -240,8 +251,18 @@ fn child(args: &[String]) {
 }
 
 fn run_child(args: &[&str]) -> Option<serde_json::Value> {
+    run_child_on(THREADS, args)
+}
+
+/// [`run_child`] on a pool of `threads` threads.
+fn run_child_on(threads: usize, args: &[&str]) -> Option<serde_json::Value> {
     let exe = std::env::current_exe().ok()?;
-    let out = Command::new(exe).arg("--case").args(args).output().ok()?;
+    let out = Command::new(exe)
+        .arg("--case")
+        .arg(threads.to_string())
+        .args(args)
+        .output()
+        .ok()?;
     let text = String::from_utf8_lossy(&out.stdout);
     let line = text.lines().find_map(|l| l.strip_prefix("RESULT "));
     match line {
@@ -260,6 +281,15 @@ fn f(v: &serde_json::Value, k: &str) -> f64 {
     v[k].as_f64().unwrap_or(f64::NAN)
 }
 
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if let Some(i) = args.iter().position(|a| a == "--case") {
@@ -267,7 +297,12 @@ fn main() {
         return;
     }
     if let Some(i) = args.iter().position(|a| a == "--profile") {
-        let v = run_child(&["profile", &args[i + 1], &args[i + 2]]);
+        // `--profile SCENE SIZE [THREADS]`
+        let threads = args
+            .get(i + 3)
+            .and_then(|t| t.parse().ok())
+            .unwrap_or(THREADS);
+        let v = run_child_on(threads, &["profile", &args[i + 1], &args[i + 2]]);
         println!("{v:?}");
         return;
     }
@@ -315,6 +350,43 @@ fn main() {
                 f(&v, "peak_mb"),
             ));
         }
+    }
+    out(String::new());
+    out(format!(
+        "### Forward thread scaling: 1 vs 2 threads, in turn, {SCALING_ROUNDS} rounds (medians; speed-up per round)"
+    ));
+    out(String::new());
+    out("| scene | size | ms / view, 1 thread | ms / view, 2 threads | speed-up (min-max) | efficiency |".into());
+    out("|---|---|---|---|---|---|".into());
+    for (s, size) in forward_cases
+        .iter()
+        .filter(|(s, size)| *size == 512 && !s.ends_with("1000000"))
+    {
+        let (mut one, mut two, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..SCALING_ROUNDS {
+            let a = run_child_on(1, &["forward", s, &size.to_string()]);
+            let b = run_child_on(2, &["forward", s, &size.to_string()]);
+            if let (Some(a), Some(b)) = (a, b) {
+                one.push(f(&a, "ms"));
+                two.push(f(&b, "ms"));
+                ratio.push(f(&a, "ms") / f(&b, "ms"));
+            }
+        }
+        if ratio.is_empty() {
+            continue;
+        }
+        let (lo, hi) = ratio
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &r| {
+                (l.min(r), h.max(r))
+            });
+        let sp = median(ratio);
+        out(format!(
+            "| {s} | {size} | {:.1} | {:.1} | {sp:.2} ({lo:.2}-{hi:.2}) | {:.2} |",
+            median(one),
+            median(two),
+            sp / 2.0
+        ));
     }
     out(String::new());
     out("### Colour fit: one Adam step over all views (render, L1 + D-SSIM, backward, update), 2 threads".into());
