@@ -95,13 +95,15 @@ impl Camera {
     /// The world point seen at pixel position `(u, v)` (pixel centres at `x + 0.5`) at
     /// camera depth `z`: `R^T (K^-1 (u, v, 1) z - t)`, in f64.
     pub fn unproject(&self, u: f64, v: f64, z: f64) -> DVec3 {
+        self.unprojector()(u, v, z)
+    }
+
+    /// [`Self::unproject`] with the pose and intrinsics converted once, for many pixels.
+    pub fn unprojector(&self) -> impl Fn(f64, f64, f64) -> DVec3 + use<> {
         let (r, t) = self.w2c();
-        let c = DVec3::new(
-            (u - self.cx as f64) / self.fx as f64 * z,
-            (v - self.cy as f64) / self.fy as f64 * z,
-            z,
-        );
-        r.transpose() * (c - t)
+        let to_world = r.transpose();
+        let [fx, fy, cx, cy] = [self.fx, self.fy, self.cx, self.cy].map(f64::from);
+        move |u, v, z| to_world * (DVec3::new((u - cx) / fx * z, (v - cy) / fy * z, z) - t)
     }
 
     /// A camera from a world-to-camera rotation and translation in f64.

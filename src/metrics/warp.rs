@@ -77,6 +77,7 @@ pub fn warp_with_tolerance(
 ) -> Warped {
     let (w, h) = (src_img.width, src_img.height);
     let (rs, ts) = src_cam.w2c();
+    let unproject = dst_cam.unprojector();
     let (sfx, sfy, scx, scy) = (
         src_cam.fx as f64,
         src_cam.fy as f64,
@@ -93,7 +94,7 @@ pub fn warp_with_tolerance(
                 continue;
             }
             // destination pixel centre -> world -> source camera
-            let p = dst_cam.unproject(x as f64 + 0.5, y as f64 + 0.5, z);
+            let p = unproject(x as f64 + 0.5, y as f64 + 0.5, z);
             let q = rs * p + ts;
             if q.z <= 1e-9 {
                 continue;
@@ -202,14 +203,15 @@ pub mod synthetic {
     /// Ray-cast camera `cam`; the occluder is the square `|x|, |y| < half` at height `z`.
     pub fn render(cam: &Camera, occluder: Option<(f64, f64)>) -> (Image, Vec<f32>, Vec<f32>) {
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let eye = cam.unproject(cam.cx as f64, cam.cy as f64, 0.0);
+        let unproject = cam.unprojector();
+        let eye = unproject(cam.cx as f64, cam.cy as f64, 0.0);
         let mut img = Image::filled(w, h, [0.0; 3]);
         let mut depth = vec![0.0f32; w * h];
         let mut alpha = vec![0.0f32; w * h];
         for y in 0..h {
             for x in 0..w {
                 // world direction with unit camera-z: points are eye + s * d, camera depth s
-                let d = cam.unproject(x as f64 + 0.5, y as f64 + 0.5, 1.0) - eye;
+                let d = unproject(x as f64 + 0.5, y as f64 + 0.5, 1.0) - eye;
                 let hit = |zp: f64| {
                     let s = (zp - eye.z) / d.z;
                     (s > 1e-6).then_some((s, eye.x + s * d.x, eye.y + s * d.y))
