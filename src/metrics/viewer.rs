@@ -128,24 +128,15 @@ pub struct ViewerCamera {
     pub up: [f64; 3],
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
-    a.map(|v| v * s)
-}
-
 impl ViewerCamera {
     /// View 0 of `cams`, orbiting the point of its optical axis nearest `scene`'s median
     /// position, about the mean up direction of all `cams`.
     pub fn from_views(cams: &[Camera], scene: &Scene) -> ViewerCamera {
+        use crate::geometry::DVec3;
         let c = &cams[0];
-        let row = |r: [f32; 3]| r.map(f64::from);
-        let (right, down, fwd) = (row(c.rotation[0]), row(c.rotation[1]), row(c.rotation[2]));
-        let pos = c.center().map(f64::from);
+        let (r, _) = c.w2c();
+        let (right, down, fwd) = (r.row(0), r.row(1), r.row(2));
+        let pos = DVec3::from_array(c.center().map(f64::from));
         let median = |k: usize| {
             let mut v: Vec<f32> = scene.positions.iter().map(|p| p[k]).collect();
             if v.is_empty() {
@@ -154,26 +145,17 @@ impl ViewerCamera {
             let m = v.len() / 2;
             *v.select_nth_unstable_by(m, f32::total_cmp).1 as f64
         };
-        let mid = [median(0), median(1), median(2)];
-        let along = dot(sub(mid, pos), fwd);
+        let mid = DVec3::new(median(0), median(1), median(2));
+        let along = (mid - pos).dot(fwd);
         let dist = if along > 1e-6 {
             along
         } else {
-            dot(sub(mid, pos), sub(mid, pos)).sqrt().max(1.0)
+            (mid - pos).length().max(1.0)
         };
-        let target = [0, 1, 2].map(|k| pos[k] + fwd[k] * dist);
-        let mut up = [0.0; 3];
-        for cam in cams {
-            for k in 0..3 {
-                up[k] -= cam.rotation[1][k] as f64;
-            }
-        }
-        let n = dot(up, up).sqrt();
-        let up = if n > 1e-6 {
-            scale(up, 1.0 / n)
-        } else {
-            scale(down, -1.0)
-        };
+        let target = pos + fwd * dist;
+        let up: DVec3 = cams.iter().map(|cam| -cam.w2c().0.row(1)).sum();
+        let n = up.length();
+        let up = if n > 1e-6 { up * (1.0 / n) } else { -down };
         ViewerCamera {
             name: c.name.clone(),
             width: c.width as usize,
@@ -181,12 +163,12 @@ impl ViewerCamera {
             fov_y: 2.0 * (c.height as f64 / (2.0 * c.fy as f64)).atan().to_degrees(),
             near: dist * 0.01,
             far: dist * 100.0,
-            position: pos,
-            x: right,
-            y: scale(down, -1.0),
-            z: scale(fwd, -1.0),
-            target,
-            up,
+            position: pos.to_array(),
+            x: right.to_array(),
+            y: (-down).to_array(),
+            z: (-fwd).to_array(),
+            target: target.to_array(),
+            up: up.to_array(),
         }
     }
 
@@ -389,18 +371,14 @@ mod tests {
         let cv = &cams[0];
         assert_eq!(c.position, cv.center().map(f64::from));
         // Looking down -z: the target is in front, straight ahead.
-        let dir = sub(c.target, c.position);
-        let fwd = cv.rotation[2].map(f64::from);
-        let n = dot(dir, dir).sqrt();
-        assert!((dot(dir, fwd) / n - 1.0).abs() < 1e-6);
-        assert_eq!(c.z, scale(fwd, -1.0));
+        use crate::geometry::DVec3;
+        let v = DVec3::from_array;
+        let dir = v(c.target) - v(c.position);
+        let fwd = v(cv.rotation[2].map(f64::from));
+        assert!((dir.normalize().dot(fwd) - 1.0).abs() < 1e-6);
+        assert_eq!(c.z, (-fwd).to_array());
         // Right-handed basis.
-        let cross = [
-            c.x[1] * c.y[2] - c.x[2] * c.y[1],
-            c.x[2] * c.y[0] - c.x[0] * c.y[2],
-            c.x[0] * c.y[1] - c.x[1] * c.y[0],
-        ];
-        assert!(dot(cross, c.z) > 0.999);
+        assert!(v(c.x).cross(v(c.y)).dot(v(c.z)) > 0.999);
         // The sample's up is -y; an orbit's mean camera up is exactly that.
         assert!((c.up[1] + 1.0).abs() < 1e-6, "{:?}", c.up);
         let fov = 2.0 * (48.0 / (2.0 * cv.fy as f64)).atan().to_degrees();
