@@ -286,7 +286,8 @@ fn oracle_predictions(
 ) -> Result<BranchPredictions> {
     let (sa, sb) = schedule.coefficients(x.t)?;
     let (sa, sb) = (sa as f32, sb as f32);
-    let oracle = |c: Cond| matches!(c, Cond::Null | Cond::Content);
+    let content = prior.content_is_identity();
+    let oracle = |c: Cond| c == Cond::Null || (content && c == Cond::Content);
     let branch = |prior: &mut dyn Prior,
                   z: ArrayView4<'_, f32>,
                   conds: &[Cond],
@@ -312,11 +313,26 @@ fn oracle_predictions(
             .collect()
     };
     let ph = crate::timing::span("target branch");
-    let et = branch(prior, x.z_tgt, ct, &|| {
+    let exact_tgt = || {
         Zip::from(x.z_tgt)
             .and(x.z0)
             .map_collect(|&z, &z0| (z - sa * z0) / sb)
-    })?;
+    };
+    let mut et = branch(prior, x.z_tgt, ct, &exact_tgt)?;
+    if let Some(k) = ct.iter().position(|c| *c == Cond::Content)
+        && let Some((x0, r)) = prior.content_layout(x.z_tgt, x.t, x.control)?
+    {
+        // The mixture of the exact model and the style's layout model.
+        let exact = exact_tgt();
+        let r = r.broadcast(exact.dim()).map(|v| v.to_owned()).ok_or_else(|| {
+            Error::Other(format!("content responsibility of shape {:?}", r.shape()))
+        })?;
+        et[k] = Zip::from(&exact)
+            .and(&r)
+            .and(x.z_tgt)
+            .and(&x0)
+            .map_collect(|&e, &r, &z, &x0| (1.0 - r) * e + r * (z - sa * x0) / sb);
+    }
     drop(ph);
     let ph = crate::timing::span("source branch");
     let es = branch(prior, x.z_src, cs, &|| match x.z0_src {

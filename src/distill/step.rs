@@ -287,7 +287,8 @@ pub fn noise_branches(
 
 /// The control image `[N, 3, H, W]` a ControlNet prior wants for source views `views`
 /// (geometry is frozen, so it comes from the original renders): for
-/// [`ControlKind::Source`] the source view as the prior sees it (`seen(v)`), else
+/// [`ControlKind::Source`] the source view as the prior sees it (`seen(v)`) (with
+/// [`ControlKind::SourceAlpha`] its coverage as a fourth channel), else
 /// [`crate::prior::control_image`] of the source's RGB, depth and alpha. `None` for a
 /// prior without one.
 pub fn control(
@@ -301,6 +302,18 @@ pub fn control(
     Ok(match kind {
         Some(ControlKind::Source) => {
             let imgs: Vec<Array3<f32>> = views.iter().map(|&v| seen(v)).collect();
+            Some(stack(&imgs)?)
+        }
+        Some(ControlKind::SourceAlpha) => {
+            let imgs: Vec<Array3<f32>> = views
+                .iter()
+                .map(|&v| {
+                    let a = Array3::from_shape_vec((1, h, w), source.alpha[v].clone())
+                        .map_err(|e| Error::Other(e.to_string()))?;
+                    concatenate(Axis(0), &[seen(v).view(), a.view()])
+                        .map_err(|e| Error::Other(e.to_string()))
+                })
+                .collect::<Result<_>>()?;
             Some(stack(&imgs)?)
         }
         Some(kind) => {

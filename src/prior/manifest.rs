@@ -49,6 +49,8 @@ pub enum Family {
     Custom,
     Gaussian,
     Stylizer,
+    /// The weight-free patch prior ([`crate::prior::patch`]).
+    Patch,
 }
 
 /// Precision of the weights inside the graphs (their I/O is float32 either way).
@@ -286,6 +288,9 @@ pub struct ModelManifest {
     /// Fields of the `stylizer` family, parsed by the stylizer prior.
     #[serde(default)]
     pub stylizer: Option<serde_json::Value>,
+    /// Fields of the `patch` family ([`crate::prior::patch::PatchConfig`]).
+    #[serde(default)]
+    pub patch: Option<serde_json::Value>,
 }
 
 /// A manifest with its directory, validated.
@@ -351,8 +356,8 @@ impl ModelManifest {
         self.scheduler
             .validate()
             .map_err(|e| md.err(format!("scheduler: {e}")))?;
-        if self.family == Family::Stylizer {
-            // The stylizer prior validates its own fields.
+        if matches!(self.family, Family::Stylizer | Family::Patch) {
+            // The stylizer and patch priors validate their own fields.
             return Ok(());
         }
         if self.latent_channels == 0 || self.downsample == 0 {
@@ -531,10 +536,13 @@ pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
     let m = &md.manifest;
     let bad = |e: Error| md.err(e.to_string());
     let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
-    let range = match m.stylizer.as_ref().and_then(|s| s.get("timesteps")) {
-        Some(v) => Some(
+    let own = [("stylizer", &m.stylizer), ("patch", &m.patch)]
+        .into_iter()
+        .find_map(|(name, v)| v.as_ref()?.get("timesteps").map(|t| (name, t)));
+    let range = match own {
+        Some((name, v)) => Some(
             serde_json::from_value::<super::stylizer::TimestepRange>(v.clone())
-                .map_err(|e| md.err(format!("stylizer.timesteps: {e}")))?,
+                .map_err(|e| md.err(format!("{name}.timesteps: {e}")))?,
         ),
         None => None,
     };

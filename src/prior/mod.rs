@@ -22,6 +22,7 @@ pub mod cost;
 pub mod gaussian;
 pub mod manifest;
 pub mod onnx;
+pub mod patch;
 pub mod preprocess;
 pub mod session;
 pub mod stylizer;
@@ -101,6 +102,7 @@ pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
             .with_strength(opts.strength.unwrap_or(1.0))?
             .with_motif_scale(opts.motif_scale.unwrap_or(1.0))?,
         )),
+        Family::Patch => Ok(Box::new(patch::PatchPrior::open(&md, opts)?)),
     }
 }
 
@@ -117,6 +119,10 @@ pub enum ControlKind {
     /// The original render itself, RGB: the 2D stylizer takes the content's own style
     /// from it (a tile-ControlNet would take it too).
     Source,
+    /// The original render as [`ControlKind::Source`] plus its coverage alpha as a fourth
+    /// channel (`[B, 4, H, W]`): the patch prior's source model and structure guide, and
+    /// which pixels are the object.
+    SourceAlpha,
 }
 
 /// The conditioning sets of the paper's guidance terms (Sec. 4, CSD):
@@ -184,5 +190,26 @@ pub trait Prior: Send {
     /// prior (see [`crate::csd`]).
     fn unconditional_is_identity(&self) -> bool {
         false
+    }
+
+    /// True when the `Content` prediction is the identity too (by default whenever the
+    /// unconditional one is; a prior with a real content model returns false).
+    fn content_is_identity(&self) -> bool {
+        self.unconditional_is_identity()
+    }
+
+    /// For a prior whose `Content` model is a mixture of the identity (the exact
+    /// unconditional model, [`Prior::content_is_identity`] true) and a model of the style
+    /// image's layout: the layout model's clean estimate `[B, C, h, w]` and its
+    /// responsibility `[B, 1, h, w]` in [0, 1] at `z_t`; CSD then takes
+    /// eps(Content) = (1 - r) eps_exact + r eps_layout. `None` (the default): the
+    /// identity alone.
+    fn content_layout(
+        &mut self,
+        _z_t: ArrayView4<'_, f32>,
+        _t: usize,
+        _control: Option<ArrayView4<'_, f32>>,
+    ) -> Result<Option<(Array4<f32>, Array4<f32>)>> {
+        Ok(None)
     }
 }

@@ -212,8 +212,8 @@ impl OnnxPrior {
     /// embeddings, run the image-prompt encoder on the style image.
     pub fn from_model_dir(md: ModelDir, opts: &PriorOptions) -> Result<Self> {
         let m = md.manifest.clone();
-        if m.family == Family::Stylizer {
-            return Err(md.err("family `stylizer` is not an ONNX diffusion model"));
+        if matches!(m.family, Family::Stylizer | Family::Patch) {
+            return Err(md.err(format!("family `{:?}` is not an ONNX diffusion model", m.family)));
         }
         let cfg = opts.session_config();
         let c = m.latent_channels;

@@ -83,6 +83,14 @@ pub fn control_image(
             alpha.shape()
         )));
     }
+    if kind == ControlKind::SourceAlpha {
+        let rgba = ndarray::concatenate(
+            Axis(3),
+            &[rgb.view(), alpha.view().insert_axis(Axis(3))],
+        )
+        .map_err(|e| Error::Other(e.to_string()))?;
+        return Ok(rgba.permuted_axes([0, 3, 1, 2]).to_owned());
+    }
     let mut out = Array4::<f32>::zeros((b, 3, h, w));
     if kind == ControlKind::Source {
         out.assign(&rgb.permuted_axes([0, 3, 1, 2]));
@@ -90,7 +98,7 @@ pub fn control_image(
     }
     for bi in 0..b {
         let vals: Vec<Option<f32>> = match kind {
-            ControlKind::Source => unreachable!("returned above"),
+            ControlKind::Source | ControlKind::SourceAlpha => unreachable!("returned above"),
             ControlKind::Depth => depth
                 .index_axis(Axis(0), bi)
                 .iter()

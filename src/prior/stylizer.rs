@@ -92,7 +92,7 @@ pub struct StylizerManifest {
 }
 
 /// `count` timesteps spaced evenly over `[t_min, t_max]`.
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TimestepRange {
     pub t_min: usize,

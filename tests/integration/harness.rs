@@ -125,3 +125,10 @@ pub fn write_views(
     wr.write_bytes("cameras.json", cameras_json).unwrap();
     wr.commit().unwrap();
 }
+
+/// The set-up's Python (`vendor/venv/bin/python`, with numpy), or `None` after [`need`]:
+/// the independent references some tests compute on the machine that runs them.
+pub fn python() -> Option<PathBuf> {
+    let p = repo_root().join("vendor/venv/bin/python");
+    need("vendor/venv/bin/python (numpy)", p.is_file()).then_some(p)
+}

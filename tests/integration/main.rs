@@ -10,6 +10,7 @@ mod fuzz;
 mod harness;
 mod mvfc;
 mod own_scene;
+mod patch_prior;
 mod render;
 mod runtime;
 mod scene;

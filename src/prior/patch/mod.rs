@@ -1,0 +1,751 @@
+//! The weight-free patch prior: a diffusion model of the style image's patches whose
+//! denoiser is exact and closed-form ([`denoise`]; Kamb & Ganguli, ICML 2025), so that the
+//! paper's distillation (FantasyStyle Sec. 4, MVFC then CSD) runs with a real diffusion
+//! model on a CPU and with no pretrained weights. Score distillation with it is an
+//! annealed form of texture optimization (Kwatra et al., SIGGRAPH 2005): it draws the
+//! style's motifs, not its layout.
+//!
+//! **Latent space** ([`latent`]): pixels at 1/f of the render's resolution, in `[-1, 1]`.
+//! The schedule is the model manifest's (SD's scaled-linear betas by default).
+//!
+//! **Patch size per timestep**: k(t) grows with the noise, from `patch_min` at the set's
+//! smallest timestep to `patch_max` at its largest (linear in sqrt(1 - ab), odd sizes),
+//! as the trained UNets' effective receptive field does in the ELS calibration:
+//! coarse-to-fine over the timesteps.
+//!
+//! **The conditionings** (the paper's CSD, eq. 7-9: Phi_tgt = beta (eps(z_tgt, [P, style]) -
+//! eps(z_tgt, content)), Phi_src = beta (eps(z_src, P) - eps(z_src, null))), each a
+//! different model of the same form:
+//!
+//! | Cond | the model | its patches |
+//! |---|---|---|
+//! | PromptStyle `[P, style]` | the style's texture | the style image's k(t) patches, with balanced use ([`denoise::Search::balance`]) and the structure guide |
+//! | Content | the style image's content: its layout, its objects | the style image's k(t) patches at 1/`content_scale` of its resolution (the noise of pooled latents is sqrt(1 - ab) / scale): what reproduces the style image's large structures |
+//! | Prompt `P` | the scene's own look | each source view's own k(t) patches within `source_radius` of the pixel (a local model of that view) |
+//! | Null | no condition | the moment-matched Gaussian of the style's and the source views' pixels ([`latent::PixelGaussian`]) |
+//!
+//! so negative guidance (Content) pushes away from copying the style image's large-scale
+//! structure, and the source branch cancels what the style term would ask of the scene's
+//! own look. eps(z_t, c) = (z_t - sqrt(ab) x0_c) / sqrt(1 - ab).
+//!
+//! **Structure** (the ControlNet's role): with `guide_weight` > 0 the style model compares
+//! a noise-free structure channel of the source view (band-passed luminance) with the
+//! same channel of the style ([`denoise::Guide`]), so an edge of the scene picks style
+//! patches with an edge.
+//!
+//! **Strength** s: the style model's clean estimate is s times the style's plus 1 - s
+//! times the source views' patch model's.
+
+pub mod bank;
+pub mod denoise;
+pub mod latent;
+
+use super::manifest::ModelDir;
+use super::{Cond, ControlKind, Prior, PriorInfo, PriorOptions};
+use crate::scheduler::Schedule;
+use crate::{Error, Result};
+use bank::{Bank, Pca, patches, patches_at};
+use denoise::{Guide, Level, Search};
+use latent::PixelGaussian;
+use ndarray::{Array2, Array3, Array4, ArrayView3, ArrayView4, Axis};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+/// The `patch` section of a patch prior's `model.json` (its latent downsampling is the
+/// manifest's `downsample`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PatchConfig {
+    /// The style image's shorter side in render pixels: the motif scale (a style pixel
+    /// per render pixel at 256 on a 256-pixel view).
+    pub style_size: usize,
+    /// Patch side (latent pixels, odd) at the smallest timestep of the set.
+    pub patch_min: usize,
+    /// Patch side at the largest timestep.
+    pub patch_max: usize,
+    /// The content model's scale: it sees latents and the style pooled this many times
+    /// (its k(t) patches then cover this many times more of the image).
+    pub content_scale: usize,
+    /// Step of the grid the style's patches are taken on (1: every pixel).
+    pub style_stride: usize,
+    /// PCA dimensions of the candidate search (0: the full patch space).
+    pub pca_dims: usize,
+    /// Inverted-file cells of the style bank (0: no index, every patch scanned).
+    pub cells: usize,
+    /// Cells searched per pixel.
+    pub probe: usize,
+    /// Candidates per pixel (0: the whole bank, the exact posterior).
+    pub shortlist: usize,
+    /// Sinkhorn iterations balancing the style patches' use (0: the plain posterior).
+    pub balance: usize,
+    /// Radius (latent pixels) of the source model's local window.
+    pub source_radius: usize,
+    /// Weight of the structure guide (0: none).
+    pub guide_weight: f32,
+    /// The unconditional model: `identity` (the ideal generic model, which returns any
+    /// clean image unchanged: CSD takes its prediction exactly) or `gaussian` (the
+    /// moment-matched pixel Gaussian).
+    pub null: NullModel,
+    /// The content model: `identity`, `coarse` (the style's patches at
+    /// `content_scale`), or `layout` (identity and coarse mixed by responsibility).
+    pub content: ContentModel,
+    /// Prior probability of the layout component in the `layout` mixture.
+    pub layout_prior: f32,
+    /// Coarse-to-fine: at timesteps from `coarse_from` up, the style model sees the
+    /// latents and the style pooled `coarse_scale` times (its `patch_max` patches then
+    /// cover that many times more of the image) and passes the finer detail of z_t / sa
+    /// through; 1 = one scale.
+    pub coarse_scale: usize,
+    /// The smallest timestep of the coarse scale.
+    pub coarse_from: usize,
+    /// The source model goes coarse too at those timesteps (then CSD's difference cancels
+    /// the fine band's noise that the coarse style model passes through; without it the
+    /// coarse steps inject that noise, which the fine steps turn into the style's strokes).
+    pub coarse_source: bool,
+    /// The timestep set distillation draws from.
+    pub timesteps: super::stylizer::TimestepRange,
+}
+
+/// The patch prior's unconditional model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NullModel {
+    Identity,
+    Gaussian,
+}
+
+/// The patch prior's content model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContentModel {
+    /// The exact unconditional model: negative guidance is off.
+    Identity,
+    /// The style's layout alone (its patches at `content_scale`).
+    Coarse,
+    /// The mixture of the identity and the style's layout, weighed per pixel by their
+    /// posterior responsibility ([`PatchPrior::layout`]).
+    Layout,
+}
+
+impl PatchConfig {
+    fn validate(&self) -> Result<()> {
+        let odd = |k: usize| k % 2 == 1;
+        if !(odd(self.patch_min) && odd(self.patch_max) && self.patch_min <= self.patch_max) {
+            return Err(Error::param(format!(
+                "patch sizes {}..{}: odd, min <= max",
+                self.patch_min, self.patch_max
+            )));
+        }
+        if self.style_size < 8
+            || self.content_scale == 0
+            || self.style_stride == 0
+            || self.coarse_scale == 0
+        {
+            return Err(Error::param(
+                "style_size >= 8, content_scale and style_stride >= 1",
+            ));
+        }
+        if !(self.guide_weight.is_finite() && self.guide_weight >= 0.0) {
+            return Err(Error::param("guide_weight must be finite and >= 0"));
+        }
+        if !(self.layout_prior > 0.0 && self.layout_prior < 1.0) {
+            return Err(Error::param("layout_prior must lie in (0, 1)"));
+        }
+        Ok(())
+    }
+
+    fn search(&self, balance: bool) -> Search {
+        Search {
+            shortlist: self.shortlist,
+            probe: self.probe,
+            balance: if balance { self.balance } else { 0 },
+        }
+    }
+}
+
+/// The patch prior (module docs).
+pub struct PatchPrior {
+    info: PriorInfo,
+    schedule: Schedule,
+    config: PatchConfig,
+    /// The style image in latent space, `[3, h, w]`.
+    style: Array3<f32>,
+    /// Its structure channel `[1, h, w]`.
+    style_guide: Array3<f32>,
+    strength: f32,
+    /// Banks by (scale, patch side): the style model's; by patch side: the content model's.
+    style_banks: HashMap<(usize, usize), Bank>,
+    content_banks: HashMap<usize, Bank>,
+    /// The smallest and largest noise std of the timestep set.
+    sb_range: (f64, f64),
+}
+
+impl std::fmt::Debug for PatchPrior {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PatchPrior")
+            .field("info", &self.info)
+            .field("config", &self.config)
+            .finish()
+    }
+}
+
+/// PCA subspace iterations.
+const PCA_ITERS: usize = 12;
+
+/// A latent pixel is the object's when its pooled coverage exceeds this.
+const OBJECT_ALPHA: f32 = 0.02;
+
+impl PatchPrior {
+    /// The prior of model directory `md` (family `patch`) with the style image of `opts`.
+    pub fn open(md: &ModelDir, opts: &PriorOptions) -> Result<PatchPrior> {
+        let m = &md.manifest;
+        let config: PatchConfig = serde_json::from_value(m.patch.clone().unwrap_or_default())
+            .map_err(|e| md.err(format!("patch: {e}")))?;
+        config.validate().map_err(|e| md.err(e.to_string()))?;
+        if m.latent_channels != 3 {
+            return Err(md.err("a patch prior's latents are pixels: latent_channels 3"));
+        }
+        let Some(style) = opts.style_image.as_ref() else {
+            return Err(Error::param("the patch prior needs the style image"));
+        };
+        let style = style_latent(style.view(), config.style_size, m.downsample)?;
+        let schedule = Schedule::new(m.scheduler.clone()).map_err(|e| md.err(e.to_string()))?;
+        let tr = config.timesteps;
+        let sb = |t: usize| schedule.coefficients(t).map(|c| c.1);
+        let sb_range = (sb(tr.t_min)?, sb(tr.t_max)?);
+        let info = PriorInfo {
+            name: m.name.clone(),
+            latent_channels: 3,
+            downsample: m.downsample,
+            scheduler: m.scheduler.clone(),
+            control: Some(ControlKind::SourceAlpha),
+            coinciding_style_content: None,
+        };
+        let strength = opts.strength.unwrap_or(1.0);
+        if !(0.0..=1.0).contains(&strength) {
+            return Err(Error::param(format!("strength {strength} is not in [0, 1]")));
+        }
+        Ok(PatchPrior {
+            info,
+            schedule,
+            style_guide: structure(style.view()),
+            style,
+            config,
+            strength,
+            style_banks: HashMap::new(),
+            content_banks: HashMap::new(),
+            sb_range,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &PatchConfig {
+        &self.config
+    }
+
+    /// The style image in latent space `[3, h, w]`.
+    pub fn style(&self) -> &Array3<f32> {
+        &self.style
+    }
+
+    /// The style model's patch side at timestep `t`.
+    pub fn patch_size(&self, t: usize) -> Result<usize> {
+        let (_, sb) = self.schedule.coefficients(t)?;
+        let (lo, hi) = self.sb_range;
+        let f = if hi > lo {
+            ((sb - lo) / (hi - lo)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let (a, b) = (self.config.patch_min, self.config.patch_max);
+        Ok(a + 2 * ((f * (b - a) as f64 / 2.0).round() as usize))
+    }
+
+    /// The style bank of side `k` at scale `scale` (the style pooled that many times;
+    /// made on first use).
+    pub fn style_bank(&mut self, scale: usize, k: usize) -> Result<&Bank> {
+        if !self.style_banks.contains_key(&(scale, k)) {
+            let (stride, cells) = (self.config.style_stride, self.config.cells);
+            let pooled = latent::pool(self.style.view().insert_axis(Axis(0)), scale);
+            let stride = (stride / scale).max(1);
+            let b = self.make_bank(pooled.index_axis(Axis(0), 0), k, stride, cells)?;
+            self.style_banks.insert((scale, k), b);
+        }
+        Ok(&self.style_banks[&(scale, k)])
+    }
+
+    /// The style model's scale at timestep `t`.
+    pub fn style_scale(&self, t: usize) -> usize {
+        if self.config.coarse_scale > 1 && t >= self.config.coarse_from {
+            self.config.coarse_scale
+        } else {
+            1
+        }
+    }
+
+    /// The content bank of side `k`: the style pooled `content_scale` times.
+    pub fn content_bank(&mut self, k: usize) -> Result<&Bank> {
+        if !self.content_banks.contains_key(&k) {
+            let s = self.config.content_scale;
+            let pooled = latent::pool(self.style.view().insert_axis(Axis(0)), s);
+            let b = self.make_bank(pooled.index_axis(Axis(0), 0), k, 1, 0)?;
+            self.content_banks.insert(k, b);
+        }
+        Ok(&self.content_banks[&k])
+    }
+
+    fn make_bank(
+        &self,
+        img: ArrayView3<'_, f32>,
+        k: usize,
+        stride: usize,
+        cells: usize,
+    ) -> Result<Bank> {
+        let p = patches(img, k, stride);
+        let d = self.config.pca_dims;
+        let pca = if d == 0 || d >= p.ncols() {
+            None
+        } else {
+            Some(Pca::fit(p.view(), d, PCA_ITERS)?)
+        };
+        Bank::new(p, k, 3, pca, cells)
+    }
+}
+
+/// The style image `[1, 3, H, W]` in `[0, 1]` resized to `size` render pixels on its
+/// shorter side, in latent space (`[3, h, w]`, downsampled `f` times).
+fn style_latent(style: ArrayView4<'_, f32>, size: usize, f: usize) -> Result<Array3<f32>> {
+    let img = crate::imageio::Image::from_chw(style.index_axis(Axis(0), 0));
+    let side = (size / f.max(1)).max(4);
+    let small = img.with_shorter_side(side);
+    let chw = small.to_chw().insert_axis(Axis(0));
+    let z = latent::encode(chw.view(), 1)?;
+    Ok(z.index_axis(Axis(0), 0).to_owned())
+}
+
+/// The structure channel `[1, h, w]` of a latent image `[3, h, w]`: luminance minus its
+/// 3x3 box mean (band-passed), normalised to unit variance over the image.
+pub fn structure(img: ArrayView3<'_, f32>) -> Array3<f32> {
+    let (_, h, w) = img.dim();
+    let luma = Array2::from_shape_fn((h, w), |(y, x)| {
+        0.299 * img[[0, y, x]] + 0.587 * img[[1, y, x]] + 0.114 * img[[2, y, x]]
+    });
+    let mut out = Array3::<f32>::zeros((1, h, w));
+    for y in 0..h {
+        for x in 0..w {
+            let mut s = 0.0;
+            for dy in -1isize..=1 {
+                for dx in -1isize..=1 {
+                    let (yy, xx) = (y as isize + dy, x as isize + dx);
+                    s += luma[[bank::reflect(yy, h), bank::reflect(xx, w)]];
+                }
+            }
+            out[[0, y, x]] = luma[[y, x]] - s / 9.0;
+        }
+    }
+    let std = (out.mapv(|v| v * v).mean().unwrap_or(0.0)).sqrt().max(1e-6);
+    out.mapv_inplace(|v| v / std);
+    out
+}
+
+/// What one call knows about the window: the source views in latent space and which
+/// latent pixels are the object.
+struct Window {
+    /// `[B, 3, h, w]`.
+    source: Option<Array4<f32>>,
+    /// Object pixels (b, y, x): every pixel without a coverage channel.
+    pixels: Vec<[usize; 3]>,
+}
+
+impl Window {
+    /// The window of a control image (`[B, 4, H, W]`: the source as the prior sees it and
+    /// its coverage; `[B, 3, H, W]`: no coverage) for latents of `shape`.
+    fn of(
+        control: Option<ArrayView4<'_, f32>>,
+        f: usize,
+        shape: (usize, usize, usize, usize),
+    ) -> Result<Window> {
+        let (b, _, h, w) = shape;
+        let all = || -> Vec<[usize; 3]> {
+            (0..b * h * w).map(|i| [i / (h * w), (i / w) % h, i % w]).collect()
+        };
+        let Some(c) = control else {
+            return Ok(Window {
+                source: None,
+                pixels: all(),
+            });
+        };
+        let rgb = c.slice(ndarray::s![.., 0..3, .., ..]);
+        let source = latent::encode(rgb, f)?;
+        if source.dim() != shape {
+            return Err(Error::param(format!(
+                "patch prior: control latents {:?}, latents {shape:?}",
+                source.dim()
+            )));
+        }
+        let pixels = if c.dim().1 >= 4 {
+            let alpha = latent::pool(c.slice(ndarray::s![.., 3..4, .., ..]), f);
+            all()
+                .into_iter()
+                .filter(|&[n, y, x]| alpha[[n, 0, y, x]] > OBJECT_ALPHA)
+                .collect()
+        } else {
+            all()
+        };
+        Ok(Window {
+            source: Some(source),
+            pixels,
+        })
+    }
+
+    fn source(&self, what: &str) -> Result<&Array4<f32>> {
+        self.source.as_ref().ok_or_else(|| {
+            Error::param(format!(
+                "the patch prior needs the source views (its control image) for {what}"
+            ))
+        })
+    }
+}
+
+/// `x0` at `pixels` written into the images `base` `[B, C, h, w]`.
+fn scatter(base: &mut Array4<f32>, pixels: &[[usize; 3]], x0: &Array2<f32>) {
+    for (i, &[b, y, x]) in pixels.iter().enumerate() {
+        for c in 0..x0.ncols() {
+            base[[b, c, y, x]] = x0[[i, c]];
+        }
+    }
+}
+
+impl PatchPrior {
+    /// The clean estimate `[B, C, h, w]` of `cond` (module docs' table) at the object's
+    /// pixels; elsewhere the Null model's.
+    fn clean(
+        &mut self,
+        z: ArrayView4<'_, f32>,
+        t: usize,
+        cond: Cond,
+        win: &Window,
+    ) -> Result<Array4<f32>> {
+        let (sa, sb) = self.schedule.coefficients(t)?;
+        let level = Level {
+            sa: sa as f32,
+            sb: sb as f32,
+        };
+        let k = self.patch_size(t)?;
+        let mut imgs = vec![self.style.view()];
+        if let Some(s) = &win.source {
+            imgs.extend(s.axis_iter(Axis(0)));
+        }
+        let mut x0 = PixelGaussian::of(&imgs).denoise(z, sa, sb);
+        if win.pixels.is_empty() {
+            return Ok(x0);
+        }
+        let est = match cond {
+            Cond::Null => return Ok(x0),
+            Cond::Content => self.content(z, k, level, &win.pixels)?,
+            Cond::Prompt => match self.style_scale(t) {
+                sc if sc > 1 && self.config.coarse_source => self.own_coarse(z, sc, level, win)?,
+                _ => self.own(z, k, level, win)?,
+            },
+            Cond::PromptStyle => match self.style_scale(t) {
+                1 => self.styled(z, k, level, win)?,
+                sc => self.styled_coarse(z, sc, level, win)?,
+            },
+        };
+        scatter(&mut x0, &win.pixels, &est);
+        Ok(x0)
+    }
+
+    /// The content model's estimate `[P, C]` at `pixels`: the latents pooled
+    /// `content_scale` times (noise std sb / scale), denoised with the pooled style's
+    /// patches, upsampled back.
+    fn content(
+        &mut self,
+        z: ArrayView4<'_, f32>,
+        k: usize,
+        level: Level,
+        pixels: &[[usize; 3]],
+    ) -> Result<Array2<f32>> {
+        let s = self.config.content_scale;
+        let (b, c, h, w) = z.dim();
+        if h % s != 0 || w % s != 0 {
+            return Err(Error::param(format!(
+                "patch prior: latents of {w}x{h} do not divide by content_scale {s}"
+            )));
+        }
+        let zp = latent::pool(z, s);
+        let (hs, ws) = (h / s, w / s);
+        let coarse: Vec<[usize; 3]> = (0..b * hs * ws)
+            .map(|i| [i / (hs * ws), (i / ws) % hs, i % ws])
+            .collect();
+        let x = patches_at(zp.view(), k, &coarse);
+        let search = self.config.search(false);
+        let lv = Level {
+            sa: level.sa,
+            sb: level.sb / s as f32,
+        };
+        let est = denoise::denoise(self.content_bank(k)?, x.view(), lv, search, None);
+        let mut img = Array4::<f32>::zeros((b, c, hs, ws));
+        scatter(&mut img, &coarse, &est);
+        let up = latent::upsample(img.view(), s);
+        Ok(Array2::from_shape_fn((pixels.len(), c), |(i, ch)| {
+            let [n, y, x] = pixels[i];
+            up[[n, ch, y, x]]
+        }))
+    }
+
+    /// The layout model's clean estimate `[B, C, h, w]` and its responsibility
+    /// `[B, 1, h, w]` against the generic model: on latents pooled `content_scale` times
+    /// (noise std sb / scale), the posterior probability that a coarse patch comes from
+    /// the style's coarse patches (prior `layout_prior`, likelihood (1/M) sum_j
+    /// N(x; sa y_j, sb^2 I)) rather than from the moment-matched Gaussian of those patches
+    /// ([`bank::PatchGaussian`]), both upsampled back.
+    fn layout(&mut self, z: ArrayView4<'_, f32>, t: usize) -> Result<(Array4<f32>, Array4<f32>)> {
+        let (sa, sb) = self.schedule.coefficients(t)?;
+        let k = self.patch_size(t)?;
+        let s = self.config.content_scale;
+        let (b, c, h, w) = z.dim();
+        if h % s != 0 || w % s != 0 {
+            return Err(Error::param(format!(
+                "patch prior: latents of {w}x{h} do not divide by content_scale {s}"
+            )));
+        }
+        let zp = latent::pool(z, s);
+        let (hs, ws) = (h / s, w / s);
+        let coarse: Vec<[usize; 3]> = (0..b * hs * ws)
+            .map(|i| [i / (hs * ws), (i / ws) % hs, i % ws])
+            .collect();
+        let x = patches_at(zp.view(), k, &coarse);
+        let lv = Level {
+            sa: sa as f32,
+            sb: (sb / s as f64) as f32,
+        };
+        let search = self.config.search(false);
+        let prior_logit = (self.config.layout_prior / (1.0 - self.config.layout_prior)).ln();
+        let bank = self.content_bank(k)?;
+        let (est, evidence) = denoise::denoise_with_evidence(bank, x.view(), lv, search);
+        let gauss = bank::PatchGaussian::of(bank)
+            .ok_or_else(|| Error::param("the layout model needs pca_dims > 0"))?;
+        let red = bank.reduced.as_ref().expect("PatchGaussian::of checked");
+        let coords = red.pca.project(x.view(), lv.sa);
+        let d = x.ncols() as f32;
+        let norm = bank.len() as f32;
+        let mut img = Array4::<f32>::zeros((b, c, hs, ws));
+        let mut resp = Array4::<f32>::zeros((b, 1, hs, ws));
+        scatter(&mut img, &coarse, &est);
+        let mean_dot = red.pca.mean.dot(&red.pca.mean) * lv.sa * lv.sa;
+        for (i, &[n, y, xx]) in coarse.iter().enumerate() {
+            let xi = x.row(i);
+            let dist2 = xi.dot(&xi) - 2.0 * lv.sa * xi.dot(&red.pca.mean) + mean_dot;
+            let ll_gen = gauss.log_density(coords.row(i), dist2, lv.sa, lv.sb);
+            let two_pi_var = 2.0 * std::f32::consts::PI * lv.sb * lv.sb;
+            let ll_bank = evidence[i] - norm.ln() - 0.5 * d * two_pi_var.ln();
+            let logit = prior_logit + ll_bank - ll_gen;
+            resp[[n, 0, y, xx]] = 1.0 / (1.0 + (-logit).exp());
+        }
+        Ok((latent::upsample(img.view(), s), latent::upsample(resp.view(), s)))
+    }
+
+    /// The source model's estimate `[P, C]` at the object's pixels: each view's own
+    /// patches near the pixel ([`denoise::denoise_local`]).
+    fn own(&self, z: ArrayView4<'_, f32>, k: usize, level: Level, win: &Window) -> Result<Array2<f32>> {
+        let src = win.source("the source model (Prompt)")?;
+        let (_, c, h, w) = src.dim();
+        let banks: Vec<Array2<f32>> = src.axis_iter(Axis(0)).map(|v| patches(v, k, 1)).collect();
+        let x = patches_at(z, k, &win.pixels);
+        let r = self.config.source_radius;
+        Ok(denoise::denoise_local(&banks, (h, w, c), x.view(), &win.pixels, r, level))
+    }
+
+    /// The style model's estimate `[P, C]` at the object's pixels: balanced, guided, and
+    /// blended with the source model's below full strength.
+    fn styled(
+        &mut self,
+        z: ArrayView4<'_, f32>,
+        k: usize,
+        level: Level,
+        win: &Window,
+    ) -> Result<Array2<f32>> {
+        let cfg = self.config.clone();
+        let x = patches_at(z, k, &win.pixels);
+        let guides = if cfg.guide_weight > 0.0 {
+            let src = win.source("the structure guide")?;
+            let sg: Vec<Array3<f32>> = src.axis_iter(Axis(0)).map(structure).collect();
+            let views: Vec<_> = sg.iter().map(|a| a.view()).collect();
+            let sg = ndarray::stack(Axis(0), &views).map_err(|e| Error::Other(e.to_string()))?;
+            let bank = patches(self.style_guide.view(), k, cfg.style_stride);
+            Some((patches_at(sg.view(), k, &win.pixels), bank))
+        } else {
+            None
+        };
+        let guide = guides.as_ref().map(|(q, b)| Guide {
+            query: q.view(),
+            bank: b.view(),
+            weight: cfg.guide_weight,
+        });
+        let bank = self.style_bank(1, k)?;
+        let styled = denoise::denoise(bank, x.view(), level, cfg.search(true), guide);
+        if self.strength >= 1.0 {
+            return Ok(styled);
+        }
+        let own = self.own(z, k, level, win)?;
+        let s = self.strength;
+        Ok(styled * s + own * (1.0 - s))
+    }
+}
+
+impl PatchPrior {
+    /// The style model at scale `sc` (module docs, coarse-to-fine): the object's coarse
+    /// pixels denoised on latents pooled `sc` times (noise std sb / sc) with the pooled
+    /// style's `patch_max` patches, upsampled, plus the finer detail of z_t / sa (whose
+    /// noise the source model's coarse estimate passes through the same way, so CSD's
+    /// difference cancels it).
+    fn styled_coarse(
+        &mut self,
+        z: ArrayView4<'_, f32>,
+        sc: usize,
+        level: Level,
+        win: &Window,
+    ) -> Result<Array2<f32>> {
+        let k = self.config.patch_max;
+        let (zp, coarse, lv) = coarse_queries(z, sc, level, win)?;
+        let x = patches_at(zp.view(), k, &coarse);
+        let search = self.config.search(true);
+        let est = denoise::denoise(self.style_bank(sc, k)?, x.view(), lv, search, None);
+        Ok(refine(z, &zp, sc, level, win, &coarse, &est))
+    }
+
+    /// The source model at scale `sc`: each pooled source view's own patches near the
+    /// coarse pixel, upsampled, plus the finer detail of z_t / sa.
+    fn own_coarse(
+        &self,
+        z: ArrayView4<'_, f32>,
+        sc: usize,
+        level: Level,
+        win: &Window,
+    ) -> Result<Array2<f32>> {
+        let k = self.config.patch_max;
+        let src = latent::pool(win.source("the source model (Prompt)")?.view(), sc);
+        let (zp, coarse, lv) = coarse_queries(z, sc, level, win)?;
+        let (_, c, h, w) = src.dim();
+        let banks: Vec<Array2<f32>> = src.axis_iter(Axis(0)).map(|v| patches(v, k, 1)).collect();
+        let x = patches_at(zp.view(), k, &coarse);
+        let r = self.config.source_radius;
+        let est = denoise::denoise_local(&banks, (h, w, c), x.view(), &coarse, r, lv);
+        Ok(refine(z, &zp, sc, level, win, &coarse, &est))
+    }
+}
+
+/// The latents pooled `sc` times, the coarse pixels under the object's pixels, and the
+/// pooled noise level (sb / sc).
+fn coarse_queries(
+    z: ArrayView4<'_, f32>,
+    sc: usize,
+    level: Level,
+    win: &Window,
+) -> Result<(Array4<f32>, Vec<[usize; 3]>, Level)> {
+    let (_, _, h, w) = z.dim();
+    if h % sc != 0 || w % sc != 0 {
+        return Err(Error::param(format!(
+            "patch prior: latents of {w}x{h} do not divide by coarse_scale {sc}"
+        )));
+    }
+    let mut coarse: Vec<[usize; 3]> =
+        win.pixels.iter().map(|&[n, y, x]| [n, y / sc, x / sc]).collect();
+    coarse.sort_unstable();
+    coarse.dedup();
+    let lv = Level {
+        sa: level.sa,
+        sb: level.sb / sc as f32,
+    };
+    Ok((latent::pool(z, sc), coarse, lv))
+}
+
+/// The fine estimate `[P, C]` at the object's pixels from a coarse one `est` at
+/// `coarse`: upsampled (z_t / sa elsewhere), plus the detail of z_t / sa finer than the
+/// pooling.
+fn refine(
+    z: ArrayView4<'_, f32>,
+    zp: &Array4<f32>,
+    sc: usize,
+    level: Level,
+    win: &Window,
+    coarse: &[[usize; 3]],
+    est: &Array2<f32>,
+) -> Array2<f32> {
+    let mut img = zp.mapv(|v| v / level.sa);
+    scatter(&mut img, coarse, est);
+    let up = latent::upsample(img.view(), sc);
+    let low = latent::upsample(zp.view(), sc);
+    Array2::from_shape_fn((win.pixels.len(), 3), |(i, ch)| {
+        let [n, y, x] = win.pixels[i];
+        up[[n, ch, y, x]] + (z[[n, ch, y, x]] - low[[n, ch, y, x]]) / level.sa
+    })
+}
+
+impl Prior for PatchPrior {
+    fn info(&self) -> &PriorInfo {
+        &self.info
+    }
+
+    fn unconditional_is_identity(&self) -> bool {
+        self.config.null == NullModel::Identity
+    }
+
+    fn content_is_identity(&self) -> bool {
+        match self.config.content {
+            ContentModel::Identity => true,
+            ContentModel::Layout => self.config.null == NullModel::Identity,
+            ContentModel::Coarse => false,
+        }
+    }
+
+    fn content_layout(
+        &mut self,
+        z_t: ArrayView4<'_, f32>,
+        t: usize,
+        _control: Option<ArrayView4<'_, f32>>,
+    ) -> Result<Option<(Array4<f32>, Array4<f32>)>> {
+        if self.config.content != ContentModel::Layout {
+            return Ok(None);
+        }
+        let _ph = crate::timing::span("patch layout");
+        self.layout(z_t, t).map(Some)
+    }
+
+    fn encode(&mut self, images: ArrayView4<'_, f32>) -> Result<Array4<f32>> {
+        latent::encode(images, self.info.downsample)
+    }
+
+    fn decode(&mut self, latents: ArrayView4<'_, f32>) -> Result<Array4<f32>> {
+        Ok(latent::decode(latents, self.info.downsample))
+    }
+
+    fn predict_eps(
+        &mut self,
+        z_t: ArrayView4<'_, f32>,
+        t: usize,
+        conds: &[Cond],
+        control: Option<ArrayView4<'_, f32>>,
+    ) -> Result<Vec<Array4<f32>>> {
+        if z_t.dim().1 != 3 {
+            return Err(Error::param(format!(
+                "patch prior: latents of {} channels, expected 3",
+                z_t.dim().1
+            )));
+        }
+        let win = Window::of(control, self.info.downsample, z_t.dim())?;
+        let mut out = Vec::with_capacity(conds.len());
+        for &c in conds {
+            let _ph = crate::timing::span(match c {
+                Cond::Null => "patch null",
+                Cond::Prompt => "patch source",
+                Cond::PromptStyle => "patch style",
+                Cond::Content => "patch content",
+            });
+            let x0 = self.clean(z_t, t, c, &win)?;
+            out.push(self.schedule.eps_from_x0(z_t, x0.view(), t)?);
+        }
+        Ok(out)
+    }
+}
