@@ -11,6 +11,7 @@
 //! | [`geometry`] | unit vectors, quaternions, look-at frames, bounds (on `glam`) |
 //! | [`imageio`] | the one image type ([`imageio::Image`], HWC RGB f32), its resizer, PNG/JPEG files |
 //! | [`render`] | CPU EWA rasterizer: forward, colour backward, frozen-geometry cache |
+//! | [`maths`] | general maths shared by the method, the baselines and the metrics: eigendecomposition, Gram matrices, depth reprojection |
 //! | [`optim`] | L1 + D-SSIM loss, Adam over SH colours |
 //! | [`runtime`] | the one onnxruntime environment per process |
 //! | [`models`] | where installed models are found (`$FANTASYSTYLE_MODELS`, `vendor/models`) |
@@ -36,6 +37,7 @@ pub mod distill;
 pub mod error;
 pub mod geometry;
 pub mod imageio;
+pub mod maths;
 pub mod metrics;
 pub mod models;
 pub mod mvfc;

@@ -51,13 +51,17 @@
 //! `distill`'s checkpoints as `hf_prev.npy`; the stage chain does not measure it).
 
 pub mod agreement;
+pub mod colour_transfer;
 pub mod fill;
 pub mod guard;
+pub mod nnfm;
 pub mod path;
+pub mod projection;
+pub mod record;
+pub mod split;
 pub mod step;
 pub mod texture;
 
-use crate::artifacts::{Start, Views};
 use crate::csd::CsdParams;
 use crate::mvfc::MvfcParams;
 use crate::optim::{ColourFit, OptimizerState};
@@ -68,6 +72,7 @@ use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Camera, Error, Result, Scene};
 use ndarray::{Array3, Array4, ArrayView4, Axis};
 use path::{ViewPath, Window};
+pub use record::{IterReport, LastIteration, LastLatents, Progress};
 pub use step::{ColourStep, Draws, TargetParams};
 
 /// Parameters of the loop.
@@ -182,23 +187,6 @@ pub struct SourceViews {
 }
 
 impl SourceViews {
-    /// The source views of a `views` artifact (render-views of the original scene).
-    pub fn from_views(views: &Views) -> SourceViews {
-        let (n, h, w) = views.dim();
-        let plane = |x: &Array3<f32>, i: usize| -> Vec<f32> {
-            x.index_axis(Axis(0), i).iter().copied().collect()
-        };
-        SourceViews {
-            width: w,
-            height: h,
-            rgb: (0..n)
-                .map(|i| views.rgb.index_axis(Axis(0), i).iter().copied().collect())
-                .collect(),
-            alpha: (0..n).map(|i| plane(&views.alpha, i)).collect(),
-            depth: (0..n).map(|i| plane(&views.depth, i)).collect(),
-        }
-    }
-
     /// The source views of `scene` rendered from `cameras` over `background` (the
     /// original renders without a `views` artifact); the cameras must share one size.
     pub fn render(scene: &Scene, cameras: &[Camera], background: [f32; 3]) -> Result<SourceViews> {
@@ -243,70 +231,6 @@ impl SourceViews {
     pub fn colour(&self, v: usize, background: [f32; 3]) -> Vec<f32> {
         fill::unpremultiply(&self.rgb[v], &self.alpha[v], background)
     }
-}
-
-/// What one iteration did, for logs, checkpoints and tests.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct IterReport {
-    pub iteration: u64,
-    pub views: Vec<usize>,
-    pub timestep: usize,
-    /// Mean colour loss over the window before the update.
-    pub loss: f64,
-    /// Mean texture loss over the window before the update (0 without the term).
-    pub texture_loss: f64,
-    /// RMS of the image change the prior asked for, over covered pixels.
-    pub delta_rms: f64,
-    /// Fraction of covered target pixels clipped (<= 0.02 or >= 0.98 in every channel).
-    pub clipped: f64,
-    /// Cosine of the high-pass change with the same views' previous visit ([`agreement`];
-    /// None when no view of the window was visited before).
-    pub hf_agree_revisit: Option<f64>,
-    /// Cosine of the high-pass change between the window's neighbouring views after depth
-    /// reprojection ([`agreement`]; None for a one-view window or no overlap).
-    pub hf_agree_adjacent: Option<f64>,
-}
-
-impl IterReport {
-    /// The report of an iteration from its window, timestep, targets and colour step
-    /// (`(loss, texture_loss)`), with no agreement measured.
-    pub fn new(
-        w: &step::IterationWindow,
-        timestep: usize,
-        stats: step::TargetStats,
-        (loss, texture_loss): (f64, f64),
-    ) -> Self {
-        IterReport {
-            iteration: w.iteration,
-            views: w.window.views.clone(),
-            timestep,
-            loss,
-            texture_loss,
-            delta_rms: stats.delta_rms,
-            clipped: stats.clipped,
-            hf_agree_revisit: None,
-            hf_agree_adjacent: None,
-        }
-    }
-}
-
-/// The last iteration's tensors, written into checkpoints for inspection.
-#[derive(Debug, Clone)]
-pub struct LastIteration {
-    pub report: IterReport,
-    /// The latents of both branches (None when the prior was not called:
-    /// [`CsdParams::asks_nothing`]).
-    pub latents: Option<LastLatents>,
-    /// `[N, H, W, 3]`.
-    pub targets: Array4<f32>,
-}
-
-/// The last iteration's latents, `[N, C, h, w]` each.
-#[derive(Debug, Clone)]
-pub struct LastLatents {
-    pub z0: Array4<f32>,
-    pub z_tgt: Array4<f32>,
-    pub z_src: Array4<f32>,
 }
 
 /// The distillation state: the colour fit (scene + optimizer + caches), the prior, the
@@ -683,7 +607,7 @@ pub struct Outcome {
 
 impl Outcome {
     /// No iteration: the start as it is.
-    pub fn unchanged(start: &Start) -> Outcome {
+    pub fn unchanged(start: &Progress) -> Outcome {
         Outcome {
             scene: start.scene.clone(),
             state: start.state(),
@@ -709,7 +633,7 @@ pub struct Run {
 /// the run will cost before it starts and is calibrated on its first iterations
 /// ([`Distiller::run`]).
 pub fn distill(
-    start: &Start,
+    start: &Progress,
     cameras: &[Camera],
     source: &SourceViews,
     prior: &mut dyn Prior,

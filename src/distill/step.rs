@@ -20,7 +20,8 @@
 //! window and the iteration's identity in every artifact's `meta.iteration`, the
 //! optimizer state in the checkpoint (`crate::artifacts::read_checkpoint`).
 
-use super::path::{ViewPath, Window};
+use super::path::ViewPath;
+pub use super::record::{IterationWindow, TargetStats};
 use super::texture::TextureTerm;
 use super::{
     ColourLoss, DistillParams, SourceViews, TimestepSchedule, fill, half_squared_distance,
@@ -35,44 +36,7 @@ use crate::rng::Rng;
 use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Error, Result};
 use ndarray::{Array3, Array4, ArrayView4, Axis, concatenate};
-use serde::{Deserialize, Serialize};
 use std::time::Instant;
-
-/// Which iteration an artifact of the chain belongs to, and its window: recorded by
-/// `render-views --window` and carried along in `meta.iteration` of every artifact of the
-/// iteration, so that later stages replay the same draws.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct IterationWindow {
-    /// Seed of the run.
-    pub seed: u64,
-    /// Iterations done before this one (the iteration's index, from 0).
-    pub iteration: u64,
-    /// The camera path the window lies on.
-    pub path: ViewPath,
-    /// The window's views (camera indices in path order) and whether it is circular.
-    pub window: Window,
-}
-
-impl IterationWindow {
-    /// Iteration `iteration` of `seed` on an open path of `n` views whose window is the
-    /// whole path (what the draws give for it): the iteration of artifacts outside the
-    /// stage chain, which record none.
-    pub fn whole_open_path(n: usize, seed: u64, iteration: u64) -> IterationWindow {
-        IterationWindow {
-            seed,
-            iteration,
-            path: ViewPath {
-                len: n,
-                closed: false,
-            },
-            window: Window {
-                views: (0..n).collect(),
-                circular: false,
-            },
-        }
-    }
-}
 
 /// The random draws of one iteration, in their order: the window, the timestep, the
 /// noise eps `[N, C, h, w]` shared by both branches, then MVFC's eps' `[C, h, w]`. One
@@ -385,16 +349,6 @@ pub struct TargetParams {
     pub background: [f32; 3],
     /// Keep the source's chroma, take only the new luminance.
     pub preserve_color: bool,
-}
-
-/// What the targets asked for, over covered pixels (alpha > 0.5).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TargetStats {
-    /// RMS of the image change Delta.
-    pub delta_rms: f64,
-    /// Fraction of covered target colours clipped (<= 0.02 or >= 0.98 in every channel).
-    pub clipped: f64,
 }
 
 /// The colour targets `[N, H, W, 3]` of one iteration: the object's colour c (the render

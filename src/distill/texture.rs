@@ -47,9 +47,9 @@
 //! block (the exact adjoint of the average): the term then constrains the texture at
 //! periods of 2D pixels and longer, and leaves finer detail to the prior.
 
-use crate::baselines::nnfm::{StyleColumns, normalised_style, split_stacked, stacked};
+use crate::distill::nnfm::{StyleColumns, normalised_style, split_stacked, stacked};
 use crate::imageio::Image;
-use crate::metrics::gram::gram;
+use crate::maths::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
 use ndarray::{Array2, Axis, linalg::general_mat_mul};
@@ -75,7 +75,7 @@ impl TextureLoss {
     pub fn default_layers(self) -> Vec<Layer> {
         match self {
             TextureLoss::Gram => vec![Layer::Relu1_2, Layer::Relu2_2],
-            TextureLoss::Nnfm => crate::baselines::nnfm::NNFM_LAYERS.to_vec(),
+            TextureLoss::Nnfm => crate::distill::nnfm::NNFM_LAYERS.to_vec(),
         }
     }
 }
@@ -156,7 +156,7 @@ impl TextureTerm {
                 "texture downsample must be 1..=8, got {downsample}"
             )));
         }
-        let style = &crate::baselines::downsample(style, downsample);
+        let style = &crate::imageio::downsample(style, downsample);
         if parts.is_empty() || parts.iter().any(|p| p.layers.is_empty()) {
             return Err(Error::param("texture term: at least one layer per loss"));
         }
@@ -284,7 +284,7 @@ impl TextureTerm {
                 height: ch,
                 data: crop,
             };
-            let small = crate::baselines::downsample(&img, d).data;
+            let small = crate::imageio::downsample(&img, d).data;
             (small, pooled_mask(&mask, ch, cw, sh, sw))
         } else {
             (crop, mask)

@@ -14,7 +14,7 @@
 //!   does not dominate the statistics (a whole-image Gram mostly measures how much black
 //!   there is). Features near the silhouette still see some background through their
 //!   receptive fields; the style image's Gram is over the whole image. Computed with
-//!   [`super::gram::gram`] on `sqrt(w)`-scaled features. Mean over the views that show
+//!   [`crate::maths::gram::gram`] on `sqrt(w)`-scaled features. Mean over the views that show
 //!   the object.
 //! * **KID with its interval.** The unbiased KID of [`super::fid::kid`] (stylized views vs
 //!   style crops) with a jackknife standard error (Arvesen's two-sample jackknife:
@@ -49,12 +49,12 @@
 //!   now reads them from here.
 
 use super::fid::FeatureSet;
-use super::gram::gram;
+use super::html::{Series, esc, fmt_opt, svg_plot, table};
 use super::nets::Features;
-use super::report::{Series, esc, fmt_opt, svg_plot, table};
 use super::spectrum;
 use super::views::ViewSet;
 use crate::imageio::Image;
+use crate::maths::gram::gram;
 use crate::vgg::Tensor3;
 use serde::Serialize;
 

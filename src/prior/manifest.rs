@@ -521,6 +521,16 @@ fn check_file(md: &ModelDir, what: &str, file: &str) -> Result<()> {
     Ok(())
 }
 
+/// `count` timesteps spaced evenly over `[t_min, t_max]` (a stylizer manifest's
+/// `stylizer.timesteps`).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimestepRange {
+    pub t_min: usize,
+    pub t_max: usize,
+    pub count: usize,
+}
+
 /// The model's noise schedule and the fixed DDIM timestep set the method draws t from:
 /// the manifest's `stylizer.timesteps` range if present, else
 /// [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]). `model`
@@ -533,7 +543,7 @@ pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
     let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
     let range = match m.stylizer.as_ref().and_then(|s| s.get("timesteps")) {
         Some(v) => Some(
-            serde_json::from_value::<super::stylizer::TimestepRange>(v.clone())
+            serde_json::from_value::<TimestepRange>(v.clone())
                 .map_err(|e| md.err(format!("stylizer.timesteps: {e}")))?,
         ),
         None => None,

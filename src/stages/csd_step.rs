@@ -187,7 +187,7 @@ fn inputs(a: &Args) -> Result<Inputs> {
     let noised = read_noised_latents(&a.noised)?;
     let lat = open_latents(&a.latents)?;
     let views = crate::timing::load(|| read_views(&a.views))?;
-    let src = SourceViews::from_views(&crate::timing::load(|| read_views(&a.source_views))?);
+    let src = crate::timing::load(|| read_views(&a.source_views))?.source_views();
     let (n, h, w) = views.dim();
     let view_it = iteration_of(&views.art)?;
     let recorded = [

@@ -28,11 +28,11 @@
 
 use super::{ColourArgs, MvfcArgs, PriorArgs, SplitArgs, TextureArgs, Threads, TimestepArgs};
 use crate::artifacts::{
-    CHECKPOINT_HF_PREV, CheckpointParts, Start, extend_history, load_scene, read_views,
+    CHECKPOINT_HF_PREV, CheckpointParts, extend_history, load_scene, read_progress, read_views,
     write_checkpoint,
 };
 use crate::csd::{self, CsdParams};
-use crate::distill::{DistillParams, Outcome, Run, SourceViews, distill};
+use crate::distill::{DistillParams, Outcome, Progress, Run, SourceViews, distill};
 use crate::prior::cost::CostModel;
 use crate::prior::model_timesteps;
 use crate::{Error, Result, Scene};
@@ -168,10 +168,10 @@ impl Args {
     }
 
     /// Where the run starts: the checkpoint, or the scene at iteration 0.
-    fn start(&self) -> Result<Start> {
+    fn start(&self) -> Result<Progress> {
         crate::timing::load(|| match (&self.scene, &self.resume) {
-            (_, Some(dir)) => crate::timing::phase("checkpoint read", || Start::resume(dir)),
-            (Some(p), None) => Ok(Start::fresh(load_scene(p)?)),
+            (_, Some(dir)) => crate::timing::phase("checkpoint read", || read_progress(dir)),
+            (Some(p), None) => Ok(Progress::fresh(load_scene(p)?)),
             (None, None) => Err(Error::param("give --scene or --resume")),
         })
     }
@@ -185,7 +185,7 @@ pub fn run(a: Args) -> Result<()> {
     let style = a.prior.load_style()?;
     let mut start = a.start()?;
     let views = crate::timing::load(|| read_views(&a.source_views))?;
-    let (cameras, source) = (views.cameras_per_view()?, SourceViews::from_views(&views));
+    let (cameras, source) = (views.cameras_per_view()?, views.source_views());
     let (n, h, w) = views.dim();
     if let (Some((shape, _)), Some(dir)) = (&start.hf_prev, &start.from)
         && shape[..] != [n, 3, h, w]
@@ -301,7 +301,7 @@ pub fn run(a: Args) -> Result<()> {
 /// `--colour-init`: the start scene with the object's colour statistics (over the source
 /// views) moved onto those of the style image (as loaded for the prior).
 fn colour_init(
-    start: &crate::artifacts::Start,
+    start: &crate::distill::Progress,
     source: &SourceViews,
     style: &crate::imageio::Image,
     background: [f32; 3],
@@ -316,18 +316,18 @@ fn colour_init(
 /// texture-mapped onto it.
 fn project_style(
     a: &Args,
-    start: &crate::artifacts::Start,
+    start: &crate::distill::Progress,
     cameras: &[crate::Camera],
     source: &SourceViews,
     style: &crate::imageio::Image,
 ) -> Result<crate::Scene> {
-    use crate::baselines::projection::{Placement, depth_views, project_style, surface_normals};
-    use crate::metrics::warp::surface_depth;
+    use crate::distill::projection::{Placement, depth_views, project_style, surface_normals};
+    use crate::maths::warp::surface_depth;
     let _ph = crate::timing::span("style projection");
     // The cameras are the source views': a placement error is about them.
     let at = Placement::of(&start.scene, cameras)
         .map_err(|e| Error::input(&a.source_views, e.to_string()))?;
-    let img = crate::baselines::prepare_style(style, a.texture.texture_style_size, &a.prior.style)?;
+    let img = crate::vgg::prepare_style(style, a.texture.texture_style_size, &a.prior.style)?;
     tracing::info!(
         "style projection: {}x{} style px, {:.3e} world units per px, centre {:.3?}",
         img.width,
@@ -357,7 +357,7 @@ fn colour_finish(
     move_palette("colour finish", scene, &views, background, style)
 }
 
-/// [`crate::baselines::colour::move_palette`], logged as `what`.
+/// [`crate::distill::colour_transfer::move_palette`], logged as `what`.
 fn move_palette(
     what: &str,
     scene: &Scene,
@@ -366,7 +366,7 @@ fn move_palette(
     style: &crate::imageio::Image,
 ) -> Result<Scene> {
     let (scene, tr, clamped) =
-        crate::baselines::colour::move_palette(scene, views, background, style)?;
+        crate::distill::colour_transfer::move_palette(scene, views, background, style)?;
     tracing::info!(
         "{what}: object mean {:.3?} -> style mean {:.3?}; {clamped} of {} Gaussians \
          clamped into the style's colour extent",

@@ -9,11 +9,14 @@
 //! models directory ([`crate::models`]).
 
 use super::Threads;
+use crate::artifacts::read_view_set;
 use crate::imageio::Image;
-use crate::metrics::evaluate::{EvalParams, Metrics, evaluate};
+use crate::metrics::evaluate::{Metrics, evaluate};
+use crate::metrics::html::fmt_opt;
 use crate::metrics::nets::{LpipsNet, Nets};
+use crate::metrics::reference::EvalParams;
 use crate::metrics::reference::Reference;
-use crate::metrics::report::{ReportPaths, evaluation_report, fmt_opt};
+use crate::metrics::report::{ReportPaths, evaluation_report};
 use crate::metrics::views::ViewSet;
 use crate::sweep::Sweep;
 use crate::{Error, Result};
@@ -99,11 +102,11 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         threads: a.threads.n,
     };
     p.validate()?;
-    let orig = crate::timing::load(|| ViewSet::load(&a.original))?;
+    let orig = crate::timing::load(|| read_view_set(&a.original))?;
     let Some(stylized) = &a.stylized else {
         return run_reference(&a, &orig, &p).map(|()| None);
     };
-    let styl = crate::timing::load(|| ViewSet::load(stylized))?;
+    let styl = crate::timing::load(|| read_view_set(stylized))?;
     orig.check_same_views(&styl)?;
     let style = Image::load(&a.style)?;
     let reference = match &a.reference {
@@ -268,8 +271,8 @@ fn reference_for(
 /// installed. The background is the one the original views were rendered over.
 fn viewer_inputs(original: &Path, stylized: &Path, orig: &ViewSet) -> Result<String> {
     use crate::metrics::viewer::{self, ViewerCamera};
-    let (o, scene) = viewer::viewer_scene("original", original)?;
-    let (s, _) = viewer::viewer_scene("stylized", stylized)?;
+    let (o, scene) = crate::artifacts::read_viewer_scene("original", original)?;
+    let (s, _) = crate::artifacts::read_viewer_scene("stylized", stylized)?;
     let cam = ViewerCamera::from_views(&orig.cameras, &scene);
     let background = fantasystyle_schemas::Artifact::open_unverified(&orig.dir)
         .ok()

@@ -323,7 +323,7 @@ impl ColourArgs {
 }
 
 /// `--split-px`: split the scene's long Gaussians before stylizing it
-/// ([`crate::scene::split`]; `distill`, `stylize-baseline`).
+/// ([`crate::distill::split`]; `distill`, `stylize-baseline`).
 #[derive(clap::Args, Debug, Clone, Copy)]
 pub struct SplitArgs {
     /// Before stylizing, split every Gaussian longer than this many render pixels at the
@@ -361,12 +361,12 @@ impl SplitArgs {
     /// `scene` split for `cameras` (named by `cameras_from` in errors).
     pub fn split(&self, scene: &Scene, cameras: &[Camera], cameras_from: &Path) -> Result<Scene> {
         let _ph = crate::timing::span("split");
-        let at = crate::baselines::projection::Placement::of(scene, cameras)
+        let at = crate::distill::projection::Placement::of(scene, cameras)
             .map_err(|e| Error::input(cameras_from, e.to_string()))?;
         let max_extent = self.split_px * at.world_per_pixel;
         let cap = scene.len().saturating_mul(SPLIT_MAX_GROWTH);
         let (scene, report) =
-            crate::scene::split::split_large(scene, max_extent, SPLIT_ROUNDS, cap);
+            crate::distill::split::split_large(scene, max_extent, SPLIT_ROUNDS, cap);
         tracing::info!(
             "split to {} px ({max_extent:.3e} world units): {report}",
             self.split_px
@@ -452,8 +452,8 @@ impl TextureArgs {
         };
         let vgg = crate::timing::load(|| fast_vgg(Vgg16::load(&dir)?, threads))?;
         let img = match loaded {
-            Some(img) => crate::baselines::prepare_style(img, self.texture_style_size, style)?,
-            None => crate::baselines::prepare_style(
+            Some(img) => crate::vgg::prepare_style(img, self.texture_style_size, style)?,
+            None => crate::vgg::prepare_style(
                 &crate::imageio::read_rgb(style)?,
                 self.texture_style_size,
                 style,

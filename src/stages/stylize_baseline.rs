@@ -8,10 +8,10 @@
 //!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation;
 //! * `colour-transfer`: the object's colour mean and covariance moved onto the style
 //!   image's by the linear Monge-Kantorovich map, written into the SH colours
-//!   ([`crate::baselines::colour`]); no steps;
+//!   ([`crate::distill::colour_transfer`]); no steps;
 //! * `project`: the style image (at `--style-size`) texture-mapped onto the object by
 //!   triplanar projection along each Gaussian's normal, one style pixel per render pixel
-//!   at the object ([`crate::baselines::projection`]); no steps.
+//!   at the object ([`crate::distill::projection`]); no steps.
 //!
 //! Output (schema `scene` v1): `scene.ply` (geometry bit-identical to the input, colours
 //! changed), `loss.json` (`method`, and per step the objective, its style and content
@@ -37,13 +37,13 @@
 //! run's `steps_done` given back as `--steps` reproduces its scene bit for bit.
 
 use super::{Background, SceneInput, Threads};
-use crate::baselines::colour;
 use crate::baselines::fit::{FitOptions, fit_objective};
 use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
 use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
-use crate::baselines::{Objective, gram_distance, prepare_style};
+use crate::baselines::{Objective, gram_distance};
 use crate::imageio::Image;
 use crate::vgg::Vgg16;
+use crate::vgg::prepare_style;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::{Path, PathBuf};
@@ -460,7 +460,8 @@ fn transfer_colours(
 ) -> Result<Outcome> {
     let renders = render_originals(a, &scene, cams)?;
     let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
-    let (out, tr) = colour::transfer_scene(&scene, &views, a.background.rgb, style)?;
+    let (out, tr) =
+        crate::distill::colour_transfer::transfer_scene(&scene, &views, a.background.rgb, style)?;
     let (src, dst) = (tr.source, tr.style);
     tracing::info!(
         "colour transfer: object mean {:.3?} -> style mean {:.3?}",
@@ -478,7 +479,7 @@ fn transfer_colours(
     Ok(Outcome::without_steps(a, out, Some(map), t0))
 }
 
-/// `project`: the style texture-mapped onto the object ([`crate::baselines::projection`]).
+/// `project`: the style texture-mapped onto the object ([`crate::distill::projection`]).
 fn project(
     a: &Args,
     scene: crate::Scene,
@@ -486,7 +487,7 @@ fn project(
     style: &Image,
     t0: Instant,
 ) -> Result<Outcome> {
-    use crate::baselines::projection::{Placement, project_style, rendered_normals};
+    use crate::distill::projection::{Placement, project_style, rendered_normals};
     let at =
         Placement::of(&scene, cams).map_err(|e| Error::input(&a.input.cameras, e.to_string()))?;
     tracing::info!(
@@ -587,8 +588,8 @@ fn optimise(
             tracing::info!(
                 "refit targets: high-frequency change agreement between neighbouring views {} \
                  (the original renders' own high pass: {})",
-                crate::metrics::report::fmt_opt(hf_agree, 3),
-                crate::metrics::report::fmt_opt(hf_agree_orig, 3)
+                crate::metrics::html::fmt_opt(hf_agree, 3),
+                crate::metrics::html::fmt_opt(hf_agree_orig, 3)
             );
             None
         }

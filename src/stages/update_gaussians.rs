@@ -25,7 +25,8 @@
 
 use super::{Background, ColourArgs, SceneInput, TextureArgs, Threads};
 use crate::artifacts::{
-    CheckpointParts, Start, Targets, extend_history, read_targets, read_views, write_checkpoint,
+    CheckpointParts, Targets, extend_history, load_progress, read_targets, read_views,
+    write_checkpoint,
 };
 use crate::distill::IterReport;
 use crate::distill::step::{ColourStep, IterationWindow, TargetStats, colour_step};
@@ -141,7 +142,7 @@ fn iteration(
             "--steps: the targets are one iteration's (csd-step), which is one step",
         ));
     }
-    let start = crate::timing::load(|| Start::load(&a.input.scene))?;
+    let start = crate::timing::load(|| load_progress(&a.input.scene))?;
     if start.iteration != w.iteration {
         return Err(Error::input(
             &a.input.scene,

@@ -675,7 +675,7 @@ mod stage {
     /// projection takes the surface's.
     #[test]
     fn surface_normals_agree_with_a_mesh_derived_splats_axes() {
-        use fantasystyle::baselines::projection::rendered_normals;
+        use fantasystyle::distill::projection::rendered_normals;
         let mut agreement = Vec::new();
         for name in ["fish_10k.splat", "plant.splat"] {
             let Some(path) = crate::harness::shared_scene(name) else {
@@ -699,7 +699,7 @@ mod stage {
     /// a different `--style-size` gives different colours.
     #[test]
     fn project_writes_the_projected_style() {
-        use fantasystyle::baselines::projection::{Placement, project_style, rendered_normals};
+        use fantasystyle::distill::projection::{Placement, project_style, rendered_normals};
         let d = tempfile::tempdir().unwrap();
         let before =
             fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
@@ -747,7 +747,7 @@ mod stage {
 /// Tolerance: loss 1e-5 relative, gradient 1e-4 x its largest magnitude.
 #[test]
 fn nnfm_search_on_onnxruntime_matches_the_rust_search() {
-    use fantasystyle::baselines::nnfm::{StyleColumns, nnfm_loss_grad};
+    use fantasystyle::distill::nnfm::{StyleColumns, nnfm_loss_grad};
     use ndarray::Array2;
     if !crate::harness::onnxruntime() {
         return;

@@ -495,7 +495,7 @@ fn distill_bad_input_is_refused() {
 /// and is refused with `--preserve-color`.
 #[test]
 fn colour_init_and_finish_move_the_object_to_the_style_colours() {
-    use fantasystyle::baselines::colour::{image_stats, object_stats};
+    use fantasystyle::distill::colour_transfer::{image_stats, object_stats};
     let Some(stylizer) = stylizer_dir() else {
         return;
     };
@@ -505,7 +505,7 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
     render_source(&scene, "orbit:4,elev=30,radius=2.4", 48, &d.join("views"));
     let stats_of = |dir: &Path| {
         let v = fantasystyle::artifacts::read_views(dir).unwrap();
-        let src = SourceViews::from_views(&v);
+        let src = v.source_views();
         let views: Vec<(&[f32], &[f32])> = src
             .rgb
             .iter()
@@ -629,7 +629,7 @@ fn project_style_paints_the_stripes_in_every_view() {
     // view, the larger of the two (stripes on a face seen edge-on run along the rows).
     let alternations = |dir: &Path| -> Vec<f64> {
         let v = fantasystyle::artifacts::read_views(dir).unwrap();
-        let src = SourceViews::from_views(&v);
+        let src = v.source_views();
         let (w, h) = (src.width, src.height);
         let count =
             |rgb: &[f32], alpha: &[f32], at: &dyn Fn(usize, usize) -> usize, n: usize, m: usize| {
@@ -718,7 +718,7 @@ fn split_px_splits_the_long_gaussians_and_keeps_the_renders() {
     render_source(&d.join("split"), &views, 96, &d.join("split-views"));
     let [a, b] = [d.join("views"), d.join("split-views")]
         .map(|p| fantasystyle::artifacts::read_views(&p).unwrap());
-    let (a, b) = (SourceViews::from_views(&a), SourceViews::from_views(&b));
+    let (a, b) = (a.source_views(), b.source_views());
     let worst = a
         .rgb
         .iter()

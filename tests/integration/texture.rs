@@ -10,7 +10,7 @@ use fantasystyle::camera::load_cameras;
 use fantasystyle::distill::texture::{Statistic, TextureLoss, TextureTerm};
 use fantasystyle::distill::{ColourLoss, DistillParams, Distiller, SourceViews};
 use fantasystyle::imageio::Image;
-use fantasystyle::metrics::warp::{surface_depth, warp_into};
+use fantasystyle::maths::warp::{surface_depth, warp_into};
 use fantasystyle::prior::{self, PriorOptions};
 use fantasystyle::rng::Rng;
 use fantasystyle::vgg::{Layer, Vgg16};

@@ -4,7 +4,8 @@
 //! `deps` and `outs` substituted and its tracked params collected; problems go into the
 //! diagnostics with their lines.
 
-use super::locate::is_value_dep;
+use super::inside;
+use super::locate::{Places, is_value_dep, replace_arg};
 use super::parse::{Lines, Parsed};
 use super::{Diag, Stage, normalize, words};
 use std::collections::{BTreeSet, HashMap};
@@ -70,6 +71,56 @@ pub(super) struct Expanded {
     pub out_lines: Vec<usize>,
     /// Per dep: written without `${...}` (a literal path in the DAG file).
     pub dep_literal: Vec<bool>,
+}
+
+/// Whether some stage writes `p` (or a directory holding it).
+pub(super) fn produced(p: &str, stages: &[Expanded]) -> bool {
+    stages
+        .iter()
+        .any(|e| e.stage.outs.iter().any(|o| o == p || inside(p, o)))
+}
+
+/// Literal deps of the DAG file that name existing paths relative to the DAG's
+/// directory (and that no stage produces), and a relative executable as the command's
+/// program, rewritten as seen from the work directory, in `deps` and in the command's
+/// arguments (an argument equal to the dep, or `NAME=` followed by it).
+pub(super) fn relocate_literals(stages: &mut [Expanded], places: &Places) {
+    if !places.moved() {
+        return;
+    }
+    let mut todo: Vec<(usize, usize, String)> = Vec::new();
+    for (i, e) in stages.iter().enumerate() {
+        for (k, d) in e.stage.deps.iter().enumerate() {
+            if e.dep_literal[k]
+                && !is_value_dep(d)
+                && !produced(d, stages)
+                && let Some(r) = places.from_dag(d)
+            {
+                todo.push((i, k, r));
+            }
+        }
+    }
+    for (i, k, r) in todo {
+        let s = &mut stages[i].stage;
+        let d = std::mem::replace(&mut s.deps[k], r.clone());
+        for a in s.argv.iter_mut() {
+            if let Some(new) = replace_arg(a, &d, &r) {
+                *a = new;
+            }
+        }
+    }
+    for e in stages.iter_mut() {
+        let s = &mut e.stage;
+        let Some(first) = s.argv.first_mut() else {
+            continue;
+        };
+        if first.contains('/')
+            && !first.contains('=')
+            && let Some(r) = places.from_dag(first)
+        {
+            *first = r;
+        }
+    }
 }
 
 /// A `[result]` entry after substitution: (name, path, line).

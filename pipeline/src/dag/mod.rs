@@ -324,7 +324,7 @@ pub fn parse_with(text: &str, file: &Path, places: &Places, sets: &[Set]) -> Res
         // then expand again with them.
         let mut moved = false;
         for (k, v) in parsed.vars.iter_mut() {
-            if set_vars.contains(k) || locate::produced(&normalize(v), &stages) {
+            if set_vars.contains(k) || expand::produced(&normalize(v), &stages) {
                 continue;
             }
             if let Some(r) = places.from_dag(v) {
@@ -335,7 +335,7 @@ pub fn parse_with(text: &str, file: &Path, places: &Places, sets: &[Set]) -> Res
         if moved {
             stages = expand::expand(text, &parsed, &mut diags);
         }
-        locate::relocate_literals(&mut stages, places);
+        expand::relocate_literals(&mut stages, places);
     }
     let result = expand::expand_result(&parsed, &mut diags);
     diags.extend(validate::check_result(&result, &stages));

@@ -43,7 +43,7 @@
 //! covariance.
 
 use crate::imageio::Image;
-use crate::metrics::linalg::{matmul, reconstruct, sym_eig};
+use crate::maths::linalg::{matmul, reconstruct, sym_eig};
 use crate::render::sh::C0;
 use crate::{Error, Result, Scene};
 

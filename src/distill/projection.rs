@@ -52,7 +52,7 @@
 
 use crate::geometry::quat_to_mat;
 use crate::imageio::Image;
-use crate::metrics::warp::surface_depth;
+use crate::maths::warp::surface_depth;
 use crate::render::sh::C0;
 use crate::{Camera, Error, Result, Scene};
 use glam::DVec3;
@@ -139,7 +139,7 @@ pub fn normal(scene: &Scene, i: usize) -> DVec3 {
 }
 
 /// A source view for the surface normals: its camera and its surface depth
-/// ([`crate::metrics::warp::surface_depth`]: `depth / alpha` where the view covers the
+/// ([`crate::maths::warp::surface_depth`]: `depth / alpha` where the view covers the
 /// object, NaN elsewhere), `[H, W]` at the camera's size.
 #[derive(Debug, Clone, Copy)]
 pub struct DepthView<'a> {

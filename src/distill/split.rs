@@ -24,7 +24,7 @@
 //! 1.6, and lets training repair the appearance; here nothing retrains the geometry, so
 //! the split is deterministic and moment-matched. Not part of FantasyStyle.
 
-use super::Scene;
+use crate::Scene;
 use crate::geometry::quat_to_mat;
 
 /// Child scale along the split axis, as a fraction of the parent's.
