@@ -82,7 +82,9 @@ pub struct Views {
 }
 
 impl Views {
-    /// The views as the loop's source views (render-views of the original scene).
+    /// The views as the loop's source views (render-views of the original scene). The
+    /// loop composites over black, render-views' default background (the views' own
+    /// `--background` is not read).
     pub fn source_views(&self) -> SourceViews {
         let (n, h, w) = self.dim();
         let plane = |x: &Array3<f32>, i: usize| -> Vec<f32> {
@@ -96,6 +98,7 @@ impl Views {
                 .collect(),
             alpha: (0..n).map(|i| plane(&self.alpha, i)).collect(),
             depth: (0..n).map(|i| plane(&self.depth, i)).collect(),
+            background: [0.0; 3],
         }
     }
 

@@ -27,6 +27,7 @@
 //! | [`sample`] | the deterministic sample of `data-sample/` (`make-sample`) |
 //! | [`sweep`] | the speed-accuracy sweep driver and its table |
 //! | [`timing`] | phase timing the stages report to the DAG runner |
+//! | [`params`] | parameter structs declared once (clap: docs and defaults; serde: files) |
 //! | [`rng`], [`error`] | seeded random streams; the typed error and its exit codes |
 
 pub mod artifacts;
@@ -43,6 +44,7 @@ pub mod models;
 pub mod mvfc;
 pub mod optim;
 pub mod parallel;
+pub mod params;
 pub mod prior;
 pub mod render;
 pub mod rng;

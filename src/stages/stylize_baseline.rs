@@ -151,8 +151,6 @@ pub struct Args {
     #[arg(long)]
     pub stylizer: Option<PathBuf>,
     #[command(flatten)]
-    pub split: super::SplitArgs,
-    #[command(flatten)]
     pub threads: Threads,
 }
 
@@ -276,7 +274,6 @@ pub fn run(a: Args) -> Result<()> {
             a.width, a.height
         )));
     }
-    let split = a.split.wanted()?;
     let scene = a.input.load_scene()?;
     let cams = a.input.load_cameras(&scene, a.width, a.height)?;
     if cams.is_empty() {
@@ -285,12 +282,6 @@ pub fn run(a: Args) -> Result<()> {
             a.input.cameras
         )));
     }
-    let scene = if split {
-        a.split
-            .split(&scene, &cams, std::path::Path::new(&a.input.cameras))?
-    } else {
-        scene
-    };
     let raw_style = crate::imageio::read_rgb(&a.style)?;
     let transfer = a.method == Method::ColourTransfer;
     let no_steps = transfer || a.method == Method::Project;
@@ -329,7 +320,6 @@ pub fn run(a: Args) -> Result<()> {
             !a.save_at.is_empty(),
         ),
         ("no_monitor", serde_json::json!(true), a.no_monitor),
-        ("split_px", serde_json::json!(a.split.split_px), split),
     ];
     for (k, v, used) in extra {
         if used {

@@ -1,6 +1,6 @@
 //! VGG16 (Simonyan & Zisserman 2015) feature extractor with its input gradient, for the
 //! VGG-based stylization baselines ([`crate::baselines`]) and `distill`'s texture term
-//! ([`crate::distill::texture`]).
+//! ([`crate::distill::terms::texture`]).
 //!
 //! What it computes: ImageNet normalisation `(x - mean) / std` of an `[H, W, 3]` image in
 //! [0, 1], then the VGG16 conv stack — 3x3 convolutions (stride 1, zero padding 1) each
@@ -104,6 +104,19 @@ impl std::str::FromStr for Layer {
             .copied()
             .find(|l| l.name() == s)
             .ok_or_else(|| Error::param(format!("unknown VGG layer `{s}` (relu1_1 .. relu4_3)")))
+    }
+}
+
+impl serde::Serialize for Layer {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Layer {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let s = <String as serde::Deserialize>::deserialize(d)?;
+        s.parse().map_err(serde::de::Error::custom)
     }
 }
 

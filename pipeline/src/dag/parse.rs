@@ -65,7 +65,9 @@ pub(super) struct Parsed {
     pub params: BTreeMap<String, serde_json::Value>,
     /// `[vars]` as strings.
     pub vars: HashMap<String, String>,
-    /// The params file's scalar values as strings (what `${key}` substitutes).
+    /// What `${key}` substitutes for a params key: a scalar as its text, a table as an
+    /// inline TOML table (`{ a = 1, b = "x" }`, keys sorted), so that a stage can be given
+    /// a whole table as one argument (and tracks every key in it).
     pub params_text: HashMap<String, String>,
 }
 
@@ -131,7 +133,7 @@ pub(super) fn parse(text: &str, dir: &Path, diags: &mut Vec<Diag>) -> Result<Par
             }
         }
     }
-    let params_text = params_text(&params);
+    let params_text = params_text(&params, &params_table);
     Ok(Parsed {
         raw,
         lines,
@@ -142,11 +144,78 @@ pub(super) fn parse(text: &str, dir: &Path, diags: &mut Vec<Diag>) -> Result<Par
     })
 }
 
-fn params_text(params: &BTreeMap<String, serde_json::Value>) -> HashMap<String, String> {
+fn params_text(
+    params: &BTreeMap<String, serde_json::Value>,
+    table: &toml::Table,
+) -> HashMap<String, String> {
     params
         .iter()
-        .filter_map(|(k, v)| json_scalar(v).map(|s| (k.clone(), s)))
+        .filter_map(|(k, v)| match v {
+            serde_json::Value::Object(_) => table_at(table, k).map(|t| (k.clone(), inline(t))),
+            _ => json_scalar(v).map(|s| (k.clone(), s)),
+        })
         .collect()
+}
+
+/// The table at dotted key `key` of `t`.
+fn table_at<'a>(t: &'a toml::Table, key: &str) -> Option<&'a toml::Table> {
+    key.split('.').try_fold(t, |t, k| t.get(k)?.as_table())
+}
+
+/// `t` as an inline TOML table, keys sorted: `{ a = 1, b = { c = "x" } }` (`{}` when
+/// empty).
+pub(super) fn inline(t: &toml::Table) -> String {
+    fn key(k: &str) -> String {
+        let bare = !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+        if bare {
+            k.to_string()
+        } else {
+            toml::Value::String(k.to_string()).to_string()
+        }
+    }
+    fn value(v: &toml::Value) -> String {
+        match v {
+            toml::Value::Table(t) => inline(t),
+            toml::Value::Array(a) => {
+                format!("[{}]", a.iter().map(value).collect::<Vec<_>>().join(", "))
+            }
+            other => other.to_string(),
+        }
+    }
+    let mut keys: Vec<&String> = t.keys().collect();
+    keys.sort();
+    if keys.is_empty() {
+        return "{}".into();
+    }
+    let parts: Vec<String> = keys
+        .into_iter()
+        .map(|k| format!("{} = {}", key(k), value(&t[k])))
+        .collect();
+    format!("{{ {} }}", parts.join(", "))
+}
+
+/// Whether some stage's command substitutes the params table `key` whole (`${key}`):
+/// a key `--set` adds to such a table reaches that stage, which checks it.
+fn passed_whole(p: &Parsed, key: &str) -> bool {
+    let word = format!("${{{key}}}");
+    p.params.get(key).is_some_and(|v| v.is_object())
+        && p.raw
+            .stages
+            .values()
+            .any(|s| s.get_ref().cmd.get_ref().contains(&word))
+}
+
+/// The value of a `--set` that adds a key to a table passed whole: a TOML literal
+/// (number, boolean, string in quotes, array, inline table) as written, else the text as
+/// a string.
+fn literal(value: &str) -> toml::Value {
+    format!("v = {value}")
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(value.to_string()))
 }
 
 /// Apply `--set NAME=VALUE` overrides: a `[vars]` name takes the value; a params key
@@ -165,6 +234,21 @@ pub(super) fn apply_sets(
         if p.raw.vars.contains_key(&s.name) {
             p.vars.insert(s.name.clone(), value);
             set_vars.push(s.name.clone());
+            continue;
+        }
+        let in_whole_table = s
+            .name
+            .match_indices('.')
+            .any(|(i, _)| passed_whole(p, &s.name[..i]));
+        if !p.params.contains_key(&s.name) && in_whole_table {
+            // A new key of a table a stage takes whole: that stage checks it.
+            set_in_table(&mut p.params_table, &s.name, literal(&value));
+            p.params.clear();
+            flatten(
+                "",
+                &toml::Value::Table(p.params_table.clone()),
+                &mut p.params,
+            );
             continue;
         }
         let Some(old) = p.params.get(&s.name) else {
@@ -229,14 +313,18 @@ pub(super) fn apply_sets(
             &mut p.params,
         );
     }
-    p.params_text = params_text(&p.params);
+    p.params_text = params_text(&p.params, &p.params_table);
     Ok(set_vars)
 }
 
+/// Set dotted key `dotted` of `t` to `v`, making the tables on the way that are missing.
 fn set_in_table(t: &mut toml::Table, dotted: &str, v: toml::Value) {
     match dotted.split_once('.') {
-        Some((head, rest)) if t.get(head).is_some_and(|x| x.is_table()) => {
-            if let Some(toml::Value::Table(inner)) = t.get_mut(head) {
+        Some((head, rest)) if t.get(head).is_none_or(|x| x.is_table()) => {
+            let inner = t
+                .entry(head.to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            if let toml::Value::Table(inner) = inner {
                 set_in_table(inner, rest, v);
             }
         }
