@@ -7,17 +7,21 @@
 //! * [`nnfm`]: nearest-neighbour feature matching (ARF, Zhang et al. 2022): every
 //!   relu3-block feature of a render is pulled toward its nearest style feature by
 //!   cosine distance, plus a content loss at relu3_3.
-//! * per-view 2D stylize + refit (in the stage): each original view is stylized by the
+//! * per-view 2D stylize + refit ([`run`]): each original view is stylized by the
 //!   2D stylizer on its own, then colours are fitted to those images; no MVFC, no
 //!   distillation.
-//! * colour transfer (in the stage): the object's colour mean and covariance moved onto
+//! * colour transfer ([`run`]): the object's colour mean and covariance moved onto
 //!   the style image's (linear Monge-Kantorovich map on the SH colours), no texture, no
 //!   optimisation: the method's colour start and finish alone
 //!   ([`crate::distill::colour_transfer`]).
-//! * projection (in the stage): the style image texture-mapped onto the object
+//! * projection ([`run`]): the style image texture-mapped onto the object
 //!   (triplanar projection along each Gaussian's normal, at the texture term's motif
 //!   scale), no optimisation: the method's projected start alone
 //!   ([`crate::distill::projection`]).
+//!
+//! A run of any of them, start to end (objective, monitor, fit under a budget,
+//! checkpoints), is [`run`]; the `stylize-baseline` stage reads the inputs and writes
+//! what it produced.
 //!
 //! The VGG losses are image-space objectives ([`Objective`]): per view they return the
 //! loss and dL/d(rgb) as an `[H, W, 3]` image, which the colour fit chains through the
@@ -29,6 +33,7 @@
 pub mod fit;
 pub mod gram;
 pub mod nnfm;
+pub mod run;
 
 use crate::imageio::Image;
 use crate::maths::gram::gram;
