@@ -123,22 +123,7 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         .as_deref()
         .map(crate::artifacts::read_history)
         .transpose()?;
-    let ceiling = match &a.refit_baseline {
-        Some(dir) => {
-            let log = crate::artifacts::read_baseline_log(dir)?;
-            match log["hf_agree_adjacent"].as_f64() {
-                Some(c) => Some((c, log["hf_agree_adjacent_original"].as_f64())),
-                None => {
-                    return Err(Error::input(
-                        dir.join("loss.json"),
-                        "no hf_agree_adjacent: not a refit baseline (stylize-baseline \
-                         --method refit) of this version",
-                    ));
-                }
-            }
-        }
-        None => None,
-    };
+    let ceiling = refit_ceiling(&a)?;
     let models = metric_models()?;
     // Start the artifact now so an unusable --out fails before the slow part.
     let mut wr = super::create_artifact(
@@ -176,22 +161,7 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     );
     drop(ph);
 
-    wr.add_input("original", &a.original)?;
-    wr.add_input("stylized", stylized)?;
-    wr.add_input("style", &a.style)?;
-    if let Some((dir, _)) = &reference {
-        wr.add_input("reference", dir)?;
-    }
-    if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
-        wr.add_input("original-scene", o)?;
-        wr.add_input("stylized-scene", s)?;
-    }
-    if let Some(h) = &a.history {
-        wr.add_input("history", h)?;
-    }
-    if let Some(r) = &a.refit_baseline {
-        wr.add_input("refit-baseline", r)?;
-    }
+    add_inputs(&mut wr, &a, reference.as_ref().map(|(d, _)| d.as_path()))?;
     wr.write_json("metrics.json", &ev.metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;
     crate::timing::io(|| wr.commit())?;
@@ -205,6 +175,50 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         a.out.display()
     );
     Ok(Some(m))
+}
+
+/// The agreement ceiling of `--refit-baseline`: its stylizations' and the original
+/// renders' own high-frequency agreement between neighbouring views.
+fn refit_ceiling(a: &Args) -> Result<Option<(f64, Option<f64>)>> {
+    let Some(dir) = &a.refit_baseline else {
+        return Ok(None);
+    };
+    let log = crate::artifacts::read_baseline_log(dir)?;
+    match log["hf_agree_adjacent"].as_f64() {
+        Some(c) => Ok(Some((c, log["hf_agree_adjacent_original"].as_f64()))),
+        None => Err(Error::input(
+            dir.join("loss.json"),
+            "no hf_agree_adjacent: not a refit baseline (stylize-baseline \
+             --method refit) of this version",
+        )),
+    }
+}
+
+/// Record the evaluation's inputs (`reference`: the reference artifact read).
+fn add_inputs(
+    wr: &mut fantasystyle_schemas::ArtifactWriter,
+    a: &Args,
+    reference: Option<&std::path::Path>,
+) -> Result<()> {
+    wr.add_input("original", &a.original)?;
+    if let Some(s) = &a.stylized {
+        wr.add_input("stylized", s)?;
+    }
+    wr.add_input("style", &a.style)?;
+    if let Some(dir) = reference {
+        wr.add_input("reference", dir)?;
+    }
+    if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
+        wr.add_input("original-scene", o)?;
+        wr.add_input("stylized-scene", s)?;
+    }
+    if let Some(h) = &a.history {
+        wr.add_input("history", h)?;
+    }
+    if let Some(r) = &a.refit_baseline {
+        wr.add_input("refit-baseline", r)?;
+    }
+    Ok(())
 }
 
 /// The models directory, with the metric networks in it.

@@ -140,31 +140,8 @@ fn iteration(
             "--steps: the targets are one iteration's (csd-step), which is one step",
         ));
     }
-    let start = crate::timing::load(|| load_progress(&a.input.scene))?;
-    if start.iteration != w.iteration {
-        return Err(Error::input(
-            &a.input.scene,
-            format!(
-                "has done {} iterations, but the targets ({}) are of iteration {}",
-                start.iteration,
-                a.targets.display(),
-                w.iteration
-            ),
-        ));
-    }
+    let (start, cams) = checkpoint_and_cameras(a, targets, &w)?;
     let (_, h, wd, _) = targets.rgb.dim();
-    let cams = a.input.load_cameras(&start.scene, wd as u32, h as u32)?;
-    if cams.len() != w.path.len {
-        return Err(Error::input(
-            &a.targets,
-            format!(
-                "the iteration's path has {} cameras, `{}` {}",
-                w.path.len,
-                a.input.cameras,
-                cams.len()
-            ),
-        ));
-    }
     let cams: Vec<_> = w.window.views.iter().map(|&v| cams[v].clone()).collect();
     let (texture, alpha) = texture_inputs(a, config, &w, (h, wd))?;
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
@@ -219,6 +196,41 @@ fn iteration(
         a.out.display()
     );
     Ok(())
+}
+
+/// The checkpoint the iteration starts from (at the targets' iteration) and the cameras of
+/// the iteration's whole path, at the targets' size.
+fn checkpoint_and_cameras(
+    a: &Args,
+    targets: &Targets,
+    w: &IterationWindow,
+) -> Result<(crate::distill::Progress, Vec<crate::Camera>)> {
+    let start = crate::timing::load(|| load_progress(&a.input.scene))?;
+    if start.iteration != w.iteration {
+        return Err(Error::input(
+            &a.input.scene,
+            format!(
+                "has done {} iterations, but the targets ({}) are of iteration {}",
+                start.iteration,
+                a.targets.display(),
+                w.iteration
+            ),
+        ));
+    }
+    let (_, h, wd, _) = targets.rgb.dim();
+    let cams = a.input.load_cameras(&start.scene, wd as u32, h as u32)?;
+    if cams.len() != w.path.len {
+        return Err(Error::input(
+            &a.targets,
+            format!(
+                "the iteration's path has {} cameras, `{}` {}",
+                w.path.len,
+                a.input.cameras,
+                cams.len()
+            ),
+        ));
+    }
+    Ok((start, cams))
 }
 
 /// The texture terms of one iteration's colour step (`None` without a VGG term) and the

@@ -240,70 +240,11 @@ pub(super) fn apply_sets(
             .name
             .match_indices('.')
             .any(|(i, _)| passed_whole(p, &s.name[..i]));
-        if !p.params.contains_key(&s.name) && in_whole_table {
+        let new = if !p.params.contains_key(&s.name) && in_whole_table {
             // A new key of a table a stage takes whole: that stage checks it.
-            set_in_table(&mut p.params_table, &s.name, literal(&value));
-            p.params.clear();
-            flatten(
-                "",
-                &toml::Value::Table(p.params_table.clone()),
-                &mut p.params,
-            );
-            continue;
-        }
-        let Some(old) = p.params.get(&s.name) else {
-            let mut vars: Vec<&str> = p.raw.vars.keys().map(String::as_str).collect();
-            vars.sort();
-            let keys: Vec<&str> = p
-                .params
-                .iter()
-                .filter(|(_, v)| !v.is_object())
-                .map(|(k, _)| k.as_str())
-                .collect();
-            return Err(Error::Usage(format!(
-                "--set {s}: `{}` is neither a [vars] name nor a params key of {} (vars: {}; params keys: {})",
-                s.name,
-                file.display(),
-                if vars.is_empty() {
-                    "none".into()
-                } else {
-                    vars.join(", ")
-                },
-                if keys.is_empty() {
-                    "none".into()
-                } else {
-                    keys.join(", ")
-                },
-            )));
-        };
-        let bad = |what: &str| {
-            Error::Usage(format!(
-                "--set {s}: params key `{}` is {what}, and `{}` is not one",
-                s.name, s.value
-            ))
-        };
-        let new = match old {
-            serde_json::Value::Object(_) | serde_json::Value::Array(_) => {
-                return Err(Error::Usage(format!(
-                    "--set {s}: params key `{}` is a {}; set one of its values by its dotted key",
-                    s.name,
-                    if old.is_object() { "table" } else { "list" }
-                )));
-            }
-            serde_json::Value::Bool(_) => {
-                toml::Value::Boolean(s.value.parse().map_err(|_| bad("a boolean"))?)
-            }
-            serde_json::Value::Number(n) if n.is_i64() || n.is_u64() => {
-                toml::Value::Integer(s.value.parse().map_err(|_| bad("an integer"))?)
-            }
-            serde_json::Value::Number(_) => {
-                let f: f64 = s.value.parse().map_err(|_| bad("a number"))?;
-                if !f.is_finite() {
-                    return Err(bad("a finite number"));
-                }
-                toml::Value::Float(f)
-            }
-            _ => toml::Value::String(value),
+            literal(&value)
+        } else {
+            typed_set(p, s, value, file)?
         };
         set_in_table(&mut p.params_table, &s.name, new);
         p.params.clear();
@@ -315,6 +256,70 @@ pub(super) fn apply_sets(
     }
     p.params_text = params_text(&p.params, &p.params_table);
     Ok(set_vars)
+}
+
+/// The new value of params key `s.name`, of the type it has in the params file; an
+/// unknown key, a table or list, or a value of the wrong type is a usage error.
+fn typed_set(p: &Parsed, s: &Set, value: String, file: &Path) -> Result<toml::Value> {
+    let Some(old) = p.params.get(&s.name) else {
+        return Err(unknown_set(p, s, file));
+    };
+    let bad = |what: &str| {
+        Error::Usage(format!(
+            "--set {s}: params key `{}` is {what}, and `{}` is not one",
+            s.name, s.value
+        ))
+    };
+    Ok(match old {
+        serde_json::Value::Object(_) | serde_json::Value::Array(_) => {
+            return Err(Error::Usage(format!(
+                "--set {s}: params key `{}` is a {}; set one of its values by its dotted key",
+                s.name,
+                if old.is_object() { "table" } else { "list" }
+            )));
+        }
+        serde_json::Value::Bool(_) => {
+            toml::Value::Boolean(s.value.parse().map_err(|_| bad("a boolean"))?)
+        }
+        serde_json::Value::Number(n) if n.is_i64() || n.is_u64() => {
+            toml::Value::Integer(s.value.parse().map_err(|_| bad("an integer"))?)
+        }
+        serde_json::Value::Number(_) => {
+            let f: f64 = s.value.parse().map_err(|_| bad("a number"))?;
+            if !f.is_finite() {
+                return Err(bad("a finite number"));
+            }
+            toml::Value::Float(f)
+        }
+        _ => toml::Value::String(value),
+    })
+}
+
+/// The error of a `--set` of a name that is neither a `[vars]` name nor a params key
+/// (listing both).
+fn unknown_set(p: &Parsed, s: &Set, file: &Path) -> Error {
+    let mut vars: Vec<&str> = p.raw.vars.keys().map(String::as_str).collect();
+    vars.sort();
+    let keys: Vec<&str> = p
+        .params
+        .iter()
+        .filter(|(_, v)| !v.is_object())
+        .map(|(k, _)| k.as_str())
+        .collect();
+    let list = |v: &[&str]| {
+        if v.is_empty() {
+            "none".to_string()
+        } else {
+            v.join(", ")
+        }
+    };
+    Error::Usage(format!(
+        "--set {s}: `{}` is neither a [vars] name nor a params key of {} (vars: {}; params keys: {})",
+        s.name,
+        file.display(),
+        list(&vars),
+        list(&keys),
+    ))
 }
 
 /// Set dotted key `dotted` of `t` to `v`, making the tables on the way that are missing.
