@@ -35,7 +35,7 @@ layout-carrying down block; Content). The vectors are read back from diffusers'
 `set_ip_adapter_scale` with the block dictionaries below, so they mean exactly what they
 mean in diffusers; change them with --style-blocks / --content-blocks (JSON), or edit
 model.json. --ip-routing shared gives every layer scale 1 for both (plain IP-Adapter:
-style == content, which csd-step refuses for --mode csd).
+style == content, which csd-step refuses for the term csd).
 
 IP-Adapter-Instruct is not exported: it is an IP-Adapter-Plus resampler conditioned on
 instruction and prompt text embeddings, with its own classes and weights outside

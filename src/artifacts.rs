@@ -11,7 +11,7 @@
 //! | `noised-latents` | mvfc-filter | [`read_noised_latents`]: z_src, z_tgt, eps `[N,C,h,w]`, eps' `[C,h,w]`, t |
 //! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
 //! | `scene` | update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] |
-//! | `scene` with optimizer state (a checkpoint) | distill, update-gaussians (one iteration) | [`read_checkpoint`], [`Start::load`]; written by [`write_checkpoint`] |
+//! | `scene` with optimizer state (a checkpoint) | distill, update-gaussians (one iteration) | [`read_checkpoint`], [`load_progress`]; written by [`write_checkpoint`] |
 //! | `eval-reference` | evaluate --reference-only | [`read_eval_reference_for`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`write_eval_reference`] |
 //!
 //! Artifacts of one iteration of the stage chain (`render-views --window` ->
@@ -23,12 +23,14 @@
 //! directory, or any artifact holding a `cameras.json`).
 
 use crate::camera::{self, Camera};
-use crate::distill::step::{IterationWindow, TargetStats};
+use crate::distill::SourceViews;
+use crate::distill::record::{IterReport, IterationWindow, LastIteration, Progress, TargetStats};
 use crate::geometry::Bounds;
+use crate::metrics::views::ViewSet;
 use crate::scene::{self, Scene};
 use crate::{Error, Result};
 use fantasystyle_schemas::{Artifact, ArtifactKind};
-use ndarray::{Array3, Array4};
+use ndarray::{Array3, Array4, Axis};
 use std::path::{Path, PathBuf};
 
 /// True when `dir` is an artifact directory (holds a manifest).
@@ -80,6 +82,26 @@ pub struct Views {
 }
 
 impl Views {
+    /// The views as the loop's source views (render-views of the original scene). The
+    /// loop composites over black, render-views' default background (the views' own
+    /// `--background` is not read).
+    pub fn source_views(&self) -> SourceViews {
+        let (n, h, w) = self.dim();
+        let plane = |x: &Array3<f32>, i: usize| -> Vec<f32> {
+            x.index_axis(Axis(0), i).iter().copied().collect()
+        };
+        SourceViews {
+            width: w,
+            height: h,
+            rgb: (0..n)
+                .map(|i| self.rgb.index_axis(Axis(0), i).iter().copied().collect())
+                .collect(),
+            alpha: (0..n).map(|i| plane(&self.alpha, i)).collect(),
+            depth: (0..n).map(|i| plane(&self.depth, i)).collect(),
+            background: [0.0; 3],
+        }
+    }
+
     /// `(N, H, W)`.
     pub fn dim(&self) -> (usize, usize, usize) {
         let (n, h, w, _) = self.rgb.dim();
@@ -139,6 +161,19 @@ pub fn read_views(dir: &Path) -> Result<Views> {
         depth,
         alpha,
     })
+}
+
+/// A `views` artifact as the evaluation holds it ([`ViewSet`], validated).
+pub fn read_view_set(dir: &Path) -> Result<ViewSet> {
+    if !dir.is_dir() {
+        return Err(Error::input(dir, "views artifact directory not found"));
+    }
+    let views = read_views(dir)?;
+    let cameras = views.cameras()?;
+    let Views {
+        rgb, depth, alpha, ..
+    } = views;
+    ViewSet::new(dir, rgb, depth, alpha, cameras)
 }
 
 /// Read a `latents` artifact's `latents.npy` as `[N, C, h, w]` (non-empty).
@@ -556,65 +591,26 @@ fn read_eval_reference(dir: &Path) -> Result<(Artifact, crate::metrics::referenc
     ))
 }
 
-/// Where a run of the loop starts: a scene and the iterations done on it, with the
-/// optimizer state and history of a checkpoint (none for a plain scene: iteration 0).
-#[derive(Debug, Clone)]
-pub struct Start {
-    pub scene: Scene,
-    /// Iterations done.
-    pub iteration: u64,
-    /// The optimizer state (`None`: zero, nothing done yet).
-    pub state: Option<crate::optim::OptimizerState>,
-    /// Per-iteration reports so far.
-    pub history: Vec<serde_json::Value>,
-    /// Each view's previous high-pass change (`hf_prev.npy`, shape and values): the
-    /// agreement measurement's state, which only `distill` keeps.
-    pub hf_prev: Option<(Vec<usize>, Vec<f32>)>,
-    /// The checkpoint it was read from (None for a plain scene).
-    pub from: Option<PathBuf>,
+/// The progress of a run from a checkpoint ([`read_checkpoint`]).
+pub fn read_progress(dir: &Path) -> Result<Progress> {
+    let c = read_checkpoint(dir)?;
+    Ok(Progress {
+        scene: c.scene,
+        iteration: c.iteration,
+        state: Some(c.state),
+        history: c.history,
+        hf_prev: c.hf_prev,
+        from: Some(dir.to_path_buf()),
+    })
 }
 
-impl Start {
-    /// A scene at iteration 0.
-    pub fn fresh(scene: Scene) -> Start {
-        Start {
-            scene,
-            iteration: 0,
-            state: None,
-            history: Vec::new(),
-            hf_prev: None,
-            from: None,
-        }
-    }
-
-    /// A checkpoint ([`read_checkpoint`]).
-    pub fn resume(dir: &Path) -> Result<Start> {
-        let c = read_checkpoint(dir)?;
-        Ok(Start {
-            scene: c.scene,
-            iteration: c.iteration,
-            state: Some(c.state),
-            history: c.history,
-            hf_prev: c.hf_prev,
-            from: Some(dir.to_path_buf()),
-        })
-    }
-
-    /// A checkpoint if `path` is one (a scene artifact with `state.json`), else any scene
-    /// ([`load_scene`]) at iteration 0.
-    pub fn load(path: &Path) -> Result<Start> {
-        if is_artifact(path) && path.join(CHECKPOINT_STATE).is_file() {
-            Start::resume(path)
-        } else {
-            Ok(Start::fresh(load_scene(path)?))
-        }
-    }
-
-    /// The optimizer state (zero where none was saved).
-    pub fn state(&self) -> crate::optim::OptimizerState {
-        self.state
-            .clone()
-            .unwrap_or_else(|| crate::optim::OptimizerState::zeros(&self.scene))
+/// A checkpoint's progress if `path` is one (a scene artifact with `state.json`), else
+/// any scene ([`load_scene`]) at iteration 0.
+pub fn load_progress(path: &Path) -> Result<Progress> {
+    if is_artifact(path) && path.join(CHECKPOINT_STATE).is_file() {
+        read_progress(path)
+    } else {
+        Ok(Progress::fresh(load_scene(path)?))
     }
 }
 
@@ -630,7 +626,7 @@ pub struct CheckpointParts<'a> {
     /// The agreement measurement's state (`hf_prev.npy`: shape, values), if any.
     pub hf_prev: Option<(&'a [usize], &'a [f32])>,
     /// The last iteration's tensors (for inspection), if this process ran one.
-    pub last: Option<&'a crate::distill::LastIteration>,
+    pub last: Option<&'a LastIteration>,
 }
 
 /// Write a checkpoint's optimizer state (`adam_dc.npy`, `adam_rest.npy`, `state.json`),
@@ -704,10 +700,7 @@ pub fn agreed_iteration(
 }
 
 /// Append the reports of iterations to a checkpoint's history.
-pub fn extend_history(
-    history: &mut Vec<serde_json::Value>,
-    reports: &[crate::distill::IterReport],
-) -> Result<()> {
+pub fn extend_history(history: &mut Vec<serde_json::Value>, reports: &[IterReport]) -> Result<()> {
     for r in reports {
         history.push(serde_json::to_value(r).map_err(|e| Error::Other(e.to_string()))?);
     }
@@ -779,6 +772,42 @@ pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Res
         return camera::fit_cameras(cams, &src, width, height);
     }
     camera::load_cameras(spec, bounds, width, height)
+}
+
+/// The scene at `path` for the evaluation report's 3D viewer, and the scene itself: a scene artifact or
+/// directory with a `scene.spz`, or a `.spz` file, is embedded as it is (after reading it
+/// back with [`scene::spz::parse_spz`]); any other scene ([`load_scene`]) is encoded as `.spz`.
+pub fn read_viewer_scene(
+    label: &str,
+    path: &Path,
+) -> Result<(crate::metrics::viewer::ViewerScene, Scene)> {
+    let spz_file = if path.is_dir() {
+        Some(path.join("scene.spz")).filter(|p| p.is_file())
+    } else {
+        let ext = path.extension().map(|e| e.to_ascii_lowercase());
+        (ext.as_deref() == Some("spz".as_ref())).then(|| path.to_path_buf())
+    };
+    let (spz_bytes, scene, source) = match spz_file {
+        Some(f) => {
+            let b = std::fs::read(&f).map_err(|e| Error::io(&f, e))?;
+            let s = scene::spz::parse_spz(&f, &b)?;
+            (b, s, f.display().to_string())
+        }
+        None => {
+            let s = load_scene(path)?;
+            let b = scene::spz::encode_spz(path, &s)?;
+            (b, s, format!("{} (as .spz)", path.display()))
+        }
+    };
+    Ok((
+        crate::metrics::viewer::ViewerScene {
+            label: label.into(),
+            source,
+            gaussians: scene.len(),
+            spz: spz_bytes,
+        },
+        scene,
+    ))
 }
 
 #[cfg(test)]
@@ -882,5 +911,29 @@ mod tests {
         );
         let nl = read_noised_latents(&n3).unwrap();
         assert_eq!((nl.timestep, nl.eps_shared.dim()), (7, (4, 1, 2)));
+    }
+
+    #[test]
+    fn viewer_scene_embeds_spz_files_as_written() {
+        let d = tempfile::tempdir().unwrap();
+        let s = crate::sample::sample_scene(0);
+        let spz_path = d.path().join("s.spz");
+        scene::spz::write_spz(&spz_path, &s).unwrap();
+        let (v, back) = read_viewer_scene("original", &spz_path).unwrap();
+        assert_eq!(v.spz, std::fs::read(&spz_path).unwrap());
+        assert_eq!(back.len(), s.len());
+        let ply = d.path().join("s.ply");
+        crate::scene::ply::write_ply(&ply, &s).unwrap();
+        let (v, _) = read_viewer_scene("stylized", &ply).unwrap();
+        assert!(v.source.ends_with("(as .spz)"));
+        assert_eq!(scene::spz::parse_spz(&ply, &v.spz).unwrap().len(), s.len());
+        let bad = d.path().join("bad.spz");
+        std::fs::write(&bad, b"nope").unwrap();
+        assert!(
+            read_viewer_scene("x", &bad)
+                .unwrap_err()
+                .to_string()
+                .contains("bad.spz")
+        );
     }
 }

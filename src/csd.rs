@@ -21,7 +21,7 @@
 //! So `csd` - `csd-no-neg` = beta (e(z_tgt, Null) - e(z_tgt, Content)) (the negative
 //! content guidance), and `dds` - `csd-no-neg` = e(z_tgt, Null) - e(z_src, Null) (DDS keeps
 //! the unconditional predictions that CSD's Phi terms cancel). "Without MVFC" is the
-//! `--no-mvfc` of `distill` and `mvfc-filter`.
+//! configuration's `mvfc.enabled = false` (`distill`, `mvfc-filter`).
 //!
 //! Weighting w(t) ([`Weighting`]): `1-ab` (DreamFusion's choice, default), `uniform` (1),
 //! `sqrt-ab-1-ab` = sqrt(ab) (1 - ab).
@@ -42,10 +42,10 @@ use ndarray::{Array4, ArrayView4, Axis, Zip, concatenate, s};
 use serde::{Deserialize, Serialize};
 
 /// Which distillation gradient.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Mode {
     /// CSD (the paper's method).
+    #[default]
     Csd,
     /// Score distillation sampling: CFG-ed target prediction minus the added noise.
     Sds,
@@ -56,20 +56,19 @@ pub enum Mode {
 }
 
 /// The timestep weighting w(t).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Weighting {
     /// w = 1 - ab.
     #[value(name = "1-ab")]
-    #[serde(rename = "1-ab")]
     OneMinusAlphaBar,
     /// w = 1.
     Uniform,
     /// w = sqrt(ab) (1 - ab).
     #[value(name = "sqrt-ab-1-ab")]
-    #[serde(rename = "sqrt-ab-1-ab")]
     SqrtAlphaBarOneMinus,
 }
+
+crate::params::serde_by_value_name!(Mode, Weighting);
 
 impl Weighting {
     pub fn weight(self, ab: f64) -> f64 {
@@ -81,16 +80,20 @@ impl Weighting {
     }
 }
 
-/// Parameters of one distillation step (also `csd-step`'s flags; the field docs are
-/// its `--help`).
+/// Parameters of one distillation step: the `[csd]` section of the method's
+/// configuration ([`crate::distill::config`]; the field docs are its help). The mode is
+/// not a key of the section: it is the prior's term of the configuration's `terms`
+/// (`csd`, `sds`, `dds` or `csd-no-neg`), set when the configuration is checked.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, clap::Args)]
+#[serde(deny_unknown_fields, default)]
 pub struct CsdParams {
-    /// Distillation gradient: csd (paper), sds, dds, or csd-no-neg (no negative content guidance).
-    #[arg(long, value_enum, default_value = "csd")]
+    /// Distillation gradient (from the configuration's `terms`).
+    #[arg(skip)]
+    #[serde(skip)]
     pub mode: Mode,
-    /// Classifier-free guidance scale beta. At 0, csd and csd-no-neg ask nothing of the
-    /// prior and `distill` skips its calls (the texture term alone, in a fraction of the
-    /// time).
+    /// Classifier-free guidance scale beta (paper: 7.5). At 0, csd and csd-no-neg ask
+    /// nothing of the prior and `distill` skips its calls (the other terms alone, in a
+    /// fraction of the time).
     #[arg(long, default_value_t = 7.5)]
     pub guidance: f32,
     /// Timestep weighting w(t): 1-ab, uniform, or sqrt-ab-1-ab (= sqrt(ab)(1-ab)).
@@ -103,12 +106,7 @@ pub struct CsdParams {
 
 impl Default for CsdParams {
     fn default() -> Self {
-        CsdParams {
-            mode: Mode::Csd,
-            guidance: 7.5,
-            weighting: Weighting::OneMinusAlphaBar,
-            lr: 0.1,
-        }
+        crate::params::defaults()
     }
 }
 
@@ -131,7 +129,7 @@ impl CsdParams {
     pub fn validate(&self) -> Result<()> {
         if !(self.guidance.is_finite() && self.lr.is_finite() && self.lr >= 0.0) {
             return Err(Error::param(format!(
-                "--guidance ({}) must be finite and --lr ({}) finite and >= 0",
+                "csd.guidance ({}) must be finite and csd.lr ({}) finite and >= 0",
                 self.guidance, self.lr
             )));
         }
@@ -178,10 +176,11 @@ pub fn conds(mode: Mode) -> (Vec<Cond>, Vec<Cond>) {
 pub fn check_mode(mode: Mode, info: &PriorInfo) -> Result<()> {
     if let (Mode::Csd, Some(why)) = (mode, &info.coinciding_style_content) {
         return Err(Error::param(format!(
-            "--mode csd needs distinct style and content conditionings, and model `{}` has \
+            "the term csd needs distinct style and content conditionings, and model `{}` has \
              none: {why}. Its negative branch eps(content) would cancel the style image. \
-             Use --mode csd-no-neg or --mode sds with this model, or re-export it with \
-             scripts/export_models.py --ip-adapter (InstantStyle routing, the default)",
+             Use the term csd-no-neg or sds with this model (--terms csd-no-neg=1), or \
+             re-export it with scripts/export_models.py --ip-adapter (InstantStyle \
+             routing, the default)",
             info.name
         )));
     }

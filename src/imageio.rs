@@ -371,10 +371,56 @@ pub fn write_png_gray(path: &Path, v: &[f32], w: usize, h: usize, normalise: boo
     Ok(())
 }
 
+/// Box-downsample by an integer `factor` (floor: trailing rows/columns dropped).
+pub fn downsample(img: &Image, factor: usize) -> Image {
+    if factor == 1 {
+        return img.clone();
+    }
+    let (h, w) = (img.height / factor, img.width / factor);
+    let mut out = vec![0.0f32; h * w * 3];
+    let inv = 1.0 / (factor * factor) as f32;
+    for y in 0..h {
+        for x in 0..w {
+            for dy in 0..factor {
+                for dx in 0..factor {
+                    let p = ((y * factor + dy) * img.width + x * factor + dx) * 3;
+                    for c in 0..3 {
+                        out[(y * w + x) * 3 + c] += img.data[p + c] * inv;
+                    }
+                }
+            }
+        }
+    }
+    Image {
+        width: w,
+        height: h,
+        data: out,
+    }
+}
+
+/// Adjoint of [`downsample`]: add the small image's gradient back onto `grad` (full size
+/// `h x w`), each small pixel spread evenly over its `factor^2` sources.
+pub fn downsample_adjoint_add(small: &[f32], factor: usize, h: usize, w: usize, grad: &mut [f32]) {
+    let (hs, ws) = (h / factor, w / factor);
+    let inv = 1.0 / (factor * factor) as f32;
+    for y in 0..hs {
+        for x in 0..ws {
+            for dy in 0..factor {
+                for dx in 0..factor {
+                    let p = ((y * factor + dy) * w + x * factor + dx) * 3;
+                    for c in 0..3 {
+                        grad[p + c] += small[(y * ws + x) * 3 + c] * inv;
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Read a PNG or JPEG as float RGB in [0, 1] (grayscale expanded, alpha dropped).
 /// The shortest side a style image must have to carry a style for the 2D priors: the
 /// stylizer's style network sees 256 px, and a smaller image would reach it as mostly
-/// interpolation (the VGG baselines need 92 px, `baselines::MIN_STYLE_SIDE`).
+/// interpolation (the VGG losses need 92 px, [`crate::vgg::MIN_STYLE_SIDE`]).
 pub const MIN_STYLE_SIDE: usize = 64;
 
 /// Load a style image (PNG or JPEG, grey expanded, alpha dropped), refusing a missing
@@ -557,5 +603,28 @@ mod tests {
         let (s, d) = Image::to_nchw(&[&a]);
         assert_eq!(s, vec![1, 3, 1, 2]);
         assert_eq!(d, vec![0.0, 1.0, 10.0, 11.0, 20.0, 21.0]);
+    }
+
+    #[test]
+    fn downsample_adjoint_is_the_transpose() {
+        let mut r = crate::rng::Rng::new(3);
+        let (h, w) = (7, 9);
+        let x = Image {
+            width: w,
+            height: h,
+            data: (0..h * w * 3).map(|_| r.normal() as f32).collect(),
+        };
+        let y = downsample(&x, 2);
+        let g: Vec<f32> = (0..y.data.len()).map(|_| r.normal() as f32).collect();
+        let mut back = vec![0.0; x.data.len()];
+        downsample_adjoint_add(&g, 2, h, w, &mut back);
+        let lhs: f64 = y.data.iter().zip(&g).map(|(&a, &b)| (a * b) as f64).sum();
+        let rhs: f64 = x
+            .data
+            .iter()
+            .zip(&back)
+            .map(|(&a, &b)| (a * b) as f64)
+            .sum();
+        assert!((lhs - rhs).abs() < 1e-4, "{lhs} vs {rhs}");
     }
 }

@@ -11,6 +11,7 @@
 //! | [`geometry`] | unit vectors, quaternions, look-at frames, bounds (on `glam`) |
 //! | [`imageio`] | the one image type ([`imageio::Image`], HWC RGB f32), its resizer, PNG/JPEG files |
 //! | [`render`] | CPU EWA rasterizer: forward, colour backward, frozen-geometry cache |
+//! | [`maths`] | general maths shared by the method, the baselines and the metrics: eigendecomposition, Gram matrices, depth reprojection |
 //! | [`optim`] | L1 + D-SSIM loss, Adam over SH colours |
 //! | [`runtime`] | the one onnxruntime environment per process |
 //! | [`models`] | where installed models are found (`$FANTASYSTYLE_MODELS`, `vendor/models`) |
@@ -26,6 +27,7 @@
 //! | [`sample`] | the deterministic sample of `data-sample/` (`make-sample`) |
 //! | [`sweep`] | the speed-accuracy sweep driver and its table |
 //! | [`timing`] | phase timing the stages report to the DAG runner |
+//! | [`params`] | parameter structs declared once (clap: docs and defaults; serde: files) |
 //! | [`rng`], [`error`] | seeded random streams; the typed error and its exit codes |
 
 pub mod artifacts;
@@ -36,11 +38,13 @@ pub mod distill;
 pub mod error;
 pub mod geometry;
 pub mod imageio;
+pub mod maths;
 pub mod metrics;
 pub mod models;
 pub mod mvfc;
 pub mod optim;
 pub mod parallel;
+pub mod params;
 pub mod prior;
 pub mod render;
 pub mod rng;

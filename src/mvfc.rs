@@ -47,9 +47,22 @@ use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
 use std::sync::Arc;
 
-/// MVFC parameters (also `mvfc-filter`'s flags; the field docs are its `--help`).
-#[derive(Debug, Clone, Copy, PartialEq, clap::Args)]
+/// MVFC parameters: the `[mvfc]` section of the method's configuration
+/// ([`crate::distill::config`]; the field docs are its help), read by `distill` and
+/// `mvfc-filter`. [`mvfc_path`] uses the filter's three numbers; `enabled` and `source`
+/// say where the loop applies it.
+#[derive(Debug, Clone, Copy, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct MvfcParams {
+    /// Filter the noisy latents with MVFC (false: the paper's "without MVFC" ablation).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub enabled: bool,
+    /// Filter the source branch too, with the same eps' (false: the target only, as in
+    /// the paper, which moves the scene even when the style is its own look: MVFC scales
+    /// the low band of the signal by gamma, a bias the CSD difference does not cancel
+    /// unless both branches are filtered).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub source: bool,
     /// Weight of the target's own low frequencies (paper: 0.9; 1 = no change, 0 = shared
     /// noise only).
     #[arg(long, default_value_t = 0.9)]
@@ -66,11 +79,7 @@ pub struct MvfcParams {
 
 impl Default for MvfcParams {
     fn default() -> Self {
-        MvfcParams {
-            gamma: 0.9,
-            d_s: 0.25,
-            d_t: 0.25,
-        }
+        crate::params::defaults()
     }
 }
 
@@ -528,6 +537,7 @@ mod tests {
             gamma: 0.0,
             d_s: f32::INFINITY,
             d_t: f32::INFINITY,
+            ..Default::default()
         };
         let out = mvfc(z.view(), e.view(), p).unwrap();
         let want = Array4::from_shape_fn((5, 2, 7, 6), |(_, c, y, x)| e[[c, y, x]]);
@@ -548,6 +558,7 @@ mod tests {
                 gamma: 0.3,
                 d_s: 0.4,
                 d_t: 0.6,
+                ..Default::default()
             };
             let out = mvfc(z.view(), e.view(), p).unwrap();
             let want = direct(&z, &e, p);
@@ -583,6 +594,7 @@ mod tests {
                 gamma: 0.5,
                 d_s: ds,
                 d_t: dt,
+                ..Default::default()
             };
             let out = mvfc(z.view(), e.view(), p).unwrap();
             assert!(out.iter().all(|v| v.is_finite()), "d_s {ds} d_t {dt}");
@@ -592,6 +604,7 @@ mod tests {
             gamma: 0.0,
             d_s: 0.0,
             d_t: 0.0,
+            ..Default::default()
         };
         let out = mvfc(z.view(), e.view(), p).unwrap();
         for ch in 0..2 {

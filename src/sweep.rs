@@ -13,7 +13,7 @@
 //! `OUT/sweep.html` (table and plots); `evaluate --sweep OUT/sweep.json` also embeds them
 //! in an evaluation report.
 
-use crate::metrics::report::{Page, Series, esc, fmt_opt, svg_plot, table};
+use crate::metrics::html::{Page, Series, esc, fmt_opt, svg_plot, table};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

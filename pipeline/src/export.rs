@@ -26,7 +26,7 @@
 //! stage whose output is not known to be a file or a directory (an output that does not exist yet and whose name does not say:
 //! a name with an extension is taken as a file, one without as a directory).
 
-use crate::dag::{Dag, inside, is_value_dep};
+use crate::dag::{Dag, Stage, inside, is_value_dep};
 use crate::error::{Error, Result};
 use std::collections::{BTreeMap, HashSet};
 use std::fmt::Write;
@@ -86,6 +86,23 @@ fn is_dir_output(dag: &Dag, o: &str) -> bool {
 /// The Snakefile for `dag`. `bin_dir` is put first on PATH (the directory of the
 /// `pipeline` executable, where the stage binaries are).
 pub fn snakefile(dag: &Dag, bin_dir: &Path) -> Result<String> {
+    check_exportable(dag)?;
+    let mut taken = HashSet::from(["all".to_string()]);
+    let names: Vec<String> = dag
+        .stages
+        .iter()
+        .map(|s| rule_name(&s.name, &mut taken))
+        .collect();
+    let mut out = header(dag, bin_dir);
+    for (i, s) in dag.stages.iter().enumerate() {
+        rule(&mut out, dag, s, &names[i]);
+    }
+    Ok(out)
+}
+
+/// Refuse what Snakemake cannot run as the DAG does: a stage without outputs, a path
+/// with a brace, an output that is neither a file nor a directory.
+fn check_exportable(dag: &Dag) -> Result<()> {
     let mut problems = Vec::new();
     for s in &dag.stages {
         if s.outs.is_empty() {
@@ -118,20 +135,19 @@ pub fn snakefile(dag: &Dag, bin_dir: &Path) -> Result<String> {
             }
         }
     }
-    if !problems.is_empty() {
-        return Err(Error::Export(format!(
-            "{}: cannot be exported to Snakemake:\n  {}",
-            dag.file.display(),
-            problems.join("\n  ")
-        )));
+    if problems.is_empty() {
+        return Ok(());
     }
+    Err(Error::Export(format!(
+        "{}: cannot be exported to Snakemake:\n  {}",
+        dag.file.display(),
+        problems.join("\n  ")
+    )))
+}
 
-    let mut taken = HashSet::from(["all".to_string()]);
-    let names: Vec<String> = dag
-        .stages
-        .iter()
-        .map(|s| rule_name(&s.name, &mut taken))
-        .collect();
+/// The Snakefile's head: where it came from, the work directory, the PATH prefix, and
+/// `rule all` (every output of every stage).
+fn header(dag: &Dag, bin_dir: &Path) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -161,8 +177,6 @@ pub fn snakefile(dag: &Dag, bin_dir: &Path) -> Result<String> {
         sh_quote(&bin_dir.to_string_lossy())
     );
     let _ = writeln!(out, "shell.prefix({})\n", py(&path_prefix));
-
-    // rule all: every output of every stage.
     let _ = writeln!(out, "rule all:\n    default_target: True\n    input:");
     for s in &dag.stages {
         for o in &s.outs {
@@ -170,111 +184,120 @@ pub fn snakefile(dag: &Dag, bin_dir: &Path) -> Result<String> {
         }
     }
     out.push('\n');
+    out
+}
 
-    for (i, s) in dag.stages.iter().enumerate() {
-        let _ = writeln!(out, "# stage {}", s.name);
-        let _ = writeln!(out, "rule {}:", names[i]);
-        let mut inputs: Vec<String> = Vec::new();
-        let mut values: Vec<String> = Vec::new();
-        for d in &s.deps {
-            if is_value_dep(d) {
-                values.push(d.clone());
-                continue;
-            }
-            // A dep inside another stage's output is that output (Snakemake matches
-            // inputs to outputs by path).
-            let producer_out = s
-                .upstream
-                .iter()
-                .flat_map(|&u| dag.stages[u].outs.iter())
-                .find(|o| *o == d || inside(d, o));
-            let p = producer_out.cloned().unwrap_or_else(|| d.clone());
-            if !inputs.contains(&p) {
-                inputs.push(p);
-            }
+/// Stage `s`'s rule `name`: inputs, outputs, tracked values, threads, log, shell.
+fn rule(out: &mut String, dag: &Dag, s: &Stage, name: &str) {
+    let _ = writeln!(out, "# stage {}", s.name);
+    let _ = writeln!(out, "rule {name}:");
+    let (inputs, values) = inputs(dag, s);
+    if !inputs.is_empty() {
+        let _ = writeln!(out, "    input:");
+        for p in &inputs {
+            let _ = writeln!(out, "        {},", py(p));
         }
-        if !inputs.is_empty() {
-            let _ = writeln!(out, "    input:");
-            for p in &inputs {
-                let _ = writeln!(out, "        {},", py(p));
-            }
-        }
-        let _ = writeln!(out, "    output:");
-        for o in &s.outs {
-            if is_dir_output(dag, o) {
-                let _ = writeln!(out, "        directory({}),", py(o));
-            } else {
-                let _ = writeln!(out, "        {},", py(o));
-            }
-        }
-        // Tracked values: the command, the params keys, the value deps.
-        let mut params: BTreeMap<String, String> = BTreeMap::new();
-        params.insert("cmd".into(), s.cmd());
-        for k in &s.params {
-            let v = dag.params.get(k).cloned().unwrap_or_default();
-            let key = format!(
-                "p_{}",
-                k.chars()
-                    .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-                    .collect::<String>()
-            );
-            params.insert(key, fantasystyle_schemas::manifest::canonical_json(&v));
-        }
-        for (k, v) in values.iter().enumerate() {
-            params.insert(format!("value_{k}"), v.clone());
-        }
-        // As functions: Snakemake would read braces in a params string as wildcards.
-        let _ = writeln!(out, "    params:");
-        for (k, v) in &params {
-            let _ = writeln!(out, "        {k}=lambda wildcards: {},", py(v));
-        }
-        match threads(&s.argv) {
-            Some(0) => {
-                let _ = writeln!(out, "    threads: workflow.cores");
-            }
-            Some(n) => {
-                let _ = writeln!(out, "    threads: {n}");
-            }
-            None => {
-                let _ = writeln!(out, "    threads: 1");
-            }
-        }
-        let _ = writeln!(
-            out,
-            "    log: {}",
-            py(&format!(".pipeline/snakemake-logs/{}.log", s.name))
-        );
-        let mut pre = String::new();
-        for o in &s.outs {
-            let p = Path::new(o);
-            let parent = p
-                .parent()
-                .map(|x| x.to_string_lossy().into_owned())
-                .filter(|x| !x.is_empty())
-                .unwrap_or_else(|| ".".into());
-            let name = p
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            for t in ["partial", "old", "tmp"] {
-                let _ = write!(
-                    pre,
-                    "rm -rf {}/.{}.{t}-*; ",
-                    sh_quote(&parent),
-                    sh_glob_quote(&name)
-                );
-            }
-        }
-        // Snakemake formats the command: `{log:q}` is the rule's log; braces of the
-        // stage's own text are doubled. Every argument is quoted for the shell.
-        let cmd = format!(
-            "{}( {} ) > {{log:q}} 2>&1",
-            shell_escape_braces(&pre),
-            shell_escape_braces(&s.cmd())
-        );
-        let _ = writeln!(out, "    shell:\n        {}\n", py(&cmd));
     }
-    Ok(out)
+    let _ = writeln!(out, "    output:");
+    for o in &s.outs {
+        if is_dir_output(dag, o) {
+            let _ = writeln!(out, "        directory({}),", py(o));
+        } else {
+            let _ = writeln!(out, "        {},", py(o));
+        }
+    }
+    // As functions: Snakemake would read braces in a params string as wildcards.
+    let _ = writeln!(out, "    params:");
+    for (k, v) in &tracked_values(dag, s, &values) {
+        let _ = writeln!(out, "        {k}=lambda wildcards: {},", py(v));
+    }
+    let _ = match threads(&s.argv) {
+        Some(0) => writeln!(out, "    threads: workflow.cores"),
+        Some(n) => writeln!(out, "    threads: {n}"),
+        None => writeln!(out, "    threads: 1"),
+    };
+    let _ = writeln!(
+        out,
+        "    log: {}",
+        py(&format!(".pipeline/snakemake-logs/{}.log", s.name))
+    );
+    // Snakemake formats the command: `{log:q}` is the rule's log; braces of the
+    // stage's own text are doubled. Every argument is quoted for the shell.
+    let cmd = format!(
+        "{}( {} ) > {{log:q}} 2>&1",
+        shell_escape_braces(&clean_staging(s)),
+        shell_escape_braces(&s.cmd())
+    );
+    let _ = writeln!(out, "    shell:\n        {}\n", py(&cmd));
+}
+
+/// Stage `s`'s file inputs (a dep inside another stage's output is that output:
+/// Snakemake matches inputs to outputs by path) and its value deps.
+fn inputs(dag: &Dag, s: &Stage) -> (Vec<String>, Vec<String>) {
+    let mut inputs: Vec<String> = Vec::new();
+    let mut values: Vec<String> = Vec::new();
+    for d in &s.deps {
+        if is_value_dep(d) {
+            values.push(d.clone());
+            continue;
+        }
+        let producer_out = s
+            .upstream
+            .iter()
+            .flat_map(|&u| dag.stages[u].outs.iter())
+            .find(|o| *o == d || inside(d, o));
+        let p = producer_out.cloned().unwrap_or_else(|| d.clone());
+        if !inputs.contains(&p) {
+            inputs.push(p);
+        }
+    }
+    (inputs, values)
+}
+
+/// The values a rule tracks: the command, the params keys, the value deps.
+fn tracked_values(dag: &Dag, s: &Stage, values: &[String]) -> BTreeMap<String, String> {
+    let mut params: BTreeMap<String, String> = BTreeMap::new();
+    params.insert("cmd".into(), s.cmd());
+    for k in &s.params {
+        let v = dag.params.get(k).cloned().unwrap_or_default();
+        let key = format!(
+            "p_{}",
+            k.chars()
+                .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+                .collect::<String>()
+        );
+        params.insert(key, fantasystyle_schemas::manifest::canonical_json(&v));
+    }
+    for (k, v) in values.iter().enumerate() {
+        params.insert(format!("value_{k}"), v.clone());
+    }
+    params
+}
+
+/// The shell that removes stage `s`'s staging leftovers before it runs.
+fn clean_staging(s: &Stage) -> String {
+    let mut pre = String::new();
+    for o in &s.outs {
+        let p = Path::new(o);
+        let parent = p
+            .parent()
+            .map(|x| x.to_string_lossy().into_owned())
+            .filter(|x| !x.is_empty())
+            .unwrap_or_else(|| ".".into());
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        for t in ["partial", "old", "tmp"] {
+            let _ = write!(
+                pre,
+                "rm -rf {}/.{}.{t}-*; ",
+                sh_quote(&parent),
+                sh_glob_quote(&name)
+            );
+        }
+    }
+    pre
 }
 
 /// Single-quote for sh.

@@ -235,122 +235,127 @@ pub fn pick(tensors: &[(String, PathBuf)], want: Option<&str>) -> Result<PathBuf
 /// Draw a tensor (see the module docs).
 pub fn draw(t: &Tensor, mode: LatentMode) -> Result<RgbImage> {
     let s = &t.shape;
-    const GAP: u32 = 2;
     match s.len() {
-        4 if s[3] == 3 => {
-            let (n, h, w) = (s[0], s[1], s[2]);
-            let (lo, hi) = finite_range(&t.data);
-            // Colours are drawn as 0..1 (clipped); clearly other ranges (e.g. -1..1 or
-            // 0..255) are normalised to their min..max.
-            let (lo, hi) = if lo >= -0.5 && hi <= 2.0 {
-                (0.0, 1.0)
-            } else {
-                (lo, hi)
-            };
-            let mut img = canvas(n as u32 * (w as u32 + GAP), h as u32);
-            for v in 0..n {
-                for y in 0..h {
-                    for x in 0..w {
-                        let b = ((v * h + y) * w + x) * 3;
-                        let px = [0, 1, 2].map(|c| to_u8(t.data[b + c], lo, hi));
-                        img.put_pixel(v as u32 * (w as u32 + GAP) + x as u32, y as u32, Rgb(px));
-                    }
-                }
-            }
-            Ok(img)
-        }
-        4 => {
-            let (n, c, h, w) = (s[0], s[1], s[2], s[3]);
-            let plane = h * w;
-            let ranges: Vec<(f64, f64)> = (0..c)
-                .map(|ch| {
-                    finite_range(
-                        &(0..n)
-                            .flat_map(|v| {
-                                t.data[(v * c + ch) * plane..(v * c + ch + 1) * plane]
-                                    .iter()
-                                    .copied()
-                            })
-                            .collect::<Vec<_>>(),
-                    )
-                })
-                .collect();
-            let k = 64usize.div_ceil(h.max(1)).max(1) as u32;
-            let (cw, chh) = (w as u32 * k, h as u32 * k);
-            match mode {
-                LatentMode::Grid => {
-                    let mut img = canvas(c as u32 * (cw + GAP), n as u32 * (chh + GAP));
-                    for v in 0..n {
-                        for ch in 0..c {
-                            let (lo, hi) = ranges[ch];
-                            for y in 0..chh {
-                                for x in 0..cw {
-                                    let val = t.data[(v * c + ch) * plane
-                                        + (y / k) as usize * w
-                                        + (x / k) as usize];
-                                    let g = to_u8(val, lo, hi);
-                                    img.put_pixel(
-                                        ch as u32 * (cw + GAP) + x,
-                                        v as u32 * (chh + GAP) + y,
-                                        Rgb([g, g, g]),
-                                    );
-                                }
-                            }
-                        }
-                    }
-                    Ok(img)
-                }
-                LatentMode::Rgb => {
-                    if c < 3 {
-                        return Err(Error::Inspect(format!(
-                            "rgb mode needs at least 3 channels, the tensor has {c}"
-                        )));
-                    }
-                    let mut img = canvas(n as u32 * (cw + GAP), chh);
-                    for v in 0..n {
-                        for y in 0..chh {
-                            for x in 0..cw {
-                                let i = (y / k) as usize * w + (x / k) as usize;
-                                let px = [0, 1, 2].map(|ch| {
-                                    to_u8(
-                                        t.data[(v * c + ch) * plane + i],
-                                        ranges[ch].0,
-                                        ranges[ch].1,
-                                    )
-                                });
-                                img.put_pixel(v as u32 * (cw + GAP) + x, y, Rgb(px));
-                            }
-                        }
-                    }
-                    Ok(img)
-                }
-            }
-        }
+        4 if s[3] == 3 => Ok(draw_images(t, (s[0], s[1], s[2]))),
+        4 => draw_latents(t, (s[0], s[1], s[2], s[3]), mode),
         2 | 3 => {
             let (n, h, w) = if s.len() == 3 {
                 (s[0], s[1], s[2])
             } else {
                 (1, s[0], s[1])
             };
-            let (lo, hi) = finite_range(&t.data);
-            let mut img = canvas(n as u32 * (w as u32 + GAP), h as u32);
+            Ok(draw_planes(t, (n, h, w)))
+        }
+        _ => Err(Error::Inspect(format!(
+            "cannot draw a tensor of shape {s:?} (rank 2 to 4 only)"
+        ))),
+    }
+}
+
+/// Gap between drawn panels, pixels.
+const GAP: u32 = 2;
+
+/// Images `[N, H, W, 3]` in a row: 0..1 (clipped); clearly other ranges (e.g. -1..1 or
+/// 0..255) normalised to their min..max.
+fn draw_images(t: &Tensor, (n, h, w): (usize, usize, usize)) -> RgbImage {
+    let (lo, hi) = finite_range(&t.data);
+    let (lo, hi) = if lo >= -0.5 && hi <= 2.0 {
+        (0.0, 1.0)
+    } else {
+        (lo, hi)
+    };
+    let mut img = canvas(n as u32 * (w as u32 + GAP), h as u32);
+    for v in 0..n {
+        for y in 0..h {
+            for x in 0..w {
+                let b = ((v * h + y) * w + x) * 3;
+                let px = [0, 1, 2].map(|c| to_u8(t.data[b + c], lo, hi));
+                img.put_pixel(v as u32 * (w as u32 + GAP) + x as u32, y as u32, Rgb(px));
+            }
+        }
+    }
+    img
+}
+
+/// Planes `[N, H, W]` in a row, grey, normalised to their min..max.
+fn draw_planes(t: &Tensor, (n, h, w): (usize, usize, usize)) -> RgbImage {
+    let (lo, hi) = finite_range(&t.data);
+    let mut img = canvas(n as u32 * (w as u32 + GAP), h as u32);
+    for v in 0..n {
+        for y in 0..h {
+            for x in 0..w {
+                let g = to_u8(t.data[(v * h + y) * w + x], lo, hi);
+                img.put_pixel(
+                    v as u32 * (w as u32 + GAP) + x as u32,
+                    y as u32,
+                    Rgb([g, g, g]),
+                );
+            }
+        }
+    }
+    img
+}
+
+/// Latents `[N, C, h, w]`, enlarged to at least 64 px tall, each channel normalised
+/// over all views: views by channels (grid), or the first three channels as colour.
+fn draw_latents(
+    t: &Tensor,
+    (n, c, h, w): (usize, usize, usize, usize),
+    mode: LatentMode,
+) -> Result<RgbImage> {
+    let plane = h * w;
+    let ranges: Vec<(f64, f64)> = (0..c)
+        .map(|ch| {
+            finite_range(
+                &(0..n)
+                    .flat_map(|v| {
+                        t.data[(v * c + ch) * plane..(v * c + ch + 1) * plane]
+                            .iter()
+                            .copied()
+                    })
+                    .collect::<Vec<_>>(),
+            )
+        })
+        .collect();
+    let k = 64usize.div_ceil(h.max(1)).max(1) as u32;
+    let (cw, chh) = (w as u32 * k, h as u32 * k);
+    let at = |v: usize, ch: usize, x: u32, y: u32| {
+        t.data[(v * c + ch) * plane + (y / k) as usize * w + (x / k) as usize]
+    };
+    match mode {
+        LatentMode::Grid => {
+            let mut img = canvas(c as u32 * (cw + GAP), n as u32 * (chh + GAP));
             for v in 0..n {
-                for y in 0..h {
-                    for x in 0..w {
-                        let g = to_u8(t.data[(v * h + y) * w + x], lo, hi);
-                        img.put_pixel(
-                            v as u32 * (w as u32 + GAP) + x as u32,
-                            y as u32,
-                            Rgb([g, g, g]),
-                        );
+                for (ch, &(lo, hi)) in ranges.iter().enumerate() {
+                    for y in 0..chh {
+                        for x in 0..cw {
+                            let g = to_u8(at(v, ch, x, y), lo, hi);
+                            let (px, py) = (ch as u32 * (cw + GAP) + x, v as u32 * (chh + GAP) + y);
+                            img.put_pixel(px, py, Rgb([g, g, g]));
+                        }
                     }
                 }
             }
             Ok(img)
         }
-        _ => Err(Error::Inspect(format!(
-            "cannot draw a tensor of shape {s:?} (rank 2 to 4 only)"
-        ))),
+        LatentMode::Rgb => {
+            if c < 3 {
+                return Err(Error::Inspect(format!(
+                    "rgb mode needs at least 3 channels, the tensor has {c}"
+                )));
+            }
+            let mut img = canvas(n as u32 * (cw + GAP), chh);
+            for v in 0..n {
+                for y in 0..chh {
+                    for x in 0..cw {
+                        let px =
+                            [0, 1, 2].map(|ch| to_u8(at(v, ch, x, y), ranges[ch].0, ranges[ch].1));
+                        img.put_pixel(v as u32 * (cw + GAP) + x, y, Rgb(px));
+                    }
+                }
+            }
+            Ok(img)
+        }
     }
 }
 

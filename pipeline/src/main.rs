@@ -2,7 +2,7 @@
 //! Exit codes: 0 ok, 1 a stage failed, 2 a DAG or usage error.
 use clap::{Args, Parser, Subcommand};
 use fantasystyle_pipeline::{Error, dag, inspect, run, show, tools};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 /// DAG runner for fantasystyle stages: resumes what failed, says what is stale and why,
@@ -169,6 +169,68 @@ fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
     ExitCode::from(code)
 }
 
+/// `pipeline export --snakemake`: the Snakefile at `out`.
+fn export(d: &dag::Dag, out: &Path) -> Result<ExitCode, ExitCode> {
+    let bin_dir = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(|p| p.to_path_buf()))
+        .unwrap_or_else(|| PathBuf::from("."));
+    let text = fantasystyle_pipeline::export::snakefile(d, &bin_dir).map_err(|e| fail(2, e))?;
+    fantasystyle_schemas::atomic_write(out, text.as_bytes()).map_err(|e| fail(2, e))?;
+    println!(
+        "wrote {} ({} rules); run: snakemake -s {} --cores 2",
+        out.display(),
+        d.stages.len() + 1,
+        out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `pipeline inspect`: the artifact's manifest and tensors, and one tensor drawn to
+/// `png` if asked.
+fn inspect_cmd(
+    path: &Path,
+    png: Option<&Path>,
+    mode: inspect::LatentMode,
+    tensor: Option<&str>,
+) -> Result<ExitCode, ExitCode> {
+    let (text, tensors) = inspect::inspect(path).map_err(|e| fail(2, e))?;
+    print!("{text}");
+    if let Some(out) = png {
+        let p = inspect::pick(&tensors, tensor).map_err(|e| fail(2, e))?;
+        let t = inspect::read_any(&p).map_err(|e| fail(2, e))?;
+        let img = inspect::draw(&t, mode).map_err(|e| fail(2, format!("{}: {e}", p.display())))?;
+        inspect::save_png(&img, out).map_err(|e| fail(2, e))?;
+        println!(
+            "wrote {} ({}x{}) from {}",
+            out.display(),
+            img.width(),
+            img.height(),
+            p.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The hidden `test-stage` command (a stage for the runner's tests).
+fn test_stage(a: tools::TestStage) -> ExitCode {
+    match tools::test_stage(&a) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => fail(1, e),
+    }
+}
+
+/// Print `shown`'s text (`status`, `report`), or fail with its error.
+fn print_or_fail(shown: fantasystyle_pipeline::Result<String>) -> ExitCode {
+    match shown {
+        Ok(t) => {
+            print!("{t}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => fail(2, e),
+    }
+}
+
 fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
     Ok(match cli.cmd {
         Cmd::Run {
@@ -179,7 +241,6 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
             keep_going,
             jobs,
         } => {
-            let d = load(&dag)?;
             let opts = run::RunOptions {
                 targets,
                 force,
@@ -187,19 +248,13 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
                 keep_going,
                 jobs,
             };
-            match run::run(&d, &opts) {
+            match run::run(&load(&dag)?, &opts) {
                 Err(e) => fail(2, e),
                 Ok(s) if !s.failed.is_empty() => ExitCode::from(1),
                 Ok(_) => ExitCode::SUCCESS,
             }
         }
-        Cmd::Status { dag } => match show::status(&load(&dag)?) {
-            Ok(t) => {
-                print!("{t}");
-                ExitCode::SUCCESS
-            }
-            Err(e) => fail(2, e),
-        },
+        Cmd::Status { dag } => print_or_fail(show::status(&load(&dag)?)),
         Cmd::Dag { dag, dot } => {
             let d = load(&dag)?;
             print!("{}", if dot { show::dot(&d) } else { show::text(&d) });
@@ -209,30 +264,8 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
             dag,
             snakemake: _,
             out,
-        } => {
-            let d = load(&dag)?;
-            let bin_dir = std::env::current_exe()
-                .ok()
-                .and_then(|e| e.parent().map(|p| p.to_path_buf()))
-                .unwrap_or_else(|| PathBuf::from("."));
-            let text =
-                fantasystyle_pipeline::export::snakefile(&d, &bin_dir).map_err(|e| fail(2, e))?;
-            fantasystyle_schemas::atomic_write(&out, text.as_bytes()).map_err(|e| fail(2, e))?;
-            println!(
-                "wrote {} ({} rules); run: snakemake -s {} --cores 2",
-                out.display(),
-                d.stages.len() + 1,
-                out.display()
-            );
-            ExitCode::SUCCESS
-        }
-        Cmd::Report { dag } => match show::report(&load(&dag)?) {
-            Ok(t) => {
-                print!("{t}");
-                ExitCode::SUCCESS
-            }
-            Err(e) => fail(2, e),
-        },
+        } => export(&load(&dag)?, &out)?,
+        Cmd::Report { dag } => print_or_fail(show::report(&load(&dag)?)),
         Cmd::Inspect {
             path,
             workdir,
@@ -244,23 +277,7 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
                 Some(w) if path.is_relative() => w.join(path),
                 _ => path,
             };
-            let (text, tensors) = inspect::inspect(&path).map_err(|e| fail(2, e))?;
-            print!("{text}");
-            if let Some(out) = png {
-                let p = inspect::pick(&tensors, tensor.as_deref()).map_err(|e| fail(2, e))?;
-                let t = inspect::read_any(&p).map_err(|e| fail(2, e))?;
-                let img = inspect::draw(&t, mode)
-                    .map_err(|e| fail(2, format!("{}: {e}", p.display())))?;
-                inspect::save_png(&img, &out).map_err(|e| fail(2, e))?;
-                println!(
-                    "wrote {} ({}x{}) from {}",
-                    out.display(),
-                    img.width(),
-                    img.height(),
-                    p.display()
-                );
-            }
-            ExitCode::SUCCESS
+            inspect_cmd(&path, png.as_deref(), mode, tensor.as_deref())?
         }
         Cmd::Wrap { kind, out, files } => match tools::wrap(&kind, &files, &out) {
             Ok(()) => ExitCode::SUCCESS,
@@ -274,20 +291,14 @@ fn real_main(cli: Cli) -> Result<ExitCode, ExitCode> {
             steps,
             sleep_ms,
             fail: f,
-        } => {
-            let a = tools::TestStage {
-                out,
-                inputs: input,
-                seed,
-                value,
-                steps,
-                sleep_ms,
-                fail: f,
-            };
-            match tools::test_stage(&a) {
-                Ok(()) => ExitCode::SUCCESS,
-                Err(e) => fail(1, e),
-            }
-        }
+        } => test_stage(tools::TestStage {
+            out,
+            inputs: input,
+            seed,
+            value,
+            steps,
+            sleep_ms,
+            fail: f,
+        }),
     })
 }

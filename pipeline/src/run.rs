@@ -204,168 +204,245 @@ enum St {
 pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
     let selected = dag.select(&opts.targets)?;
-    let lock_path = dag.lock_path();
-    let mut lock = Lock::read(&lock_path)?;
-    let path_env = stage_path_env();
-    let mut hasher = Hasher::new(path_env.clone());
-    let mut summary = Summary::default();
-
+    let lock = Lock::read(&dag.lock_path())?;
     if opts.dry_run {
-        for (i, r) in plan(dag, &selected, &lock, &mut hasher, opts.force) {
-            let name = &dag.stages[i].name;
-            if r.is_empty() {
-                println!("up to date  {name}");
-                summary.up_to_date.push(name.clone());
-            } else {
-                println!("would run   {name}: {}", join(&r));
-                summary.ran.push(name.clone());
-            }
-        }
-        if summary.ran.is_empty() {
-            println!("nothing to run: all {} stages up to date", selected.len());
-        }
-        return Ok(summary);
+        let mut hasher = Hasher::new(stage_path_env());
+        return Ok(dry_run(dag, &selected, &lock, &mut hasher, opts.force));
     }
-
     std::fs::create_dir_all(&dag.workdir).map_err(|e| Error::io(&dag.workdir, e))?;
     let _guard = RunGuard::take(&dag.state_dir())?;
-    // Forget stages that are no longer in the DAG (e.g. after lowering `rounds`).
-    lock.stages.retain(|name, _| dag.index(name).is_some());
-    let log_dir = dag.state_dir().join("logs");
-    std::fs::create_dir_all(&log_dir).map_err(|e| Error::io(&log_dir, e))?;
+    let mut r = Runner::new(dag, opts, selected, lock)?;
+    r.run()?;
+    r.finish(t0)
+}
 
-    let mp = MultiProgress::with_draw_target(ProgressDrawTarget::stderr());
-    let overall = mp.add(ProgressBar::new(selected.len() as u64));
-    overall.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} stages {msg}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    let say = |m: String| mp.suspend(|| println!("{m}"));
-
-    let jobs = match opts.jobs {
-        0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
-        j => j,
-    };
-    let n = dag.stages.len();
-    let mut st = vec![St::Done; n];
-    for &i in &selected {
-        st[i] = St::Pending;
+/// `--dry-run`: what would run, and why.
+fn dry_run(
+    dag: &Dag,
+    selected: &[usize],
+    lock: &Lock,
+    hasher: &mut Hasher,
+    force: bool,
+) -> Summary {
+    let mut summary = Summary::default();
+    for (i, r) in plan(dag, selected, lock, hasher, force) {
+        let name = &dag.stages[i].name;
+        if r.is_empty() {
+            println!("up to date  {name}");
+            summary.up_to_date.push(name.clone());
+        } else {
+            println!("would run   {name}: {}", join(&r));
+            summary.ran.push(name.clone());
+        }
     }
-    let mut fps: Vec<Option<Fingerprint>> = vec![None; n];
-    let mut spinners: Vec<Option<ProgressBar>> = vec![None; n];
-    let (tx, rx) = mpsc::channel::<(usize, Outcome)>();
-    let mut running = 0usize;
-    let mut stop = false;
-    loop {
-        // Block stages below a failure.
+    if summary.ran.is_empty() {
+        println!("nothing to run: all {} stages up to date", selected.len());
+    }
+    summary
+}
+
+/// A run in progress: each selected stage's state, the stages running, the lock.
+struct Runner<'a> {
+    dag: &'a Dag,
+    opts: &'a RunOptions,
+    selected: Vec<usize>,
+    lock: Lock,
+    hasher: Hasher,
+    path_env: std::ffi::OsString,
+    log_dir: PathBuf,
+    jobs: usize,
+    summary: Summary,
+    st: Vec<St>,
+    fps: Vec<Option<Fingerprint>>,
+    spinners: Vec<Option<ProgressBar>>,
+    mp: MultiProgress,
+    overall: ProgressBar,
+    tx: mpsc::Sender<(usize, Outcome)>,
+    rx: mpsc::Receiver<(usize, Outcome)>,
+    running: usize,
+    stop: bool,
+}
+
+impl<'a> Runner<'a> {
+    fn new(
+        dag: &'a Dag,
+        opts: &'a RunOptions,
+        selected: Vec<usize>,
+        mut lock: Lock,
+    ) -> Result<Self> {
+        // Forget stages that are no longer in the DAG (e.g. after lowering `rounds`).
+        lock.stages.retain(|name, _| dag.index(name).is_some());
+        let log_dir = dag.state_dir().join("logs");
+        std::fs::create_dir_all(&log_dir).map_err(|e| Error::io(&log_dir, e))?;
+        let mp = MultiProgress::with_draw_target(ProgressDrawTarget::stderr());
+        let overall = mp.add(ProgressBar::new(selected.len() as u64));
+        overall.set_style(
+            ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} stages {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        let jobs = match opts.jobs {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            j => j,
+        };
+        let n = dag.stages.len();
+        let mut st = vec![St::Done; n];
         for &i in &selected {
-            if st[i] == St::Pending
-                && dag.stages[i]
+            st[i] = St::Pending;
+        }
+        let path_env = stage_path_env();
+        let (tx, rx) = mpsc::channel::<(usize, Outcome)>();
+        Ok(Runner {
+            dag,
+            opts,
+            selected,
+            lock,
+            hasher: Hasher::new(path_env.clone()),
+            path_env,
+            log_dir,
+            jobs,
+            summary: Summary::default(),
+            st,
+            fps: vec![None; n],
+            spinners: vec![None; n],
+            mp,
+            overall,
+            tx,
+            rx,
+            running: 0,
+            stop: false,
+        })
+    }
+
+    fn say(&self, m: String) {
+        self.mp.suspend(|| println!("{m}"));
+    }
+
+    /// Launch what is ready, wait for a stage, record it; until nothing runs.
+    fn run(&mut self) -> Result<()> {
+        loop {
+            self.block_below_failures();
+            self.launch_ready();
+            if self.running == 0 {
+                return Ok(());
+            }
+            let (i, out) = match self.rx.recv_timeout(Duration::from_millis(250)) {
+                Ok(x) => x,
+                Err(mpsc::RecvTimeoutError::Timeout) => {
+                    self.show_log_lines();
+                    continue;
+                }
+                Err(mpsc::RecvTimeoutError::Disconnected) => return Ok(()),
+            };
+            self.running -= 1;
+            self.record(i, out)?;
+        }
+    }
+
+    /// Block the pending stages below a failure.
+    fn block_below_failures(&mut self) {
+        for &i in &self.selected {
+            if self.st[i] == St::Pending
+                && self.dag.stages[i]
                     .upstream
                     .iter()
-                    .any(|&u| matches!(st[u], St::Failed | St::Blocked))
+                    .any(|&u| matches!(self.st[u], St::Failed | St::Blocked))
             {
-                st[i] = St::Blocked;
-                summary.blocked.push(dag.stages[i].name.clone());
-                overall.inc(1);
+                self.st[i] = St::Blocked;
+                self.summary.blocked.push(self.dag.stages[i].name.clone());
+                self.overall.inc(1);
             }
         }
-        // Launch what is ready.
-        while !stop && running < jobs {
-            let Some(i) = selected.iter().copied().find(|&i| {
+    }
+
+    /// Launch the pending stages whose upstream is done, up to `jobs` running (those up
+    /// to date are marked done instead).
+    fn launch_ready(&mut self) {
+        while !self.stop && self.running < self.jobs {
+            let (dag, st) = (self.dag, &self.st);
+            let Some(i) = self.selected.iter().copied().find(|&i| {
                 st[i] == St::Pending && dag.stages[i].upstream.iter().all(|&u| st[u] == St::Done)
             }) else {
                 break;
             };
             let s = &dag.stages[i];
-            let fp = hasher.fingerprint(dag, s);
-            let mut r = reasons(dag, s, &fp, lock.stages.get(&s.name));
-            if opts.force && r.is_empty() {
+            let fp = self.hasher.fingerprint(dag, s);
+            let mut r = reasons(dag, s, &fp, self.lock.stages.get(&s.name));
+            if self.opts.force && r.is_empty() {
                 r.push(Reason::Forced);
             }
             if r.is_empty() {
-                if let Some(e) = lock.stages.get_mut(&s.name) {
+                if let Some(e) = self.lock.stages.get_mut(&s.name) {
                     refresh_stamps(dag, s, e);
                 }
-                st[i] = St::Done;
-                summary.up_to_date.push(s.name.clone());
-                say(format!("up to date  {}", s.name));
-                overall.inc(1);
+                self.st[i] = St::Done;
+                self.summary.up_to_date.push(s.name.clone());
+                self.say(format!("up to date  {}", s.name));
+                self.overall.inc(1);
                 continue;
             }
-            for o in &s.outs {
-                clean_staging(dag, o);
-            }
-            say(format!("running     {}: {}", s.name, join(&r)));
-            let sp = mp.add(ProgressBar::new_spinner());
-            sp.set_style(
-                ProgressStyle::with_template("  {spinner} {elapsed:>4} {msg}")
-                    .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-            );
-            sp.set_message(s.name.clone());
-            sp.enable_steady_tick(Duration::from_millis(120));
-            spinners[i] = Some(sp);
-            let log = log_dir.join(format!("{}.log", s.name));
-            let timing = timing_file(dag, &s.name);
-            let _ = std::fs::remove_file(&timing);
-            let env = vec![
-                ("PATH".into(), path_env.clone()),
-                ("PIPELINE_STAGE".into(), s.name.clone().into()),
-                (TIMING_ENV.into(), timing.into_os_string()),
-            ];
-            spawn_stage(
-                i,
-                s.name.clone(),
-                s.argv.clone(),
-                dag.workdir.clone(),
-                env,
-                log,
-                tx.clone(),
-            );
-            fps[i] = Some(fp);
-            st[i] = St::Running;
-            running += 1;
+            self.launch(i, &r);
+            self.fps[i] = Some(fp);
         }
-        if running == 0 {
-            break;
+    }
+
+    /// Start stage `i` (stale for `r`) in the background, with a spinner.
+    fn launch(&mut self, i: usize, r: &[Reason]) {
+        let s = &self.dag.stages[i];
+        for o in &s.outs {
+            clean_staging(self.dag, o);
         }
-        let (i, out) = match rx.recv_timeout(Duration::from_millis(250)) {
-            Ok(x) => x,
-            Err(mpsc::RecvTimeoutError::Timeout) => {
-                // Show each running stage's latest log line beside its spinner.
-                if !mp.is_hidden() {
-                    for (k, sp) in spinners.iter().enumerate() {
-                        if let Some(sp) = sp {
-                            let log = log_dir.join(format!("{}.log", dag.stages[k].name));
-                            let line = last_line(&log);
-                            sp.set_message(format!("{}  {line}", dag.stages[k].name));
-                        }
-                    }
-                }
-                continue;
+        self.say(format!("running     {}: {}", s.name, join(r)));
+        let sp = self.mp.add(ProgressBar::new_spinner());
+        sp.set_style(
+            ProgressStyle::with_template("  {spinner} {elapsed:>4} {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+        );
+        sp.set_message(s.name.clone());
+        sp.enable_steady_tick(Duration::from_millis(120));
+        self.spinners[i] = Some(sp);
+        let log = self.log_dir.join(format!("{}.log", s.name));
+        let timing = timing_file(self.dag, &s.name);
+        let _ = std::fs::remove_file(&timing);
+        let env = vec![
+            ("PATH".into(), self.path_env.clone()),
+            ("PIPELINE_STAGE".into(), s.name.clone().into()),
+            (TIMING_ENV.into(), timing.into_os_string()),
+        ];
+        spawn_stage(
+            i,
+            s.name.clone(),
+            s.argv.clone(),
+            self.dag.workdir.clone(),
+            env,
+            log,
+            self.tx.clone(),
+        );
+        self.st[i] = St::Running;
+        self.running += 1;
+    }
+
+    /// Show each running stage's latest log line beside its spinner.
+    fn show_log_lines(&self) {
+        if self.mp.is_hidden() {
+            return;
+        }
+        for (k, sp) in self.spinners.iter().enumerate() {
+            if let Some(sp) = sp {
+                let log = self
+                    .log_dir
+                    .join(format!("{}.log", self.dag.stages[k].name));
+                let line = last_line(&log);
+                sp.set_message(format!("{}  {line}", self.dag.stages[k].name));
             }
-            Err(mpsc::RecvTimeoutError::Disconnected) => break,
-        };
-        running -= 1;
+        }
+    }
+
+    /// Record the outcome of stage `i` in the lock (written at once) and the summary.
+    fn record(&mut self, i: usize, out: Outcome) -> Result<()> {
+        let dag = self.dag;
         let s = &dag.stages[i];
-        let mut error = out.error.clone();
-        if error.is_none() && out.exit != Some(0) {
-            error = Some(match (out.exit, out.signal) {
-                (Some(c), _) if c > 128 && c <= 128 + 64 => format!(
-                    "exited with status {c} (the command was killed by signal {})",
-                    c - 128
-                ),
-                (Some(c), _) => format!("exited with status {c}"),
-                (None, Some(sig)) => format!("killed by signal {sig}"),
-                (None, None) => "killed by a signal".to_string(),
-            });
-        }
-        if error.is_none()
-            && let Some(o) = s.outs.iter().find(|o| !dag.path(o).exists())
-        {
-            error = Some(format!("exited 0 but did not write its output {o}"));
-        }
+        let error = failure(dag, s, &out);
         let log_rel = format!(".pipeline/logs/{}.log", s.name);
         if let Some(e) = &error {
             append_log(
@@ -374,98 +451,140 @@ pub fn run(dag: &Dag, opts: &RunOptions) -> Result<Summary> {
             );
             clean_failed(dag, &s.outs);
         }
-        let fp = fps[i].take().expect("fingerprint of a launched stage");
-        let ok = error.is_none();
-        let outs: BTreeMap<String, String> = if ok {
-            s.outs
-                .iter()
-                .map(|o| (o.clone(), crate::state::hash_or_missing(&dag.path(o))))
-                .collect()
-        } else {
-            BTreeMap::new()
-        };
-        let files: BTreeMap<_, _> = if ok {
-            s.outs
-                .iter()
-                .map(|o| (o.clone(), crate::state::stamp_files(&dag.path(o))))
-                .filter(|(_, f)| !f.is_empty())
-                .collect()
-        } else {
-            BTreeMap::new()
-        };
-        lock.stages.insert(
-            s.name.clone(),
-            Entry {
-                cmd: fp.cmd,
-                binary: fp.binary,
-                deps: fp.deps,
-                params: fp.params,
-                outs,
-                status: if ok { Status::Ok } else { Status::Failed },
-                duration_s: out.duration,
-                exit_code: out.exit,
-                finished_unix: now_unix(),
-                log: log_rel.clone(),
-                timing: if ok {
-                    read_timing(&timing_file(dag, &s.name))
-                } else {
-                    BTreeMap::new()
-                },
-                files,
-            },
-        );
-        lock.write(&lock_path)?;
-        if let Some(sp) = spinners[i].take() {
+        let fp = self.fps[i].take().expect("fingerprint of a launched stage");
+        let entry = lock_entry(dag, s, fp, &out, error.is_none(), &log_rel);
+        self.lock.stages.insert(s.name.clone(), entry);
+        self.lock.write(&dag.lock_path())?;
+        if let Some(sp) = self.spinners[i].take() {
             sp.finish_and_clear();
         }
-        overall.inc(1);
+        self.overall.inc(1);
         if let Some(e) = error {
-            st[i] = St::Failed;
-            summary.failed.push(s.name.clone());
-            say(format!(
+            self.st[i] = St::Failed;
+            self.summary.failed.push(s.name.clone());
+            self.say(format!(
                 "FAILED      {} ({:.1}s): {e}; log: {}",
                 s.name,
                 out.duration,
                 dag.workdir.join(&log_rel).display()
             ));
-            if !opts.keep_going {
-                stop = true;
+            if !self.opts.keep_going {
+                self.stop = true;
             }
         } else {
-            st[i] = St::Done;
-            summary.ran.push(s.name.clone());
-            say(format!("done        {} ({:.1}s)", s.name, out.duration));
+            self.st[i] = St::Done;
+            self.summary.ran.push(s.name.clone());
+            self.say(format!("done        {} ({:.1}s)", s.name, out.duration));
         }
+        Ok(())
     }
-    for &i in &selected {
-        if st[i] == St::Pending {
-            summary.blocked.push(dag.stages[i].name.clone());
+
+    /// The run's record in the lock, the summary line and the results.
+    fn finish(mut self, t0: Instant) -> Result<Summary> {
+        for &i in &self.selected {
+            if self.st[i] == St::Pending {
+                self.summary.blocked.push(self.dag.stages[i].name.clone());
+            }
         }
+        self.overall.finish_and_clear();
+        let summary = self.summary;
+        self.lock.last_run = Some(RunRecord {
+            wall_s: t0.elapsed().as_secs_f64(),
+            ran: summary.ran.clone(),
+            jobs: self.jobs,
+            finished_unix: now_unix(),
+        });
+        self.lock.write(&self.dag.lock_path())?;
+        if summary.ran.is_empty() && summary.failed.is_empty() && summary.blocked.is_empty() {
+            println!(
+                "nothing to run: all {} stages up to date",
+                self.selected.len()
+            );
+        } else {
+            println!(
+                "ran {}, up to date {}, failed {}, not run {} ({:.1}s)",
+                summary.ran.len(),
+                summary.up_to_date.len(),
+                summary.failed.len(),
+                summary.blocked.len(),
+                t0.elapsed().as_secs_f64()
+            );
+        }
+        if summary.failed.is_empty() && summary.blocked.is_empty() {
+            print!("{}", result_lines(self.dag));
+        }
+        Ok(summary)
     }
-    overall.finish_and_clear();
-    lock.last_run = Some(RunRecord {
-        wall_s: t0.elapsed().as_secs_f64(),
-        ran: summary.ran.clone(),
-        jobs,
-        finished_unix: now_unix(),
-    });
-    lock.write(&lock_path)?;
-    if summary.ran.is_empty() && summary.failed.is_empty() && summary.blocked.is_empty() {
-        println!("nothing to run: all {} stages up to date", selected.len());
+}
+
+/// Why stage `s` failed, if it did: its error, a non-zero exit or a signal, or a declared
+/// output it did not write.
+fn failure(dag: &Dag, s: &crate::dag::Stage, out: &Outcome) -> Option<String> {
+    if out.error.is_some() {
+        return out.error.clone();
+    }
+    if out.exit != Some(0) {
+        return Some(match (out.exit, out.signal) {
+            (Some(c), _) if c > 128 && c <= 128 + 64 => format!(
+                "exited with status {c} (the command was killed by signal {})",
+                c - 128
+            ),
+            (Some(c), _) => format!("exited with status {c}"),
+            (None, Some(sig)) => format!("killed by signal {sig}"),
+            (None, None) => "killed by a signal".to_string(),
+        });
+    }
+    s.outs
+        .iter()
+        .find(|o| !dag.path(o).exists())
+        .map(|o| format!("exited 0 but did not write its output {o}"))
+}
+
+/// The lock's entry for stage `s` after `out` (`ok`: it succeeded; then its outputs'
+/// hashes, file stamps and timing are recorded).
+fn lock_entry(
+    dag: &Dag,
+    s: &crate::dag::Stage,
+    fp: Fingerprint,
+    out: &Outcome,
+    ok: bool,
+    log_rel: &str,
+) -> Entry {
+    let outs: BTreeMap<String, String> = if ok {
+        s.outs
+            .iter()
+            .map(|o| (o.clone(), crate::state::hash_or_missing(&dag.path(o))))
+            .collect()
     } else {
-        println!(
-            "ran {}, up to date {}, failed {}, not run {} ({:.1}s)",
-            summary.ran.len(),
-            summary.up_to_date.len(),
-            summary.failed.len(),
-            summary.blocked.len(),
-            t0.elapsed().as_secs_f64()
-        );
+        BTreeMap::new()
+    };
+    let files: BTreeMap<_, _> = if ok {
+        s.outs
+            .iter()
+            .map(|o| (o.clone(), crate::state::stamp_files(&dag.path(o))))
+            .filter(|(_, f)| !f.is_empty())
+            .collect()
+    } else {
+        BTreeMap::new()
+    };
+    Entry {
+        cmd: fp.cmd,
+        binary: fp.binary,
+        deps: fp.deps,
+        params: fp.params,
+        outs,
+        status: if ok { Status::Ok } else { Status::Failed },
+        duration_s: out.duration,
+        exit_code: out.exit,
+        finished_unix: now_unix(),
+        log: log_rel.to_string(),
+        timing: if ok {
+            read_timing(&timing_file(dag, &s.name))
+        } else {
+            BTreeMap::new()
+        },
+        files,
     }
-    if summary.failed.is_empty() && summary.blocked.is_empty() {
-        print!("{}", result_lines(dag));
-    }
-    Ok(summary)
 }
 
 /// The DAG's `[result]` paths that exist, one `result  NAME  PATH` line each, with

@@ -181,9 +181,31 @@ const CPU_PREFIX: &str = "cpu:";
 /// seconds, CPU seconds, calls, milliseconds per call and share of the stages' compute
 /// time, children indented under their parent, largest first.
 fn phase_tables(dag: &Dag, lock: &Lock, out: &mut String) {
-    // (base name, instances, compute s, phase -> (seconds, calls, cpu seconds)), in DAG
-    // order.
-    type Phases = std::collections::BTreeMap<String, (f64, f64, Option<f64>)>;
+    for (base, n, compute, phases) in phase_groups(dag, lock) {
+        let _ = writeln!(
+            out,
+            "\nphases of {base}{} (wall time, nested phases included in their parent; compute {compute:.3} s):",
+            if n > 1 {
+                format!(" ({n} stages summed)")
+            } else {
+                String::new()
+            }
+        );
+        let _ = writeln!(
+            out,
+            "  {:<44} {:>9} {:>9} {:>7} {:>9} {:>9}",
+            "phase", "wall_s", "cpu_s", "calls", "ms/call", "%compute"
+        );
+        phase_rows(&phases, compute, out);
+    }
+}
+
+/// A phase's totals: (seconds, calls, cpu seconds), by phase name.
+type Phases = std::collections::BTreeMap<String, (f64, f64, Option<f64>)>;
+
+/// The phases reported by the lock's stages, summed per base name (`NAME` of
+/// `NAME@ITEM`), in DAG order: (base name, instances, compute s, phases).
+fn phase_groups(dag: &Dag, lock: &Lock) -> Vec<(String, usize, f64, Phases)> {
     let mut groups: Vec<(String, usize, f64, Phases)> = Vec::new();
     for s in &dag.stages {
         let Some(e) = lock.stages.get(&s.name) else {
@@ -214,77 +236,68 @@ fn phase_tables(dag: &Dag, lock: &Lock, out: &mut String) {
             }
         }
     }
-    for (base, n, compute, phases) in groups {
+    groups
+}
+
+/// A phase and its totals.
+type Row<'a> = (&'a String, (f64, f64, Option<f64>));
+
+/// The phases directly below `parent` (the roots for `None`), largest first.
+fn children<'a>(phases: &'a Phases, parent: Option<&str>) -> Vec<Row<'a>> {
+    let mut c: Vec<_> = phases
+        .iter()
+        .filter(|(k, _)| match parent {
+            None => !k.contains('/'),
+            Some(p) => k
+                .strip_prefix(p)
+                .and_then(|r| r.strip_prefix('/'))
+                .is_some_and(|r| !r.contains('/')),
+        })
+        .map(|(k, v)| (k, *v))
+        .collect();
+    c.sort_by(|a, b| b.1.0.total_cmp(&a.1.0));
+    c
+}
+
+/// The rows of one table: depth first from the roots, children largest first (phases
+/// whose parent was never reported at the top level).
+fn phase_rows(phases: &Phases, compute: f64, out: &mut String) {
+    let mut stack: Vec<(Row<'_>, usize)> = children(phases, None)
+        .into_iter()
+        .rev()
+        .map(|r| (r, 0))
+        .collect();
+    for (k, v) in phases {
+        if let Some((parent, _)) = k.rsplit_once('/')
+            && !phases.contains_key(parent)
+        {
+            stack.insert(0, ((k, *v), 0));
+        }
+    }
+    while let Some(((name, (secs, calls, cpu)), depth)) = stack.pop() {
+        let leaf = if depth == 0 {
+            name.as_str()
+        } else {
+            name.rsplit('/').next().unwrap_or(name)
+        };
+        let label = format!("{}{leaf}", "  ".repeat(depth));
+        let per_call = if calls > 0.0 {
+            format!("{:.2}", 1e3 * secs / calls)
+        } else {
+            "-".into()
+        };
+        let share = if compute > 0.0 {
+            format!("{:.1}", 100.0 * secs / compute)
+        } else {
+            "-".into()
+        };
+        let cpu = cpu.map_or_else(|| "-".to_string(), |c| format!("{c:.2}"));
         let _ = writeln!(
             out,
-            "\nphases of {base}{} (wall time, nested phases included in their parent; compute {compute:.3} s):",
-            if n > 1 {
-                format!(" ({n} stages summed)")
-            } else {
-                String::new()
-            }
+            "  {label:<44} {secs:>9.3} {cpu:>9} {calls:>7} {per_call:>9} {share:>9}"
         );
-        let _ = writeln!(
-            out,
-            "  {:<44} {:>9} {:>9} {:>7} {:>9} {:>9}",
-            "phase", "wall_s", "cpu_s", "calls", "ms/call", "%compute"
-        );
-        // Depth first from the roots, children largest first.
-        type Row<'a> = (&'a String, (f64, f64, Option<f64>));
-        fn children<'a>(phases: &'a Phases, parent: Option<&str>) -> Vec<Row<'a>> {
-            let mut c: Vec<_> = phases
-                .iter()
-                .filter(|(k, _)| match parent {
-                    None => !k.contains('/'),
-                    Some(p) => k
-                        .strip_prefix(p)
-                        .and_then(|r| r.strip_prefix('/'))
-                        .is_some_and(|r| !r.contains('/')),
-                })
-                .map(|(k, v)| (k, *v))
-                .collect();
-            c.sort_by(|a, b| b.1.0.total_cmp(&a.1.0));
-            c
-        }
-        #[allow(clippy::type_complexity)]
-        let mut stack: Vec<(&String, (f64, f64, Option<f64>), usize)> = children(&phases, None)
-            .into_iter()
-            .rev()
-            .map(|(k, v)| (k, v, 0))
-            .collect();
-        // Phases whose parent was never reported are shown at the top level.
-        for (k, v) in &phases {
-            if let Some((parent, _)) = k.rsplit_once('/')
-                && !phases.contains_key(parent)
-            {
-                stack.insert(0, (k, *v, 0));
-            }
-        }
-        while let Some((name, (secs, calls, cpu), depth)) = stack.pop() {
-            let leaf = if depth == 0 {
-                name.as_str()
-            } else {
-                name.rsplit('/').next().unwrap_or(name)
-            };
-            let label = format!("{}{leaf}", "  ".repeat(depth));
-            let per_call = if calls > 0.0 {
-                format!("{:.2}", 1e3 * secs / calls)
-            } else {
-                "-".into()
-            };
-            let share = if compute > 0.0 {
-                format!("{:.1}", 100.0 * secs / compute)
-            } else {
-                "-".into()
-            };
-            let cpu = cpu.map_or_else(|| "-".to_string(), |c| format!("{c:.2}"));
-            let _ = writeln!(
-                out,
-                "  {label:<44} {secs:>9.3} {cpu:>9} {calls:>7} {per_call:>9} {share:>9}"
-            );
-            for (k, v) in children(&phases, Some(name)).into_iter().rev() {
-                stack.push((k, v, depth + 1));
-            }
+        for r in children(phases, Some(name)).into_iter().rev() {
+            stack.push((r, depth + 1));
         }
     }
 }

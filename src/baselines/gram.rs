@@ -11,11 +11,9 @@
 //! against the original (unstylized) render of the same view. The objective is
 //! `style_weight * L_style + content_weight * L_content`.
 
-use super::{
-    Objective, Terms, content_loss_grad, downsample, downsample_adjoint_add, gram_loss_grad,
-};
-use crate::imageio::Image;
-use crate::metrics::gram::gram;
+use super::{Objective, Terms, content_loss_grad, gram_loss_grad};
+use crate::imageio::{Image, downsample, downsample_adjoint_add};
+use crate::maths::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
 
@@ -54,7 +52,7 @@ impl Default for GramConfig {
 pub struct GramTargets {
     pub layers: Vec<Layer>,
     pub factors: Vec<usize>,
-    /// Row-major `C x C` (see [`crate::metrics::gram::gram`]).
+    /// Row-major `C x C` (see [`crate::maths::gram::gram`]).
     pub grams: Vec<Vec<Vec<f64>>>,
 }
 
@@ -95,7 +93,7 @@ pub struct GramObjective<'a> {
 }
 
 impl<'a> GramObjective<'a> {
-    /// Targets from `style` (already prepared, see [`super::prepare_style`]) and content
+    /// Targets from `style` (already prepared, see [`crate::vgg::prepare_style`]) and content
     /// features from the original renders `originals`.
     pub fn new(
         vgg: &'a Vgg16,

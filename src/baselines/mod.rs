@@ -7,39 +7,39 @@
 //! * [`nnfm`]: nearest-neighbour feature matching (ARF, Zhang et al. 2022): every
 //!   relu3-block feature of a render is pulled toward its nearest style feature by
 //!   cosine distance, plus a content loss at relu3_3.
-//! * per-view 2D stylize + refit (in the stage): each original view is stylized by the
+//! * per-view 2D stylize + refit ([`run`]): each original view is stylized by the
 //!   2D stylizer on its own, then colours are fitted to those images; no MVFC, no
 //!   distillation.
-//! * [`colour`]: the object's colour mean and covariance moved onto the style image's
-//!   (linear Monge-Kantorovich map on the SH colours), no texture, no optimisation.
-//! * [`projection`]: the style image texture-mapped onto the object (triplanar projection
-//!   along each Gaussian's normal, at the texture term's motif scale), no optimisation;
-//!   also `distill --project-style`'s start.
+//! * colour transfer ([`run`]): the object's colour mean and covariance moved onto
+//!   the style image's (linear Monge-Kantorovich map on the SH colours), no texture, no
+//!   optimisation: the method's colour start and finish alone
+//!   ([`crate::distill::colour_transfer`]).
+//! * projection ([`run`]): the style image texture-mapped onto the object
+//!   (triplanar projection along each Gaussian's normal, at the texture term's motif
+//!   scale), no optimisation: the method's projected start alone
+//!   ([`crate::distill::projection`]).
+//!
+//! A run of any of them, start to end (objective, monitor, fit under a budget,
+//! checkpoints), is [`run`]; the `stylize-baseline` stage reads the inputs and writes
+//! what it produced.
 //!
 //! The VGG losses are image-space objectives ([`Objective`]): per view they return the
 //! loss and dL/d(rgb) as an `[H, W, 3]` image, which the colour fit chains through the
 //! renderer's colour backward pass into the SH coefficients. Geometry never changes.
 //!
 //! Style images: read as RGB (grayscale expanded to three channels, alpha dropped, see
-//! [`crate::imageio`]), resized so the shorter side is `style_size` (default 256), and
-//! refused if the shorter side of the file is below [`MIN_STYLE_SIDE`], the receptive
-//! field of relu4_3 (92 px): a smaller image cannot fill even one deepest-layer unit, so
-//! its "style" at that layer would be the zero padding's.
+//! [`crate::imageio`]) and sized for VGG16 by [`crate::vgg::prepare_style`].
 
-pub mod colour;
 pub mod fit;
 pub mod gram;
 pub mod nnfm;
-pub mod projection;
+pub mod run;
 
 use crate::imageio::Image;
-use crate::metrics::gram::gram;
-use crate::vgg::{Layer, Tensor3, Vgg16, receptive_field};
+use crate::maths::gram::gram;
+use crate::vgg::{Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
 use ndarray::{Array2, linalg::general_mat_mul};
-
-/// Smallest accepted style image side: the receptive field of relu4_3.
-pub const MIN_STYLE_SIDE: usize = 92;
 
 /// Smallest accepted render side for the VGG baselines: relu4_3 must have 2x2 positions
 /// at the coarsest scale (three 2x2 poolings).
@@ -62,77 +62,8 @@ pub trait Objective: Sync {
     fn eval(&self, view: usize, img: &Image) -> Result<Terms>;
 }
 
-/// Check that a style image is large enough (see module docs) and resize it so its
-/// shorter side is `style_size` ([`Image::with_shorter_side`]; aspect kept). `path` names it in
-/// errors.
-pub fn prepare_style(img: &Image, style_size: usize, path: &std::path::Path) -> Result<Image> {
-    debug_assert_eq!(receptive_field(Layer::Relu4_3), MIN_STYLE_SIDE);
-    let short = img.width.min(img.height);
-    if short < MIN_STYLE_SIDE {
-        return Err(Error::input(
-            path,
-            format!(
-                "style image is {}x{}; the VGG baselines need a shorter side of at least {MIN_STYLE_SIDE} px (the receptive field of relu4_3)",
-                img.width, img.height
-            ),
-        ));
-    }
-    if style_size < MIN_STYLE_SIDE {
-        return Err(Error::param(format!(
-            "--style-size {style_size} is below the VGG receptive field ({MIN_STYLE_SIDE} px)"
-        )));
-    }
-    Ok(img.with_shorter_side(style_size))
-}
-
-/// Box-downsample by an integer `factor` (floor: trailing rows/columns dropped).
-pub fn downsample(img: &Image, factor: usize) -> Image {
-    if factor == 1 {
-        return img.clone();
-    }
-    let (h, w) = (img.height / factor, img.width / factor);
-    let mut out = vec![0.0f32; h * w * 3];
-    let inv = 1.0 / (factor * factor) as f32;
-    for y in 0..h {
-        for x in 0..w {
-            for dy in 0..factor {
-                for dx in 0..factor {
-                    let p = ((y * factor + dy) * img.width + x * factor + dx) * 3;
-                    for c in 0..3 {
-                        out[(y * w + x) * 3 + c] += img.data[p + c] * inv;
-                    }
-                }
-            }
-        }
-    }
-    Image {
-        width: w,
-        height: h,
-        data: out,
-    }
-}
-
-/// Adjoint of [`downsample`]: add the small image's gradient back onto `grad` (full size
-/// `h x w`), each small pixel spread evenly over its `factor^2` sources.
-pub fn downsample_adjoint_add(small: &[f32], factor: usize, h: usize, w: usize, grad: &mut [f32]) {
-    let (hs, ws) = (h / factor, w / factor);
-    let inv = 1.0 / (factor * factor) as f32;
-    for y in 0..hs {
-        for x in 0..ws {
-            for dy in 0..factor {
-                for dx in 0..factor {
-                    let p = ((y * factor + dy) * w + x * factor + dx) * 3;
-                    for c in 0..3 {
-                        grad[p + c] += small[(y * ws + x) * 3 + c] * inv;
-                    }
-                }
-            }
-        }
-    }
-}
-
 /// Mean squared difference of two Gram matrices, `||G - A||^2 / C^2` (f64; `G` from
-/// [`crate::metrics::gram::gram`], `target` = A row-major `C x C`), and the gradient
+/// [`crate::maths::gram::gram`], `target` = A row-major `C x C`), and the gradient
 /// w.r.t. the features `F` that made `G`, scaled by `scale`:
 /// `scale * 4 (G - A) F / (C^2 H W)` (G - A is symmetric).
 pub fn gram_loss_grad(f: &Tensor3, target: &[f64], scale: f32) -> (f64, Tensor3) {
@@ -224,47 +155,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn downsample_adjoint_is_the_transpose() {
-        let mut r = crate::rng::Rng::new(3);
-        let (h, w) = (7, 9);
-        let x = Image {
-            width: w,
-            height: h,
-            data: (0..h * w * 3).map(|_| r.normal() as f32).collect(),
-        };
-        let y = downsample(&x, 2);
-        let g: Vec<f32> = (0..y.data.len()).map(|_| r.normal() as f32).collect();
-        let mut back = vec![0.0; x.data.len()];
-        downsample_adjoint_add(&g, 2, h, w, &mut back);
-        let lhs: f64 = y.data.iter().zip(&g).map(|(&a, &b)| (a * b) as f64).sum();
-        let rhs: f64 = x
-            .data
-            .iter()
-            .zip(&back)
-            .map(|(&a, &b)| (a * b) as f64)
-            .sum();
-        assert!((lhs - rhs).abs() < 1e-4, "{lhs} vs {rhs}");
-    }
-
-    #[test]
-    fn style_size_limits() {
-        let p = std::path::Path::new("style.png");
-        let small = Image {
-            width: 91,
-            height: 300,
-            data: vec![0.5; 91 * 300 * 3],
-        };
-        let e = prepare_style(&small, 256, p).unwrap_err().to_string();
-        assert!(e.contains("style.png") && e.contains("92"), "{e}");
-        let ok = Image {
-            width: 92,
-            height: 184,
-            data: vec![0.5; 92 * 184 * 3],
-        };
-        let s = prepare_style(&ok, 128, p).unwrap();
-        assert_eq!((s.width, s.height), (128, 256));
-        assert!(s.data.iter().all(|&v| (v - 0.5).abs() < 1e-6));
-        assert!(prepare_style(&ok, 64, p).is_err());
+    fn an_empty_view_set_is_refused() {
         assert!(check_views(&[]).is_err());
     }
 }

@@ -17,7 +17,7 @@
 //!   ones; it is `None` when either side is all zero there);
 //! * *revisit*: a view's high pass against the one of its previous visit (same pixels);
 //! * *adjacent*: the high pass of view `j` warped into its path neighbour `i` by depth
-//!   reprojection ([`crate::metrics::warp`]: the source views' surface depth and the
+//!   reprojection ([`crate::maths::warp`]: the source views' surface depth and the
 //!   cameras; occluded, off-screen and uncovered pixels are masked) against `i`'s own.
 //!
 //! Over a window of views the sums are pooled (the cosine of the concatenated vectors), so
@@ -28,7 +28,7 @@
 
 use crate::Camera;
 use crate::imageio::Image;
-use crate::metrics::warp::{ALPHA_MIN, surface_depth, warp_into};
+use crate::maths::warp::{ALPHA_MIN, surface_depth, warp_into};
 use crate::prior::stylizer::gaussian_blur;
 use ndarray::{Array3, ArrayView3, ArrayView4, Axis, s};
 
@@ -289,7 +289,7 @@ impl Tracker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::metrics::warp::look_at;
+    use crate::maths::warp::look_at;
     use crate::rng::Rng;
 
     fn noise(rng: &mut Rng, h: usize, w: usize) -> Array3<f32> {

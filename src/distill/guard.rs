@@ -60,7 +60,7 @@ pub fn checkpoint(scene: &Scene, state: &OptimizerState) -> Result<()> {
     {
         return Err(Error::Other(format!(
             "the colour (SH DC) of Gaussian {i} is {:?}: the state is not finite, and no \
-             checkpoint is written from it (lower --lr-dc, --lr or --guidance)",
+             checkpoint is written from it (lower lr_dc, csd.lr or csd.guidance)",
             scene.sh_dc[i]
         )));
     }

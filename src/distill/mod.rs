@@ -33,10 +33,15 @@
 //!    gradient at the render is -a (c' - c), the prior's change with its magnitude, and
 //!    the rasterizer's vector-Jacobian product carries the paper's w(t) (Phi_tgt -
 //!    Phi_src) into the colours (the MSE-to-a-detached-target form of score
-//!    distillation); L1 passes only its sign. Optionally ([`texture`], on in the stage's
-//!    defaults) a low-layer VGG Gram term of the object is added to the same step: it is
-//!    not part of FantasyStyle, and it is what carries a style's motifs with the CPU
-//!    stylizer prior (BENCHMARKS.md "Texture").
+//!    distillation); L1 passes only its sign. The colour step's loss is the
+//!    configuration's weighted list of terms ([`terms`]): the prior's term above, and
+//!    optionally VGG texture terms of the object (`nnfm`, `gram`: not part of
+//!    FantasyStyle; what carries a style's motifs with the CPU stylizer prior,
+//!    BENCHMARKS.md "Texture").
+//!
+//! The whole configuration is one type, [`Config`] ([`config`]: keys, defaults, presets);
+//! a run may start from the scene as it is or after a start, and end after a finish
+//! ([`ends`]); splitting long Gaussians is its own stage ([`split`]).
 //!
 //! The timestep is drawn uniformly from the set every iteration (the paper), or annealed
 //! from coarse to fine ([`TimestepSchedule::Anneal`]).
@@ -51,74 +56,31 @@
 //! `distill`'s checkpoints as `hf_prev.npy`; the stage chain does not measure it).
 
 pub mod agreement;
+pub mod colour_transfer;
+pub mod config;
+pub mod ends;
 pub mod fill;
 pub mod guard;
 pub mod path;
+pub mod projection;
+pub mod record;
+pub mod split;
 pub mod step;
-pub mod texture;
+pub mod terms;
 
-use crate::artifacts::{Start, Views};
-use crate::csd::CsdParams;
-use crate::mvfc::MvfcParams;
 use crate::optim::{ColourFit, OptimizerState};
 use crate::prior::Prior;
 use crate::prior::cost::{CostModel, Plan, about};
 use crate::rng::Rng;
 use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Camera, Error, Result, Scene};
+pub use config::Config;
 use ndarray::{Array3, Array4, ArrayView4, Axis};
 use path::{ViewPath, Window};
+pub use record::{IterReport, LastIteration, LastLatents, Progress};
 pub use step::{ColourStep, Draws, TargetParams};
-
-/// Parameters of the loop.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DistillParams {
-    /// Views per iteration (the paper's N adjacent views).
-    pub views_per_iter: usize,
-    /// The distillation gradient (mode, guidance, weighting, step on z0).
-    pub csd: CsdParams,
-    /// MVFC parameters; `None` = the "without MVFC" ablation.
-    pub mvfc: Option<MvfcParams>,
-    /// Filter the source branch's noisy latents with MVFC too (same eps'), not only the
-    /// target's. MVFC scales the low band of the signal by gamma; on the target alone
-    /// that is a bias the CSD difference does not cancel (the scene moves even when the
-    /// style is its own look); on both branches Phi_tgt - Phi_src is 0 at the source.
-    pub mvfc_source: bool,
-    /// Keep the scene's own chroma, change luminance (texture, contrast) only.
-    pub preserve_color: bool,
-    /// Let f_rest (view-dependent colour) change.
-    pub fit_rest: bool,
-    /// Adam learning rate of f_dc (f_rest: lr_dc / 20 when `fit_rest`).
-    pub lr_dc: f32,
-    /// D-SSIM weight of the colour loss. 0 by default: the target differs from the
-    /// render only by the prior's small change, and where that change is 0 the D-SSIM
-    /// gradient is rounding noise, which Adam's per-parameter normalisation (eps 1e-15)
-    /// turns into full-size steps: the scene then drifts with no style asking for it.
-    pub ssim_weight: f32,
-    /// Give the prior the object over a fill of its own colours ([`fill`]).
-    pub fill_background: bool,
-    /// Background colour of the renders (and of the source views).
-    pub background: [f32; 3],
-    /// How the prior's change reaches the colours ([`ColourLoss`]).
-    pub colour_loss: ColourLoss,
-    /// How the timestep of an iteration is drawn ([`TimestepSchedule`]).
-    pub t_schedule: TimestepSchedule,
-    /// Seed of every random draw.
-    pub seed: u64,
-}
-
-/// The colour step's loss against the targets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ColourLoss {
-    /// L1: each pixel passes only the sign of the change the prior asks for.
-    L1,
-    /// Half the squared distance: dL/drender = render - target = -a (c' - c), the
-    /// alpha-weighted image change itself, so the render's vector-Jacobian product
-    /// carries the paper's gradient w(t) (Phi_tgt - Phi_src) with its magnitude (the
-    /// MSE-to-a-detached-target form of score distillation).
-    L2,
-}
+pub use terms::ColourLoss;
+use terms::PriorTerm;
 
 /// How an iteration's timestep is drawn from the model's set.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -148,26 +110,6 @@ impl TimestepSchedule {
     }
 }
 
-impl Default for DistillParams {
-    fn default() -> Self {
-        DistillParams {
-            views_per_iter: 4,
-            csd: CsdParams::default(),
-            mvfc: Some(MvfcParams::default()),
-            mvfc_source: true,
-            preserve_color: false,
-            fit_rest: false,
-            lr_dc: 0.01,
-            ssim_weight: 0.0,
-            fill_background: true,
-            background: [0.0; 3],
-            colour_loss: ColourLoss::L2,
-            t_schedule: TimestepSchedule::Random,
-            seed: 0,
-        }
-    }
-}
-
 /// The original renders (from the source `views` artifact), one `[H, W, ...]` per view.
 #[derive(Debug, Clone)]
 pub struct SourceViews {
@@ -179,26 +121,11 @@ pub struct SourceViews {
     pub alpha: Vec<Vec<f32>>,
     /// `[H, W]` per view (expected depth), for ControlNet priors.
     pub depth: Vec<Vec<f32>>,
+    /// The colour they are composited over (the loop renders over it too).
+    pub background: [f32; 3],
 }
 
 impl SourceViews {
-    /// The source views of a `views` artifact (render-views of the original scene).
-    pub fn from_views(views: &Views) -> SourceViews {
-        let (n, h, w) = views.dim();
-        let plane = |x: &Array3<f32>, i: usize| -> Vec<f32> {
-            x.index_axis(Axis(0), i).iter().copied().collect()
-        };
-        SourceViews {
-            width: w,
-            height: h,
-            rgb: (0..n)
-                .map(|i| views.rgb.index_axis(Axis(0), i).iter().copied().collect())
-                .collect(),
-            alpha: (0..n).map(|i| plane(&views.alpha, i)).collect(),
-            depth: (0..n).map(|i| plane(&views.depth, i)).collect(),
-        }
-    }
-
     /// The source views of `scene` rendered from `cameras` over `background` (the
     /// original renders without a `views` artifact); the cameras must share one size.
     pub fn render(scene: &Scene, cameras: &[Camera], background: [f32; 3]) -> Result<SourceViews> {
@@ -218,6 +145,7 @@ impl SourceViews {
             rgb: Vec::with_capacity(cameras.len()),
             alpha: Vec::with_capacity(cameras.len()),
             depth: Vec::with_capacity(cameras.len()),
+            background,
         };
         for r in crate::render::render_all(scene, cameras, background)? {
             src.rgb.push(r.rgb);
@@ -245,70 +173,6 @@ impl SourceViews {
     }
 }
 
-/// What one iteration did, for logs, checkpoints and tests.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct IterReport {
-    pub iteration: u64,
-    pub views: Vec<usize>,
-    pub timestep: usize,
-    /// Mean colour loss over the window before the update.
-    pub loss: f64,
-    /// Mean texture loss over the window before the update (0 without the term).
-    pub texture_loss: f64,
-    /// RMS of the image change the prior asked for, over covered pixels.
-    pub delta_rms: f64,
-    /// Fraction of covered target pixels clipped (<= 0.02 or >= 0.98 in every channel).
-    pub clipped: f64,
-    /// Cosine of the high-pass change with the same views' previous visit ([`agreement`];
-    /// None when no view of the window was visited before).
-    pub hf_agree_revisit: Option<f64>,
-    /// Cosine of the high-pass change between the window's neighbouring views after depth
-    /// reprojection ([`agreement`]; None for a one-view window or no overlap).
-    pub hf_agree_adjacent: Option<f64>,
-}
-
-impl IterReport {
-    /// The report of an iteration from its window, timestep, targets and colour step
-    /// (`(loss, texture_loss)`), with no agreement measured.
-    pub fn new(
-        w: &step::IterationWindow,
-        timestep: usize,
-        stats: step::TargetStats,
-        (loss, texture_loss): (f64, f64),
-    ) -> Self {
-        IterReport {
-            iteration: w.iteration,
-            views: w.window.views.clone(),
-            timestep,
-            loss,
-            texture_loss,
-            delta_rms: stats.delta_rms,
-            clipped: stats.clipped,
-            hf_agree_revisit: None,
-            hf_agree_adjacent: None,
-        }
-    }
-}
-
-/// The last iteration's tensors, written into checkpoints for inspection.
-#[derive(Debug, Clone)]
-pub struct LastIteration {
-    pub report: IterReport,
-    /// The latents of both branches (None when the prior was not called:
-    /// [`CsdParams::asks_nothing`]).
-    pub latents: Option<LastLatents>,
-    /// `[N, H, W, 3]`.
-    pub targets: Array4<f32>,
-}
-
-/// The last iteration's latents, `[N, C, h, w]` each.
-#[derive(Debug, Clone)]
-pub struct LastLatents {
-    pub z0: Array4<f32>,
-    pub z_tgt: Array4<f32>,
-    pub z_src: Array4<f32>,
-}
-
 /// The distillation state: the colour fit (scene + optimizer + caches), the prior, the
 /// source views and their latents.
 pub struct Distiller<'a> {
@@ -316,7 +180,7 @@ pub struct Distiller<'a> {
     prior: &'a mut dyn Prior,
     schedule: Schedule,
     timesteps: TimestepSet,
-    params: DistillParams,
+    params: Config,
     source: &'a SourceViews,
     /// Source colour per view, un-premultiplied `[H, W, 3]`.
     source_colour: Vec<Vec<f32>>,
@@ -324,14 +188,14 @@ pub struct Distiller<'a> {
     /// input for z0_src, and the control image of a `ControlKind::Source` prior).
     source_seen: Vec<Array3<f32>>,
     /// z0_src of every view, `[V, C, h, w]`: encoded once, by the first iteration that
-    /// calls the prior (never when it asks nothing, [`CsdParams::asks_nothing`]: an SD
+    /// calls the prior (never when it asks nothing, [`Config::asks_the_prior`]: an SD
     /// VAE would encode every view for nothing).
     z0_src: Option<Array4<f32>>,
     path: ViewPath,
     iteration: u64,
     last: Option<LastIteration>,
     /// The low-layer texture term added to the colour step ([`texture`]), if any.
-    texture: Option<texture::TextureTerm>,
+    texture: Option<terms::texture::TextureTerm>,
     /// Each view's previous high-pass change (measurement only, [`agreement`]).
     agreement: agreement::Tracker,
 }
@@ -347,7 +211,7 @@ impl<'a> Distiller<'a> {
         source: &'a SourceViews,
         prior: &'a mut dyn Prior,
         timesteps: TimestepSet,
-        params: DistillParams,
+        params: Config,
         iteration: u64,
     ) -> Result<Self> {
         let n = cameras.len();
@@ -357,12 +221,7 @@ impl<'a> Distiller<'a> {
                 source.rgb.len()
             )));
         }
-        if params.views_per_iter == 0 {
-            return Err(Error::param("views per iteration must be at least 1"));
-        }
-        if let Some(m) = &params.mvfc {
-            m.validate()?;
-        }
+        let params = params.checked()?;
         let (h, w) = (source.height, source.width);
         for c in cameras {
             if (c.width as usize, c.height as usize) != (w, h) {
@@ -380,11 +239,11 @@ impl<'a> Distiller<'a> {
             )));
         }
         let schedule = Schedule::new(info.scheduler.clone())?;
-        let fit = ColourFit::without_targets(scene, cameras, &step::fit_params(&params))?;
-        let bg = params.background;
+        let bg = source.background;
+        let fit = ColourFit::without_targets(scene, cameras, &step::fit_params(&params, bg))?;
         let source_colour: Vec<Vec<f32>> = (0..n).map(|v| source.colour(v, bg)).collect();
         let source_seen: Vec<Array3<f32>> = (0..n)
-            .map(|v| source.seen(&source.rgb[v], v, bg, params.fill_background))
+            .map(|v| source.seen(&source.rgb[v], v, bg, params.fill))
             .collect();
         Ok(Distiller {
             fit,
@@ -405,7 +264,7 @@ impl<'a> Distiller<'a> {
     }
 
     /// Add the low-layer texture term to every colour step.
-    pub fn with_texture(mut self, term: texture::TextureTerm) -> Self {
+    pub fn with_texture(mut self, term: terms::texture::TextureTerm) -> Self {
         self.texture = Some(term);
         self
     }
@@ -463,9 +322,9 @@ impl<'a> Distiller<'a> {
     /// One iteration (module docs), step by step through [`step`], unchecked:
     /// [`Self::iterate`] (in [`guard`]) names the iteration in errors and refuses a
     /// non-finite result. When the gradient is zero whatever the prior says
-    /// ([`CsdParams::asks_nothing`]: csd at guidance 0) the prior is not called.
+    /// ([`Config::asks_the_prior`]: no prior term, or csd at guidance 0) the prior is not called.
     fn iterate_unguarded(&mut self) -> Result<IterReport> {
-        if self.params.csd.asks_nothing() {
+        if !self.params.asks_the_prior() {
             self.iterate_without_prior()
         } else {
             self.iterate_with_prior()
@@ -479,8 +338,8 @@ impl<'a> Distiller<'a> {
     fn iterate_without_prior(&mut self) -> Result<IterReport> {
         let p = &self.params;
         let (h, w) = (self.source.height, self.source.width);
-        let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views_per_iter);
-        let t = draws.timestep(p.t_schedule, &self.timesteps);
+        let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views);
+        let t = draws.timestep(p.t_schedule(), &self.timesteps);
         let views = draws.window().window.views.clone();
         let ph = crate::timing::span("render");
         let renders = step::render_window(&self.fit, &views);
@@ -515,7 +374,7 @@ impl<'a> Distiller<'a> {
             &colour,
             delta,
             TargetParams {
-                background: self.params.background,
+                background: self.source.background,
                 preserve_color: self.params.preserve_color,
             },
         )
@@ -529,11 +388,13 @@ impl<'a> Distiller<'a> {
         let source = self.source;
         let alpha: Vec<&[f32]> = views.iter().map(|&v| &source.alpha[v][..]).collect();
         let cs = ColourStep {
-            loss: p.colour_loss,
-            ssim_weight: p.ssim_weight,
+            prior: p.terms.prior().map(|(_, weight)| PriorTerm {
+                loss: p.colour_loss,
+                weight,
+            }),
             texture: self.texture.as_ref(),
-            background: p.background,
-            fill: p.fill_background,
+            background: source.background,
+            fill: p.fill,
             iteration: self.iteration,
         };
         step::colour_step(&mut self.fit, views, targets.view(), &alpha, &cs)
@@ -543,8 +404,8 @@ impl<'a> Distiller<'a> {
     fn iterate_with_prior(&mut self) -> Result<IterReport> {
         let p = &self.params;
         let size = (self.source.height, self.source.width);
-        let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views_per_iter);
-        let t = draws.timestep(p.t_schedule, &self.timesteps);
+        let mut draws = Draws::new(p.seed, self.iteration, self.path, p.views);
+        let t = draws.timestep(p.t_schedule(), &self.timesteps);
         let Window { views, circular } = draws.window().window.clone();
 
         // Render the window; encode what the prior sees of it; the source latents.
@@ -552,7 +413,7 @@ impl<'a> Distiller<'a> {
         let renders = step::render_window(&self.fit, &views);
         drop(ph);
         let ph = crate::timing::span("fill");
-        let (bg, fill) = (p.background, p.fill_background);
+        let (bg, fill) = (self.source.background, p.fill);
         let seen: Vec<Array3<f32>> = views
             .iter()
             .zip(&renders)
@@ -563,7 +424,7 @@ impl<'a> Distiller<'a> {
         let z0 = step::encode_views(self.prior, &seen, views.len())?;
         if self.z0_src.is_none() {
             // The source latents, once, a window's worth of views per call.
-            let per_call = p.views_per_iter;
+            let per_call = p.views;
             self.z0_src = Some(step::encode_views(self.prior, &self.source_seen, per_call)?);
         }
         let z0_src = self
@@ -574,7 +435,7 @@ impl<'a> Distiller<'a> {
         drop(ph);
         let sh = z0.shape();
         let noise = draws.noise([sh[0], sh[1], sh[2], sh[3]]);
-        let x = step::noise_branches(&self.schedule, z0, z0_src, &noise, t, p, circular)?;
+        let x = step::noise_branches(&self.schedule, z0, z0_src, &noise, t, &p.mvfc, circular)?;
 
         // CSD, the image change, the targets.
         let ph = crate::timing::span("control");
@@ -683,7 +544,7 @@ pub struct Outcome {
 
 impl Outcome {
     /// No iteration: the start as it is.
-    pub fn unchanged(start: &Start) -> Outcome {
+    pub fn unchanged(start: &Progress) -> Outcome {
         Outcome {
             scene: start.scene.clone(),
             state: start.state(),
@@ -697,10 +558,10 @@ impl Outcome {
 /// What [`distill`] runs: the loop's parameters, its timesteps, how many iterations and
 /// the optional texture term.
 pub struct Run {
-    pub params: DistillParams,
+    pub params: Config,
     pub set: TimestepSet,
     pub iters: u64,
-    pub texture: Option<texture::TextureTerm>,
+    pub texture: Option<terms::texture::TextureTerm>,
 }
 
 /// Run `run.iters` iterations of the loop from `start` (a scene, or a checkpoint with
@@ -709,7 +570,7 @@ pub struct Run {
 /// the run will cost before it starts and is calibrated on its first iterations
 /// ([`Distiller::run`]).
 pub fn distill(
-    start: &Start,
+    start: &Progress,
     cameras: &[Camera],
     source: &SourceViews,
     prior: &mut dyn Prior,
@@ -723,14 +584,14 @@ pub fn distill(
         texture,
     } = run;
     let (conds, f) = (params.csd.conds(), prior.info().downsample);
-    let per_iter = params.views_per_iter.min(cameras.len());
+    let per_iter = params.views.min(cameras.len());
     let (h, w) = (source.height, source.width);
     let plan = |n: u64| Plan::csd_steps(n as usize, per_iter, conds, (h, w), f, 1);
-    let cost = if params.csd.asks_nothing() {
+    let cost = if !params.asks_the_prior() {
         tracing::info!(
-            "distill: {:?} at guidance 0 asks nothing of the prior; it is not called (the \
-             texture term alone moves the colours)",
-            params.csd.mode
+            "distill: the terms {} ask nothing of the prior (no prior term, or csd at \
+             guidance 0); it is not called (the other terms alone move the colours)",
+            params.terms
         );
         None
     } else {
@@ -772,23 +633,6 @@ pub fn distill(
         last: d.last().cloned(),
         hf_prev: Some((hf.shape().to_vec(), hf.iter().copied().collect())),
     })
-}
-
-/// `(sum 0.5 (x - y)^2 / n, (x - y) / n)` over the `n` values of a view: the gradient is
-/// the difference itself, scaled like the L1 loss's (1/n per value).
-pub fn half_squared_distance(render: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
-    let n = render.len().max(1) as f32;
-    let mut loss = 0.0f64;
-    let g = render
-        .iter()
-        .zip(target)
-        .map(|(x, y)| {
-            let d = x - y;
-            loss += 0.5 * (d as f64) * (d as f64);
-            d / n
-        })
-        .collect();
-    (loss / n as f64, g)
 }
 
 /// Luminance-only transfer (Gatys et al. 2016, "Preserving color in neural artistic

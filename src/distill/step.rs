@@ -20,59 +20,21 @@
 //! window and the iteration's identity in every artifact's `meta.iteration`, the
 //! optimizer state in the checkpoint (`crate::artifacts::read_checkpoint`).
 
-use super::path::{ViewPath, Window};
-use super::texture::TextureTerm;
-use super::{
-    ColourLoss, DistillParams, SourceViews, TimestepSchedule, fill, half_squared_distance,
-    keep_chroma,
-};
+use super::path::ViewPath;
+pub use super::record::{IterationWindow, TargetStats};
+use super::terms::PriorTerm;
+use super::terms::texture::TextureTerm;
+use super::{Config, SourceViews, TimestepSchedule, fill, keep_chroma};
 use crate::csd::{self, CsdParams};
 use crate::mvfc::mvfc_path;
-use crate::optim::{ColourFit, FitParams, LossParams, loss_and_grad};
+use crate::optim::{ColourFit, FitParams};
 use crate::prior::{ControlKind, Prior};
 use crate::render::CacheMode;
 use crate::rng::Rng;
 use crate::scheduler::{Schedule, TimestepSet};
 use crate::{Error, Result};
 use ndarray::{Array3, Array4, ArrayView4, Axis, concatenate};
-use serde::{Deserialize, Serialize};
 use std::time::Instant;
-
-/// Which iteration an artifact of the chain belongs to, and its window: recorded by
-/// `render-views --window` and carried along in `meta.iteration` of every artifact of the
-/// iteration, so that later stages replay the same draws.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct IterationWindow {
-    /// Seed of the run.
-    pub seed: u64,
-    /// Iterations done before this one (the iteration's index, from 0).
-    pub iteration: u64,
-    /// The camera path the window lies on.
-    pub path: ViewPath,
-    /// The window's views (camera indices in path order) and whether it is circular.
-    pub window: Window,
-}
-
-impl IterationWindow {
-    /// Iteration `iteration` of `seed` on an open path of `n` views whose window is the
-    /// whole path (what the draws give for it): the iteration of artifacts outside the
-    /// stage chain, which record none.
-    pub fn whole_open_path(n: usize, seed: u64, iteration: u64) -> IterationWindow {
-        IterationWindow {
-            seed,
-            iteration,
-            path: ViewPath {
-                len: n,
-                closed: false,
-            },
-            window: Window {
-                views: (0..n).collect(),
-                circular: false,
-            },
-        }
-    }
-}
 
 /// The random draws of one iteration, in their order: the window, the timestep, the
 /// noise eps `[N, C, h, w]` shared by both branches, then MVFC's eps' `[C, h, w]`. One
@@ -145,15 +107,15 @@ impl Draws {
     }
 }
 
-/// The colour fit's settings for the loop's parameters.
-pub fn fit_params(p: &DistillParams) -> FitParams {
+/// The colour fit's settings for the loop's configuration, rendering over `background`.
+pub fn fit_params(p: &Config, background: [f32; 3]) -> FitParams {
     FitParams {
         lr_dc: p.lr_dc,
         lr_rest: if p.fit_rest { p.lr_dc / 20.0 } else { 0.0 },
-        ssim_weight: p.ssim_weight,
+        ssim_weight: 0.0,
         mask_alpha: false,
         cache: CacheMode::On,
-        background: p.background,
+        background,
         progress: false,
     }
 }
@@ -230,22 +192,22 @@ pub struct IterLatents {
     pub eps: Array4<f32>,
     /// Noised (and MVFC-filtered) target latents.
     pub z_tgt: Array4<f32>,
-    /// Noised (and, with `mvfc_source`, filtered) source latents.
+    /// Noised (and, with MVFC's `source`, filtered) source latents.
     pub z_src: Array4<f32>,
     /// The timestep.
     pub t: usize,
 }
 
 /// Noise both branches with the same eps at `t`; MVFC on the target (and on the source
-/// with `p.mvfc_source`) along the path, with the same eps' ([`mvfc_path`]; `circular`:
-/// the window's ends are neighbours). `p.mvfc` = `None` is "without MVFC".
+/// with `mvfc.source`) along the path, with the same eps' ([`mvfc_path`]; `circular`:
+/// the window's ends are neighbours). `mvfc.enabled = false` is "without MVFC".
 pub fn noise_branches(
     schedule: &Schedule,
     z0: Array4<f32>,
     z0_src: Array4<f32>,
     noise: &Noise,
     t: usize,
-    p: &DistillParams,
+    mvfc: &crate::mvfc::MvfcParams,
     circular: bool,
 ) -> Result<IterLatents> {
     if z0.shape() != z0_src.shape() || z0.shape() != noise.eps.shape() {
@@ -263,16 +225,17 @@ pub fn noise_branches(
     drop(ph);
     let ph = crate::timing::span("mvfc");
     let es = noise.eps_shared.view();
-    let (z_tgt, z_src) = match &p.mvfc {
-        Some(m) => (
-            mvfc_path(z_noisy.view(), es, *m, circular)?,
-            if p.mvfc_source {
-                mvfc_path(src_noisy.view(), es, *m, circular)?
+    let (z_tgt, z_src) = if mvfc.enabled {
+        (
+            mvfc_path(z_noisy.view(), es, *mvfc, circular)?,
+            if mvfc.source {
+                mvfc_path(src_noisy.view(), es, *mvfc, circular)?
             } else {
                 src_noisy
             },
-        ),
-        None => (z_noisy, src_noisy),
+        )
+    } else {
+        (z_noisy, src_noisy)
     };
     drop(ph);
     Ok(IterLatents {
@@ -400,16 +363,6 @@ pub struct TargetParams {
     pub preserve_color: bool,
 }
 
-/// What the targets asked for, over covered pixels (alpha > 0.5).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TargetStats {
-    /// RMS of the image change Delta.
-    pub delta_rms: f64,
-    /// Fraction of covered target colours clipped (<= 0.02 or >= 0.98 in every channel).
-    pub clipped: f64,
-}
-
 /// The colour targets `[N, H, W, 3]` of one iteration: the object's colour c (the render
 /// un-premultiplied by its alpha, not clamped) moves to c' = c + Delta (with
 /// `preserve_color`: the luminance of that and the chroma of the source colour,
@@ -491,15 +444,14 @@ pub fn targets(
     Ok((out, stats))
 }
 
-/// How the colour step fits the targets.
+/// The colour step's terms ([`super::terms`]) and what they see.
 #[derive(Debug, Clone, Copy)]
 pub struct ColourStep<'t> {
-    /// The loss against the targets ([`ColourLoss`]).
-    pub loss: ColourLoss,
-    /// D-SSIM weight of the L1 loss (ignored by L2).
-    pub ssim_weight: f32,
-    /// The low-layer texture term added to the step ([`super::texture`]), if any; it
-    /// sees each render as the prior does ([`prior_image`] with `background`, `fill`).
+    /// The prior's term: the colour loss against the targets, weighted (`None`: no
+    /// prior term; the targets then ask nothing).
+    pub prior: Option<PriorTerm>,
+    /// The VGG texture terms ([`super::terms::texture`]), if any; they see each render
+    /// as the prior does ([`prior_image`] with `background`, `fill`).
     pub texture: Option<&'t TextureTerm>,
     pub background: [f32; 3],
     pub fill: bool,
@@ -510,11 +462,11 @@ pub struct ColourStep<'t> {
 
 /// One Adam step of the fit's SH colours on cameras `views` towards `targets`
 /// `[N, H, W, 3]` (one per view, in the order of `views`; `alpha[i]` `[H, W]` is view
-/// i's source coverage, which the texture term masks with): the loss `cs.loss` (L2: the
-/// gradient at the render is render - target; L1 with `ssim_weight` D-SSIM) plus
-/// `weight` times the texture term's gradient; the optimizer state is the fit's and
-/// persists. Returns the mean colour loss and the mean texture loss over the views
-/// before the step.
+/// i's source coverage, which the texture terms mask with): per view the gradient at the
+/// render is the prior term's ([`PriorTerm::view`]; zero without one) plus the texture
+/// terms' ([`TextureTerm::view_grad`], on the views [`TextureTerm::applies`] picks); the
+/// optimizer state is the fit's and persists. Returns the mean colour loss and the mean
+/// texture loss over the views before the step.
 pub fn colour_step(
     fit: &mut ColourFit<'_>,
     views: &[usize],
@@ -530,9 +482,6 @@ pub fn colour_step(
             views.len()
         )));
     }
-    let lp = LossParams {
-        ssim_weight: cs.ssim_weight,
-    };
     let index: std::collections::HashMap<usize, usize> =
         views.iter().enumerate().map(|(i, &v)| (v, i)).collect();
     let tex = cs.texture;
@@ -543,12 +492,9 @@ pub fn colour_step(
         let target = target
             .as_slice()
             .ok_or_else(|| Error::Other("targets are not in standard layout".into()))?;
-        let (l, mut g) = match cs.loss {
-            ColourLoss::L1 => {
-                let (l, g) = loss_and_grad(rgb, target, None, h, w, lp);
-                (l as f64, g)
-            }
-            ColourLoss::L2 => half_squared_distance(rgb, target),
+        let (l, mut g) = match &cs.prior {
+            Some(p) => p.view(rgb, target, h, w),
+            None => (0.0, vec![0.0; rgb.len()]),
         };
         // The term on some of the window's views (rotating with the iteration), scaled so
         // its gradient is the same in expectation ([`TextureTerm::applies`]).
@@ -559,7 +505,7 @@ pub fn colour_step(
             drop(ph);
             tex_loss += tg.loss * scale as f64 / n as f64;
             for (a, b) in g.iter_mut().zip(&tg.grad) {
-                *a += scale * t.weight * b;
+                *a += scale * b;
             }
         }
         Ok((l, g))

@@ -3,6 +3,8 @@
 //! itself, and the SH-DC gradient is the rasterizer's vector-Jacobian product of it.
 
 use super::*;
+use crate::csd::CsdParams;
+use crate::distill::terms::half_squared_distance;
 use crate::optim::FitParams;
 use crate::optim::{LossParams, loss_and_grad};
 use crate::render::CacheMode;
@@ -207,7 +209,7 @@ fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
     use crate::imageio::Image;
     use crate::scheduler::SchedulerConfig;
     use crate::vgg::{Layer, Vgg16};
-    use texture::{Statistic, TextureLoss, TextureTerm};
+    use terms::texture::{Statistic, TextureLoss, TextureTerm};
 
     let scene = random_scene(300, 0, 21);
     let cams: Vec<Camera> = [-0.3f32, -0.1, 0.1, 0.3]
@@ -225,16 +227,16 @@ fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
         height: 24,
         data: (0..24 * 24 * 3).map(|_| rng.uniform() as f32).collect(),
     };
-    let params = DistillParams {
-        views_per_iter: 2,
+    let params = Config {
+        views: 2,
         lr_dc: 0.05,
         csd: CsdParams {
             guidance: 0.0,
             ..CsdParams::default()
         },
-        ..DistillParams::default()
+        ..Config::default()
     };
-    assert!(params.csd.asks_nothing());
+    assert!(!params.asks_the_prior());
     let run = |skip: bool| {
         let inner = crate::prior::gaussian::GaussianPrior::with_default_text(Some(
             style.to_chw().insert_axis(Axis(0)).view(),
@@ -246,7 +248,7 @@ fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
         };
         let set = TimestepSet::new(&SchedulerConfig::stable_diffusion(), 20, 980, 50).unwrap();
         let gram = Statistic::new(TextureLoss::Gram, vec![Layer::Relu1_2, Layer::Relu2_2]);
-        let term = TextureTerm::new(Vgg16::random(5, 8), &style, &[gram], 1.0, 1).unwrap();
+        let term = TextureTerm::new(Vgg16::random(5, 8), &style, &[gram], 1).unwrap();
         let mut d = Distiller::new(&scene, &cams, &src, &mut prior, set, params.clone(), 0)
             .unwrap()
             .with_texture(term);

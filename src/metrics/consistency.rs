@@ -1,6 +1,6 @@
 //! Short- and long-range view consistency (FantasyStyle's experiments): for view pairs
 //! `(i, i + k)` (`k = 1` short range, `k = 5` long range by default), warp the stylized
-//! view `i + k` into view `i` with the rendered depth and the cameras ([`super::warp`]),
+//! view `i + k` into view `i` with the rendered depth and the cameras ([`crate::maths::warp`]),
 //! then compare it with stylized view `i` on the pixels both see:
 //!
 //! * RMSE over valid pixels and the three channels (images in `[0, 1]`);
@@ -15,9 +15,9 @@
 use super::lpips;
 use super::nets::LpipsModel;
 use super::views::ViewSet;
-use super::warp::{Warped, surface_depth, warp_into};
 use crate::Result;
 use crate::imageio::Image;
+use crate::maths::warp::{Warped, surface_depth, warp_into};
 use serde::Serialize;
 
 /// Fewest valid pixels (fraction of the image) for a pair to be measured.

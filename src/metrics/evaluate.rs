@@ -24,47 +24,17 @@ use super::fid::{self, FeatureSet};
 use super::gram;
 use super::lpips;
 use super::nets::{LpipsModel, LpipsNet, Nets};
-use super::reference::Reference;
+use super::reference::{EvalParams, GRAM_MAX_SIDE, Reference, style_crops};
 use super::texture::{self, TextureMetrics};
 use super::views::ViewSet;
-use super::warp::Warped;
-use crate::imageio::{Filter, Image};
+use crate::imageio::Image;
+use crate::maths::warp::Warped;
 use crate::{Error, Result};
 use serde::Serialize;
 use std::path::Path;
 
 /// Below this many images per set, FID's covariance is rank-deficient (feature dim 2048).
 pub const FID_FULL_RANK: usize = 2048;
-/// Largest side of the style image fed to VGG for the Gram distance.
-pub const GRAM_MAX_SIDE: usize = 512;
-
-/// Settings of an evaluation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct EvalParams {
-    /// LPIPS backbone for LPIPS_content and consistency.
-    pub lpips_net: LpipsNet,
-    /// Short- and long-range pair offsets (>= 1).
-    pub short_range: usize,
-    pub long_range: usize,
-    /// Seed of the style crops and of the object KID's squares.
-    pub seed: u64,
-    /// Object squares per view for the object KID (0: not computed).
-    pub object_squares: usize,
-    /// onnxruntime intra-op threads (0 = all cores).
-    pub threads: usize,
-}
-
-impl EvalParams {
-    /// Error unless both pair offsets are at least 1.
-    pub fn validate(&self) -> Result<()> {
-        if self.short_range == 0 || self.long_range == 0 {
-            return Err(Error::param(
-                "--short-range and --long-range must be at least 1",
-            ));
-        }
-        Ok(())
-    }
-}
 
 /// An evaluation: the metrics and what the report shows beside them.
 #[derive(Debug, Clone)]
@@ -131,31 +101,6 @@ pub struct Metrics {
 pub const ARTFID_NOTE: &str = "ArtFID = (1 + LPIPS_content)(1 + FID_style) computed with the standard FID Inception-v3 \
      (TF 2015, pool3); the art-trained Inception of the ArtFID paper is not obtainable, so values are not \
      comparable with published ArtFID numbers";
-
-/// Deterministic crops of the style image (see module docs).
-pub fn style_crops(style: &Image, k: usize, width: usize, height: usize, seed: u64) -> Vec<Image> {
-    let aspect = width as f64 / height as f64;
-    let mut ch = (style.height as f64 * 0.5).max(1.0);
-    let mut cw = ch * aspect;
-    if cw > style.width as f64 {
-        cw = style.width as f64;
-        ch = cw / aspect;
-    }
-    let (cw, ch) = (
-        (cw.round() as usize).clamp(1, style.width),
-        (ch.round() as usize).clamp(1, style.height),
-    );
-    let mut rng = crate::rng::Rng::derive(seed, "evaluate-style-crops");
-    (0..k)
-        .map(|_| {
-            let x0 = (rng.uniform() * (style.width - cw + 1) as f64) as usize;
-            let y0 = (rng.uniform() * (style.height - ch + 1) as f64) as usize;
-            style
-                .crop(x0.min(style.width - cw), y0.min(style.height - ch), cw, ch)
-                .resized(width, height, Filter::Bilinear)
-        })
-        .collect()
-}
 
 fn set_distances(
     a: &[Vec<f32>],
@@ -266,6 +211,159 @@ fn progress(len: u64, msg: &'static str) -> indicatif::ProgressBar {
     pb
 }
 
+/// The Gram distance of every stylized view to the style (VGG16 taps) and the per-layer
+/// object Gram distances, with the original's from the reference `r`.
+fn gram_distances(
+    nets: &mut Nets,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    r: &Reference,
+) -> Result<(Vec<f64>, texture::ObjectGram)> {
+    let (w, h) = (orig.width, orig.height);
+    let vgg = nets.vgg();
+    let mut gram_per_view = Vec::with_capacity(orig.n);
+    let mut object_gram = texture::ObjectGram::new(&r.style_grams);
+    for i in 0..orig.n {
+        let f = crate::timing::phase("vgg", || vgg.features(&[&styl.images[i]]))?;
+        let d = object_gram.view_distances(&f[0], orig.geometry(i).1, w, h);
+        object_gram.push(&d, &r.scores.object_gram_original[i]);
+        let g = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
+        gram_per_view.push(gram::gram_distance(&g, &r.style_grams));
+    }
+    Ok((gram_per_view, object_gram))
+}
+
+/// Inception pool3 of the stylized object's squares, at the reference's positions (the
+/// object's surface against the style's: [`texture::kid_interval`]).
+fn object_squares_pool3(
+    nets: &mut Nets,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    p: &EvalParams,
+    r: &Reference,
+) -> Result<Vec<Vec<f32>>> {
+    let _squares = crate::timing::span("object squares");
+    let (w, h) = (orig.width, orig.height);
+    let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
+    if at.len() != r.object_squares_pool3.len() {
+        return Err(Error::param(
+            "the reference's object squares differ from this evaluation's: it was made from another original views set",
+        ));
+    }
+    nets.inception.pool3(
+        &texture::object_patches(styl, &at)
+            .iter()
+            .collect::<Vec<_>>(),
+    )
+}
+
+/// The measures that see texture, from the object Gram distances and the pool3 features
+/// `(fs, fps)` of the stylized views and object squares.
+fn texture_metrics(
+    orig: &ViewSet,
+    styl: &ViewSet,
+    style: &Image,
+    r: &Reference,
+    object_gram: texture::ObjectGram,
+    (fs, fps): (&[Vec<f32>], &[Vec<f32>]),
+) -> TextureMetrics {
+    let (fc, fpo, fpc) = (
+        &r.crops_pool3,
+        &r.object_squares_pool3,
+        &r.style_squares_pool3,
+    );
+    TextureMetrics {
+        gram_object: object_gram.finish(),
+        kid_style: texture::kid_interval(fs, fc, ["stylized views", "style crops"]),
+        kid_object: texture::kid_interval(fps, fpc, ["object squares", "style squares"]),
+        kid_object_original: texture::kid_interval(
+            fpo,
+            fpc,
+            ["original object squares", "style squares"],
+        ),
+        spectrum: texture::spectrum_metrics(orig, styl, &style.fit_within(GRAM_MAX_SIDE)),
+        object: texture::object_colour(orig, styl, style),
+        notes: texture::NOTES.to_vec(),
+    }
+}
+
+/// LPIPS content per view and the short- and long-range consistency scores with their
+/// warps.
+struct LpipsScores {
+    per_view: Vec<f64>,
+    short: (Vec<PairScore>, Vec<Warped>),
+    long: (Vec<PairScore>, Vec<Warped>),
+}
+
+/// [`LpipsScores`] (geometry from the original views; cameras are checked equal).
+fn lpips_scores(
+    lp: &mut LpipsModel,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    p: &EvalParams,
+    warnings: &mut Vec<String>,
+    pb: &indicatif::ProgressBar,
+) -> Result<LpipsScores> {
+    let si: Vec<&Image> = styl.images.iter().collect();
+    let ph = crate::timing::span("lpips content");
+    let per_view = lpips::pairwise(lp, &orig.images.iter().collect::<Vec<_>>(), &si)?;
+    drop(ph);
+    pb.inc(1);
+    let ph = crate::timing::span("consistency");
+    let short = score_range(lp, orig, styl, p.short_range, warnings)?;
+    let long = score_range(lp, orig, styl, p.long_range, warnings)?;
+    drop(ph);
+    pb.inc(1);
+    Ok(LpipsScores {
+        per_view,
+        short,
+        long,
+    })
+}
+
+/// The measures against the style and content sets (Inception pool3): FID and KID, and
+/// the texture measures.
+struct StyleMeasures {
+    crops: Vec<Image>,
+    fid_style: SetDistance,
+    kid_style: SetDistance,
+    fid_content: SetDistance,
+    kid_content: SetDistance,
+    texture: TextureMetrics,
+}
+
+/// [`StyleMeasures`] of the stylized views (`(orig, styl, style)`), with the reference.
+fn style_measures(
+    nets: &mut Nets,
+    (orig, styl, style): (&ViewSet, &ViewSet, &Image),
+    p: &EvalParams,
+    r: &Reference,
+    object_gram: texture::ObjectGram,
+    warnings: &mut Vec<String>,
+) -> Result<StyleMeasures> {
+    let ph = crate::timing::span("inception");
+    let k = orig.n.max(fid::MIN_IMAGES);
+    let crops = style_crops(style, k, orig.width, orig.height, p.seed);
+    let fs = nets
+        .inception
+        .pool3(&styl.images.iter().collect::<Vec<_>>())?;
+    let fps = object_squares_pool3(nets, orig, styl, p, r)?;
+    drop(ph);
+    let _ph = crate::timing::span("fid kid");
+    let (fc, fo) = (&r.crops_pool3, &r.views_pool3);
+    let (fid_style, kid_style) = set_distances(&fs, fc, "FID_style", warnings);
+    let (fid_content, kid_content) = set_distances(&fs, fo, "FID_content", warnings);
+    let texture = texture_metrics(orig, styl, style, r, object_gram, (&fs, &fps));
+    Ok(StyleMeasures {
+        crops,
+        fid_style,
+        kid_style,
+        fid_content,
+        kid_content,
+        texture,
+    })
+}
+
 /// Evaluate `styl` against `orig` (the same views, checked by
 /// [`ViewSet::check_same_views`]) and the style image, with the metric networks of the
 /// models directory `models` (see [`crate::models`]). `reference`: the half that depends
@@ -297,22 +395,7 @@ pub fn evaluate(
         std::thread::spawn(move || Nets::load_rest(&models, net, threads))
     };
 
-    // LPIPS content.
-    let oi: Vec<&Image> = orig.images.iter().collect();
-    let si: Vec<&Image> = styl.images.iter().collect();
-    let ph = crate::timing::span("lpips content");
-    let lpips_per_view = lpips::pairwise(&mut lp, &oi, &si)?;
-    let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
-    drop(ph);
-    pb.inc(1);
-
-    // Consistency (geometry from the original views; cameras are checked equal).
-    let ph = crate::timing::span("consistency");
-    let (short, short_warps) = score_range(&mut lp, orig, styl, p.short_range, &mut warnings)?;
-    let (long, long_warps) = score_range(&mut lp, orig, styl, p.long_range, &mut warnings)?;
-    drop(ph);
-    pb.inc(1);
-
+    let scores = lpips_scores(&mut lp, orig, styl, p, &mut warnings, &pb)?;
     let (vgg, inception) = crate::timing::load(|| loading.join())
         .map_err(|_| Error::Other("loading the metric networks panicked".into()))??;
     let mut nets = Nets {
@@ -328,82 +411,46 @@ pub fn evaluate(
             &owned
         }
     };
+    measure(&mut nets, r, (orig, styl, style), p, scores, warnings, &pb)
+}
+
+/// The rest of [`evaluate`] with the networks and the reference: the Gram distances,
+/// FID and KID, the texture measures; the metrics.
+fn measure(
+    nets: &mut Nets,
+    r: &Reference,
+    (orig, styl, style): (&ViewSet, &ViewSet, &Image),
+    p: &EvalParams,
+    scores: LpipsScores,
+    mut warnings: Vec<String>,
+    pb: &indicatif::ProgressBar,
+) -> Result<Evaluation> {
+    let (n, w, h) = (orig.n, orig.width, orig.height);
+    let LpipsScores {
+        per_view: lpips_per_view,
+        short: (short, short_warps),
+        long: (long, long_warps),
+    } = scores;
+    let lpips_content = Some(lpips_per_view.iter().sum::<f64>() / n as f64);
     let rs = &r.scores;
     let short = RangeConsistency::new(p.short_range, short, &rs.short_original);
     let long = RangeConsistency::new(p.long_range, long, &rs.long_original);
 
     // Gram distance to the style image (VGG16).
     let ph = crate::timing::span("gram");
-    let vgg = nets.vgg();
-    let mut gram_per_view = Vec::with_capacity(n);
-    let mut object_gram = texture::ObjectGram::new(&r.style_grams);
-    for i in 0..n {
-        let f = crate::timing::phase("vgg", || vgg.features(&[&styl.images[i]]))?;
-        let d = object_gram.view_distances(&f[0], orig.geometry(i).1, w, h);
-        object_gram.push(&d, &rs.object_gram_original[i]);
-        let g = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
-        gram_per_view.push(gram::gram_distance(&g, &r.style_grams));
-    }
+    let (gram_per_view, object_gram) = gram_distances(nets, orig, styl, r)?;
     let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     drop(ph);
     pb.inc(1);
 
-    // FID / KID.
-    let ph = crate::timing::span("inception");
-    let k = n.max(fid::MIN_IMAGES);
-    let crops = style_crops(style, k, w, h, p.seed);
-    let fs = nets.inception.pool3(&si)?;
-    // The object's surface against the style's (texture::kid_object docs).
-    let squares = crate::timing::span("object squares");
-    let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
-    if at.len() != r.object_squares_pool3.len() {
-        return Err(Error::param(
-            "the reference's object squares differ from this evaluation's: it was made from another original views set",
-        ));
-    }
-    let fps = nets.inception.pool3(
-        &texture::object_patches(styl, &at)
-            .iter()
-            .collect::<Vec<_>>(),
-    )?;
-    drop(squares);
-    drop(ph);
-    pb.inc(1);
-    let ph = crate::timing::span("fid kid");
-    let (fc, fo, fpo, fpc) = (
-        &r.crops_pool3,
-        &r.views_pool3,
-        &r.object_squares_pool3,
-        &r.style_squares_pool3,
-    );
-    let (fid_style, kid_style) = set_distances(&fs, fc, "FID_style", &mut warnings);
-    let (fid_content, kid_content) = set_distances(&fs, fo, "FID_content", &mut warnings);
-    let texture = TextureMetrics {
-        gram_object: object_gram.finish(),
-        kid_style: texture::kid_interval(&fs, fc, ["stylized views", "style crops"]),
-        kid_object: texture::kid_interval(&fps, fpc, ["object squares", "style squares"]),
-        kid_object_original: texture::kid_interval(
-            fpo,
-            fpc,
-            ["original object squares", "style squares"],
-        ),
-        spectrum: texture::spectrum_metrics(orig, styl, &style.fit_within(GRAM_MAX_SIDE)),
-        object: texture::object_colour(orig, styl, style),
-        notes: texture::NOTES.to_vec(),
-    };
-    drop(ph);
-    pb.inc(1);
-    let artfid = match (lpips_content, fid_style.value) {
-        (Some(l), Some(f)) => Some(fid::artfid(l, f)),
-        _ => None,
-    };
+    let sm = style_measures(nets, (orig, styl, style), p, r, object_gram, &mut warnings)?;
+    pb.inc(2);
     if style.width < 64 || style.height < 64 {
         warnings.push(format!(
             "the style image is only {}x{}: its crops are upsampled for FID_style and the Gram distance sees few positions",
             style.width, style.height
         ));
     }
-
     let metrics = Metrics {
         format: "fantasystyle-evaluation-1",
         views: n,
@@ -412,11 +459,14 @@ pub fn evaluate(
         lpips_net: p.lpips_net,
         lpips_content,
         lpips_content_per_view: lpips_per_view,
-        fid_style,
-        kid_style,
-        fid_content,
-        kid_content,
-        artfid,
+        artfid: match (lpips_content, sm.fid_style.value) {
+            (Some(l), Some(f)) => Some(fid::artfid(l, f)),
+            _ => None,
+        },
+        fid_style: sm.fid_style,
+        kid_style: sm.kid_style,
+        fid_content: sm.fid_content,
+        kid_content: sm.kid_content,
         artfid_note: ARTFID_NOTE,
         short_range: short,
         long_range: long,
@@ -424,16 +474,17 @@ pub fn evaluate(
         gram_style_original: mean(&rs.gram_original_per_view),
         gram_style_per_view: gram_per_view,
         style_crops: format!(
-            "{k} crops of the style image at the views' aspect ratio spanning half its height, seeded positions (seed {}), resized to {w}x{h}",
+            "{} crops of the style image at the views' aspect ratio spanning half its height, seeded positions (seed {}), resized to {w}x{h}",
+            sm.crops.len(),
             p.seed
         ),
         warnings,
-        texture,
+        texture: sm.texture,
     };
     pb.finish_and_clear();
     Ok(Evaluation {
         metrics,
-        crops,
+        crops: sm.crops,
         short_warps,
         long_warps,
     })

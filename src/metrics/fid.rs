@@ -2,7 +2,7 @@
 //!
 //! FID (Heusel et al. 2017): for Gaussian fits `(mu1, S1)`, `(mu2, S2)` of two feature sets,
 //! `|mu1 - mu2|^2 + tr S1 + tr S2 - 2 tr sqrt(S1^1/2 S2 S1^1/2)`. The trace of the matrix
-//! square root is computed in f64 with our own Jacobi eigensolver ([`super::linalg`]):
+//! square root is computed in f64 with our own Jacobi eigensolver ([`crate::maths::linalg`]):
 //!
 //! * dense route (`d <= min(n1, n2)`): `S1^1/2` from the eigendecomposition of `S1`, then
 //!   the eigenvalues of `S1^1/2 S2 S1^1/2`;
@@ -22,7 +22,7 @@
 //! FID on few images is strongly biased (the covariance of `n < d` samples has rank
 //! `n - 1`): values are comparable only at equal sample counts, which the report states.
 
-use super::linalg::{matmul, sqrtm_psd, sym_eig, trace};
+use crate::maths::linalg::{matmul, sqrtm_psd, sym_eig, trace};
 use crate::{Error, Result};
 
 /// Fewest images per set for which FID/KID can be computed at all.

@@ -1,20 +1,21 @@
 //! Evaluation metrics for stylized 3DGS scenes, as reported by FantasyStyle (AAAI 2026,
-//! its experiments: ArtFID, FID, short- and long-range view consistency).
+//! its experiments: ArtFID, FID, short- and long-range view consistency). The general
+//! maths they use (eigendecomposition, Gram matrices, depth reprojection) is in
+//! [`crate::maths`].
 //!
 //! | module | what |
 //! |---|---|
 //! | [`nets`] | the ONNX metric networks (LPIPS AlexNet/VGG16 backbones, FID Inception-v3) |
 //! | [`lpips`] | LPIPS distance from tapped features, optionally masked |
-//! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64) and PSD square roots |
 //! | [`fid`] | Fréchet distance, KID (polynomial-kernel unbiased MMD²), ArtFID |
-//! | [`warp`] | depth reprojection of one view into another with occlusion test |
 //! | [`consistency`] | short/long-range consistency: LPIPS and RMSE after warping |
-//! | [`gram`] | Gram-matrix style distance on VGG16 features |
+//! | [`gram`] | Gram-matrix style distance on VGG16 features (the Gram matrix itself: [`crate::maths::gram`]) |
 //! | [`spectrum`] | radially averaged luminance power spectrum (the motif scale) |
 //! | [`texture`] | measures that see texture: per-layer object Gram, KID interval, spectrum, object colour |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`reference`](mod@reference) | the half of an evaluation that depends only on the original views and the style |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
+//! | [`html`] | HTML pieces of the reports: tables, inline SVG plots, embedded images, the page |
 //! | [`report`] | the self-contained `report.html` of an evaluation |
 //! | [`viewer`] | the report's interactive side-by-side 3D viewer (Spark, embedded `.spz`) |
 
@@ -22,7 +23,7 @@ pub mod consistency;
 pub mod evaluate;
 pub mod fid;
 pub mod gram;
-pub mod linalg;
+pub mod html;
 pub mod lpips;
 pub mod nets;
 pub mod reference;
@@ -31,4 +32,3 @@ pub mod spectrum;
 pub mod texture;
 pub mod viewer;
 pub mod views;
-pub mod warp;

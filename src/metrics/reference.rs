@@ -18,15 +18,71 @@
 //! made with; a reference made with other settings is refused.
 
 use super::consistency::{self, PairScore};
-use super::evaluate::{EvalParams, GRAM_MAX_SIDE, style_crops};
 use super::fid;
 use super::gram;
-use super::nets::Nets;
+use super::nets::{LpipsNet, Nets};
 use super::texture;
 use super::views::ViewSet;
-use crate::imageio::Image;
+use crate::imageio::{Filter, Image};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
+
+/// Largest side of the style image fed to VGG for the Gram distance.
+pub const GRAM_MAX_SIDE: usize = 512;
+
+/// Settings of an evaluation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EvalParams {
+    /// LPIPS backbone for LPIPS_content and consistency.
+    pub lpips_net: LpipsNet,
+    /// Short- and long-range pair offsets (>= 1).
+    pub short_range: usize,
+    pub long_range: usize,
+    /// Seed of the style crops and of the object KID's squares.
+    pub seed: u64,
+    /// Object squares per view for the object KID (0: not computed).
+    pub object_squares: usize,
+    /// onnxruntime intra-op threads (0 = all cores).
+    pub threads: usize,
+}
+
+impl EvalParams {
+    /// Error unless both pair offsets are at least 1.
+    pub fn validate(&self) -> Result<()> {
+        if self.short_range == 0 || self.long_range == 0 {
+            return Err(Error::param(
+                "--short-range and --long-range must be at least 1",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Deterministic crops of the style image for FID_style ([`super::evaluate`]'s module
+/// docs).
+pub fn style_crops(style: &Image, k: usize, width: usize, height: usize, seed: u64) -> Vec<Image> {
+    let aspect = width as f64 / height as f64;
+    let mut ch = (style.height as f64 * 0.5).max(1.0);
+    let mut cw = ch * aspect;
+    if cw > style.width as f64 {
+        cw = style.width as f64;
+        ch = cw / aspect;
+    }
+    let (cw, ch) = (
+        (cw.round() as usize).clamp(1, style.width),
+        (ch.round() as usize).clamp(1, style.height),
+    );
+    let mut rng = crate::rng::Rng::derive(seed, "evaluate-style-crops");
+    (0..k)
+        .map(|_| {
+            let x0 = (rng.uniform() * (style.width - cw + 1) as f64) as usize;
+            let y0 = (rng.uniform() * (style.height - ch + 1) as f64) as usize;
+            style
+                .crop(x0.min(style.width - cw), y0.min(style.height - ch), cw, ch)
+                .resized(width, height, Filter::Bilinear)
+        })
+        .collect()
+}
 
 /// The settings a reference was computed with: an evaluation must use the same.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]

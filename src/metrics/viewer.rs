@@ -18,9 +18,8 @@
 //! turn about the mean "up" of the evaluation cameras around the point of view 0's
 //! optical axis nearest the scene's median position.
 
-use crate::artifacts::load_scene;
 use crate::camera::Camera;
-use crate::scene::{Scene, spz};
+use crate::scene::Scene;
 use crate::{Error, Result};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -70,39 +69,6 @@ pub struct ViewerScene {
     /// The `.spz` bytes embedded.
     pub spz: Vec<u8>,
     pub gaussians: usize,
-}
-
-/// The scene at `path` for the viewer, and the scene itself: a scene artifact or
-/// directory with a `scene.spz`, or a `.spz` file, is embedded as it is (after reading it
-/// back with [`spz::parse_spz`]); any other scene ([`load_scene`]) is encoded as `.spz`.
-pub fn viewer_scene(label: &str, path: &Path) -> Result<(ViewerScene, Scene)> {
-    let spz_file = if path.is_dir() {
-        Some(path.join("scene.spz")).filter(|p| p.is_file())
-    } else {
-        let ext = path.extension().map(|e| e.to_ascii_lowercase());
-        (ext.as_deref() == Some("spz".as_ref())).then(|| path.to_path_buf())
-    };
-    let (spz_bytes, scene, source) = match spz_file {
-        Some(f) => {
-            let b = std::fs::read(&f).map_err(|e| Error::io(&f, e))?;
-            let s = spz::parse_spz(&f, &b)?;
-            (b, s, f.display().to_string())
-        }
-        None => {
-            let s = load_scene(path)?;
-            let b = spz::encode_spz(path, &s)?;
-            (b, s, format!("{} (as .spz)", path.display()))
-        }
-    };
-    Ok((
-        ViewerScene {
-            label: label.into(),
-            source,
-            gaussians: scene.len(),
-            spz: spz_bytes,
-        },
-        scene,
-    ))
 }
 
 /// The start camera, in three.js terms.
@@ -280,7 +246,7 @@ pub fn section_html(
     cam: &ViewerCamera,
     background: [f32; 3],
 ) -> String {
-    let esc = super::report::esc;
+    let esc = super::html::esc;
     let (pw, ph) = cam.pane_size();
     let mut s = String::from("<div id=\"fs-viewer\">");
     if bundle.is_some() {
@@ -334,7 +300,7 @@ pub fn section_html(
             "background": background,
             "scenes": scenes.iter().map(|sc| serde_json::json!({
                 "label": sc.label,
-                "spz": super::report::base64(&sc.spz),
+                "spz": super::html::base64(&sc.spz),
             })).collect::<Vec<_>>(),
         });
         // `<` only occurs inside JSON strings; as \u003c it cannot end the element.
@@ -391,7 +357,7 @@ mod tests {
         let s = scene();
         let cams = cameras(&s, 4, 32, 32);
         let cam = ViewerCamera::from_views(&cams, &s);
-        let spz = spz::encode_spz(Path::new("x"), &s).unwrap();
+        let spz = crate::scene::spz::encode_spz(Path::new("x"), &s).unwrap();
         let sc = |label: &str| ViewerScene {
             label: label.into(),
             source: "a<b>.ply".into(),
@@ -401,7 +367,7 @@ mod tests {
         let scenes = [sc("original"), sc("stylized")];
         let html = section_html(Some("window.FantasyViewerLib={};"), &scenes, &cam, [0.0; 3]);
         assert!(html.contains("fs-viewer-0") && html.contains("fs-viewer-1"));
-        assert!(html.contains(&super::super::report::base64(&spz)));
+        assert!(html.contains(&super::super::html::base64(&spz)));
         assert!(html.contains("a&lt;b&gt;.ply") && !html.contains("a<b>"));
         let cfg = html.split("id=\"fs-viewer-config\">").nth(1).unwrap();
         let cfg: serde_json::Value =
@@ -410,30 +376,6 @@ mod tests {
         assert_eq!(cfg["camera"]["width"], 32);
         let none = section_html(None, &scenes, &cam, [0.0; 3]);
         assert!(none.contains("50_viewer.sh") && !none.contains("<script"));
-    }
-
-    #[test]
-    fn viewer_scene_embeds_spz_files_as_written() {
-        let d = tempfile::tempdir().unwrap();
-        let s = scene();
-        let spz_path = d.path().join("s.spz");
-        spz::write_spz(&spz_path, &s).unwrap();
-        let (v, back) = viewer_scene("original", &spz_path).unwrap();
-        assert_eq!(v.spz, std::fs::read(&spz_path).unwrap());
-        assert_eq!(back.len(), s.len());
-        let ply = d.path().join("s.ply");
-        crate::scene::ply::write_ply(&ply, &s).unwrap();
-        let (v, _) = viewer_scene("stylized", &ply).unwrap();
-        assert!(v.source.ends_with("(as .spz)"));
-        assert_eq!(spz::parse_spz(&ply, &v.spz).unwrap().len(), s.len());
-        let bad = d.path().join("bad.spz");
-        std::fs::write(&bad, b"nope").unwrap();
-        assert!(
-            viewer_scene("x", &bad)
-                .unwrap_err()
-                .to_string()
-                .contains("bad.spz")
-        );
     }
 
     #[test]

@@ -1,11 +1,10 @@
-//! `views` artifacts (read by [`crate::artifacts::read_views`]) as the evaluation holds
-//! them, and checking that an original and a stylized set show the same views: same
-//! count, same image size, same cameras.
+//! `views` artifacts as the evaluation holds them ([`crate::artifacts::read_view_set`]
+//! reads one), and checking that an original and a stylized set show the same views:
+//! same count, same image size, same cameras.
 
-use crate::artifacts::{Views, read_views};
 use crate::imageio::Image;
 use crate::{Camera, Error, Result};
-use ndarray::Axis;
+use ndarray::{Array3, Array4, Axis};
 use std::path::{Path, PathBuf};
 
 /// One views artifact in memory.
@@ -24,16 +23,15 @@ pub struct ViewSet {
 }
 
 impl ViewSet {
-    /// Open and validate a views artifact.
-    pub fn load(dir: &Path) -> Result<ViewSet> {
-        if !dir.is_dir() {
-            return Err(Error::input(dir, "views artifact directory not found"));
-        }
-        let views = read_views(dir)?;
-        let cameras = views.cameras()?;
-        let Views {
-            rgb, depth, alpha, ..
-        } = views;
+    /// The views of the artifact at `dir` (named in errors), validated: `rgb` `[N, H, W,
+    /// 3]`, `depth` and `alpha` `[N, H, W]`, one camera per view at the images' size.
+    pub fn new(
+        dir: &Path,
+        rgb: Array4<f32>,
+        depth: Array3<f32>,
+        alpha: Array3<f32>,
+        cameras: Vec<Camera>,
+    ) -> Result<ViewSet> {
         let (n, h, w) = (rgb.shape()[0], rgb.shape()[1], rgb.shape()[2]);
         let bad = |f: &str, r: String| Err(Error::input(dir.join(f), r));
         if n == 0 || h == 0 || w == 0 {

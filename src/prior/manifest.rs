@@ -526,6 +526,16 @@ fn check_file(md: &ModelDir, what: &str, file: &str) -> Result<()> {
     Ok(())
 }
 
+/// `count` timesteps spaced evenly over `[t_min, t_max]` (a stylizer manifest's
+/// `stylizer.timesteps`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimestepRange {
+    pub t_min: usize,
+    pub t_max: usize,
+    pub count: usize,
+}
+
 /// The model's noise schedule and the fixed DDIM timestep set the method draws t from:
 /// the manifest's `stylizer.timesteps` range if present, else
 /// [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]). `model`
@@ -541,7 +551,7 @@ pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
         .find_map(|(name, v)| v.as_ref()?.get("timesteps").map(|t| (name, t)));
     let range = match own {
         Some((name, v)) => Some(
-            serde_json::from_value::<super::stylizer::TimestepRange>(v.clone())
+            serde_json::from_value::<TimestepRange>(v.clone())
                 .map_err(|e| md.err(format!("{name}.timesteps: {e}")))?,
         ),
         None => None,

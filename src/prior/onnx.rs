@@ -24,7 +24,7 @@
 //!
 //! When the style and content conditionings carry the same tokens at the same scales
 //! (plain IP-Adapter), [`PriorInfo::coinciding_style_content`] says so and CSD refuses
-//! `--mode csd` ([`crate::csd::check_mode`]).
+//! the term csd ([`crate::csd::check_mode`]).
 //!
 //! Loading checks every graph's inputs and outputs against the manifest with
 //! [`super::session::Graph::check`]: each named input exists, ranks and static dimensions

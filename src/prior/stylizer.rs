@@ -53,6 +53,7 @@
 //! with the sharp style image's would ask for a change even when the two are the same
 //! picture. `csd` and `csd-no-neg` coincide for this prior (Content = Null).
 
+use super::manifest::TimestepRange;
 use super::session::{Graph, Kind, LazyGraph};
 use super::{Cond, ControlKind, Prior, PriorInfo};
 use crate::imageio::{Filter, Image};
@@ -89,15 +90,6 @@ pub struct StylizerManifest {
     pub style_predict: PredictGraph,
     pub transform: TransformGraph,
     pub style_dim: usize,
-}
-
-/// `count` timesteps spaced evenly over `[t_min, t_max]`.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct TimestepRange {
-    pub t_min: usize,
-    pub t_max: usize,
-    pub count: usize,
 }
 
 #[derive(Debug, Clone, Deserialize)]

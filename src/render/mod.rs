@@ -27,13 +27,23 @@ pub mod raster;
 pub mod sh;
 
 pub use cache::{CacheMode, ViewCache};
-pub use project::{Frame, project};
+pub use project::Frame;
 
 use crate::{Camera, Error, Result, Scene};
 use raster::{Plane, Sink, TileState, composite_tile};
 use rayon::prelude::*;
 
 use project::TILE;
+
+/// Project every Gaussian of `scene` for `camera` (validated by the caller) and bin the
+/// survivors into tiles.
+pub fn project(scene: &Scene, camera: &Camera) -> Frame {
+    bin::bin(
+        project::project_splats(scene, camera),
+        camera.width as usize,
+        camera.height as usize,
+    )
+}
 
 /// Options for a render.
 #[derive(Debug, Clone, PartialEq)]

@@ -32,7 +32,6 @@
 //!
 //! Binning into tiles: [`super::bin`].
 
-use super::bin::bin;
 use crate::{Camera, Scene};
 use rayon::prelude::*;
 
@@ -778,16 +777,6 @@ pub(crate) fn project_splats_with(scene: &Scene, camera: &Camera, margin: BoxMar
     s
 }
 
-/// Project every Gaussian of `scene` for `camera` (validated by the caller) and bin the
-/// survivors into tiles.
-pub fn project(scene: &Scene, camera: &Camera) -> Frame {
-    bin(
-        project_splats(scene, camera),
-        camera.width as usize,
-        camera.height as usize,
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -873,48 +862,5 @@ mod tests {
         let big = fast.iter().find(|o| o.id == 3).expect("huge Gaussian kept");
         assert_eq!(big.tiles, [0, 0, 4, 3]);
         assert_eq!(Some(*big), project_one_f64(&scene, &cam, BOX_MARGIN, 3));
-    }
-
-    /// The ellipse-box margin only saves work: a hundred times wider box (and a whole
-    /// pixel more) renders the same bits, through all three sinks.
-    #[test]
-    fn tight_box_changes_no_output() {
-        use crate::render::{ViewCache, backward, clamp_colours, composite, raw_colours};
-        let wide = BoxMargin { rel: 1e-3, px: 1.0 };
-        for (seed, deg) in [(1u64, 0usize), (2, 3)] {
-            let mut scene = random_scene(3000, deg, 40 + seed);
-            // Needles and discs as well as blobs.
-            for (i, ls) in scene.log_scales.iter_mut().enumerate().step_by(3) {
-                ls[i % 3] -= 3.0;
-                ls[(i + 1) % 3] += 1.0;
-            }
-            let cam = front_camera(120, 90, 110.0, 2.5);
-            let (w, h) = (cam.width as usize, cam.height as usize);
-            let tight = bin(project_splats(&scene, &cam), w, h);
-            let loose = bin(project_splats_with(&scene, &cam, wide), w, h);
-            assert!(loose.tile_list.len() > tight.tile_list.len());
-            // (A splat may survive only in the wide box; it then blends nowhere.)
-            let col = |f: &Frame| clamp_colours(&raw_colours(&scene, &f.splats.ids, cam.center()));
-            let a = composite(&tight, &col(&tight), [0.1, 0.2, 0.3]);
-            let b = composite(&loose, &col(&loose), [0.1, 0.2, 0.3]);
-            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            assert_eq!(bits(&a.rgb), bits(&b.rgb));
-            assert_eq!(bits(&a.depth), bits(&b.depth));
-            assert_eq!(bits(&a.alpha), bits(&b.alpha));
-            let g: Vec<f32> = crate::rng::Rng::new(9).normals_f32(w * h * 3);
-            let by_id = |f: &Frame| {
-                let mut out = vec![[0.0f32; 3]; scene.len()];
-                for (j, gj) in backward::colour_grad_uncached(f, &g)
-                    .into_iter()
-                    .enumerate()
-                {
-                    out[f.splats.ids[j] as usize] = gj;
-                }
-                out
-            };
-            assert_eq!(by_id(&tight), by_id(&loose));
-            let (ca, cb) = (ViewCache::from_frame(&tight), ViewCache::from_frame(&loose));
-            assert_eq!(ca, cb);
-        }
     }
 }

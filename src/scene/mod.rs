@@ -4,11 +4,10 @@
 //! logits, unnormalised quaternions (w, x, y, z) and spherical-harmonic coefficients,
 //! so that reading and writing a `.ply` round-trips every field bit-exactly.
 //! Only colour (`sh_dc`, `sh_rest`) changes during stylization's iterations; geometry is
-//! frozen (`--split-px` may subdivide it once, before the first).
+//! frozen (the `split` stage may subdivide it once, before the first: [`crate::distill::split`]).
 //!
 //! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout),
-//! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3); [`split`] splits long Gaussians
-//! in two so that colours can carry a finer texture (`--split-px`).
+//! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3).
 //! [`read_scene_file`] picks the reader from the path (stages read their `--scene`
 //! through [`crate::artifacts::load_scene`], which also takes scene artifacts); every reader ends with
 //! [`Scene::validate`]. Scenes know nothing of cameras: [`Scene::bounds`] is what a
@@ -17,7 +16,6 @@
 
 pub mod ply;
 pub mod splat;
-pub mod split;
 pub mod spz;
 
 use crate::geometry::Bounds;

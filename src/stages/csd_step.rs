@@ -6,7 +6,7 @@
 //! Reads the `noised-latents` of `mvfc-filter` (z_tgt, z_src, eps, t), the clean latents
 //! z0 of the window's renders (`latents`), the window's renders (`views`, `render-views
 //! --window`), the original renders (`source-views`: their alpha composites the targets,
-//! their colour is kept by `--preserve-color`, and a ControlNet's control image is made
+//! their colour is kept by `preserve_color`, and a ControlNet's control image is made
 //! from them, the geometry being frozen) and their latents (`source-latents`: z0_src of
 //! the window's views), the model and the style image. The iteration's window is the one
 //! the inputs record (`meta.iteration`; all must agree); inputs that record none are one
@@ -20,16 +20,16 @@
 //! render), the views' `cameras.json`, PNG previews, and `meta`: the iteration, t, the
 //! mode and the step's statistics.
 
-use super::{Background, PriorArgs, Threads};
+use super::{Background, ConfigArgs, PriorArgs, Threads};
 use crate::artifacts::{
     Views, agreed_iteration, iteration_of, open_latents, read_latents, read_noised_latents,
     read_views, window_rows,
 };
-use crate::csd::{self, CsdParams};
-use crate::distill::SourceViews;
+use crate::csd;
 use crate::distill::step::{
     IterLatents, IterationWindow, TargetParams, TargetStats, control, prior_change, targets,
 };
+use crate::distill::{Config, SourceViews};
 use crate::prior::cost::{CostModel, Plan, about, announce};
 use crate::scheduler::Schedule;
 use crate::{Error, Result};
@@ -63,15 +63,10 @@ pub struct Args {
     pub source_latents: PathBuf,
     #[command(flatten)]
     pub prior: PriorArgs,
+    /// The method's configuration (its prior term's mode, `[csd]`, `strength`,
+    /// `preserve_color`, `fill`, `motif_scale`, `unet_batch`), as distill's.
     #[command(flatten)]
-    pub params: CsdParams,
-    /// Keep the scene's own colours (chroma); change luminance (texture, contrast) only.
-    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
-    pub preserve_color: bool,
-    /// A ControlNet prior that takes the source view itself gets it over its background
-    /// instead of over a fill of its own colours (as distill --no-fill).
-    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
-    pub no_fill: bool,
+    pub config: ConfigArgs,
     #[command(flatten)]
     pub background: Background,
     /// Output targets artifact directory (written atomically).
@@ -104,13 +99,13 @@ fn rms(a: impl Iterator<Item = f32>) -> f64 {
 
 /// The stage: read the inputs, step, write the targets artifact.
 pub fn run(a: Args) -> Result<StepReport> {
-    a.params.validate()?;
+    let p = a.config.load()?;
     let Inputs { views, src, win, x } = inputs(&a)?;
     let (n, h, w) = views.dim();
     let style = a.prior.load_style()?;
-    let mut prior = a.prior.open(&style, a.threads)?;
+    let mut prior = a.prior.open(&style, &p, a.threads)?;
     let info = prior.info().clone();
-    csd::check_mode(a.params.mode, &info)?;
+    csd::check_mode(p.csd.mode, &info)?;
     let f = info.downsample.max(1);
     let z = x.z0.shape();
     if z[1] != info.latent_channels || z[2] * f != h || z[3] * f != w {
@@ -128,10 +123,10 @@ pub fn run(a: Args) -> Result<StepReport> {
     let control = control(
         info.control,
         &src,
-        &|v| src.seen(&src.rgb[v], v, bg, !a.no_fill),
+        &|v| src.seen(&src.rgb[v], v, bg, p.fill),
         vs,
     )?;
-    let plan = Plan::csd_steps(1, n, a.params.conds(), (h, w), f, 0);
+    let plan = Plan::csd_steps(1, n, p.csd.conds(), (h, w), f, 0);
     let mut cost = CostModel::for_model(&a.prior.model, a.threads.n, a.prior.device.device)?;
     announce(cost.as_ref(), "csd-step", &plan);
 
@@ -139,7 +134,7 @@ pub fn run(a: Args) -> Result<StepReport> {
     let ctl = control.as_ref().map(|c| c.view());
     let change = a
         .threads
-        .install(|| prior_change(prior.as_mut(), &schedule, &x, ctl, &a.params, (h, w)))??;
+        .install(|| prior_change(prior.as_mut(), &schedule, &x, ctl, &p.csd, (h, w)))??;
     if let Some(c) = cost.as_mut() {
         c.calibrate_unet(plan.batch, plan.latent, change.unet_s);
         c.calibrate_vae(0, 2 * n, h * w, change.vae_s);
@@ -159,7 +154,7 @@ pub fn run(a: Args) -> Result<StepReport> {
         change.delta.view(),
         TargetParams {
             background: bg,
-            preserve_color: a.preserve_color,
+            preserve_color: p.preserve_color,
         },
     )?;
     let report = StepReport {
@@ -168,8 +163,8 @@ pub fn run(a: Args) -> Result<StepReport> {
         latent_step_rms: rms(change.z1.iter().zip(x.z0.iter()).map(|(a, b)| a - b)),
         stats,
     };
-    tracing::info!("csd-step: mode {:?}, {report:?}", a.params.mode);
-    write(&a, &views, &target, &win, &report)?;
+    tracing::info!("csd-step: mode {:?}, {report:?}", p.csd.mode);
+    write(&a, &p, &views, &target, &win, &report)?;
     Ok(report)
 }
 
@@ -187,7 +182,7 @@ fn inputs(a: &Args) -> Result<Inputs> {
     let noised = read_noised_latents(&a.noised)?;
     let lat = open_latents(&a.latents)?;
     let views = crate::timing::load(|| read_views(&a.views))?;
-    let src = SourceViews::from_views(&crate::timing::load(|| read_views(&a.source_views))?);
+    let src = crate::timing::load(|| read_views(&a.source_views))?.source_views();
     let (n, h, w) = views.dim();
     let view_it = iteration_of(&views.art)?;
     let recorded = [
@@ -238,16 +233,14 @@ fn inputs(a: &Args) -> Result<Inputs> {
 /// Write the targets artifact.
 fn write(
     a: &Args,
+    p: &Config,
     views: &Views,
     target: &ndarray::Array4<f32>,
     win: &IterationWindow,
     report: &StepReport,
 ) -> Result<()> {
     let params = super::merge_params(&[
-        serde_json::json!({
-            "csd": a.params, "preserve_color": a.preserve_color, "fill": !a.no_fill,
-            "background": a.background.rgb,
-        }),
+        serde_json::json!({ "config": p, "background": a.background.rgb }),
         a.prior.to_json(),
     ]);
     let mut wr = super::create_artifact(
@@ -283,7 +276,7 @@ fn write(
     wr.set_meta(serde_json::json!({
         "iteration": win,
         "timestep": report.timestep,
-        "mode": a.params.mode,
+        "mode": p.csd.mode,
         "stats": report.stats,
         "report": report,
     }));

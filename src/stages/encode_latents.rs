@@ -41,7 +41,7 @@ pub struct Args {
     #[command(flatten)]
     pub device: DeviceArg,
     /// Views per VAE call (0 = all at once; lower it to bound memory with real VAEs).
-    /// distill encodes the source views a window's worth (--views-per-iter) at a time
+    /// distill encodes the source views a window's worth (the configuration's `views`) at a time
     /// and a window in one call.
     #[arg(long, default_value_t = 4)]
     pub batch: usize,

@@ -9,11 +9,14 @@
 //! models directory ([`crate::models`]).
 
 use super::Threads;
+use crate::artifacts::read_view_set;
 use crate::imageio::Image;
-use crate::metrics::evaluate::{EvalParams, Metrics, evaluate};
+use crate::metrics::evaluate::{Metrics, evaluate};
+use crate::metrics::html::fmt_opt;
 use crate::metrics::nets::{LpipsNet, Nets};
+use crate::metrics::reference::EvalParams;
 use crate::metrics::reference::Reference;
-use crate::metrics::report::{ReportPaths, evaluation_report, fmt_opt};
+use crate::metrics::report::{ReportPaths, evaluation_report};
 use crate::metrics::views::ViewSet;
 use crate::sweep::Sweep;
 use crate::{Error, Result};
@@ -99,11 +102,11 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         threads: a.threads.n,
     };
     p.validate()?;
-    let orig = crate::timing::load(|| ViewSet::load(&a.original))?;
+    let orig = crate::timing::load(|| read_view_set(&a.original))?;
     let Some(stylized) = &a.stylized else {
         return run_reference(&a, &orig, &p).map(|()| None);
     };
-    let styl = crate::timing::load(|| ViewSet::load(stylized))?;
+    let styl = crate::timing::load(|| read_view_set(stylized))?;
     orig.check_same_views(&styl)?;
     let style = Image::load(&a.style)?;
     let reference = match &a.reference {
@@ -120,22 +123,7 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         .as_deref()
         .map(crate::artifacts::read_history)
         .transpose()?;
-    let ceiling = match &a.refit_baseline {
-        Some(dir) => {
-            let log = crate::artifacts::read_baseline_log(dir)?;
-            match log["hf_agree_adjacent"].as_f64() {
-                Some(c) => Some((c, log["hf_agree_adjacent_original"].as_f64())),
-                None => {
-                    return Err(Error::input(
-                        dir.join("loss.json"),
-                        "no hf_agree_adjacent: not a refit baseline (stylize-baseline \
-                         --method refit) of this version",
-                    ));
-                }
-            }
-        }
-        None => None,
-    };
+    let ceiling = refit_ceiling(&a)?;
     let models = metric_models()?;
     // Start the artifact now so an unusable --out fails before the slow part.
     let mut wr = super::create_artifact(
@@ -173,22 +161,7 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     );
     drop(ph);
 
-    wr.add_input("original", &a.original)?;
-    wr.add_input("stylized", stylized)?;
-    wr.add_input("style", &a.style)?;
-    if let Some((dir, _)) = &reference {
-        wr.add_input("reference", dir)?;
-    }
-    if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
-        wr.add_input("original-scene", o)?;
-        wr.add_input("stylized-scene", s)?;
-    }
-    if let Some(h) = &a.history {
-        wr.add_input("history", h)?;
-    }
-    if let Some(r) = &a.refit_baseline {
-        wr.add_input("refit-baseline", r)?;
-    }
+    add_inputs(&mut wr, &a, reference.as_ref().map(|(d, _)| d.as_path()))?;
     wr.write_json("metrics.json", &ev.metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;
     crate::timing::io(|| wr.commit())?;
@@ -202,6 +175,50 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         a.out.display()
     );
     Ok(Some(m))
+}
+
+/// The agreement ceiling of `--refit-baseline`: its stylizations' and the original
+/// renders' own high-frequency agreement between neighbouring views.
+fn refit_ceiling(a: &Args) -> Result<Option<(f64, Option<f64>)>> {
+    let Some(dir) = &a.refit_baseline else {
+        return Ok(None);
+    };
+    let log = crate::artifacts::read_baseline_log(dir)?;
+    match log["hf_agree_adjacent"].as_f64() {
+        Some(c) => Ok(Some((c, log["hf_agree_adjacent_original"].as_f64()))),
+        None => Err(Error::input(
+            dir.join("loss.json"),
+            "no hf_agree_adjacent: not a refit baseline (stylize-baseline \
+             --method refit) of this version",
+        )),
+    }
+}
+
+/// Record the evaluation's inputs (`reference`: the reference artifact read).
+fn add_inputs(
+    wr: &mut fantasystyle_schemas::ArtifactWriter,
+    a: &Args,
+    reference: Option<&std::path::Path>,
+) -> Result<()> {
+    wr.add_input("original", &a.original)?;
+    if let Some(s) = &a.stylized {
+        wr.add_input("stylized", s)?;
+    }
+    wr.add_input("style", &a.style)?;
+    if let Some(dir) = reference {
+        wr.add_input("reference", dir)?;
+    }
+    if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
+        wr.add_input("original-scene", o)?;
+        wr.add_input("stylized-scene", s)?;
+    }
+    if let Some(h) = &a.history {
+        wr.add_input("history", h)?;
+    }
+    if let Some(r) = &a.refit_baseline {
+        wr.add_input("refit-baseline", r)?;
+    }
+    Ok(())
 }
 
 /// The models directory, with the metric networks in it.
@@ -268,8 +285,8 @@ fn reference_for(
 /// installed. The background is the one the original views were rendered over.
 fn viewer_inputs(original: &Path, stylized: &Path, orig: &ViewSet) -> Result<String> {
     use crate::metrics::viewer::{self, ViewerCamera};
-    let (o, scene) = viewer::viewer_scene("original", original)?;
-    let (s, _) = viewer::viewer_scene("stylized", stylized)?;
+    let (o, scene) = crate::artifacts::read_viewer_scene("original", original)?;
+    let (s, _) = crate::artifacts::read_viewer_scene("stylized", stylized)?;
     let cam = ViewerCamera::from_views(&orig.cameras, &scene);
     let background = fantasystyle_schemas::Artifact::open_unverified(&orig.dir)
         .ok()

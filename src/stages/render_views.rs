@@ -14,8 +14,9 @@
 //! bound), `cameras.json` of those views, and the iteration in `meta.iteration`.
 
 use super::{Background, SceneInput, Threads};
-use crate::artifacts::Start;
+use crate::artifacts::load_progress;
 use crate::camera::inria;
+use crate::distill::Progress;
 use crate::distill::path::ViewPath;
 use crate::distill::step::{Draws, render_window};
 use crate::optim::{ColourFit, FitParams};
@@ -119,8 +120,8 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let start = match a.window {
-        Some(_) => crate::timing::load(|| Start::load(&a.input.scene))?,
-        None => Start::fresh(a.input.load_scene()?),
+        Some(_) => crate::timing::load(|| load_progress(&a.input.scene))?,
+        None => Progress::fresh(a.input.load_scene()?),
     };
     let scene = &start.scene;
     let cams = a.input.load_cameras(scene, a.width, a.height)?;

@@ -8,10 +8,10 @@
 //!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation;
 //! * `colour-transfer`: the object's colour mean and covariance moved onto the style
 //!   image's by the linear Monge-Kantorovich map, written into the SH colours
-//!   ([`crate::baselines::colour`]); no steps;
+//!   ([`crate::distill::colour_transfer`]); no steps;
 //! * `project`: the style image (at `--style-size`) texture-mapped onto the object by
 //!   triplanar projection along each Gaussian's normal, one style pixel per render pixel
-//!   at the object ([`crate::baselines::projection`]); no steps.
+//!   at the object ([`crate::distill::projection`]); no steps.
 //!
 //! Output (schema `scene` v1): `scene.ply` (geometry bit-identical to the input, colours
 //! changed), `loss.json` (`method`, and per step the objective, its style and content
@@ -37,35 +37,14 @@
 //! run's `steps_done` given back as `--steps` reproduces its scene bit for bit.
 
 use super::{Background, SceneInput, Threads};
-use crate::baselines::colour;
-use crate::baselines::fit::{FitOptions, fit_objective};
-use crate::baselines::gram::{GramConfig, GramObjective, GramTargets};
-use crate::baselines::nnfm::{NnfmConfig, NnfmObjective};
-use crate::baselines::{Objective, gram_distance, prepare_style};
+pub use crate::baselines::run::Method;
+use crate::baselines::run::{Outcome, RunParams, checkpoint_name};
 use crate::imageio::Image;
-use crate::vgg::Vgg16;
-use crate::{Error, Result};
+use crate::vgg::{Vgg16, prepare_style};
+use crate::{Error, Result, Scene};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// Which baseline to run.
-#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Method {
-    /// Gram-matrix style loss (Gatys; SGSST-like), relu1_2..relu4_3 at 1x and 0.5x.
-    Gram,
-    /// Nearest-neighbour feature matching (ARF), relu3 block, cosine distance.
-    Nnfm,
-    /// Per-view 2D stylization with the stylizer, then a colour refit to those images.
-    Refit,
-    /// The object's colour mean and covariance moved onto the style image's (linear
-    /// Monge-Kantorovich map on the SH colours; no steps).
-    ColourTransfer,
-    /// The style image texture-mapped onto the object (triplanar projection along each
-    /// Gaussian's normal, shaded by its relative brightness; no steps).
-    Project,
-}
 
 /// Restyle a scene's colours with a baseline (VGG Gram, VGG NNFM, per-view 2D stylize +
 /// refit, or a colour-statistics transfer); geometry stays frozen. Writes a scene artifact
@@ -151,74 +130,29 @@ pub struct Args {
     #[arg(long)]
     pub stylizer: Option<PathBuf>,
     #[command(flatten)]
-    pub split: super::SplitArgs,
-    #[command(flatten)]
     pub threads: Threads,
 }
 
-/// What a run produced (also used by tests).
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct LossLog {
-    pub method: Method,
-    /// `refit` only: the Gram distance of the stylized target views (mean over views).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub targets_gram_distance: Option<f64>,
-    /// `refit` only: agreement of the stylizations' high-pass change between neighbouring
-    /// views after depth reprojection (module docs).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub hf_agree_adjacent: Option<f64>,
-    /// `refit` only: the same measure on the original renders' own high pass (the scene's
-    /// texture, consistent by construction): how much agreement the warp allows.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub hf_agree_adjacent_original: Option<f64>,
-    pub steps: Vec<crate::baselines::fit::StepLog>,
-    /// `colour-transfer` only: the map and the statistics it matched.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub colour_map: Option<ColourMapLog>,
-}
-
-/// What `colour-transfer` did (`loss.json`).
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct ColourMapLog {
-    /// `c' = T c + b`, T row-major.
-    pub t: [f64; 9],
-    pub b: [f64; 3],
-    pub source_mean: [f64; 3],
-    pub source_cov: [f64; 9],
-    pub style_mean: [f64; 3],
-    pub style_cov: [f64; 9],
-}
-
-/// `timing.json`: when a run's steps ended (only with a budget or --record-time).
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct TimingLog {
-    pub budget_s: Option<f64>,
-    /// Seconds from the stage's start to the end of the last step (before writing).
-    pub wall_s: f64,
-    pub steps_done: usize,
-    /// Seconds from the stage's start to the end of the originals' rendering (and, for
-    /// refit, the 2D stylization): the fixed cost before the first step.
-    pub setup_s: f64,
-    pub checkpoints: Vec<CheckpointTime>,
-}
-
-/// A saved intermediate scene.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct CheckpointTime {
-    pub step: usize,
-    pub elapsed_s: f64,
-    pub file: String,
-}
-
-/// The scene after some steps, kept until the artifact is written.
-struct Checkpoint {
-    step: usize,
-    elapsed_s: f64,
-    ply: Vec<u8>,
-}
-
-fn checkpoint_name(step: usize) -> String {
-    format!("scene_step{step}.ply")
+impl Args {
+    /// The run's parameters (the budget checked).
+    pub fn params(&self) -> Result<RunParams> {
+        Ok(RunParams {
+            method: self.method,
+            steps: self.steps,
+            views_per_step: self.views_per_step,
+            seed: self.seed,
+            lr_dc: self.lr_dc,
+            lr_rest: self.lr_rest,
+            background: self.background.rgb,
+            style_weight: self.style_weight,
+            content_weight: self.content_weight,
+            monitor_every: self.monitor_every,
+            no_monitor: self.no_monitor,
+            save_at: self.save_at.clone(),
+            budget_s: budget(self)?,
+            stylizer: self.stylizer.clone(),
+        })
+    }
 }
 
 /// The budget from `--budget-s` or `--budget-from` (finite, > 0).
@@ -246,37 +180,16 @@ fn read_budget(p: &Path) -> Result<f64> {
         .ok_or_else(|| Error::input(p, "no number `budget_s` in this JSON object"))
 }
 
-/// Stylize every view on its own with the 2D stylizer (the refit baseline's targets).
-fn stylize_views(dir: &std::path::Path, style: &Image, views: &[Image]) -> Result<Vec<Image>> {
-    if !dir.join("model.json").is_file() {
-        return Err(Error::Missing(format!(
-            "{}: stylizer model is absent (run scripts/setup.sh, step 20_stylizer.py)",
-            dir.display()
-        )));
-    }
-    let mut p = crate::prior::stylizer::StylizerPrior::open(dir, None, 0)?;
-    let s = p.style_vector(style.to_chw().view())?;
-    views
-        .iter()
-        .map(|v| {
-            let mut out = Image::from_chw(p.stylize(v.to_chw().view(), &s)?.view());
-            out.data.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
-            Ok(out)
-        })
-        .collect()
-}
-
-/// The stage: load, optimise, write the artifact.
+/// The stage: load, run the baseline ([`crate::baselines::run`]), write the artifact.
 pub fn run(a: Args) -> Result<()> {
     let t0 = Instant::now();
-    let budget_s = budget(&a)?;
+    let p = a.params()?;
     if a.width < 16 || a.height < 16 {
         return Err(Error::param(format!(
             "image size {}x{}: the baselines need at least 16x16",
             a.width, a.height
         )));
     }
-    let split = a.split.wanted()?;
     let scene = a.input.load_scene()?;
     let cams = a.input.load_cameras(&scene, a.width, a.height)?;
     if cams.is_empty() {
@@ -285,59 +198,8 @@ pub fn run(a: Args) -> Result<()> {
             a.input.cameras
         )));
     }
-    let scene = if split {
-        a.split
-            .split(&scene, &cams, std::path::Path::new(&a.input.cameras))?
-    } else {
-        scene
-    };
-    let raw_style = crate::imageio::read_rgb(&a.style)?;
-    let transfer = a.method == Method::ColourTransfer;
-    let no_steps = transfer || a.method == Method::Project;
-    let style = if transfer {
-        raw_style
-    } else {
-        prepare_style(&raw_style, a.style_size, &a.style)?
-    };
-    let vgg = if no_steps {
-        None
-    } else {
-        let vgg_dir = match &a.vgg {
-            Some(p) => p.clone(),
-            None => crate::models::model_path("lpips/vgg16")?,
-        };
-        Some(super::fast_vgg(Vgg16::load(&vgg_dir)?, a.threads)?)
-    };
-    let mut params = serde_json::json!({
-        "method": a.method, "cameras": a.input.cameras, "steps": a.steps, "width": a.width,
-        "height": a.height, "background": a.background.rgb, "lr_dc": a.lr_dc,
-        "lr_rest": a.lr_rest, "style_size": a.style_size, "style_weight": a.style_weight,
-        "content_weight": a.content_weight, "monitor_every": a.monitor_every,
-    });
-    // Recorded only when used, so artifacts of runs without them keep their hashes.
-    let extra = [
-        (
-            "views_per_step",
-            serde_json::json!(a.views_per_step),
-            a.views_per_step > 0,
-        ),
-        ("seed", serde_json::json!(a.seed), a.views_per_step > 0),
-        ("budget_s", serde_json::json!(budget_s), budget_s.is_some()),
-        (
-            "save_at",
-            serde_json::json!(a.save_at),
-            !a.save_at.is_empty(),
-        ),
-        ("no_monitor", serde_json::json!(true), a.no_monitor),
-        ("split_px", serde_json::json!(a.split.split_px), split),
-    ];
-    for (k, v, used) in extra {
-        if used {
-            params[k] = v;
-        }
-    }
-    let producer = Producer::new("stylize-baseline", crate::VERSION, params);
-    let mut w = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
+    let (style, vgg) = style_and_vgg(&a)?;
+    let mut w = super::create_artifact(&a.out, ArtifactKind::Scene, producer(&a, &p))?;
     a.input.add_inputs(&mut w)?;
     w.add_input("style", &a.style)?;
     tracing::info!(
@@ -349,11 +211,96 @@ pub fn run(a: Args) -> Result<()> {
         a.height,
         a.steps
     );
-    let out = a.threads.install(|| match &vgg {
-        Some(vgg) => optimise(&a, scene, &cams, vgg, &style, t0, budget_s),
-        None if transfer => transfer_colours(&a, scene, &cams, &style, t0),
-        None => project(&a, scene, &cams, &style, t0),
-    })??;
+    let out = a
+        .threads
+        .install(|| method(&a, &p, scene, &cams, vgg.as_ref(), &style, t0))??;
+    write(&a, &p, w, out, cams.len())
+}
+
+/// The style image as the method takes it, and VGG16 for the methods with steps.
+fn style_and_vgg(a: &Args) -> Result<(Image, Option<Vgg16>)> {
+    let raw_style = crate::imageio::read_rgb(&a.style)?;
+    if a.method == Method::ColourTransfer {
+        return Ok((raw_style, None));
+    }
+    let style = prepare_style(&raw_style, a.style_size, &a.style)?;
+    if a.method == Method::Project {
+        return Ok((style, None));
+    }
+    let vgg_dir = match &a.vgg {
+        Some(p) => p.clone(),
+        None => crate::models::model_path("lpips/vgg16")?,
+    };
+    Ok((
+        style,
+        Some(super::fast_vgg(Vgg16::load(&vgg_dir)?, a.threads)?),
+    ))
+}
+
+/// Run the method.
+fn method(
+    a: &Args,
+    p: &RunParams,
+    scene: Scene,
+    cams: &[crate::Camera],
+    vgg: Option<&Vgg16>,
+    style: &Image,
+    t0: Instant,
+) -> Result<Outcome> {
+    use crate::baselines::run::{optimise, project, transfer_colours};
+    match (a.method, vgg) {
+        (Method::ColourTransfer, _) => transfer_colours(scene, cams, style, p.background, t0),
+        (Method::Project, _) => project(scene, cams, style, &a.input.cameras, t0),
+        (_, Some(vgg)) => optimise(p, scene, cams, vgg, style, t0),
+        (_, None) => Err(Error::Other("a method with steps needs VGG16".into())),
+    }
+}
+
+/// The producer: the stage and its flags (those used only when used, so artifacts of
+/// runs without them keep their hashes).
+fn producer(a: &Args, p: &RunParams) -> Producer {
+    let mut params = serde_json::json!({
+        "method": a.method, "cameras": a.input.cameras, "steps": a.steps, "width": a.width,
+        "height": a.height, "background": a.background.rgb, "lr_dc": a.lr_dc,
+        "lr_rest": a.lr_rest, "style_size": a.style_size, "style_weight": a.style_weight,
+        "content_weight": a.content_weight, "monitor_every": a.monitor_every,
+    });
+    let sampled = a.views_per_step > 0;
+    let extra = [
+        (
+            "views_per_step",
+            serde_json::json!(a.views_per_step),
+            sampled,
+        ),
+        ("seed", serde_json::json!(a.seed), sampled),
+        (
+            "budget_s",
+            serde_json::json!(p.budget_s),
+            p.budget_s.is_some(),
+        ),
+        (
+            "save_at",
+            serde_json::json!(a.save_at),
+            !a.save_at.is_empty(),
+        ),
+        ("no_monitor", serde_json::json!(true), a.no_monitor),
+    ];
+    for (k, v, used) in extra {
+        if used {
+            params[k] = v;
+        }
+    }
+    Producer::new("stylize-baseline", crate::VERSION, params)
+}
+
+/// Write what the method produced into the artifact `w` and commit it.
+fn write(
+    a: &Args,
+    p: &RunParams,
+    mut w: fantasystyle_schemas::ArtifactWriter,
+    out: Outcome,
+    views: usize,
+) -> Result<()> {
     let Outcome {
         scene,
         log,
@@ -372,20 +319,20 @@ pub fn run(a: Args) -> Result<()> {
     for c in &checkpoints {
         w.write_bytes(&checkpoint_name(c.step), &c.ply)?;
     }
-    if budget_s.is_some() || a.record_time {
-        timing.budget_s = budget_s;
+    if p.budget_s.is_some() || a.record_time {
+        timing.budget_s = p.budget_s;
         w.write_json("timing.json", &timing)?;
         tracing::info!(
             "{} steps in {:.1} s (budget {:?} s)",
             timing.steps_done,
             timing.wall_s,
-            budget_s
+            p.budget_s
         );
     }
     let first = log.steps.first().and_then(|s| s.gram_distance);
     let last = log.steps.last().and_then(|s| s.gram_distance);
     w.set_meta(serde_json::json!({
-        "method": a.method, "views": cams.len(), "gram_distance_first": first,
+        "method": a.method, "views": views, "gram_distance_first": first,
         "gram_distance_last": last,
     }));
     crate::timing::io(|| w.commit())?;
@@ -396,278 +343,4 @@ pub fn run(a: Args) -> Result<()> {
         last
     );
     Ok(())
-}
-
-/// What a method produced.
-struct Outcome {
-    scene: crate::Scene,
-    log: LossLog,
-    targets: Vec<Image>,
-    checkpoints: Vec<Checkpoint>,
-    timing: TimingLog,
-}
-
-impl Outcome {
-    /// The outcome of a method without steps (colour transfer, projection): its scene and
-    /// log, no targets or checkpoints, the wall time since `t0` all set-up.
-    fn without_steps(
-        a: &Args,
-        scene: crate::Scene,
-        colour_map: Option<ColourMapLog>,
-        t0: Instant,
-    ) -> Outcome {
-        let wall = t0.elapsed().as_secs_f64();
-        Outcome {
-            scene,
-            log: LossLog {
-                method: a.method,
-                targets_gram_distance: None,
-                hf_agree_adjacent: None,
-                hf_agree_adjacent_original: None,
-                steps: Vec::new(),
-                colour_map,
-            },
-            targets: Vec::new(),
-            checkpoints: Vec::new(),
-            timing: TimingLog {
-                budget_s: None,
-                wall_s: wall,
-                steps_done: 0,
-                setup_s: wall,
-                checkpoints: Vec::new(),
-            },
-        }
-    }
-}
-
-/// The original renders (rgb, alpha) of every camera.
-fn render_originals(
-    a: &Args,
-    scene: &crate::Scene,
-    cams: &[crate::Camera],
-) -> Result<Vec<crate::render::RenderOutput>> {
-    crate::render::render_all(scene, cams, a.background.rgb)
-}
-
-/// `colour-transfer`: the statistics of the object in the original renders, the map onto
-/// the style image's, applied to the SH colours.
-fn transfer_colours(
-    a: &Args,
-    scene: crate::Scene,
-    cams: &[crate::Camera],
-    style: &Image,
-    t0: Instant,
-) -> Result<Outcome> {
-    let renders = render_originals(a, &scene, cams)?;
-    let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
-    let (out, tr) = colour::transfer_scene(&scene, &views, a.background.rgb, style)?;
-    let (src, dst) = (tr.source, tr.style);
-    tracing::info!(
-        "colour transfer: object mean {:.3?} -> style mean {:.3?}",
-        src.mean,
-        dst.mean
-    );
-    let map = ColourMapLog {
-        t: tr.t,
-        b: tr.b,
-        source_mean: src.mean,
-        source_cov: src.cov,
-        style_mean: dst.mean,
-        style_cov: dst.cov,
-    };
-    Ok(Outcome::without_steps(a, out, Some(map), t0))
-}
-
-/// `project`: the style texture-mapped onto the object ([`crate::baselines::projection`]).
-fn project(
-    a: &Args,
-    scene: crate::Scene,
-    cams: &[crate::Camera],
-    style: &Image,
-    t0: Instant,
-) -> Result<Outcome> {
-    use crate::baselines::projection::{Placement, project_style, rendered_normals};
-    let at =
-        Placement::of(&scene, cams).map_err(|e| Error::input(&a.input.cameras, e.to_string()))?;
-    tracing::info!(
-        "style projection: {:.3e} world units per style px, centre {:.3?}",
-        at.world_per_pixel,
-        at.centre
-    );
-    let normals = rendered_normals(&scene, cams)?;
-    tracing::info!("style projection: {normals}");
-    let out = project_style(&scene, style, &at, &normals.normals);
-    Ok(Outcome::without_steps(a, out, None, t0))
-}
-
-/// Render the originals, build the objective and the monitor, and run the fit.
-fn optimise(
-    a: &Args,
-    scene: crate::Scene,
-    cams: &[crate::Camera],
-    vgg: &Vgg16,
-    style: &Image,
-    t0: Instant,
-    budget_s: Option<f64>,
-) -> Result<Outcome> {
-    let renders = render_originals(a, &scene, cams)?;
-    let originals: Vec<Image> = renders
-        .iter()
-        .map(|r| Image {
-            width: r.width,
-            height: r.height,
-            data: r.rgb.clone(),
-        })
-        .collect();
-    crate::baselines::check_views(&originals)?;
-    let gram_cfg = GramConfig::default();
-    let monitor_targets = GramTargets::new(vgg, style, &gram_cfg.layers, &[1])?;
-    let monitor = |imgs: &[Image]| -> Result<f64> {
-        let mut s = 0.0;
-        for i in imgs {
-            s += gram_distance(vgg, &monitor_targets, i)?;
-        }
-        Ok(s / imgs.len() as f64)
-    };
-    let mut targets = Vec::new();
-    let mut targets_gram = None;
-    let (mut hf_agree, mut hf_agree_orig) = (None, None);
-    let obj: Option<Box<dyn Objective + '_>> = match a.method {
-        Method::ColourTransfer | Method::Project => {
-            return Err(Error::Other(format!(
-                "{:?} has no objective to optimise",
-                a.method
-            )));
-        }
-        Method::Gram => Some(Box::new(GramObjective::new(
-            vgg,
-            GramConfig {
-                style_weight: a.style_weight,
-                content_weight: a.content_weight.unwrap_or(gram_cfg.content_weight),
-                ..gram_cfg.clone()
-            },
-            style,
-            &originals,
-        )?)),
-        Method::Nnfm => {
-            let d = NnfmConfig::default();
-            Some(Box::new(NnfmObjective::new(
-                vgg,
-                NnfmConfig {
-                    style_weight: a.style_weight,
-                    content_weight: a.content_weight.unwrap_or(d.content_weight),
-                },
-                style,
-                &originals,
-            )?))
-        }
-        Method::Refit => {
-            let dir = match &a.stylizer {
-                Some(p) => p.clone(),
-                None => crate::models::model_path("stylizer")?,
-            };
-            targets = stylize_views(&dir, style, &originals)?;
-            if !a.no_monitor {
-                let d = monitor(&targets)?;
-                tracing::info!("refit targets: Gram distance to the style {d:.4}");
-                targets_gram = Some(d);
-            }
-            let changes: Vec<_> = targets
-                .iter()
-                .zip(&originals)
-                .map(|(t, o)| t.to_chw() - o.to_chw())
-                .collect();
-            let alpha: Vec<Vec<f32>> = renders.iter().map(|r| r.alpha.clone()).collect();
-            let depth: Vec<Vec<f32>> = renders.iter().map(|r| r.depth.clone()).collect();
-            let closed = crate::distill::path::ViewPath::of(cams).closed;
-            use crate::distill::agreement::adjacent_agreement_of_views as agree;
-            hf_agree = agree(cams, &changes, &alpha, &depth, closed);
-            let own: Vec<_> = originals.iter().map(Image::to_chw).collect();
-            hf_agree_orig = agree(cams, &own, &alpha, &depth, closed);
-            tracing::info!(
-                "refit targets: high-frequency change agreement between neighbouring views {} \
-                 (the original renders' own high pass: {})",
-                crate::metrics::report::fmt_opt(hf_agree, 3),
-                crate::metrics::report::fmt_opt(hf_agree_orig, 3)
-            );
-            None
-        }
-    };
-    let fit_targets: Vec<Vec<f32>> = if targets.is_empty() {
-        originals.iter().map(|i| i.data.clone()).collect()
-    } else {
-        targets.iter().map(|i| i.data.clone()).collect()
-    };
-    let opts = FitOptions {
-        steps: a.steps,
-        fit: crate::optim::FitParams {
-            lr_dc: a.lr_dc,
-            lr_rest: a.lr_rest,
-            background: a.background.rgb,
-            ..crate::optim::FitParams::default()
-        },
-        monitor_every: a.monitor_every,
-        views_per_step: (a.views_per_step > 0).then_some(a.views_per_step),
-        seed: a.seed,
-    };
-    let setup_s = t0.elapsed().as_secs_f64();
-    let bar = indicatif::ProgressBar::new(a.steps as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps {elapsed}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_message("stylize-baseline");
-    let mut checkpoints = Vec::new();
-    let mut steps_done = 0;
-    let mut wall_s = setup_s;
-    let (scene, steps) = fit_objective(
-        &scene,
-        cams,
-        &fit_targets,
-        obj.as_deref(),
-        &opts,
-        (!a.no_monitor).then_some(&monitor as &dyn Fn(&[Image]) -> Result<f64>),
-        &mut |s, sc| {
-            bar.set_position(s as u64);
-            steps_done = s;
-            wall_s = t0.elapsed().as_secs_f64();
-            if a.save_at.contains(&s) {
-                checkpoints.push(Checkpoint {
-                    step: s,
-                    elapsed_s: wall_s,
-                    ply: crate::scene::ply::encode_ply(sc),
-                });
-            }
-            Ok(budget_s.is_none_or(|b| wall_s < b))
-        },
-    )?;
-    bar.finish_and_clear();
-    let timing = TimingLog {
-        budget_s,
-        wall_s,
-        steps_done,
-        setup_s,
-        checkpoints: checkpoints
-            .iter()
-            .map(|c| CheckpointTime {
-                step: c.step,
-                elapsed_s: c.elapsed_s,
-                file: checkpoint_name(c.step),
-            })
-            .collect(),
-    };
-    Ok(Outcome {
-        scene,
-        log: LossLog {
-            method: a.method,
-            targets_gram_distance: targets_gram,
-            hf_agree_adjacent: hf_agree,
-            hf_agree_adjacent_original: hf_agree_orig,
-            steps,
-            colour_map: None,
-        },
-        targets,
-        checkpoints,
-        timing,
-    })
 }

@@ -10,26 +10,28 @@
 //!   iteration. Writes the next checkpoint, as `distill` does
 //!   ([`crate::artifacts::write_checkpoint`]: `scene.ply`, the optimizer state,
 //!   `history.json` with this iteration's report; not `distill`'s agreement measurement,
-//!   which the chain does not make). `distill`'s colour step is `--ssim-weight 0
-//!   --lr-rest 0` (with `--fit-rest`: `--lr-rest` = lr-dc / 20, the default) at its
-//!   `--lr-dc`, with its `--colour-loss` (L2 by default) and its texture term
-//!   (`--texture-weight`, default 1; it needs `--style` and `--source-views`, whose
-//!   alpha masks it, and sees each render over the fill as the prior does, `--no-fill`
-//!   as distill's); `--steps` must be absent or 1.
+//!   which the chain does not make). The step is configured by the method's
+//!   configuration as distill's (`--preset`, `--config`, `--set`: `lr_dc`, `fit_rest`,
+//!   `colour_loss`, the `terms` and their `[texture]`, `fill`); the fit's own flags
+//!   (`--lr-dc`, `--lr-rest`, `--ssim-weight`, `--mask-alpha`, `--cache`) do not apply.
+//!   Texture terms need `--style` and `--source-views` (whose alpha masks them); `--steps`
+//!   must be absent or 1.
 //! * **A colour fit to any images** (a `targets` artifact without an iteration, or a
 //!   `views` artifact with one image per camera): [`crate::optim::fit_colours`] (L1 +
-//!   D-SSIM, Adam from zero; `--colour-loss` and the texture flags do not apply) for
+//!   D-SSIM, Adam from zero; the method's configuration does not apply) for
 //!   `--steps` steps; writes a `scene` artifact with
 //!   `scene.ply` (every non-colour field bit-identical to the input) and `loss.json`
 //!   (the mean loss over views per step, plus cache statistics).
 
-use super::{Background, ColourArgs, SceneInput, TextureArgs, Threads};
+use super::{Background, ConfigArgs, SceneInput, Threads};
 use crate::artifacts::{
-    CheckpointParts, Start, Targets, extend_history, read_targets, read_views, write_checkpoint,
+    CheckpointParts, Targets, extend_history, load_progress, read_targets, read_views,
+    write_checkpoint,
 };
-use crate::distill::IterReport;
 use crate::distill::step::{ColourStep, IterationWindow, TargetStats, colour_step};
-use crate::distill::texture::TextureTerm;
+use crate::distill::terms::PriorTerm;
+use crate::distill::terms::texture::TextureTerm;
+use crate::distill::{Config, IterReport};
 use crate::optim::{ColourFit, FitParams, fit_colours};
 use crate::render::CacheMode;
 use crate::scene::ply;
@@ -76,21 +78,16 @@ pub struct Args {
     pub cache: String,
     #[command(flatten)]
     pub background: Background,
+    /// One iteration's targets: the method's configuration, as distill's.
     #[command(flatten)]
-    pub colour: ColourArgs,
-    #[command(flatten)]
-    pub texture: TextureArgs,
-    /// Style image of the texture term (one iteration's targets).
+    pub config: ConfigArgs,
+    /// Style image of the texture terms (one iteration's targets).
     #[arg(long)]
     pub style: Option<PathBuf>,
     /// Views artifact of the ORIGINAL scene, every camera (as distill's
-    /// --source-views): its alpha masks the texture term (one iteration's targets).
+    /// --source-views): its alpha masks the texture terms (one iteration's targets).
     #[arg(long)]
     pub source_views: Option<PathBuf>,
-    /// The texture term sees the raw render instead of the object over a fill of its own
-    /// colours (as distill --no-fill).
-    #[arg(long, default_value_t = false, action = clap::ArgAction::Set, num_args = 0..=1, default_missing_value = "true")]
-    pub no_fill: bool,
     #[command(flatten)]
     pub threads: Threads,
 }
@@ -108,32 +105,34 @@ pub fn run(a: Args) -> Result<()> {
         background: a.background.rgb,
         progress: true,
     };
-    let mut own = serde_json::json!({
-        "cameras": a.input.cameras, "steps": a.steps, "lr_dc": params.lr_dc,
-        "lr_rest": params.lr_rest, "ssim_weight": a.ssim_weight,
-        "mask_alpha": a.mask_alpha, "cache": a.cache, "background": a.background.rgb,
+    let own = serde_json::json!({
+        "cameras": a.input.cameras, "steps": a.steps, "background": a.background.rgb,
     });
-    if targets.step.is_some() {
-        own = super::merge_params(&[
-            own,
-            a.colour.to_json(),
-            a.texture.to_json(),
-            serde_json::json!({ "fill": !a.no_fill }),
-        ]);
-    }
-    let producer = Producer::new("update-gaussians", crate::VERSION, own);
     match targets.step.clone() {
-        Some(step) => iteration(&a, &targets, step, &params, producer),
-        None => fit(&a, &targets, &params, producer),
+        Some(step) => {
+            let config = a.config.load()?;
+            let own = super::merge_params(&[own, serde_json::json!({ "config": config })]);
+            let producer = Producer::new("update-gaussians", crate::VERSION, own);
+            iteration(&a, &config, &targets, step, producer)
+        }
+        None => {
+            let fit_flags = serde_json::json!({
+                "lr_dc": params.lr_dc, "lr_rest": params.lr_rest, "ssim_weight": a.ssim_weight,
+                "mask_alpha": a.mask_alpha, "cache": a.cache,
+            });
+            let own = super::merge_params(&[own, fit_flags]);
+            let producer = Producer::new("update-gaussians", crate::VERSION, own);
+            fit(&a, &targets, &params, producer)
+        }
     }
 }
 
-/// One iteration's colour step from a checkpoint to the next.
+/// One iteration's colour step from a checkpoint to the next, configured by `config`.
 fn iteration(
     a: &Args,
+    config: &Config,
     targets: &Targets,
     (w, t, stats): (IterationWindow, usize, TargetStats),
-    params: &FitParams,
     producer: Producer,
 ) -> Result<()> {
     if a.steps.is_some_and(|s| s != 1) {
@@ -141,33 +140,10 @@ fn iteration(
             "--steps: the targets are one iteration's (csd-step), which is one step",
         ));
     }
-    let start = crate::timing::load(|| Start::load(&a.input.scene))?;
-    if start.iteration != w.iteration {
-        return Err(Error::input(
-            &a.input.scene,
-            format!(
-                "has done {} iterations, but the targets ({}) are of iteration {}",
-                start.iteration,
-                a.targets.display(),
-                w.iteration
-            ),
-        ));
-    }
+    let (start, cams) = checkpoint_and_cameras(a, targets, &w)?;
     let (_, h, wd, _) = targets.rgb.dim();
-    let cams = a.input.load_cameras(&start.scene, wd as u32, h as u32)?;
-    if cams.len() != w.path.len {
-        return Err(Error::input(
-            &a.targets,
-            format!(
-                "the iteration's path has {} cameras, `{}` {}",
-                w.path.len,
-                a.input.cameras,
-                cams.len()
-            ),
-        ));
-    }
     let cams: Vec<_> = w.window.views.iter().map(|&v| cams[v].clone()).collect();
-    let (texture, alpha) = texture_inputs(a, &w, (h, wd))?;
+    let (texture, alpha) = texture_inputs(a, config, &w, (h, wd))?;
     let mut out = super::create_artifact(&a.out, ArtifactKind::Scene, producer)?;
     a.input.add_inputs(&mut out)?;
     out.add_input("targets", &a.targets)?;
@@ -179,15 +155,18 @@ fn iteration(
         }
     }
     let cs = ColourStep {
-        loss: a.colour.colour_loss,
-        ssim_weight: params.ssim_weight,
+        prior: config.terms.prior().map(|(_, weight)| PriorTerm {
+            loss: config.colour_loss,
+            weight,
+        }),
         texture: texture.as_ref(),
         background: a.background.rgb,
-        fill: !a.no_fill,
+        fill: config.fill,
         iteration: w.iteration,
     };
+    let params = crate::distill::step::fit_params(config, a.background.rgb);
     let (scene, state, losses) = a.threads.install(|| -> Result<_> {
-        let mut fit = ColourFit::without_targets(&start.scene, &cams, params)?;
+        let mut fit = ColourFit::without_targets(&start.scene, &cams, &params)?;
         fit.set_optimizer_state(start.state())?;
         let views: Vec<usize> = (0..cams.len()).collect();
         let alpha: Vec<&[f32]> = alpha.iter().map(|x| x.as_slice()).collect();
@@ -219,15 +198,63 @@ fn iteration(
     Ok(())
 }
 
-/// The texture term of one iteration's colour step (`None` at `--texture-weight 0`) and
-/// the source coverage `[H, W]` of each of the window's views it is masked with (zero
-/// planes without the term).
+/// The checkpoint the iteration starts from (at the targets' iteration) and the cameras of
+/// the iteration's whole path, at the targets' size.
+fn checkpoint_and_cameras(
+    a: &Args,
+    targets: &Targets,
+    w: &IterationWindow,
+) -> Result<(crate::distill::Progress, Vec<crate::Camera>)> {
+    let start = crate::timing::load(|| load_progress(&a.input.scene))?;
+    if start.iteration != w.iteration {
+        return Err(Error::input(
+            &a.input.scene,
+            format!(
+                "has done {} iterations, but the targets ({}) are of iteration {}",
+                start.iteration,
+                a.targets.display(),
+                w.iteration
+            ),
+        ));
+    }
+    let (_, h, wd, _) = targets.rgb.dim();
+    let cams = a.input.load_cameras(&start.scene, wd as u32, h as u32)?;
+    if cams.len() != w.path.len {
+        return Err(Error::input(
+            &a.targets,
+            format!(
+                "the iteration's path has {} cameras, `{}` {}",
+                w.path.len,
+                a.input.cameras,
+                cams.len()
+            ),
+        ));
+    }
+    Ok((start, cams))
+}
+
+/// The texture terms of one iteration's colour step (`None` without a VGG term) and the
+/// source coverage `[H, W]` of each of the window's views they are masked with (zero
+/// planes without them).
 fn texture_inputs(
     a: &Args,
+    config: &Config,
     w: &IterationWindow,
     (h, wd): (usize, usize),
 ) -> Result<(Option<TextureTerm>, Vec<Vec<f32>>)> {
-    let texture = a.texture.term(a.style.as_deref(), None, a.threads)?;
+    let texture = match (
+        &a.style,
+        config.terms.statistics(&config.texture.layers)?.len(),
+    ) {
+        (_, 0) => None,
+        (None, _) => {
+            return Err(Error::param(format!(
+                "the texture terms ({}) need the style image (--style)",
+                config.terms
+            )));
+        }
+        (Some(style), _) => super::texture_term(config, style, None, a.threads)?,
+    };
     let alpha: Vec<Vec<f32>> = match (&texture, &a.source_views) {
         (None, _) => vec![vec![0.0; h * wd]; w.window.views.len()],
         (Some(_), None) => {

@@ -158,7 +158,7 @@ fn vgg_missing_or_malformed_weights_are_clear_errors() {
 mod stage {
     use crate::harness::repo_root;
     use fantasystyle::stages::stylize_baseline::{Args, Method, run};
-    use fantasystyle::stages::{Background, SceneInput, SplitArgs, Threads};
+    use fantasystyle::stages::{Background, SceneInput, Threads};
     use std::path::{Path, PathBuf};
 
     /// Real VGG16 weights when set-up has made them, else the golden test's narrow
@@ -201,7 +201,6 @@ mod stage {
             no_monitor: false,
             vgg: Some(vgg_dir()),
             stylizer: Some(repo_root().join("vendor/models/stylizer")),
-            split: SplitArgs { split_px: 0.0 },
             threads: Threads::new(2),
         }
     }
@@ -283,23 +282,35 @@ mod stage {
         check_method(Method::Refit, 150);
     }
 
-    /// `--split-px`: the baseline optimises the split scene's colours (more Gaussians in
-    /// the result, the Gram distance still falls), and the length is recorded in the
-    /// producer's params only when a split was asked for.
+    /// A baseline on the `split` stage's output: it optimises the split scene's colours
+    /// (more Gaussians in the result, the Gram distance still falls); the split stage
+    /// records what it did in its meta.
     #[test]
     fn a_baseline_stylizes_the_split_scene() {
+        use clap::Parser;
+        use fantasystyle::stages::{render_views, split};
         let d = tempfile::tempdir().unwrap();
+        let scene = repo_root().join("data-sample/scene.ply");
+        let views = d.path().join("views");
+        let (s, v) = (scene.display(), views.display());
+        let cmd = format!("rv --scene {s} --cameras orbit:2 --width 48 --height 48 --out {v}");
+        render_views::run(render_views::Args::parse_from(cmd.split(' '))).unwrap();
+        let split_dir = d.path().join("split");
+        let cmd = format!(
+            "split --scene {s} --source-views {v} --set split=0.25 --out {}",
+            split_dir.display()
+        );
+        let report = split::run(split::Args::parse_from(cmd.split(' '))).unwrap();
+        let report = report.expect("a split was asked for");
         let out = d.path().join("out");
         let mut a = args(Method::Gram, &out, &sample_style(), 3);
-        a.split.split_px = 0.25;
+        a.input.scene = split_dir.clone();
         run(a).unwrap();
-        let before =
-            fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
-                .unwrap();
+        let before = fantasystyle::artifacts::load_scene(&scene).unwrap();
         let after = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
         assert!(
-            after.len() > before.len(),
-            "{} -> {}",
+            after.len() > before.len() && after.len() == report.after,
+            "{} -> {} ({report})",
             before.len(),
             after.len()
         );
@@ -313,15 +324,26 @@ mod stage {
             gram(0),
             gram(3)
         );
-        let params = |dir: &Path| {
-            let m: serde_json::Value =
-                serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap();
-            m["producer"]["params"].clone()
-        };
-        assert_eq!(params(&out)["split_px"], serde_json::json!(0.25));
+        let m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(split_dir.join("manifest.json")).unwrap())
+                .unwrap();
+        assert_eq!(m["meta"]["after"], serde_json::json!(report.after));
+        // split = 0 (the default): the scene as it is.
         let plain = d.path().join("plain");
-        run(args(Method::ColourTransfer, &plain, &sample_style(), 0)).unwrap();
-        assert!(params(&plain).get("split_px").is_none());
+        let cmd = format!(
+            "split --scene {s} --source-views {v} --out {}",
+            plain.display()
+        );
+        assert!(
+            split::run(split::Args::parse_from(cmd.split(' ')))
+                .unwrap()
+                .is_none()
+        );
+        assert_eq!(
+            fantasystyle::artifacts::load_scene(&plain).unwrap(),
+            before,
+            "split = 0 changed the scene"
+        );
     }
 
     fn write_png(path: &Path, w: u32, h: u32, channels: u8) {
@@ -675,7 +697,7 @@ mod stage {
     /// projection takes the surface's.
     #[test]
     fn surface_normals_agree_with_a_mesh_derived_splats_axes() {
-        use fantasystyle::baselines::projection::rendered_normals;
+        use fantasystyle::distill::projection::rendered_normals;
         let mut agreement = Vec::new();
         for name in ["fish_10k.splat", "plant.splat"] {
             let Some(path) = crate::harness::shared_scene(name) else {
@@ -699,7 +721,7 @@ mod stage {
     /// a different `--style-size` gives different colours.
     #[test]
     fn project_writes_the_projected_style() {
-        use fantasystyle::baselines::projection::{Placement, project_style, rendered_normals};
+        use fantasystyle::distill::projection::{Placement, project_style, rendered_normals};
         let d = tempfile::tempdir().unwrap();
         let before =
             fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
@@ -747,7 +769,7 @@ mod stage {
 /// Tolerance: loss 1e-5 relative, gradient 1e-4 x its largest magnitude.
 #[test]
 fn nnfm_search_on_onnxruntime_matches_the_rust_search() {
-    use fantasystyle::baselines::nnfm::{StyleColumns, nnfm_loss_grad};
+    use fantasystyle::distill::terms::nnfm::{StyleColumns, nnfm_loss_grad};
     use ndarray::Array2;
     if !crate::harness::onnxruntime() {
         return;

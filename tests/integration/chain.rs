@@ -4,8 +4,8 @@
 //! (scene.ply, optimizer state, state.json; the history's every field but distill's
 //! agreement measurement, which only distill makes) and, iteration by iteration, the same
 //! latents, noised latents and targets as `distill --iters 1` chunks (their `last_*`
-//! tensors), bit for bit (no tolerance). With the texture term on (distill's default) in
-//! both cases; the stylizer prior on a window that is part of a closed path (MVFC's mirror
+//! tensors), bit for bit (no tolerance). With a texture term beside the CSD term in both
+//! cases (every stage reads the same configuration); the stylizer prior on a window that is part of a closed path (MVFC's mirror
 //! extension), the L2 colour loss, a motif scale of 2 and an annealed timestep; the tiny
 //! SD fixture (VAE, UNet, depth ControlNet) on a whole closed path (the circular filter)
 //! with the L1 colour loss. The stages run in this process, their flags parsed as the
@@ -80,16 +80,26 @@ fn same_checkpoint(chain: &Path, distill: &Path) {
 /// The run's settings.
 struct Case<'a> {
     model: PathBuf,
-    /// Flags of the prior and the step shared by distill and csd-step.
+    /// Flags of the prior shared by distill and csd-step (the prompt).
     prior: &'a [&'a str],
-    /// Flags of the timestep draw shared by distill and mvfc-filter.
-    draws: &'a [&'a str],
-    /// Flags of the colour step shared by distill and update-gaussians.
-    colour: &'a [&'a str],
+    /// The method's configuration (`--set KEY=VALUE`, each a pair of words), over the
+    /// one every case shares ([`SHARED`]); every stage of the method gets it.
+    config: &'a [&'a str],
     cameras: &'a str,
     /// Views per iteration.
     window: usize,
 }
+
+/// The configuration every case shares: the CSD term with a Gram texture term, lr_dc
+/// 0.05, seed 7.
+const SHARED: [&str; 6] = [
+    "--set",
+    "terms=csd=1,gram=1",
+    "--set",
+    "lr_dc=0.05",
+    "--set",
+    "seed=7",
+];
 
 /// Image size (64x64: 8x8 SD latents) and iterations.
 const SIZE: u32 = 64;
@@ -120,12 +130,17 @@ fn chain_equals_distill(d: &Path, c: &Case<'_>) {
     let owned = |xs: &[&str]| -> Vec<String> { xs.iter().map(|x| x.to_string()).collect() };
     let mut prior: Vec<String> = vec!["--style".into(), style.to_string()];
     prior.extend(owned(c.prior));
-    let (draws, colour) = (owned(c.draws), owned(c.colour));
+    let mut config = owned(&SHARED);
+    config.extend(["--set".to_string(), format!("views={n}")]);
+    config.extend(owned(c.config));
+    let with_prior = [prior.clone(), config.clone()].concat();
     let distill = |from: &str, iters: usize, out: &str| {
-        let flags = format!("--views-per-iter {n} --lr-dc 0.05 --seed 7 --threads 2");
         let cmd = format!("distill {from} --source-views {src} --model {m} --iters {iters}");
-        let all = [prior.clone(), draws.clone(), colour.clone()].concat();
-        stage(distill::run, &format!("{cmd} {flags} --out {out}"), &all);
+        stage(
+            distill::run,
+            &format!("{cmd} --threads 2 --out {out}"),
+            &with_prior,
+        );
     };
     distill(&format!("--scene {scene}"), 0, &format!("{d}/k0"));
     // distill: all iterations in one process, and one per process (their last_* tensors).
@@ -161,22 +176,21 @@ fn chain_equals_distill(d: &Path, c: &Case<'_>) {
         stage(
             mvfc_filter::run,
             &format!("mf {from} --out {noised}"),
-            &draws,
+            &config,
         );
         let inputs = format!("--noised {noised} --latents {lat} --views {views}");
         let source = format!("--source-views {src} --source-latents {src_lat}");
         stage(
             csd_step::run,
             &format!("cs {inputs} {source} --model {m} --threads 2 --out {targets}"),
-            &prior,
+            &with_prior,
         );
-        let step = "--lr-dc 0.05 --lr-rest 0 --ssim-weight 0";
         let from = format!("--scene {k0} --cameras {src} --targets {targets}");
         let texture = format!("--style {style} --source-views {src}");
         stage(
             update_gaussians::run,
-            &format!("ug {from} {step} {texture} --out {k1}"),
-            &colour,
+            &format!("ug {from} {texture} --out {k1}"),
+            &config,
         );
         // This iteration: the same latents, noised latents and targets as distill's, and
         // the same checkpoint.
@@ -213,9 +227,8 @@ fn chain_is_distill_with_the_stylizer() {
     if let Some(model) = crate::distill::stylizer_dir() {
         let case = Case {
             model,
-            prior: &["--motif-scale", "2"],
-            draws: &["--anneal-iters", "4"],
-            colour: &[],
+            prior: &[],
+            config: &["--set", "motif_scale=2", "--set", "anneal_iters=4"],
             cameras: "orbit:4,elev=30,radius=2.4",
             window: 3,
         };
@@ -229,17 +242,10 @@ fn chain_is_distill_with_the_stylizer() {
 #[test]
 fn chain_is_distill_with_the_tiny_sd_fixture() {
     if let Some(model) = crate::diffusion::tiny_sd15() {
-        let prompt = [
-            "--prompt",
-            "an ink drawing of a stone bridge",
-            "--guidance",
-            "3",
-        ];
         let case = Case {
             model,
-            prior: &prompt,
-            draws: &[],
-            colour: &["--colour-loss", "l1"],
+            prior: &["--prompt", "an ink drawing of a stone bridge"],
+            config: &["--set", "csd.guidance=3", "--set", "colour_loss=l1"],
             cameras: "orbit:3,elev=30,radius=2.4",
             window: 3,
         };

@@ -60,6 +60,25 @@ fn params(c: &serde_json::Value) -> CsdParams {
     }
 }
 
+/// [`params`] as csd-step's configuration.
+fn config_args(c: &serde_json::Value) -> fantasystyle::stages::ConfigArgs {
+    let p = params(c);
+    fantasystyle::stages::ConfigArgs {
+        sets: vec![
+            format!("terms={}=1", crate::mvfc::mode_name(p.mode)),
+            format!("csd.guidance={}", p.guidance),
+            format!("csd.lr={}", p.lr),
+            format!(
+                "csd.weighting={}",
+                clap::ValueEnum::to_possible_value(&p.weighting)
+                    .unwrap()
+                    .get_name()
+            ),
+        ],
+        ..Default::default()
+    }
+}
+
 /// Largest |a - b| and largest |b|.
 fn err(a: ArrayView4<'_, f32>, b: ArrayView4<'_, f32>) -> (f32, f32) {
     assert_eq!(a.shape(), b.shape());
@@ -474,14 +493,9 @@ fn csd_step_stage_matches_numpy_targets() {
                 model: model.clone(),
                 style: sp.clone(),
                 prompt: None,
-                strength: 1.0,
-                motif_scale: 1.0,
                 device: Default::default(),
-                unet_batch: 0,
             },
-            params: params(&c),
-            preserve_color: false,
-            no_fill: false,
+            config: config_args(&c),
             background: fantasystyle::stages::Background { rgb: [0.0; 3] },
             out: out.clone(),
             threads: Threads::new(1),

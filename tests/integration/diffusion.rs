@@ -482,10 +482,10 @@ fn csd_step_stage_runs_the_fixture_and_refuses_shared_conditioning() {
         ((x * 3 + y * (c + 1)) % 17) as f32 / 16.0
     });
     let sp = crate::mvfc::csd_inputs(d.path(), &dir, &views, &style);
-    // The routed model, a run-time prompt, --mode csd: targets written.
+    // The routed model, a run-time prompt, the term csd: targets written.
     let mut a = crate::mvfc::step_args(d.path(), &dir, &sp, Mode::Csd);
     a.prior.prompt = Some("an ink drawing of a stone bridge".into());
-    let lr = a.params.lr as f64;
+    let lr = 0.05; // step_args' csd.lr
     let rep = fantasystyle::stages::csd_step::run(a).unwrap();
     // z0' - z0 = -lr w g exactly: the two reported RMS agree, and the step is not nil.
     assert!(rep.grad_rms > 1e-4, "{rep:?}");
@@ -502,16 +502,16 @@ fn csd_step_stage_runs_the_fixture_and_refuses_shared_conditioning() {
         (rep_b.grad_rms - rep.grad_rms).abs() > 1e-6 * rep.grad_rms,
         "the prompt changed nothing: {rep:?} {rep_b:?}"
     );
-    // Plain IP-Adapter routing: --mode csd refused (exit code 2 from the binary),
-    // --mode csd-no-neg accepted.
+    // Plain IP-Adapter routing: the term csd refused (exit code 2 from the binary),
+    // csd-no-neg accepted.
     let shared = shared_copy(&dir);
     let mut a = crate::mvfc::step_args(d.path(), shared.path(), &sp, Mode::Csd);
     a.out = d.path().join("refused");
     let e = fantasystyle::stages::csd_step::run(a.clone()).unwrap_err();
     assert_eq!(e.exit_code(), 2);
-    assert!(e.to_string().contains("--mode csd-no-neg"), "{e}");
+    assert!(e.to_string().contains("term csd-no-neg"), "{e}");
     assert!(!a.out.exists());
-    a.params.mode = Mode::CsdNoNeg;
+    a.config.sets.push("terms=csd-no-neg=1".into());
     fantasystyle::stages::csd_step::run(a).unwrap();
 }
 
@@ -527,9 +527,9 @@ fn run_bin(exe: &str, args: &[&std::ffi::OsStr]) -> (Option<i32>, String) {
 /// The whole loop (`distill`) on the sample scene with the fixture: its depth ControlNet
 /// (the fixture's UNet takes the ControlNet's residuals as required inputs, so a run is a
 /// run through the ControlNet), a run-time prompt through the tokenizer and the text
-/// encoder, `--mode csd`; the prompt changes the result; a copy with plain IP-Adapter
-/// conditioning is refused under `--mode csd` before anything is written and accepted
-/// under `--mode csd-no-neg`. Two iterations on two 64x64 views (8x8 latents): a few
+/// encoder, the term csd; the prompt changes the result; a copy with plain IP-Adapter
+/// conditioning is refused under csd before anything is written and accepted under
+/// csd-no-neg. Two iterations on two 64x64 views (8x8 latents): a few
 /// seconds.
 #[test]
 fn distill_runs_the_fixture_end_to_end_with_a_runtime_prompt() {
@@ -567,8 +567,8 @@ fn distill_runs_the_fixture_end_to_end_with_a_runtime_prompt() {
             style.as_os_str(),
             "--iters".as_ref(),
             "2".as_ref(),
-            "--views-per-iter".as_ref(),
-            "2".as_ref(),
+            "--set".as_ref(),
+            "views=2".as_ref(),
             "--threads".as_ref(),
             "2".as_ref(),
             "--out".as_ref(),
@@ -579,7 +579,7 @@ fn distill_runs_the_fixture_end_to_end_with_a_runtime_prompt() {
     };
     let prompt = "an ink drawing of a stone bridge";
     let started = std::time::Instant::now();
-    let (rc, err) = distill(&dir, &d.join("a"), &["--prompt", prompt, "--mode", "csd"]);
+    let (rc, err) = distill(&dir, &d.join("a"), &["--prompt", prompt, "--terms", "csd"]);
     eprintln!(
         "distill, 2 iterations on the fixture: {:.2} s\n{err}",
         started.elapsed().as_secs_f64()
@@ -617,7 +617,7 @@ fn distill_runs_the_fixture_end_to_end_with_a_runtime_prompt() {
         (0.5 * lr..=2.0 * 1.0014 * lr).contains(&moved),
         "largest colour change {moved}, Adam with lr {lr} over 2 steps"
     );
-    let (rc, err) = distill(&dir, &d.join("b"), &["--mode", "csd"]);
+    let (rc, err) = distill(&dir, &d.join("b"), &["--terms", "csd"]);
     assert_eq!(rc, Some(0), "{err}");
     assert_ne!(
         std::fs::read(a.join("scene.ply")).unwrap(),
@@ -628,14 +628,14 @@ fn distill_runs_the_fixture_end_to_end_with_a_runtime_prompt() {
     // csd-no-neg runs.
     let shared = shared_copy(&dir);
     let refused = d.join("refused");
-    let (rc, err) = distill(shared.path(), &refused, &["--mode", "csd"]);
+    let (rc, err) = distill(shared.path(), &refused, &["--terms", "csd"]);
     assert_eq!(rc, Some(2), "{err}");
     assert!(
-        err.contains("--mode csd-no-neg") && err.contains("--mode sds") && err.contains("shared"),
+        err.contains("term csd-no-neg") && err.contains("sds") && err.contains("shared"),
         "{err}"
     );
     assert!(!refused.exists());
-    let (rc, err) = distill(shared.path(), &refused, &["--mode", "csd-no-neg"]);
+    let (rc, err) = distill(shared.path(), &refused, &["--terms", "csd-no-neg"]);
     assert_eq!(rc, Some(0), "{err}");
 }
 
@@ -659,7 +659,7 @@ fn sample_dag_runs_with_the_fixture_as_its_model() {
         .args(["--set", &format!("prompt={prompt}")])
         .args(["--set", "render.width=64", "--set", "render.height=64"])
         .args(["--set", "cameras=orbit:4", "--set", "distill.chunks=1"])
-        .args(["--set", "distill.chunk=2", "--set", "distill.views=2"])
+        .args(["--set", "distill.chunk=2", "--set", "distill.loop.views=2"])
         .current_dir(t.path())
         .output()
         .unwrap();

@@ -8,7 +8,7 @@
 
 use crate::harness::repo_root;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::distill::{DistillParams, Distiller, SourceViews, fill};
+use fantasystyle::distill::{Config, Distiller, SourceViews, fill};
 use fantasystyle::prior::{self, PriorOptions};
 use fantasystyle::scheduler::TimestepSet;
 use fantasystyle::{Camera, Scene};
@@ -70,10 +70,10 @@ fn run_loop(
     )
     .unwrap();
     let set = set.unwrap_or_else(|| prior::model_timesteps(&dir).unwrap().1);
-    let params = DistillParams {
-        views_per_iter: 3,
+    let params = Config {
+        views: 3,
         lr_dc: 0.05,
-        ..DistillParams::default()
+        ..Config::default()
     };
     let mut d = Distiller::new(scene, cams, src, p.as_mut(), set, params, 0).unwrap();
     for _ in 0..iters {
@@ -260,6 +260,7 @@ fn bin(name: &str) -> Command {
     let exe = match name {
         "distill" => env!("CARGO_BIN_EXE_distill"),
         "render-views" => env!("CARGO_BIN_EXE_render-views"),
+        "split" => env!("CARGO_BIN_EXE_split"),
         _ => unreachable!(),
     };
     Command::new(exe)
@@ -300,10 +301,8 @@ fn distill_args(dir: &Path, stylizer: &Path) -> Vec<String> {
         &stylizer.to_string_lossy(),
         "--style",
         &repo_root().join("data-sample/style.png").to_string_lossy(),
-        "--views-per-iter",
-        "2",
-        "--lr-dc",
-        "0.05",
+        "--set",
+        "views=2",
         "--threads",
         "2",
     ]
@@ -415,7 +414,7 @@ fn chunks_resume_and_kill_give_the_same_bytes() {
         .args(&base)
         .arg("--resume")
         .arg(d.join("z0"))
-        .args(["--iters", "4", "--strength", "0", "--out"])
+        .args(["--iters", "4", "--set", "strength=0", "--out"])
         .arg(d.join("z")));
     assert_eq!(
         std::fs::read(d.join("z0/scene.ply")).unwrap(),
@@ -466,36 +465,38 @@ fn distill_bad_input_is_refused() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(!d.join("x").exists());
-    // One weight per texture loss, each finite and >= 0.
-    for (weights, says) in [("1", "1 weights for 2"), ("1,-0.5", "-0.5")] {
+    // Each term's weight finite and >= 0; one prior term; known keys and values only.
+    for (config, says) in [
+        (["--terms", "csd=1,nnfm=1,gram=-0.5"], "-0.5"),
+        (["--terms", "csd,sds"], "choose one"),
+        (["--terms", "csd,vgg"], "unknown term `vgg`"),
+        (["--set", "csd.guidanse=1"], "csd.guidanse"),
+        (["--config", "{ finihs = \"none\" }"], "finihs"),
+        (["--set", "start=paint"], "start=paint"),
+    ] {
         let out = bin("distill")
             .args(distill_args(d, &stylizer))
             .args(["--scene", &scene.to_string_lossy(), "--iters", "1"])
-            .args([
-                "--texture-loss",
-                "nnfm,gram",
-                "--texture-loss-weights",
-                weights,
-            ])
+            .args(config)
             .arg("--out")
             .arg(d.join("x"))
             .output()
             .unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{weights}: {err}");
-        assert!(err.contains(says), "{weights}: {err}");
+        assert_eq!(out.status.code(), Some(2), "{config:?}: {err}");
+        assert!(err.contains(says), "{config:?}: {err}");
         assert!(!d.join("x").exists());
     }
 }
 
-/// `--colour-init`: the start scene's object takes the style image's colour mean (checked
-/// on fresh renders of the written scene, `--iters 0`), and the flag is refused with
-/// `--resume` and with `--preserve-color` (exit 2, nothing written). `--colour-finish`
-/// does the same to the result of the iterations (two, from the scene's own colours),
-/// and is refused with `--preserve-color`.
+/// `--start colour`: the start scene's object takes the style image's colour mean (checked
+/// on fresh renders of the written scene, `--iters 0`); a resumed run has been through its
+/// start (the start changes nothing there), and `preserve_color` is refused beside it
+/// (exit 2, nothing written). `--finish colour` does the same to the result of the
+/// iterations (two, from the scene's own colours), and is refused with `preserve_color`.
 #[test]
 fn colour_init_and_finish_move_the_object_to_the_style_colours() {
-    use fantasystyle::baselines::colour::{image_stats, object_stats};
+    use fantasystyle::distill::colour_transfer::{image_stats, object_stats};
     let Some(stylizer) = stylizer_dir() else {
         return;
     };
@@ -505,7 +506,7 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
     render_source(&scene, "orbit:4,elev=30,radius=2.4", 48, &d.join("views"));
     let stats_of = |dir: &Path| {
         let v = fantasystyle::artifacts::read_views(dir).unwrap();
-        let src = SourceViews::from_views(&v);
+        let src = v.source_views();
         let views: Vec<(&[f32], &[f32])> = src
             .rgb
             .iter()
@@ -543,7 +544,7 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
     ok(bin("distill")
         .args(&base)
         .args(["--scene", &scene.to_string_lossy(), "--iters", "0"])
-        .args(["--colour-init", "true", "--out"])
+        .args(["--start", "colour", "--out"])
         .arg(d.join("init")));
     let cams = d.join("views");
     // The scene in `dir`, rendered from the source cameras into `views`, has the
@@ -558,13 +559,13 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
             style.mean
         );
     };
-    on_style_mean(&d.join("init"), &d.join("after"), "--colour-init");
-    start_flag_refused(
+    on_style_mean(&d.join("init"), &d.join("after"), "--start colour");
+    start_on_resume_and_beside_preserve_color(
         &base,
-        ["--colour-init", "true"],
+        ["--start", "colour"],
         &d.join("init"),
-        Some((&scene, "--preserve-color")),
-        &d.join("x"),
+        &scene,
+        d,
     );
 
     // --colour-finish: two iterations from the scene's own colours, then the move.
@@ -572,22 +573,23 @@ fn colour_init_and_finish_move_the_object_to_the_style_colours() {
     ok(bin("distill")
         .args(&base)
         .args(&scene_arg)
-        .args(["--iters", "2", "--colour-finish", "true", "--out"])
+        .args(["--iters", "2", "--finish", "colour", "--out"])
         .arg(d.join("fin")));
-    on_style_mean(&d.join("fin"), &d.join("fin-views"), "--colour-finish");
+    on_style_mean(&d.join("fin"), &d.join("fin-views"), "--finish colour");
     let mut cmd = bin("distill");
     cmd.args(&base)
         .args(&scene_arg)
-        .args(["--iters", "1", "--colour-finish", "true"])
-        .args(["--preserve-color", "true"]);
-    refused_with(cmd, "--colour-finish", &d.join("y"));
+        .args(["--iters", "1", "--finish", "colour"])
+        .args(["--set", "preserve_color=true"]);
+    refused_with(cmd, "preserve_color", &d.join("y"));
 }
 
-/// `--project-style`: the style texture-mapped onto the object shows the style's stripes
-/// in every view (red/blue alternations along image rows or columns inside the object, at
-/// least twice as many as after `--colour-init`, which moves the same colours onto the
-/// object without their arrangement); the view-dependent SH coefficients are zeroed; the
-/// flag is refused with `--colour-init` and with `--resume` (exit 2, nothing written).
+/// `--start projection`: the style texture-mapped onto the object shows the style's
+/// stripes in every view (red/blue alternations along image rows or columns inside the
+/// object, at least twice as many as after `--start colour`, which moves the same colours
+/// onto the object without their arrangement); the view-dependent SH coefficients are
+/// zeroed; a resumed run is not projected again, and `preserve_color` is refused beside
+/// it (exit 2, nothing written).
 #[test]
 fn project_style_paints_the_stripes_in_every_view() {
     let Some(stylizer) = stylizer_dir() else {
@@ -612,11 +614,11 @@ fn project_style_paints_the_stripes_in_every_view() {
     let si = base.iter().position(|a| a == "--style").unwrap();
     base[si + 1] = style_path.to_string_lossy().into_owned();
     let scene_arg = ["--scene".to_string(), scene.to_string_lossy().into_owned()];
-    for (flag, out) in [("--project-style", "proj"), ("--colour-init", "init")] {
+    for (start, out) in [("projection", "proj"), ("colour", "init")] {
         ok(bin("distill")
             .args(&base)
             .args(&scene_arg)
-            .args(["--iters", "0", flag, "true", "--out"])
+            .args(["--iters", "0", "--start", start, "--out"])
             .arg(d.join(out)));
         render_source(
             &d.join(out),
@@ -629,7 +631,7 @@ fn project_style_paints_the_stripes_in_every_view() {
     // view, the larger of the two (stripes on a face seen edge-on run along the rows).
     let alternations = |dir: &Path| -> Vec<f64> {
         let v = fantasystyle::artifacts::read_views(dir).unwrap();
-        let src = SourceViews::from_views(&v);
+        let src = v.source_views();
         let (w, h) = (src.width, src.height);
         let count =
             |rgb: &[f32], alpha: &[f32], at: &dyn Fn(usize, usize) -> usize, n: usize, m: usize| {
@@ -672,116 +674,97 @@ fn project_style_paints_the_stripes_in_every_view() {
         alternations(&d.join("proj-views")),
         alternations(&d.join("init-views")),
     );
-    // Measured: 0.206-0.243 after --project-style, 0.078-0.093 after --colour-init (the
-    // sample's checkerboard floor alternates too).
+    // (The sample's checkerboard floor alternates too.)
     for (i, (p, c)) in proj.iter().zip(&init).enumerate() {
         assert!(
             *p > 0.15 && *p > 2.0 * c,
-            "view {i}: {p:.3} alternations per object pixel after --project-style, \
-             {c:.3} after --colour-init"
+            "view {i}: {p:.3} alternations per object pixel after --start projection, \
+             {c:.3} after --start colour"
         );
     }
     let projected = fantasystyle::scene::read_scene_file(&d.join("proj/scene.ply")).unwrap();
     assert!(projected.sh_rest.iter().all(|&v| v == 0.0));
-    start_flag_refused(
+    start_on_resume_and_beside_preserve_color(
         &base,
-        ["--project-style", "true"],
+        ["--start", "projection"],
         &d.join("init"),
-        Some((&scene, "--colour-init")),
-        &d.join("x"),
+        &scene,
+        d,
     );
 }
 
-/// `--split-px`: the sample scene's long Gaussians split in two until none is longer than
-/// the limit (or 8 rounds), with the renders kept (each pair has its parent's mean and
-/// covariance); the flag is refused with `--resume`, and a negative or NaN length is
-/// refused (exit 2, nothing written).
+/// The `split` stage: the sample scene's long Gaussians split in two until none is longer
+/// than the configuration's `split` (or 8 rounds), with the renders kept (each pair has
+/// its parent's mean and covariance); a negative or NaN length is refused (exit 2,
+/// nothing written).
 #[test]
 fn split_px_splits_the_long_gaussians_and_keeps_the_renders() {
-    let Some(stylizer) = stylizer_dir() else {
-        return;
-    };
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let scene = repo_root().join("data-sample/scene.ply");
     render_source(&scene, "orbit:4,elev=30,radius=2.4", 96, &d.join("views"));
-    let base = distill_args(d, &stylizer);
-    ok(bin("distill")
-        .args(&base)
-        .arg("--scene")
-        .arg(&scene)
-        .args(["--iters", "0", "--split-px", "1", "--out"])
-        .arg(d.join("split")));
+    let base = |px: &str| {
+        let mut c = bin("split");
+        c.arg("--scene")
+            .arg(&scene)
+            .arg("--source-views")
+            .arg(d.join("views"))
+            .args(["--set", &format!("split={px}")]);
+        c
+    };
+    ok(base("1").arg("--out").arg(d.join("split")));
     let original = fantasystyle::scene::read_scene_file(&scene).unwrap();
     let split = fantasystyle::scene::read_scene_file(&d.join("split/scene.ply")).unwrap();
     let views = d.join("views").to_string_lossy().into_owned();
     render_source(&d.join("split"), &views, 96, &d.join("split-views"));
     let [a, b] = [d.join("views"), d.join("split-views")]
         .map(|p| fantasystyle::artifacts::read_views(&p).unwrap());
-    let (a, b) = (SourceViews::from_views(&a), SourceViews::from_views(&b));
+    let (a, b) = (a.source_views(), b.source_views());
     let worst = a
         .rgb
         .iter()
         .zip(&b.rgb)
         .map(|(x, y)| fantasystyle::optim::psnr(x, y))
         .fold(f64::INFINITY, f64::min);
-    // Measured: 18000 -> 45843 Gaussians (two rounds), PSNR 36.4-37.2 dB per view.
     assert!(
         split.len() > 2 * original.len() && worst > 33.0,
         "{} -> {} Gaussians, worst PSNR {worst:.1} dB",
         original.len(),
         split.len()
     );
-    start_flag_refused(
-        &base,
-        ["--split-px", "1"],
-        &d.join("split"),
-        None,
-        &d.join("x"),
-    );
-    for bad in ["--split-px=-1", "--split-px=NaN"] {
-        let mut cmd = bin("distill");
-        cmd.args(&base)
-            .arg("--scene")
-            .arg(&scene)
-            .args(["--iters", "0", bad]);
-        refused_with(cmd, "--split-px", &d.join("x"));
+    for bad in ["-1", "NaN"] {
+        refused_with(base(bad), "split", &d.join("x"));
     }
 }
 
-/// A start flag (`set`: flag and value, which changes a fresh start) is refused with
-/// `--resume resumed` (also at `--strength 0`, where nothing else would run) and, when
-/// given, on `--scene scene` beside `conflicting true` ([`refused_with`]: exit 2 naming
-/// the flag, nothing written at `out`).
-fn start_flag_refused(
+/// A start (`start`: the flag and its value) changes nothing on a resumed checkpoint,
+/// which has been through its start (`--resume resumed --iters 0` writes its scene as it
+/// is), and is refused on `--scene scene` beside `preserve_color` ([`refused_with`]: exit
+/// 2 naming `preserve_color`, nothing written); outputs under `d`.
+fn start_on_resume_and_beside_preserve_color(
     base: &[String],
-    set: [&str; 2],
+    start: [&str; 2],
     resumed: &Path,
-    conflicting: Option<(&Path, &str)>,
-    out: &Path,
+    scene: &Path,
+    d: &Path,
 ) {
-    let mut refused: Vec<Vec<std::ffi::OsString>> = vec![
-        vec!["--resume".into(), resumed.into()],
-        vec![
-            "--resume".into(),
-            resumed.into(),
-            "--strength".into(),
-            "0".into(),
-        ],
-    ];
-    if let Some((scene, flag)) = conflicting {
-        refused.push(vec![
-            "--scene".into(),
-            scene.into(),
-            flag.into(),
-            "true".into(),
-        ]);
-    }
-    for extra in refused {
-        let mut cmd = bin("distill");
-        cmd.args(base).args(&extra).args(["--iters", "1"]).args(set);
-        refused_with(cmd, set[0], out);
-    }
+    let again = d.join("resumed-again");
+    ok(bin("distill")
+        .args(base)
+        .arg("--resume")
+        .arg(resumed)
+        .args(["--iters", "0"])
+        .args(start)
+        .arg("--out")
+        .arg(&again));
+    same_bytes(resumed, &again, &["scene.ply"]);
+    let mut cmd = bin("distill");
+    cmd.args(base)
+        .arg("--scene")
+        .arg(scene)
+        .args(["--iters", "1", "--set", "preserve_color=true"])
+        .args(start);
+    refused_with(cmd, "preserve_color", &d.join("x"));
 }
 
 /// `cmd` with `--out out` exits 2 naming `flag` in its message and writes nothing.

@@ -3,12 +3,12 @@
 //! binary, and the report opened in headless Chromium.
 
 use fantasystyle::Camera;
+use fantasystyle::artifacts::read_view_set;
 use fantasystyle::camera::inria::to_inria;
 use fantasystyle::imageio::Image;
+use fantasystyle::maths::warp::{look_at, synthetic};
 use fantasystyle::metrics::consistency;
 use fantasystyle::metrics::nets::{LpipsModel, LpipsNet};
-use fantasystyle::metrics::views::ViewSet;
-use fantasystyle::metrics::warp::{look_at, synthetic};
 use fantasystyle::models::models_dir;
 use fantasystyle::stages::evaluate::{Args, run};
 
@@ -299,11 +299,11 @@ fn consistency_penalises_per_view_flicker() {
     }
     let d = tempfile::tempdir().unwrap();
     let cams = cameras(4);
-    let good = ViewSet::load(&write_views(&d.path().join("good"), &cams, &|_, i| {
+    let good = read_view_set(&write_views(&d.path().join("good"), &cams, &|_, i| {
         Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
     }))
     .unwrap();
-    let flicker = ViewSet::load(&write_views(&d.path().join("flicker"), &cams, &|v, i| {
+    let flicker = read_view_set(&write_views(&d.path().join("flicker"), &cams, &|v, i| {
         let shift = [0.15, -0.1, 0.2][v % 3];
         Image::from_fn(i.width, i.height, |x, y| {
             restyle(i.px(x, y)).map(|c| (c + shift).clamp(0.0, 1.0))
@@ -593,7 +593,7 @@ fn too_few_images_for_fid_is_a_documented_warning() {
 #[test]
 fn rasterized_plane_depth_and_warp() {
     use fantasystyle::Scene;
-    use fantasystyle::metrics::warp::{surface_depth, warp_into};
+    use fantasystyle::maths::warp::{surface_depth, warp_into};
     use fantasystyle::render::{RenderOptions, render};
     use fantasystyle::scene::SH_C0;
     let (n, step) = (100usize, 0.05f32);
@@ -668,7 +668,7 @@ fn rasterized_plane_depth_and_warp() {
     );
     // The depth test must not reject a visible surface despite the per-splat depth bias.
     let loose =
-        fantasystyle::metrics::warp::warp_with_tolerance(&a, &za, &b, &zb, &ib, f64::INFINITY);
+        fantasystyle::maths::warp::warp_with_tolerance(&a, &za, &b, &zb, &ib, f64::INFINITY);
     eprintln!(
         "rasterized plane: valid {} with the depth test, {} without",
         wp.valid, loose.valid

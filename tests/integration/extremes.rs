@@ -10,7 +10,8 @@
 
 use crate::harness::{self, repo_root};
 use fantasystyle::csd::CsdParams;
-use fantasystyle::distill::{DistillParams, Distiller, SourceViews};
+use fantasystyle::distill::terms::Terms;
+use fantasystyle::distill::{Config, Distiller, SourceViews};
 use fantasystyle::prior::{Cond, Prior, PriorInfo};
 use fantasystyle::scheduler::{Schedule, SchedulerConfig, TimestepSet};
 use fantasystyle::{Camera, Scene};
@@ -116,12 +117,13 @@ fn setup(scene: &Scene, away: bool) -> (Vec<Camera>, SourceViews) {
     setup_away(scene, if away { &[0, 1, 2, 3] } else { &[] })
 }
 
-fn params(csd: CsdParams, lr_dc: f32) -> DistillParams {
-    DistillParams {
-        views_per_iter: 2,
+fn params(csd: CsdParams, lr_dc: f32) -> Config {
+    Config {
+        terms: Terms::prior_only(csd.mode),
+        views: 2,
         csd,
         lr_dc,
-        ..DistillParams::default()
+        ..Config::default()
     }
 }
 
@@ -131,7 +133,7 @@ fn run(
     cams: &[Camera],
     src: &SourceViews,
     prior: &mut ColourPrior,
-    p: DistillParams,
+    p: Config,
     iters: usize,
 ) -> Result<Scene, String> {
     let set = TimestepSet::default_for(&SchedulerConfig::stable_diffusion()).unwrap();
@@ -422,7 +424,7 @@ fn distill_writes_no_checkpoint_from_a_non_finite_state() {
         .arg(&model)
         .arg("--style")
         .arg(repo_root().join("data-sample/style.png"))
-        .args(["--iters", "6", "--views-per-iter", "2", "--lr-dc", "1.5e38"])
+        .args(["--iters", "6", "--set", "views=2", "--set", "lr_dc=1.5e38"])
         .args(["--threads", "2", "--out"])
         .arg(&out)
         .output()

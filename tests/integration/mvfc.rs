@@ -36,6 +36,7 @@ fn mvfc_agrees_with_numpy_reference() {
             gamma: p["gamma"].as_f64().unwrap() as f32,
             d_s: p["d_s"].as_f64().unwrap() as f32,
             d_t: p["d_t"].as_f64().unwrap() as f32,
+            ..MvfcParams::default()
         };
         let got = mvfc(z.view(), e.view(), params).unwrap();
         let err = got
@@ -204,7 +205,7 @@ use fantasystyle::distill::TimestepSchedule;
 use fantasystyle::distill::path::ViewPath;
 use fantasystyle::distill::step::Draws;
 use fantasystyle::mvfc::mvfc_path;
-use fantasystyle::stages::{Background, MvfcArgs, PriorArgs, Threads, TimestepArgs};
+use fantasystyle::stages::{Background, ConfigArgs, PriorArgs, Threads};
 use fantasystyle::stages::{csd_step, encode_latents, mvfc_filter};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use std::path::{Path, PathBuf};
@@ -254,17 +255,11 @@ fn filter_args(d: &Path, model: &Path) -> mvfc_filter::Args {
         latents: d.join("lat_tgt"),
         source_latents: d.join("lat_src"),
         model: model.to_path_buf(),
-        timesteps: TimestepArgs {
-            timesteps: None,
-            anneal_iters: 0,
+        config: ConfigArgs {
+            sets: vec!["seed=3".into()],
+            ..Default::default()
         },
-        seed: Some(3),
         iteration: Some(1),
-        mvfc: MvfcArgs {
-            no_mvfc: false,
-            mvfc_source: true,
-            params: MvfcParams::default(),
-        },
         out: d.join("noised"),
         threads: Threads::new(1),
     }
@@ -346,7 +341,9 @@ fn mvfc_filter_stage_noises_and_filters() {
         .and(eps)
         .map_collect(|&z, &e| sa * z + sb * e);
     // The source is filtered too (same eps'): compare with its own filter off.
-    let (_, ns) = run("lat_a", "src-only-noised", &|a| a.mvfc.mvfc_source = false);
+    let (_, ns) = run("lat_a", "src-only-noised", &|a| {
+        a.config.sets.push("mvfc.source=false".into())
+    });
     let e_src = max_abs_diff(&ns.z_src, &want_src);
     assert!(e_src < 1e-5, "z_src vs numpy's schedule: {e_src}");
     assert_eq!(ns.z_tgt, na.z_tgt);
@@ -385,7 +382,9 @@ fn mvfc_filter_stage_noises_and_filters() {
         );
     }
     // --no-mvfc: the noisy latents, nothing else.
-    let (_, nf) = run("lat_a", "nofilter", &|a| a.mvfc.no_mvfc = true);
+    let (_, nf) = run("lat_a", "nofilter", &|a| {
+        a.config.sets.push("mvfc.enabled=false".into())
+    });
     let want_noisy = ndarray::Zip::from(&zg)
         .and(eps)
         .map_collect(|&z, &e| sa * (z / sa) + sb * e);
@@ -410,7 +409,9 @@ fn mvfc_filter_stage_noises_and_filters() {
     // Another iteration draws other noise; an annealed schedule at its end the smallest t.
     let (_, n2) = run("lat_b", "it2", &|a| a.iteration = Some(2));
     assert!(n2.eps != nb.eps);
-    let (t_end, _) = run("lat_b", "annealed", &|a| a.timesteps.anneal_iters = 1);
+    let (t_end, _) = run("lat_b", "annealed", &|a| {
+        a.config.sets.push("anneal_iters=1".into())
+    });
     assert_eq!(t_end, set.steps()[0]);
 
     // A recorded window: views 3, 4, 0 of a closed path of 5; the source rows are those.
@@ -434,7 +435,7 @@ fn mvfc_filter_stage_noises_and_filters() {
     );
     let mut b = filter_args(d.path(), &model);
     (b.latents, b.source_latents) = (d.path().join("lat_w"), d.path().join("lat_src5"));
-    (b.seed, b.iteration, b.out) = (None, None, d.path().join("win"));
+    (b.iteration, b.out) = (None, d.path().join("win"));
     let tw = mvfc_filter::run(b.clone()).unwrap();
     let nw = read_noised_latents(&b.out).unwrap();
     assert_eq!(nw.iteration.as_ref(), Some(&win));
@@ -447,8 +448,8 @@ fn mvfc_filter_stage_noises_and_filters() {
     // The window is not the whole closed path: mirror-extended, as mvfc_path says.
     let want = mvfc_path(noisy.view(), nw.eps_shared.view(), p, false).unwrap();
     assert!(max_abs_diff(&nw.z_src, &want) < 1e-5);
-    // The recorded iteration wins over flags, which may not contradict it.
-    b.seed = Some(1);
+    // The recorded iteration wins over --iteration, which may not contradict it.
+    b.iteration = Some(1);
     b.out = d.path().join("conflict");
     let e = mvfc_filter::run(b.clone()).unwrap_err().to_string();
     assert!(
@@ -499,15 +500,15 @@ fn mvfc_filter_stage_rejects_bad_input() {
 
     write_latents(&d.path().join("lat_src"), &z, none());
     let mut b = filter_args(d.path(), &model);
-    b.timesteps.timesteps = Some("3:2:1".into());
+    b.config.sets.push("timesteps=3:2:1".into());
     let e = err(&b);
     assert!(e.contains("t_min 3"), "{e}");
-    b.timesteps.timesteps = Some("soon".into());
+    b.config.sets.push("timesteps=soon".into());
     let e = err(&b);
     assert!(e.contains("MIN:MAX:COUNT"), "{e}");
 
     let mut c = filter_args(d.path(), &model);
-    c.mvfc.params.gamma = 1.5;
+    c.config.sets.push("mvfc.gamma=1.5".into());
     let e = err(&c);
     assert!(e.contains("gamma"), "{e}");
     let mut m = filter_args(d.path(), &model);
@@ -552,6 +553,14 @@ pub(crate) fn csd_inputs(
     sp
 }
 
+/// A distillation mode's name as a term of the configuration (`csd-no-neg`, ...).
+pub(crate) fn mode_name(mode: Mode) -> String {
+    clap::ValueEnum::to_possible_value(&mode)
+        .unwrap()
+        .get_name()
+        .to_string()
+}
+
 pub(crate) fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd_step::Args {
     csd_step::Args {
         noised: d.join("noised"),
@@ -563,18 +572,12 @@ pub(crate) fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd
             model: model.to_path_buf(),
             style: style.to_path_buf(),
             prompt: None,
-            strength: 1.0,
-            motif_scale: 1.0,
             device: Default::default(),
-            unet_batch: 0,
         },
-        params: CsdParams {
-            mode,
-            lr: 0.05,
+        config: ConfigArgs {
+            sets: vec![format!("terms={}=1", mode_name(mode)), "csd.lr=0.05".into()],
             ..Default::default()
         },
-        preserve_color: false,
-        no_fill: false,
         background: Background { rgb: [0.0; 3] },
         out: d.join("targets"),
         threads: Threads::new(1),
@@ -595,7 +598,7 @@ fn csd_step_stage_with_stylizer() {
     let style = style_image(128);
     let sp = csd_inputs(d.path(), &model, &views, &style);
     let mut a = step_args(d.path(), &model, &sp, Mode::Csd);
-    a.params.lr = 0.1;
+    a.config.sets.push("csd.lr=0.1".into());
     csd_step::run(a.clone()).unwrap();
     let rgb = read_targets(&d.path().join("targets")).unwrap().rgb;
     let tgt = rgb.permuted_axes([0, 3, 1, 2]).to_owned();
@@ -663,7 +666,7 @@ fn csd_step_stage_rejects_bad_input() {
         serde_json::json!({ "iteration": w }),
     );
     (c.latents, c.source_latents) = (d.path().join("lat_it"), d.path().join("lat"));
-    (c.seed, c.iteration, c.out) = (None, None, d.path().join("noised_it"));
+    (c.iteration, c.out) = (None, d.path().join("noised_it"));
     mvfc_filter::run(c).unwrap();
     let mut e2 = step_args(d.path(), &model, &sp, Mode::Csd);
     e2.noised = d.path().join("noised_it");
@@ -691,15 +694,11 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
         "--latents",
         "--source-latents",
         "--model",
-        "--timesteps",
-        "--seed",
+        "--preset",
+        "--config",
+        "--set",
         "--iteration",
         "--out",
-        "--gamma",
-        "--ds",
-        "--dt",
-        "--no-mvfc",
-        "--mvfc-source",
         "--threads",
     ] {
         assert!(h.contains(f), "mvfc-filter -h lacks {f}");
@@ -714,16 +713,11 @@ fn stage_binaries_document_flags_and_exit_cleanly() {
         "--model",
         "--style",
         "--prompt",
-        "--strength",
         "--device",
-        "--unet-batch",
-        "--preserve-color",
-        "--no-fill",
+        "--preset",
+        "--config",
+        "--set",
         "--background",
-        "--mode",
-        "--guidance",
-        "--weighting",
-        "--lr",
         "--out",
         "--threads",
     ] {

@@ -203,9 +203,9 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
     assert_eq!(rc, Some(0), "{out}\n{err}");
     let ran = done(&out);
     // The cameras feed source-views and everything downstream of it: every stage
-    // (source-views, init, one distill chunk, final-scene, final-views, eval-reference,
-    // evaluate).
-    assert_eq!(ran.len(), 7, "{out}");
+    // (source-views, split, init, one distill chunk, final-scene, final-views,
+    // eval-reference, evaluate).
+    assert_eq!(ran.len(), 8, "{out}");
     for stage in ["source-views", "eval-reference"] {
         assert!(ran.contains(&stage.to_string()), "{stage}: {out}");
     }

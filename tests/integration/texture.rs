@@ -7,10 +7,10 @@
 use fantasystyle::Camera;
 use fantasystyle::Scene;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::distill::texture::{Statistic, TextureLoss, TextureTerm};
-use fantasystyle::distill::{ColourLoss, DistillParams, Distiller, SourceViews};
+use fantasystyle::distill::terms::texture::{Statistic, TextureLoss, TextureTerm};
+use fantasystyle::distill::{ColourLoss, Config, Distiller, SourceViews};
 use fantasystyle::imageio::Image;
-use fantasystyle::metrics::warp::{surface_depth, warp_into};
+use fantasystyle::maths::warp::{surface_depth, warp_into};
 use fantasystyle::prior::{self, PriorOptions};
 use fantasystyle::rng::Rng;
 use fantasystyle::vgg::{Layer, Vgg16};
@@ -165,13 +165,13 @@ fn stripes_case(parts: &[Statistic]) {
     )
     .unwrap();
     let set = prior::model_timesteps(&stylizer).unwrap().1;
-    let params = DistillParams {
-        views_per_iter: 2,
+    let params = Config {
+        views: 2,
         lr_dc: 0.05,
         colour_loss: ColourLoss::L2,
-        ..DistillParams::default()
+        ..Config::default()
     };
-    let term = TextureTerm::new(Vgg16::load(&vgg_dir).unwrap(), &style, parts, 1.0, 1).unwrap();
+    let term = TextureTerm::new(Vgg16::load(&vgg_dir).unwrap(), &style, parts, 1).unwrap();
     let mut d = Distiller::new(&scene, &cams, &src, p.as_mut(), set, params, 0)
         .unwrap()
         .with_texture(term);

@@ -11,10 +11,10 @@
 //! (scripts/setup/50_viewer.sh) and the metric networks; under CI=true a missing one is
 //! a failure, otherwise the test says SKIPPED.
 
+use fantasystyle::artifacts::read_view_set;
 use fantasystyle::imageio::Image;
 use fantasystyle::metrics::nets::LpipsNet;
 use fantasystyle::metrics::viewer::{PANE_SIDE, bundle_path};
-use fantasystyle::metrics::views::ViewSet;
 use fantasystyle::scene::SH_C0;
 use fantasystyle::stages::evaluate::{Args, run};
 use std::path::{Path, PathBuf};
@@ -312,7 +312,7 @@ fn report_viewer_shows_both_splats_in_chromium() {
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(html.contains("id=\"fs-viewer-config\"") && html.contains("FantasyViewerLib"));
     // The stylized pane embeds the very file the writer made.
-    let b64 = fantasystyle::metrics::report::base64(&std::fs::read(&styl_scene).unwrap());
+    let b64 = fantasystyle::metrics::html::base64(&std::fs::read(&styl_scene).unwrap());
     assert!(html.contains(&b64));
 
     // Open the report from disk and wait (real time) until the viewer says it has drawn.
@@ -404,8 +404,8 @@ fn report_viewer_shows_both_splats_in_chromium() {
         "side by side: {rects:?}"
     );
     let img = Image::load(&shot).unwrap();
-    let views_o = ViewSet::load(&orig).unwrap();
-    let views_s = ViewSet::load(&styl).unwrap();
+    let views_o = read_view_set(&orig).unwrap();
+    let views_s = read_view_set(&styl).unwrap();
     let (w, h) = (views_o.width, views_o.height);
     let pane = |i: usize| {
         let (x0, y0) = (rects[i][0].round() as usize, rects[i][1].round() as usize);

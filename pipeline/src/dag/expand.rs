@@ -4,8 +4,9 @@
 //! `deps` and `outs` substituted and its tracked params collected; problems go into the
 //! diagnostics with their lines.
 
-use super::locate::is_value_dep;
-use super::parse::{Lines, Parsed};
+use super::inside;
+use super::locate::{Places, is_value_dep, replace_arg};
+use super::parse::{Lines, Parsed, RawStage};
 use super::{Diag, Stage, normalize, words};
 use std::collections::{BTreeSet, HashMap};
 use toml::Spanned;
@@ -72,6 +73,56 @@ pub(super) struct Expanded {
     pub dep_literal: Vec<bool>,
 }
 
+/// Whether some stage writes `p` (or a directory holding it).
+pub(super) fn produced(p: &str, stages: &[Expanded]) -> bool {
+    stages
+        .iter()
+        .any(|e| e.stage.outs.iter().any(|o| o == p || inside(p, o)))
+}
+
+/// Literal deps of the DAG file that name existing paths relative to the DAG's
+/// directory (and that no stage produces), and a relative executable as the command's
+/// program, rewritten as seen from the work directory, in `deps` and in the command's
+/// arguments (an argument equal to the dep, or `NAME=` followed by it).
+pub(super) fn relocate_literals(stages: &mut [Expanded], places: &Places) {
+    if !places.moved() {
+        return;
+    }
+    let mut todo: Vec<(usize, usize, String)> = Vec::new();
+    for (i, e) in stages.iter().enumerate() {
+        for (k, d) in e.stage.deps.iter().enumerate() {
+            if e.dep_literal[k]
+                && !is_value_dep(d)
+                && !produced(d, stages)
+                && let Some(r) = places.from_dag(d)
+            {
+                todo.push((i, k, r));
+            }
+        }
+    }
+    for (i, k, r) in todo {
+        let s = &mut stages[i].stage;
+        let d = std::mem::replace(&mut s.deps[k], r.clone());
+        for a in s.argv.iter_mut() {
+            if let Some(new) = replace_arg(a, &d, &r) {
+                *a = new;
+            }
+        }
+    }
+    for e in stages.iter_mut() {
+        let s = &mut e.stage;
+        let Some(first) = s.argv.first_mut() else {
+            continue;
+        };
+        if first.contains('/')
+            && !first.contains('=')
+            && let Some(r) = places.from_dag(first)
+        {
+            *first = r;
+        }
+    }
+}
+
 /// A `[result]` entry after substitution: (name, path, line).
 pub(super) type ResultEntry = (String, String, usize);
 
@@ -92,7 +143,9 @@ pub(super) fn expand_result(p: &Parsed, diags: &mut Vec<Diag>) -> Vec<ResultEntr
     out
 }
 
-/// Expand every raw stage, in file order.
+/// Expand every stage: `foreach` into instances, `${...}` substituted in each one's
+/// command (word by word), deps and outs, its tracked params collected; problems go into
+/// `diags` and the stage is left out.
 pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expanded> {
     let lines = &p.lines;
     let mut raw_stages: Vec<_> = p.raw.stages.iter().collect();
@@ -126,139 +179,204 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
             },
         };
         for item in items {
-            let name = match &item {
-                Some(it) => format!("{base}@{}", it.label),
-                None => base.clone(),
+            let at = Instance {
+                p,
+                base,
+                st,
+                line,
+                item: item.as_ref(),
             };
-            let mut tracked: BTreeSet<String> = BTreeSet::new();
-            let mut sub = |text: &str, line: usize, what: &str, diags: &mut Vec<Diag>| {
-                let look = |n: &str| -> Option<String> {
-                    if let Some(it) = &item {
-                        if n == "item" {
-                            return Some(it.value.clone());
-                        }
-                        if n == "prev" {
-                            return it.prev.clone();
-                        }
-                        if let Some(f) = n.strip_prefix("item.") {
-                            return it
-                                .fields
-                                .iter()
-                                .find(|(k, _)| k == f)
-                                .map(|(_, v)| v.clone());
-                        }
-                    }
-                    if let Some(v) = p.vars.get(n) {
-                        return Some(v.clone());
-                    }
-                    let v = p.params_text.get(n)?;
-                    tracked.insert(n.to_string());
-                    Some(v.clone())
-                };
-                match substitute(text, look) {
-                    Ok(v) => Some(v),
-                    Err(e) => {
-                        let hint = if e == SubstError::Undefined("prev".into()) && item.is_some() {
-                            " (the first item of a foreach list has no previous item)"
-                        } else {
-                            ""
-                        };
-                        diags.push(Diag {
-                            line: Some(line),
-                            msg: format!("stage `{name}`: {what}: {e}{hint}"),
-                        });
-                        None
-                    }
-                }
-            };
-            // The command: split into words once, then each word substituted, so that a
-            // value stays one argument (`words`).
-            let cmd_line = lines.line(st.cmd.span().start);
-            let argv: Option<Vec<String>> = match words::split(st.cmd.get_ref())
-                .and_then(|w| words::check_shell_script(&w).map(|()| w))
-            {
-                Ok(ws) => ws
-                    .iter()
-                    .map(|w| sub(w, cmd_line, "cmd", diags))
-                    .collect::<Vec<_>>()
-                    .into_iter()
-                    .collect(),
-                Err(m) => {
-                    diags.push(Diag {
-                        line: Some(cmd_line),
-                        msg: format!("stage `{name}`: cmd: {m}"),
-                    });
-                    None
-                }
-            };
-            let span_line = |d: &Spanned<String>| lines.line(d.span().start);
-            let deps: Vec<_> = st
-                .deps
-                .iter()
-                .map(|d| sub(d.get_ref(), span_line(d), "deps", diags))
-                .collect();
-            let outs: Vec<_> = st
-                .outs
-                .iter()
-                .map(|d| sub(d.get_ref(), span_line(d), "outs", diags))
-                .collect();
-            for k in &st.params {
-                if p.params.contains_key(k.get_ref()) {
-                    tracked.insert(k.get_ref().clone());
-                } else {
-                    diags.push(Diag {
-                        line: Some(lines.line(k.span().start)),
-                        msg: format!(
-                            "stage `{name}`: params key `{}` is not in the params file{}",
-                            k.get_ref(),
-                            if p.raw.params.is_none() {
-                                " (no `params = \"...\"` file is given)"
-                            } else {
-                                ""
-                            }
-                        ),
-                    });
-                }
+            if let Some(e) = at.expand(diags) {
+                stages.push(e);
             }
-            let (Some(argv), Some(deps), Some(outs)) = (
-                argv,
-                deps.into_iter().collect::<Option<Vec<_>>>(),
-                outs.into_iter().collect::<Option<Vec<_>>>(),
-            ) else {
-                continue;
-            };
-            stages.push(Expanded {
-                stage: Stage {
-                    name,
-                    base: base.clone(),
-                    desc: st.desc.clone(),
-                    argv,
-                    deps: deps
-                        .iter()
-                        .map(|d| {
-                            if is_value_dep(d) {
-                                d.clone()
-                            } else {
-                                normalize(d)
-                            }
-                        })
-                        .collect(),
-                    outs: outs.iter().map(|d| normalize(d)).collect(),
-                    params: tracked.into_iter().collect(),
-                    line,
-                    upstream: Vec::new(),
-                },
-                dep_lines: st.deps.iter().map(|d| lines.line(d.span().start)).collect(),
-                out_lines: st.outs.iter().map(|d| lines.line(d.span().start)).collect(),
-                dep_literal: st
-                    .deps
-                    .iter()
-                    .map(|d| !d.get_ref().contains("${"))
-                    .collect(),
-            });
         }
     }
     stages
+}
+
+/// One instance of a stage (its `foreach` item, if any), being expanded.
+struct Instance<'a> {
+    p: &'a Parsed,
+    base: &'a str,
+    st: &'a RawStage,
+    /// Line of the stage's definition.
+    line: usize,
+    item: Option<&'a Item>,
+}
+
+impl Instance<'_> {
+    /// `NAME` or `NAME@ITEM`.
+    fn name(&self) -> String {
+        match self.item {
+            Some(it) => format!("{}@{}", self.base, it.label),
+            None => self.base.to_string(),
+        }
+    }
+
+    /// The value of `${n}`: the item's, a `[vars]` value or a params value (whose key is
+    /// then tracked).
+    fn look(&self, n: &str, tracked: &mut BTreeSet<String>) -> Option<String> {
+        if let Some(it) = self.item {
+            if n == "item" {
+                return Some(it.value.clone());
+            }
+            if n == "prev" {
+                return it.prev.clone();
+            }
+            if let Some(f) = n.strip_prefix("item.") {
+                return it
+                    .fields
+                    .iter()
+                    .find(|(k, _)| k == f)
+                    .map(|(_, v)| v.clone());
+            }
+        }
+        if let Some(v) = self.p.vars.get(n) {
+            return Some(v.clone());
+        }
+        let v = self.p.params_text.get(n)?;
+        tracked.insert(n.to_string());
+        Some(v.clone())
+    }
+
+    /// `text` substituted (`what` and `line` name it in a problem).
+    fn sub(
+        &self,
+        text: &str,
+        line: usize,
+        what: &str,
+        tracked: &mut BTreeSet<String>,
+        diags: &mut Vec<Diag>,
+    ) -> Option<String> {
+        match substitute(text, |n| self.look(n, tracked)) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                let hint = if e == SubstError::Undefined("prev".into()) && self.item.is_some() {
+                    " (the first item of a foreach list has no previous item)"
+                } else {
+                    ""
+                };
+                diags.push(Diag {
+                    line: Some(line),
+                    msg: format!("stage `{}`: {what}: {e}{hint}", self.name()),
+                });
+                None
+            }
+        }
+    }
+
+    /// The command split into words once, then each word substituted, so that a value
+    /// stays one argument (`words`).
+    fn argv(&self, tracked: &mut BTreeSet<String>, diags: &mut Vec<Diag>) -> Option<Vec<String>> {
+        let cmd_line = self.p.lines.line(self.st.cmd.span().start);
+        match words::split(self.st.cmd.get_ref())
+            .and_then(|w| words::check_shell_script(&w).map(|()| w))
+        {
+            Ok(ws) => ws
+                .iter()
+                .map(|w| self.sub(w, cmd_line, "cmd", tracked, diags))
+                .collect::<Vec<_>>()
+                .into_iter()
+                .collect(),
+            Err(m) => {
+                diags.push(Diag {
+                    line: Some(cmd_line),
+                    msg: format!("stage `{}`: cmd: {m}", self.name()),
+                });
+                None
+            }
+        }
+    }
+
+    /// The paths of `list` (deps or outs, `what`) substituted.
+    fn paths(
+        &self,
+        list: &[Spanned<String>],
+        what: &str,
+        tracked: &mut BTreeSet<String>,
+        diags: &mut Vec<Diag>,
+    ) -> Option<Vec<String>> {
+        let lines = &self.p.lines;
+        list.iter()
+            .map(|d| {
+                self.sub(
+                    d.get_ref(),
+                    lines.line(d.span().start),
+                    what,
+                    tracked,
+                    diags,
+                )
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .collect()
+    }
+
+    /// The stage's listed `params` keys, added to `tracked` (each must be in the params
+    /// file).
+    fn listed_params(&self, tracked: &mut BTreeSet<String>, diags: &mut Vec<Diag>) {
+        let p = self.p;
+        for k in &self.st.params {
+            if p.params.contains_key(k.get_ref()) {
+                tracked.insert(k.get_ref().clone());
+            } else {
+                diags.push(Diag {
+                    line: Some(p.lines.line(k.span().start)),
+                    msg: format!(
+                        "stage `{}`: params key `{}` is not in the params file{}",
+                        self.name(),
+                        k.get_ref(),
+                        if p.raw.params.is_none() {
+                            " (no `params = \"...\"` file is given)"
+                        } else {
+                            ""
+                        }
+                    ),
+                });
+            }
+        }
+    }
+
+    /// The expanded stage, or `None` after a problem (in `diags`).
+    fn expand(&self, diags: &mut Vec<Diag>) -> Option<Expanded> {
+        let mut tracked: BTreeSet<String> = BTreeSet::new();
+        let argv = self.argv(&mut tracked, diags);
+        let deps = self.paths(&self.st.deps, "deps", &mut tracked, diags);
+        let outs = self.paths(&self.st.outs, "outs", &mut tracked, diags);
+        self.listed_params(&mut tracked, diags);
+        let (argv, deps, outs) = (argv?, deps?, outs?);
+        let lines = &self.p.lines;
+        let st = self.st;
+        Some(Expanded {
+            stage: Stage {
+                name: self.name(),
+                base: self.base.to_string(),
+                desc: st.desc.clone(),
+                argv,
+                deps: deps
+                    .iter()
+                    .map(|d| {
+                        if is_value_dep(d) {
+                            d.clone()
+                        } else {
+                            normalize(d)
+                        }
+                    })
+                    .collect(),
+                outs: outs.iter().map(|d| normalize(d)).collect(),
+                params: tracked.into_iter().collect(),
+                line: self.line,
+                upstream: Vec::new(),
+            },
+            dep_lines: st.deps.iter().map(|d| lines.line(d.span().start)).collect(),
+            out_lines: st.outs.iter().map(|d| lines.line(d.span().start)).collect(),
+            dep_literal: st
+                .deps
+                .iter()
+                .map(|d| !d.get_ref().contains("${"))
+                .collect(),
+        })
+    }
 }
 
 /// The line of `[stages.NAME]` if the stage is written as a header table, else the
@@ -363,91 +481,101 @@ fn foreach_items(
     params: &HashMap<String, String>,
 ) -> Result<Vec<Item>, ForeachError> {
     match v {
-        toml::Value::Array(a) => {
-            if a.is_empty() {
-                return Err(ForeachError::Empty);
-            }
-            let mut items: Vec<Item> = Vec::new();
-            for x in a {
-                let s = match x {
-                    toml::Value::String(s) => s.clone(),
-                    toml::Value::Integer(i) => i.to_string(),
-                    other => return Err(ForeachError::ItemType(other.type_str())),
-                };
-                if !ok_label(&s) {
-                    return Err(ForeachError::Label(s));
-                }
-                if items.iter().any(|i| i.value == s) {
-                    return Err(ForeachError::Twice(s));
-                }
-                let prev = items.last().map(|i| i.value.clone());
-                items.push(Item {
-                    label: s.clone(),
-                    value: s,
-                    prev,
-                    fields: Vec::new(),
-                });
-            }
-            Ok(items)
-        }
+        toml::Value::Array(a) => list_items(a),
         toml::Value::Table(t) if t.contains_key("matrix") => {
             if let Some(k) = t.keys().find(|k| *k != "matrix") {
                 return Err(ForeachError::RangeKey(k.clone()));
             }
             matrix_items(&t["matrix"])
         }
-        toml::Value::Table(t) => {
-            for k in t.keys() {
-                if !["from", "to", "prefix"].contains(&k.as_str()) {
-                    return Err(ForeachError::RangeKey(k.clone()));
-                }
-            }
-            let int = |key: &'static str| -> Result<i64, ForeachError> {
-                match t.get(key) {
-                    None => Err(ForeachError::MissingBound(key)),
-                    Some(toml::Value::Integer(i)) => Ok(*i),
-                    Some(toml::Value::String(s)) => {
-                        let r = substitute(s, |n| vars.get(n).or_else(|| params.get(n)).cloned())?;
-                        r.trim()
-                            .parse::<i64>()
-                            .map_err(|_| ForeachError::NotInteger {
-                                key,
-                                raw: s.clone(),
-                                value: r,
-                            })
-                    }
-                    Some(o) => Err(ForeachError::BoundType {
-                        key,
-                        found: o.type_str(),
-                    }),
-                }
-            };
-            let (from, to) = (int("from")?, int("to")?);
-            let prefix = match t.get("prefix") {
-                None => String::new(),
-                Some(toml::Value::String(s)) if s.is_empty() || ok_label(s) => s.clone(),
-                Some(_) => return Err(ForeachError::Prefix),
-            };
-            if to < from {
-                return Err(ForeachError::EmptyRange { from, to });
-            }
-            if to
-                .checked_sub(from)
-                .is_none_or(|n| n >= MAX_INSTANCES as i64)
-            {
-                return Err(ForeachError::TooLong { from, to });
-            }
-            Ok((from..=to)
-                .map(|n| Item {
-                    label: format!("{prefix}{n}"),
-                    value: n.to_string(),
-                    prev: n.checked_sub(1).map(|p| p.to_string()),
-                    fields: Vec::new(),
-                })
-                .collect())
-        }
+        toml::Value::Table(t) => range_items(t, vars, params),
         other => Err(ForeachError::Shape(other.type_str())),
     }
+}
+
+/// A list `["a", "b"]`: one item each, `${prev}` the one before.
+fn list_items(a: &[toml::Value]) -> Result<Vec<Item>, ForeachError> {
+    if a.is_empty() {
+        return Err(ForeachError::Empty);
+    }
+    let mut items: Vec<Item> = Vec::new();
+    for x in a {
+        let s = match x {
+            toml::Value::String(s) => s.clone(),
+            toml::Value::Integer(i) => i.to_string(),
+            other => return Err(ForeachError::ItemType(other.type_str())),
+        };
+        if !ok_label(&s) {
+            return Err(ForeachError::Label(s));
+        }
+        if items.iter().any(|i| i.value == s) {
+            return Err(ForeachError::Twice(s));
+        }
+        let prev = items.last().map(|i| i.value.clone());
+        items.push(Item {
+            label: s.clone(),
+            value: s,
+            prev,
+            fields: Vec::new(),
+        });
+    }
+    Ok(items)
+}
+
+/// A range `{ from = A, to = B, prefix = "r" }` (bounds may be `${var}`).
+fn range_items(
+    t: &toml::Table,
+    vars: &HashMap<String, String>,
+    params: &HashMap<String, String>,
+) -> Result<Vec<Item>, ForeachError> {
+    for k in t.keys() {
+        if !["from", "to", "prefix"].contains(&k.as_str()) {
+            return Err(ForeachError::RangeKey(k.clone()));
+        }
+    }
+    let int = |key: &'static str| -> Result<i64, ForeachError> {
+        match t.get(key) {
+            None => Err(ForeachError::MissingBound(key)),
+            Some(toml::Value::Integer(i)) => Ok(*i),
+            Some(toml::Value::String(s)) => {
+                let r = substitute(s, |n| vars.get(n).or_else(|| params.get(n)).cloned())?;
+                r.trim()
+                    .parse::<i64>()
+                    .map_err(|_| ForeachError::NotInteger {
+                        key,
+                        raw: s.clone(),
+                        value: r,
+                    })
+            }
+            Some(o) => Err(ForeachError::BoundType {
+                key,
+                found: o.type_str(),
+            }),
+        }
+    };
+    let (from, to) = (int("from")?, int("to")?);
+    let prefix = match t.get("prefix") {
+        None => String::new(),
+        Some(toml::Value::String(s)) if s.is_empty() || ok_label(s) => s.clone(),
+        Some(_) => return Err(ForeachError::Prefix),
+    };
+    if to < from {
+        return Err(ForeachError::EmptyRange { from, to });
+    }
+    if to
+        .checked_sub(from)
+        .is_none_or(|n| n >= MAX_INSTANCES as i64)
+    {
+        return Err(ForeachError::TooLong { from, to });
+    }
+    Ok((from..=to)
+        .map(|n| Item {
+            label: format!("{prefix}{n}"),
+            value: n.to_string(),
+            prev: n.checked_sub(1).map(|p| p.to_string()),
+            fields: Vec::new(),
+        })
+        .collect())
 }
 
 /// Replace `${name}` using `look`; `$${` is a literal `${`.

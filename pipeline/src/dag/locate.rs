@@ -15,8 +15,6 @@
 //! nothing but `/`), so a lock stays valid when the whole tree moves. Values that name
 //! nothing (numbers, words, `orbit:16` specs) are left as they are.
 
-use super::expand::Expanded;
-use super::inside;
 use std::path::{Component, Path, PathBuf};
 
 /// The three directories paths are resolved against (all absolute).
@@ -67,59 +65,9 @@ impl Places {
     }
 }
 
-/// Whether some stage writes `p` (or a directory holding it).
-pub(super) fn produced(p: &str, stages: &[Expanded]) -> bool {
-    stages
-        .iter()
-        .any(|e| e.stage.outs.iter().any(|o| o == p || inside(p, o)))
-}
-
-/// Literal deps of the DAG file that name existing paths relative to the DAG's
-/// directory (and that no stage produces), and a relative executable as the command's
-/// program, rewritten as seen from the work directory, in `deps` and in the command's
-/// arguments (an argument equal to the dep, or `NAME=` followed by it).
-pub(super) fn relocate_literals(stages: &mut [Expanded], places: &Places) {
-    if !places.moved() {
-        return;
-    }
-    let mut todo: Vec<(usize, usize, String)> = Vec::new();
-    for (i, e) in stages.iter().enumerate() {
-        for (k, d) in e.stage.deps.iter().enumerate() {
-            if e.dep_literal[k]
-                && !is_value_dep(d)
-                && !produced(d, stages)
-                && let Some(r) = places.from_dag(d)
-            {
-                todo.push((i, k, r));
-            }
-        }
-    }
-    for (i, k, r) in todo {
-        let s = &mut stages[i].stage;
-        let d = std::mem::replace(&mut s.deps[k], r.clone());
-        for a in s.argv.iter_mut() {
-            if let Some(new) = replace_arg(a, &d, &r) {
-                *a = new;
-            }
-        }
-    }
-    for e in stages.iter_mut() {
-        let s = &mut e.stage;
-        let Some(first) = s.argv.first_mut() else {
-            continue;
-        };
-        if first.contains('/')
-            && !first.contains('=')
-            && let Some(r) = places.from_dag(first)
-        {
-            *first = r;
-        }
-    }
-}
-
 /// The argument `arg` with the path `from` (also written `./from`, or after `NAME=`)
 /// replaced by `to`; `None` when it is not that path.
-fn replace_arg(arg: &str, from: &str, to: &str) -> Option<String> {
+pub(super) fn replace_arg(arg: &str, from: &str, to: &str) -> Option<String> {
     let dotted = format!("./{from}");
     if arg == from || arg == dotted {
         return Some(to.to_string());

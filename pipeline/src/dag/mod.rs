@@ -23,7 +23,10 @@
 //! Substitution: `${name}` in `cmd`, `deps` and `outs` is replaced by a `[vars]` value,
 //! a params-file value (dotted key, e.g. `${csd.guidance}`; such a reference also adds
 //! the key to the stage's tracked params), or, inside a `foreach` stage, `${item}`
-//! and `${prev}`. `$${` writes a literal `${`. Anything else after `${` is an error.
+//! and `${prev}`. A params *table* (`${distill.loop}`) becomes one argument, the table
+//! as inline TOML (`{ a = 1, b = { c = "x" } }`, keys sorted), and the stage tracks the
+//! table whole: a stage that takes its configuration as a table reruns when, and only
+//! when, a key in that table changes. `$${` writes a literal `${`. Anything else after `${` is an error.
 //! `cmd` is split into arguments first (shell quoting rules) and substituted per
 //! argument; stages run without a shell, so a value is always one argument (or part of
 //! the one word it is written in), never shell code ([`words`]).
@@ -47,7 +50,9 @@
 //!
 //! The work directory (`--workdir`, default the DAG's directory) holds every output,
 //! the lock and `.pipeline/`; commands run there. `--set NAME=VALUE` overrides a
-//! `[vars]` value or a params value (dotted key). How paths from the DAG file and from
+//! `[vars]` value or a params value (dotted key); it may also add a key to a table that
+//! a stage takes whole (the value read as a TOML literal, else as a string): the stage
+//! that reads the table checks its keys. How paths from the DAG file and from
 //! `--set` are resolved is described in `locate`.
 //!
 //! Validation runs before anything else and reports every problem with its line:
@@ -324,7 +329,7 @@ pub fn parse_with(text: &str, file: &Path, places: &Places, sets: &[Set]) -> Res
         // then expand again with them.
         let mut moved = false;
         for (k, v) in parsed.vars.iter_mut() {
-            if set_vars.contains(k) || locate::produced(&normalize(v), &stages) {
+            if set_vars.contains(k) || expand::produced(&normalize(v), &stages) {
                 continue;
             }
             if let Some(r) = places.from_dag(v) {
@@ -335,7 +340,7 @@ pub fn parse_with(text: &str, file: &Path, places: &Places, sets: &[Set]) -> Res
         if moved {
             stages = expand::expand(text, &parsed, &mut diags);
         }
-        locate::relocate_literals(&mut stages, places);
+        expand::relocate_literals(&mut stages, places);
     }
     let result = expand::expand_result(&parsed, &mut diags);
     diags.extend(validate::check_result(&result, &stages));
@@ -445,6 +450,82 @@ outs = ["runs/r0/"]
         assert_eq!(dag.downstream(1), [2, 3]);
         assert_eq!(dag.select(&["step@r2".into()]).unwrap(), [0, 1, 2]);
         assert!(dag.select(&["nope".into()]).is_err());
+    }
+
+    /// A params table passed whole (`${m.loop}`) is one argument, an inline TOML table,
+    /// and the stage tracks the table: a `--set` of a key in it (even a new one, for the
+    /// stage to check) changes that stage's command and tracked value and no other
+    /// stage's; a new key elsewhere is refused.
+    #[test]
+    fn a_table_passed_whole_reruns_exactly_its_stages() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(
+            d.path().join("params.toml"),
+            "[m]\npreset = \"arf\"\n[m.start]\n[m.loop]\nviews = 4\n[m.finish]\n",
+        )
+        .unwrap();
+        let text = r#"
+params = "params.toml"
+[stages.init]
+cmd = "run --preset ${m.preset} --config ${m.start} --out o/c0"
+outs = ["o/c0"]
+[stages.chunk]
+cmd = "run --resume o/c0 --preset ${m.preset} --config ${m.loop} --out o/c1"
+deps = ["o/c0"]
+outs = ["o/c1"]
+[stages.final]
+cmd = "run --resume o/c1 --preset ${m.preset} --config ${m.finish} --out o/f"
+deps = ["o/c1"]
+outs = ["o/f"]
+"#;
+        let places = Places {
+            dir: d.path().to_path_buf(),
+            workdir: d.path().to_path_buf(),
+            cwd: absolute(Path::new(".")),
+        };
+        let load = |sets: &[&str]| {
+            let sets: Vec<Set> = sets.iter().map(|s| s.parse().unwrap()).collect();
+            parse_with(text, Path::new("dag.toml"), &places, &sets)
+        };
+        // What each stage's rerun depends on: its command and its tracked values.
+        let seen = |dag: &Dag| -> Vec<(String, Vec<serde_json::Value>)> {
+            dag.stages
+                .iter()
+                .map(|s| {
+                    (
+                        s.cmd(),
+                        s.params.iter().map(|k| dag.params[k].clone()).collect(),
+                    )
+                })
+                .collect()
+        };
+        let base = load(&[]).unwrap();
+        assert_eq!(base.stages[1].argv[6], "{ views = 4 }");
+        assert_eq!(base.stages[0].argv[4], "{}");
+        assert_eq!(base.stages[1].params, ["m.loop", "m.preset"]);
+        let changed = |sets: &[&str]| -> Vec<String> {
+            let (a, b) = (seen(&base), seen(&load(sets).unwrap()));
+            let dag = load(sets).unwrap();
+            (0..a.len())
+                .filter(|&i| a[i] != b[i])
+                .map(|i| dag.stages[i].name.clone())
+                .collect()
+        };
+        assert_eq!(changed(&["m.finish.finish=none"]), ["final"]);
+        assert_eq!(changed(&["m.loop.csd.guidance=0"]), ["chunk"]);
+        assert_eq!(changed(&["m.loop.views=2"]), ["chunk"]);
+        assert_eq!(changed(&["m.start.start=colour"]), ["init"]);
+        assert_eq!(changed(&["m.preset=paper"]), ["init", "chunk", "final"]);
+        let dag = load(&["m.loop.csd.guidance=0", "m.loop.terms.gram=0.5"]).unwrap();
+        assert_eq!(
+            dag.stages[1].argv[6],
+            "{ csd = { guidance = 0 }, terms = { gram = 0.5 }, views = 4 }"
+        );
+        let dag = load(&["m.finish.finish=colour"]).unwrap();
+        assert_eq!(dag.stages[2].argv[6], r#"{ finish = "colour" }"#);
+        // A new key in a table no stage takes whole is a mistake, as before.
+        let e = load(&["m.nope=1"]).unwrap_err().to_string();
+        assert!(e.contains("m.nope"), "{e}");
     }
 
     #[test]

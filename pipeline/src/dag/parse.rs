@@ -65,7 +65,9 @@ pub(super) struct Parsed {
     pub params: BTreeMap<String, serde_json::Value>,
     /// `[vars]` as strings.
     pub vars: HashMap<String, String>,
-    /// The params file's scalar values as strings (what `${key}` substitutes).
+    /// What `${key}` substitutes for a params key: a scalar as its text, a table as an
+    /// inline TOML table (`{ a = 1, b = "x" }`, keys sorted), so that a stage can be given
+    /// a whole table as one argument (and tracks every key in it).
     pub params_text: HashMap<String, String>,
 }
 
@@ -131,7 +133,7 @@ pub(super) fn parse(text: &str, dir: &Path, diags: &mut Vec<Diag>) -> Result<Par
             }
         }
     }
-    let params_text = params_text(&params);
+    let params_text = params_text(&params, &params_table);
     Ok(Parsed {
         raw,
         lines,
@@ -142,11 +144,78 @@ pub(super) fn parse(text: &str, dir: &Path, diags: &mut Vec<Diag>) -> Result<Par
     })
 }
 
-fn params_text(params: &BTreeMap<String, serde_json::Value>) -> HashMap<String, String> {
+fn params_text(
+    params: &BTreeMap<String, serde_json::Value>,
+    table: &toml::Table,
+) -> HashMap<String, String> {
     params
         .iter()
-        .filter_map(|(k, v)| json_scalar(v).map(|s| (k.clone(), s)))
+        .filter_map(|(k, v)| match v {
+            serde_json::Value::Object(_) => table_at(table, k).map(|t| (k.clone(), inline(t))),
+            _ => json_scalar(v).map(|s| (k.clone(), s)),
+        })
         .collect()
+}
+
+/// The table at dotted key `key` of `t`.
+fn table_at<'a>(t: &'a toml::Table, key: &str) -> Option<&'a toml::Table> {
+    key.split('.').try_fold(t, |t, k| t.get(k)?.as_table())
+}
+
+/// `t` as an inline TOML table, keys sorted: `{ a = 1, b = { c = "x" } }` (`{}` when
+/// empty).
+pub(super) fn inline(t: &toml::Table) -> String {
+    fn key(k: &str) -> String {
+        let bare = !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+        if bare {
+            k.to_string()
+        } else {
+            toml::Value::String(k.to_string()).to_string()
+        }
+    }
+    fn value(v: &toml::Value) -> String {
+        match v {
+            toml::Value::Table(t) => inline(t),
+            toml::Value::Array(a) => {
+                format!("[{}]", a.iter().map(value).collect::<Vec<_>>().join(", "))
+            }
+            other => other.to_string(),
+        }
+    }
+    let mut keys: Vec<&String> = t.keys().collect();
+    keys.sort();
+    if keys.is_empty() {
+        return "{}".into();
+    }
+    let parts: Vec<String> = keys
+        .into_iter()
+        .map(|k| format!("{} = {}", key(k), value(&t[k])))
+        .collect();
+    format!("{{ {} }}", parts.join(", "))
+}
+
+/// Whether some stage's command substitutes the params table `key` whole (`${key}`):
+/// a key `--set` adds to such a table reaches that stage, which checks it.
+fn passed_whole(p: &Parsed, key: &str) -> bool {
+    let word = format!("${{{key}}}");
+    p.params.get(key).is_some_and(|v| v.is_object())
+        && p.raw
+            .stages
+            .values()
+            .any(|s| s.get_ref().cmd.get_ref().contains(&word))
+}
+
+/// The value of a `--set` that adds a key to a table passed whole: a TOML literal
+/// (number, boolean, string in quotes, array, inline table) as written, else the text as
+/// a string.
+fn literal(value: &str) -> toml::Value {
+    format!("v = {value}")
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(value.to_string()))
 }
 
 /// Apply `--set NAME=VALUE` overrides: a `[vars]` name takes the value; a params key
@@ -167,59 +236,15 @@ pub(super) fn apply_sets(
             set_vars.push(s.name.clone());
             continue;
         }
-        let Some(old) = p.params.get(&s.name) else {
-            let mut vars: Vec<&str> = p.raw.vars.keys().map(String::as_str).collect();
-            vars.sort();
-            let keys: Vec<&str> = p
-                .params
-                .iter()
-                .filter(|(_, v)| !v.is_object())
-                .map(|(k, _)| k.as_str())
-                .collect();
-            return Err(Error::Usage(format!(
-                "--set {s}: `{}` is neither a [vars] name nor a params key of {} (vars: {}; params keys: {})",
-                s.name,
-                file.display(),
-                if vars.is_empty() {
-                    "none".into()
-                } else {
-                    vars.join(", ")
-                },
-                if keys.is_empty() {
-                    "none".into()
-                } else {
-                    keys.join(", ")
-                },
-            )));
-        };
-        let bad = |what: &str| {
-            Error::Usage(format!(
-                "--set {s}: params key `{}` is {what}, and `{}` is not one",
-                s.name, s.value
-            ))
-        };
-        let new = match old {
-            serde_json::Value::Object(_) | serde_json::Value::Array(_) => {
-                return Err(Error::Usage(format!(
-                    "--set {s}: params key `{}` is a {}; set one of its values by its dotted key",
-                    s.name,
-                    if old.is_object() { "table" } else { "list" }
-                )));
-            }
-            serde_json::Value::Bool(_) => {
-                toml::Value::Boolean(s.value.parse().map_err(|_| bad("a boolean"))?)
-            }
-            serde_json::Value::Number(n) if n.is_i64() || n.is_u64() => {
-                toml::Value::Integer(s.value.parse().map_err(|_| bad("an integer"))?)
-            }
-            serde_json::Value::Number(_) => {
-                let f: f64 = s.value.parse().map_err(|_| bad("a number"))?;
-                if !f.is_finite() {
-                    return Err(bad("a finite number"));
-                }
-                toml::Value::Float(f)
-            }
-            _ => toml::Value::String(value),
+        let in_whole_table = s
+            .name
+            .match_indices('.')
+            .any(|(i, _)| passed_whole(p, &s.name[..i]));
+        let new = if !p.params.contains_key(&s.name) && in_whole_table {
+            // A new key of a table a stage takes whole: that stage checks it.
+            literal(&value)
+        } else {
+            typed_set(p, s, value, file)?
         };
         set_in_table(&mut p.params_table, &s.name, new);
         p.params.clear();
@@ -229,14 +254,82 @@ pub(super) fn apply_sets(
             &mut p.params,
         );
     }
-    p.params_text = params_text(&p.params);
+    p.params_text = params_text(&p.params, &p.params_table);
     Ok(set_vars)
 }
 
+/// The new value of params key `s.name`, of the type it has in the params file; an
+/// unknown key, a table or list, or a value of the wrong type is a usage error.
+fn typed_set(p: &Parsed, s: &Set, value: String, file: &Path) -> Result<toml::Value> {
+    let Some(old) = p.params.get(&s.name) else {
+        return Err(unknown_set(p, s, file));
+    };
+    let bad = |what: &str| {
+        Error::Usage(format!(
+            "--set {s}: params key `{}` is {what}, and `{}` is not one",
+            s.name, s.value
+        ))
+    };
+    Ok(match old {
+        serde_json::Value::Object(_) | serde_json::Value::Array(_) => {
+            return Err(Error::Usage(format!(
+                "--set {s}: params key `{}` is a {}; set one of its values by its dotted key",
+                s.name,
+                if old.is_object() { "table" } else { "list" }
+            )));
+        }
+        serde_json::Value::Bool(_) => {
+            toml::Value::Boolean(s.value.parse().map_err(|_| bad("a boolean"))?)
+        }
+        serde_json::Value::Number(n) if n.is_i64() || n.is_u64() => {
+            toml::Value::Integer(s.value.parse().map_err(|_| bad("an integer"))?)
+        }
+        serde_json::Value::Number(_) => {
+            let f: f64 = s.value.parse().map_err(|_| bad("a number"))?;
+            if !f.is_finite() {
+                return Err(bad("a finite number"));
+            }
+            toml::Value::Float(f)
+        }
+        _ => toml::Value::String(value),
+    })
+}
+
+/// The error of a `--set` of a name that is neither a `[vars]` name nor a params key
+/// (listing both).
+fn unknown_set(p: &Parsed, s: &Set, file: &Path) -> Error {
+    let mut vars: Vec<&str> = p.raw.vars.keys().map(String::as_str).collect();
+    vars.sort();
+    let keys: Vec<&str> = p
+        .params
+        .iter()
+        .filter(|(_, v)| !v.is_object())
+        .map(|(k, _)| k.as_str())
+        .collect();
+    let list = |v: &[&str]| {
+        if v.is_empty() {
+            "none".to_string()
+        } else {
+            v.join(", ")
+        }
+    };
+    Error::Usage(format!(
+        "--set {s}: `{}` is neither a [vars] name nor a params key of {} (vars: {}; params keys: {})",
+        s.name,
+        file.display(),
+        list(&vars),
+        list(&keys),
+    ))
+}
+
+/// Set dotted key `dotted` of `t` to `v`, making the tables on the way that are missing.
 fn set_in_table(t: &mut toml::Table, dotted: &str, v: toml::Value) {
     match dotted.split_once('.') {
-        Some((head, rest)) if t.get(head).is_some_and(|x| x.is_table()) => {
-            if let Some(toml::Value::Table(inner)) = t.get_mut(head) {
+        Some((head, rest)) if t.get(head).is_none_or(|x| x.is_table()) => {
+            let inner = t
+                .entry(head.to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            if let toml::Value::Table(inner) = inner {
                 set_in_table(inner, rest, v);
             }
         }

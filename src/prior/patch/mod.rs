@@ -103,7 +103,7 @@ pub struct PatchConfig {
     /// coarse steps inject that noise, which the fine steps turn into the style's strokes).
     pub coarse_source: bool,
     /// The timestep set distillation draws from.
-    pub timesteps: super::stylizer::TimestepRange,
+    pub timesteps: crate::prior::manifest::TimestepRange,
 }
 
 /// The patch prior's unconditional model.

@@ -1,9 +1,9 @@
 //! Style projection (not part of FantasyStyle): the style image texture-mapped onto the
 //! object by triplanar projection, written into the Gaussians' DC colours. No network, no
 //! optimisation: well under a second. A baseline (`stylize-baseline --method project`) and
-//! a start for the distillation (`distill --project-style`).
+//! a start for the distillation (`start = "projection"`, [`super::ends`]).
 //!
-//! Why: a texture statistic inside the loop (NNFM, Gram; [`crate::distill::texture`]) and
+//! Why: a texture statistic inside the loop (NNFM, Gram; [`crate::distill::terms::texture`]) and
 //! the 2D stylizer both ask each view for motifs where that view's content puts them, and
 //! views 22-45 degrees apart disagree, so bands and rings average into blobs of the style's
 //! colours (BENCHMARKS.md "Style projection"). A motif painted once on the surface is the
@@ -39,7 +39,7 @@
 //! object: `d / f`, with `d` the depth of the object's centre in a camera and `f` its focal
 //! length in pixels, the median over the cameras. So the motif size on screen is the one
 //! the texture term matches (the caller passes the style at the texture term's size,
-//! `--texture-style-size`). The style image's centre sits at the object's centre (the
+//! `texture.style_size`). The style image's centre sits at the object's centre (the
 //! per-axis median of the means of Gaussians with opacity >= 0.5), so an object smaller
 //! than the style sees one copy of it.
 //!
@@ -52,7 +52,7 @@
 
 use crate::geometry::quat_to_mat;
 use crate::imageio::Image;
-use crate::metrics::warp::surface_depth;
+use crate::maths::warp::surface_depth;
 use crate::render::sh::C0;
 use crate::{Camera, Error, Result, Scene};
 use glam::DVec3;
@@ -139,7 +139,7 @@ pub fn normal(scene: &Scene, i: usize) -> DVec3 {
 }
 
 /// A source view for the surface normals: its camera and its surface depth
-/// ([`crate::metrics::warp::surface_depth`]: `depth / alpha` where the view covers the
+/// ([`crate::maths::warp::surface_depth`]: `depth / alpha` where the view covers the
 /// object, NaN elsewhere), `[H, W]` at the camera's size.
 #[derive(Debug, Clone, Copy)]
 pub struct DepthView<'a> {

@@ -1,4 +1,4 @@
-//! A texture term inside the distillation loop (not part of FantasyStyle:
+//! The VGG texture terms of the colour step, `nnfm` and `gram` (not part of FantasyStyle:
 //! added because the CPU prior cannot carry a style's motifs on its own, see
 //! BENCHMARKS.md "Texture").
 //!
@@ -18,24 +18,24 @@
 //! `F_l` the `[C, HW]` features of the view's object crop and `D_l = diag(m_l)` its
 //! coverage (alpha, 2x2-averaged per pooling), so that the background and the fill
 //! around the object count for nothing. The image the network sees is the object over
-//! the fill of its own colours ([`super::fill`]), the image the prior sees too; the fill
+//! the fill of its own colours ([`crate::distill::fill`]), the image the prior sees too; the fill
 //! is held fixed, so dL/d(render) is dL/d(image) on covered pixels.
 //!
-//! With `--texture-loss nnfm` the statistic is instead ARF's nearest-neighbour feature
-//! matching (Zhang et al. 2022, Eq. 1; [`crate::baselines::nnfm`]) over the stacked
-//! features of one VGG block (default relu3_1..relu3_3, receptive field 40 px): each
-//! covered position is pulled toward its most similar style feature by cosine distance,
-//! weighted by its coverage, `L = sum_i m_i (1 - cos(f_i, s_j*(i))) / sum_i m_i`. The Gram
-//! statistic keeps only how often each feature occurs; matching whole relu3 features keeps
-//! local arrangements of 20-40 px (a brick's corner, a ring's arc), which is what a
-//! regular pattern's motif is made of. Cosine distance is nearly blind to colour, so the
-//! sample DAG pairs it with `distill --colour-init` (BENCHMARKS.md "A texture term that
-//! carries arrangement"). `gram,nnfm` adds the two losses (their layers' gradients sum in
-//! one VGG backward), each with its own weight ([`Statistic::weight`],
-//! `--texture-loss-weights`): at equal weights the Gram gradient is much the larger and
-//! decides the picture; NNFM at 1 with Gram at 0.1 keeps NNFM's arrangements and adds
-//! more, smaller motifs in more of the style's colours (BENCHMARKS.md "NNFM plus a light
-//! Gram statistic").
+//! With the term `nnfm` the statistic is instead ARF's nearest-neighbour feature
+//! matching (Zhang et al. 2022, Eq. 1; [`super::nnfm`]) over the stacked features of one
+//! VGG block (default relu3_1..relu3_3, receptive field 40 px): each covered position is
+//! pulled toward its most similar style feature by cosine distance, weighted by its
+//! coverage, `L = sum_i m_i (1 - cos(f_i, s_j*(i))) / sum_i m_i`. The Gram statistic keeps
+//! only how often each feature occurs; matching whole relu3 features keeps local
+//! arrangements of 20-40 px (a brick's corner, a ring's arc), which is what a regular
+//! pattern's motif is made of. Cosine distance is nearly blind to colour, so the `arf`
+//! preset pairs it with a start that brings the style's colours (BENCHMARKS.md "A texture
+//! term that carries arrangement"). `nnfm` and `gram` together add their losses (their
+//! layers' gradients sum in one VGG backward, nnfm's first), each with its weight from
+//! the configuration's `terms` ([`Statistic::weight`]): at equal weights the Gram
+//! gradient is much the larger and decides the picture; the `arf` preset's NNFM at 1 with
+//! Gram at 0.1 keeps NNFM's arrangements and adds more, smaller motifs in more of the
+//! style's colours (BENCHMARKS.md "NNFM plus a light Gram statistic").
 //!
 //! Cost: one forward and backward of VGG16 up to the deepest layer used (relu2_2 for
 //! Gram, relu3_3 for NNFM, about twice the Gram cost with the nearest-neighbour search) on
@@ -47,9 +47,9 @@
 //! block (the exact adjoint of the average): the term then constrains the texture at
 //! periods of 2D pixels and longer, and leaves finer detail to the prior.
 
-use crate::baselines::nnfm::{StyleColumns, normalised_style, split_stacked, stacked};
+use super::nnfm::{StyleColumns, normalised_style, split_stacked, stacked};
 use crate::imageio::Image;
-use crate::metrics::gram::gram;
+use crate::maths::gram::gram;
 use crate::vgg::{Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
 use ndarray::{Array2, Axis, linalg::general_mat_mul};
@@ -58,8 +58,43 @@ use rayon::prelude::*;
 /// Margin around the object's bounding box, pixels.
 const MARGIN: usize = 8;
 
-/// The statistic the texture term matches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+/// The settings of the VGG texture terms (`nnfm`, `gram`): the `[texture]` section of the
+/// method's configuration ([`crate::distill::config`]; the field docs are its help).
+#[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TextureParams {
+    /// The style image is resized so its shorter side is this many pixels for the texture
+    /// terms and the projected start (sets the motif scale against the render's pixels).
+    #[arg(long, default_value_t = 256)]
+    pub style_size: usize,
+    /// The terms see the object crop and the style box-averaged this many times smaller
+    /// (motif scale on screen kept; D^2 times cheaper; periods under 2D pixels are left to
+    /// the prior). 1 = full resolution; at most 8.
+    #[arg(long, default_value_t = 1)]
+    pub downsample: usize,
+    /// The terms on this many of each iteration's views (rotating; scaled so that the
+    /// gradient is the same in expectation); 0 = every view. 1 looked the same as every
+    /// view at about 0.7x the CPU (BENCHMARKS.md "Texture").
+    #[arg(long, default_value_t = 1)]
+    pub views: usize,
+    /// VGG16 layers matched, with one VGG term (receptive fields: relu1_2 5 px, relu2_2
+    /// 14 px, relu3_3 40 px); empty: relu1_2,relu2_2 for gram, relu3_1,relu3_2,relu3_3 for
+    /// nnfm (one block).
+    #[arg(long, value_delimiter = ',')]
+    pub layers: Vec<Layer>,
+    /// VGG16 weights (empty: lpips/vgg16 in the models directory).
+    #[arg(long)]
+    pub vgg: Option<std::path::PathBuf>,
+}
+
+impl Default for TextureParams {
+    fn default() -> Self {
+        crate::params::defaults()
+    }
+}
+
+/// The statistic a VGG texture term matches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum TextureLoss {
     /// Masked Gram matrices (Gatys et al.): how often each feature occurs.
@@ -75,7 +110,7 @@ impl TextureLoss {
     pub fn default_layers(self) -> Vec<Layer> {
         match self {
             TextureLoss::Gram => vec![Layer::Relu1_2, Layer::Relu2_2],
-            TextureLoss::Nnfm => crate::baselines::nnfm::NNFM_LAYERS.to_vec(),
+            TextureLoss::Nnfm => super::nnfm::NNFM_LAYERS.to_vec(),
         }
     }
 }
@@ -124,8 +159,6 @@ pub struct TextureTerm {
     parts: Vec<Part>,
     /// Every part's layers (the crop's pooling and the forward's depth).
     layers: Vec<Layer>,
-    /// Weight of the term's gradient against the colour loss's.
-    pub weight: f32,
     /// Box-average factor of crop and style before the network (1 = full resolution).
     downsample: usize,
     /// Views of each window that get the term (0 = all; see [`Self::views_per_iter`]).
@@ -144,19 +177,13 @@ impl TextureTerm {
     /// normalised stacked features at those layers (the style image as given at the
     /// render's scale: the caller sizes it, which sets the motif scale against the
     /// render's pixels; it is box-averaged by `downsample` like the crops).
-    pub fn new(
-        vgg: Vgg16,
-        style: &Image,
-        parts: &[Statistic],
-        weight: f32,
-        downsample: usize,
-    ) -> Result<Self> {
+    pub fn new(vgg: Vgg16, style: &Image, parts: &[Statistic], downsample: usize) -> Result<Self> {
         if !(1..=8).contains(&downsample) {
             return Err(Error::param(format!(
                 "texture downsample must be 1..=8, got {downsample}"
             )));
         }
-        let style = &crate::baselines::downsample(style, downsample);
+        let style = &crate::imageio::downsample(style, downsample);
         if parts.is_empty() || parts.iter().any(|p| p.layers.is_empty()) {
             return Err(Error::param("texture term: at least one layer per loss"));
         }
@@ -167,11 +194,6 @@ impl TextureTerm {
             return Err(Error::param(format!(
                 "texture loss weights must be finite and >= 0, got {} for {:?}",
                 p.weight, p.loss
-            )));
-        }
-        if !(weight.is_finite() && weight >= 0.0) {
-            return Err(Error::param(format!(
-                "texture weight must be finite and >= 0, got {weight}"
             )));
         }
         for Statistic { loss, layers, .. } in parts {
@@ -224,7 +246,6 @@ impl TextureTerm {
             vgg,
             parts,
             layers: all,
-            weight,
             downsample,
             views: 0,
         })
@@ -248,7 +269,7 @@ impl TextureTerm {
     pub fn applies(&self, position: usize, n: usize, iteration: u64) -> Option<f32> {
         let k = self.views_per_iter(n);
         let chosen = k > 0 && (position + n - (iteration % n as u64) as usize) % n < k;
-        (self.weight > 0.0 && chosen).then(|| n as f32 / k as f32)
+        chosen.then(|| n as f32 / k as f32)
     }
 
     /// Loss and dL/d(image) of `image` (`[H, W, 3]`, the object over its fill) with
@@ -284,7 +305,7 @@ impl TextureTerm {
                 height: ch,
                 data: crop,
             };
-            let small = crate::baselines::downsample(&img, d).data;
+            let small = crate::imageio::downsample(&img, d).data;
             (small, pooled_mask(&mask, ch, cw, sh, sw))
         } else {
             (crop, mask)
@@ -553,7 +574,7 @@ mod tests {
     }
 
     /// Over n consecutive iterations each window position gets the term exactly k times,
-    /// k per iteration, scaled by n / k; k = 0 means every view, weight 0 none.
+    /// k per iteration, scaled by n / k; k = 0 means every view.
     #[test]
     fn the_views_that_get_the_term_rotate_evenly() {
         let style = Image {
@@ -565,7 +586,6 @@ mod tests {
             Vgg16::random(1, 16),
             &style,
             &[Statistic::new(TextureLoss::Gram, vec![Layer::Relu1_2])],
-            1.0,
             1,
         )
         .unwrap();
@@ -584,8 +604,6 @@ mod tests {
             }
             assert_eq!(count, vec![k; n], "views {views}, n {n}");
         }
-        term.weight = 0.0;
-        assert!((0..4).all(|i| term.applies(i, 4, 0).is_none()));
     }
 
     #[test]
@@ -601,7 +619,6 @@ mod tests {
                 Vgg16::random(1, 8),
                 &style,
                 &[Statistic::new(loss, layers.clone())],
-                1.0,
                 1,
             )
         };
@@ -648,7 +665,7 @@ mod tests {
         ];
         for (parts, d) in cases {
             let vgg = Vgg16::random(5, 16);
-            let term = TextureTerm::new(vgg, &style, &parts, 1.0, d).unwrap();
+            let term = TextureTerm::new(vgg, &style, &parts, d).unwrap();
             let layers = &term.layers;
             let g = term.view_grad(&image, &alpha, h, w).unwrap();
             assert!(g.loss > 0.0);

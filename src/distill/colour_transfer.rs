@@ -23,7 +23,7 @@
 //! colours to 0): the views' colour statistics become the style's. View-dependent colour
 //! is kept, transformed like the rest.
 //!
-//! **Clamping into the style's extent (`distill --colour-init`, `--colour-finish`).** The
+//! **Clamping into the style's extent (the colour start and finish, [`super::ends`]).** The
 //! linear map reproduces the style's mean and covariance, not its shape: along an axis
 //! where the style is one-sided (an op-art print's red against its neutrals, with no cyan), the
 //! object's colours on the other side of its mean come out in a hue the style lacks (a
@@ -36,14 +36,14 @@
 //! **Before and after distillation** ([`move_palette`]). ARF (Zhang et al., ECCV 2022)
 //! transfers the colour statistics onto the style's before its NNFM optimisation and
 //! again on the result (its reference code's pre- and post-colour-transfer steps).
-//! `distill --colour-init` is the first (statistics of the source views),
-//! `--colour-finish` the second (statistics of the result's own renders from the same
+//! The colour start is the first (statistics of the source views),
+//! the colour finish the second (statistics of the result's own renders from the same
 //! cameras, [`crate::render::render_all`]): a map of colours only, so the texture the loop drew keeps
 //! its arrangement while its palette drift is taken back to the style's mean and
 //! covariance.
 
 use crate::imageio::Image;
-use crate::metrics::linalg::{matmul, reconstruct, sym_eig};
+use crate::maths::linalg::{matmul, reconstruct, sym_eig};
 use crate::render::sh::C0;
 use crate::{Error, Result, Scene};
 
@@ -261,7 +261,7 @@ pub fn clamp_to_extent(scene: &Scene, ext: &StyleExtent) -> (Scene, usize) {
     (out, changed)
 }
 
-/// The palette move of `distill --colour-init` and `--colour-finish`: [`transfer_scene`]
+/// The palette move of the colour start and finish ([`super::ends`]): [`transfer_scene`]
 /// (the object's statistics over `views`, rendered over `background`, onto `style`'s),
 /// then [`clamp_to_extent`] into the style's extent. Returns the scene, the transfer and
 /// how many Gaussians the clamp moved.

@@ -1,4 +1,5 @@
-//! Splitting large Gaussians so that colours can carry a finer texture (`--split-px`).
+//! Splitting large Gaussians so that colours can carry a finer texture (the configuration's
+//! `split`, run by the `split` stage).
 //!
 //! Geometry stays frozen during stylization, so a colour changes only as finely as the
 //! Gaussians that carry it: a Gaussian 8 px long on screen paints one colour over 8 px,
@@ -24,7 +25,7 @@
 //! 1.6, and lets training repair the appearance; here nothing retrains the geometry, so
 //! the split is deterministic and moment-matched. Not part of FantasyStyle.
 
-use super::Scene;
+use crate::Scene;
 use crate::geometry::quat_to_mat;
 
 /// Child scale along the split axis, as a fraction of the parent's.
@@ -76,6 +77,35 @@ fn longest(scene: &Scene, i: usize) -> (f64, usize) {
 pub fn child_opacity(o: f64) -> f64 {
     // At most 1 / 1.4: the logit stays finite.
     o / (2.0 * CHILD_SCALE)
+}
+
+/// Rounds of a split to a pixel length ([`split_to_pixels`]): one Gaussian becomes at
+/// most 2^8 (the rounds stop earlier once none is above the length; each shortens the
+/// axis it splits by [`CHILD_SCALE`]).
+pub const ROUNDS: usize = 8;
+
+/// A split to a pixel length makes at most this many times the scene's Gaussians (the
+/// longest split first once a round would pass it): a length far below the scene's
+/// Gaussians, or a scene of floaters, cannot exhaust the memory.
+pub const MAX_GROWTH: usize = 16;
+
+/// `scene` with every Gaussian longer than `px` render pixels at the object split
+/// ([`split_large`], [`ROUNDS`] rounds, at most [`MAX_GROWTH`] times the Gaussians); one
+/// pixel is the style projection's (the object centre's depth over the focal length,
+/// median over `cameras`: [`super::projection::Placement`]). Errors are about the
+/// cameras (the placement needs the object in front of them).
+pub fn split_to_pixels(
+    scene: &Scene,
+    cameras: &[crate::Camera],
+    px: f64,
+) -> crate::Result<(Scene, SplitReport)> {
+    let _ph = crate::timing::span("split");
+    let at = super::projection::Placement::of(scene, cameras)?;
+    let max_extent = px * at.world_per_pixel;
+    let cap = scene.len().saturating_mul(MAX_GROWTH);
+    let (scene, report) = split_large(scene, max_extent, ROUNDS, cap);
+    tracing::info!("split to {px} px ({max_extent:.3e} world units): {report}");
+    Ok((scene, report))
 }
 
 /// `scene` with every Gaussian longer than `max_extent` (2 sigma along its longest axis,

@@ -1,0 +1,424 @@
+//! The method's configuration: one type ([`Config`]) that the command line, the
+//! configuration files (presets, a DAG's params tables) and the artifacts' manifests all
+//! read and write. Each key is declared once, in the struct that uses it (a field here,
+//! or in [`CsdParams`], [`MvfcParams`], [`TextureParams`]): its doc comment is its help,
+//! its clap declaration its default ([`crate::params`]). The defaults are FantasyStyle's
+//! method (AAAI 2026, Sec. 4): the CSD term through the prior, MVFC on both branches, no
+//! start, no finish, no split.
+//!
+//! A run's configuration is built in layers, each over the one before:
+//!
+//! 1. the defaults;
+//! 2. a preset (`--preset NAME`): a configuration file of the repository's `presets/`
+//!    directory, built into the binaries ([`PRESETS`]): `paper` (FantasyStyle alone) and
+//!    `arf` (ARF's recipe on the loop: the sample DAG's configuration);
+//! 3. configuration files and inline tables (`--config FILE` or `--config '{ k = v }'`,
+//!    in order; a table's `preset = "NAME"` puts that preset under it);
+//! 4. single keys (`--set KEY=VALUE`, dotted for a section: `csd.guidance=0`), parsed as
+//!    the key's flag would be;
+//! 5. the choices a stage takes as flags (`distill --terms`, `--start`, `--finish`).
+//!
+//! Tables merge key by key, except `terms`, which a layer gives whole (the terms it
+//! names, every other at 0). Unknown keys are errors, named with their file.
+
+use super::ends::{Finish, Start};
+use super::terms::texture::TextureParams;
+use super::terms::{ColourLoss, Terms};
+use crate::csd::CsdParams;
+use crate::mvfc::MvfcParams;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The method's configuration (module docs): every parameter of a run with its default.
+#[derive(Debug, Clone, PartialEq, clap::Args, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// The colour step's loss, a weighted sum of terms `NAME=WEIGHT,...`: the prior's
+    /// distillation term `csd` (the paper), `sds`, `dds` or `csd-no-neg` (at most one),
+    /// and the VGG texture terms `nnfm` (ARF's nearest-neighbour feature matching, relu3)
+    /// and `gram` (Gram matrices, relu1_2/relu2_2), which are not FantasyStyle
+    /// (src/distill/terms/). In a file: a table, `terms = { csd = 1.0, gram = 0.1 }`.
+    #[arg(long, default_value = "csd=1", value_parser = Terms::parse)]
+    pub terms: Terms,
+    /// How a fresh run starts: `scene` (as it is), `colour` (its colours moved onto the
+    /// style's mean and covariance) or `projection` (the style image texture-mapped onto
+    /// the object); the last two are ARF's, not FantasyStyle (src/distill/ends.rs).
+    #[arg(long, value_enum, default_value = "scene")]
+    pub start: Start,
+    /// How a run ends: `none` or `colour` (the result's colours moved onto the style's
+    /// mean and covariance, ARF's colour transfer after the optimisation).
+    #[arg(long, value_enum, default_value = "none")]
+    pub finish: Finish,
+    /// Read by the `split` stage, not by distill: split every Gaussian longer than this
+    /// many render pixels at the object (2 sigma along its longest axis) in two, up to 8
+    /// rounds, before the run (geometry changes; not FantasyStyle; src/distill/split.rs).
+    /// 0 = off.
+    #[arg(long, default_value_t = 0.0)]
+    pub split: f64,
+    /// Adjacent views per iteration (the paper's N).
+    #[arg(long, default_value_t = 4)]
+    pub views: usize,
+    /// Style strength in [0, 1]: 0 leaves the scene unchanged, 1 is the full style (for
+    /// the stylizer prior an interpolation of style vectors).
+    #[arg(long, default_value_t = 1.0)]
+    pub strength: f32,
+    /// Keep the scene's own colours (chroma); change luminance (texture, contrast) only.
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
+    pub preserve_color: bool,
+    /// Let view-dependent colour (f_rest) change too, at lr_dc / 20 (default: f_dc only).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
+    pub fit_rest: bool,
+    /// Adam learning rate of the SH DC colours (3DGS trains from scratch at 0.0025 over
+    /// 30k steps; a few hundred distillation steps need more: BENCHMARKS.md "Colour-fit
+    /// learning rate").
+    #[arg(long, default_value_t = 0.05)]
+    pub lr_dc: f32,
+    /// How the prior's change reaches the colours: `l2` passes it with its magnitude (the
+    /// paper's gradient), `l1` only its sign.
+    #[arg(long, value_enum, default_value = "l2")]
+    pub colour_loss: ColourLoss,
+    /// Give the prior (and the texture terms) the object over a fill of its own colours
+    /// rather than the raw render over the background.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub fill: bool,
+    /// Seed of every draw (views, timesteps, noise).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Timestep set MIN:MAX:COUNT (empty: the model's own set).
+    #[arg(long)]
+    pub timesteps: Option<String>,
+    /// Anneal the timestep from coarse to fine over this many iterations in total (the
+    /// whole run, all chunks: t_max falls linearly to the set's smallest); 0 = draw
+    /// uniformly from the whole set every iteration (the paper).
+    #[arg(long, default_value_t = 0)]
+    pub anneal_iters: u64,
+    /// Motif scale of the stylizer prior: the render is enlarged this many times before
+    /// the network and reduced after, so strokes come out this much smaller on the object.
+    #[arg(long, default_value_t = 1.0)]
+    pub motif_scale: f32,
+    /// Most UNet rows per call of a diffusion prior (rows = views x conditionings; 0 =
+    /// automatic: all, unless the first level's attention scores would pass 2^31 floats).
+    #[arg(long, default_value_t = 0)]
+    pub unet_batch: usize,
+    /// The distillation step (`[csd]`).
+    #[arg(skip)]
+    pub csd: CsdParams,
+    /// Multi-view frequency consistency (`[mvfc]`).
+    #[arg(skip)]
+    pub mvfc: MvfcParams,
+    /// The VGG texture terms (`[texture]`).
+    #[arg(skip)]
+    pub texture: TextureParams,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        crate::params::defaults()
+    }
+}
+
+/// The presets: `presets/NAME.toml` of the repository, built into the binaries.
+pub const PRESETS: [(&str, &str); 2] = [
+    ("paper", include_str!("../../presets/paper.toml")),
+    ("arf", include_str!("../../presets/arf.toml")),
+];
+
+/// Where a layer of the configuration comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Source {
+    /// A preset by name ([`PRESETS`]).
+    Preset(String),
+    /// A configuration file, or an inline TOML table `{ key = value, ... }`.
+    Config(String),
+    /// One `KEY=VALUE`.
+    Set(String),
+}
+
+impl Config {
+    /// The configuration of `layers` over the defaults (module docs), checked.
+    pub fn layered(layers: &[Source]) -> Result<Config> {
+        let mut table = toml::Table::new();
+        for layer in layers {
+            match layer {
+                Source::Preset(name) => merge(&mut table, preset(name)?),
+                Source::Config(src) => merge(&mut table, config_table(src)?),
+                Source::Set(kv) => set(&mut table, kv)?,
+            }
+        }
+        let c: Config = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e| Error::param(format!("configuration: {e}")))?;
+        c.checked()
+    }
+
+    /// Checked (every section's ranges, the terms), with the distillation step's mode
+    /// taken from the prior's term.
+    pub fn checked(mut self) -> Result<Config> {
+        self.terms.validate()?;
+        self.csd.mode = self.terms.prior().map_or(self.csd.mode, |(m, _)| m);
+        self.csd.validate()?;
+        self.mvfc.validate()?;
+        let positive = |x: f32| x.is_finite() && x >= 0.0;
+        if !positive(self.lr_dc) {
+            return Err(Error::param("lr_dc must be finite and >= 0"));
+        }
+        if self.views == 0 {
+            return Err(Error::param("views must be at least 1"));
+        }
+        if !(0.0..=1.0).contains(&self.strength) {
+            return Err(Error::param(format!(
+                "strength must be in [0, 1], got {}",
+                self.strength
+            )));
+        }
+        if !(self.split.is_finite() && self.split >= 0.0) {
+            return Err(Error::param("split must be finite and >= 0 (0: off)"));
+        }
+        if self.preserve_color && (self.start != Start::Scene || self.finish != Finish::None) {
+            return Err(Error::param(
+                "preserve_color keeps the scene's colours; the colour and projection starts \
+                 and the colour finish replace them: choose one",
+            ));
+        }
+        Ok(self)
+    }
+
+    /// Whether the prior is asked anything: a prior term whose gradient is not zero
+    /// whatever the prior says ([`CsdParams::asks_nothing`]).
+    pub fn asks_the_prior(&self) -> bool {
+        self.terms.prior().is_some() && !self.csd.asks_nothing()
+    }
+
+    /// How an iteration's timestep is drawn.
+    pub fn t_schedule(&self) -> super::TimestepSchedule {
+        if self.anneal_iters > 0 {
+            super::TimestepSchedule::Anneal {
+                total: self.anneal_iters,
+            }
+        } else {
+            super::TimestepSchedule::Random
+        }
+    }
+
+    /// The configuration as TOML (what a file would hold to reproduce it).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a configuration serialises")
+    }
+
+    /// Every key with its default and its doc, for `--help`.
+    pub fn help() -> String {
+        let mut s = crate::params::key_help::<Config>("");
+        s += &crate::params::key_help::<CsdParams>("csd.");
+        s += &crate::params::key_help::<MvfcParams>("mvfc.");
+        s += &crate::params::key_help::<TextureParams>("texture.");
+        s
+    }
+}
+
+/// The table of preset `name`.
+fn preset(name: &str) -> Result<toml::Table> {
+    let Some((_, text)) = PRESETS.iter().find(|(n, _)| *n == name) else {
+        let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+        return Err(Error::param(format!(
+            "unknown preset `{name}`; the presets: {}",
+            names.join(", ")
+        )));
+    };
+    parse_layer(text, &format!("preset {name}"))
+}
+
+/// The table of a `--config` value: an inline table (starting with `{`) or a file.
+fn config_table(src: &str) -> Result<toml::Table> {
+    if src.trim_start().starts_with('{') {
+        let doc: toml::Table = toml::from_str(&format!("config = {src}"))
+            .map_err(|e| Error::param(format!("--config {src}: {}", e.message())))?;
+        let Some(toml::Value::Table(t)) = doc.get("config").cloned() else {
+            return Err(Error::param(format!("--config {src}: not a table")));
+        };
+        return with_preset(t, &format!("--config {src}"));
+    }
+    let path = Path::new(src);
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse_layer(&text, src)
+}
+
+/// A configuration file's text as a table, its keys checked (`what` names it in errors).
+fn parse_layer(text: &str, what: &str) -> Result<toml::Table> {
+    let t: toml::Table =
+        toml::from_str(text).map_err(|e| Error::param(format!("{what}: {}", e.message())))?;
+    with_preset(t, what)
+}
+
+/// `t` over the preset it names (`preset = "NAME"`), its keys checked against
+/// [`Config`] (`what` names it in errors).
+fn with_preset(mut t: toml::Table, what: &str) -> Result<toml::Table> {
+    let base = match t.remove("preset") {
+        Some(toml::Value::String(name)) => preset(&name)?,
+        Some(v) => {
+            return Err(Error::param(format!(
+                "{what}: preset = {v}: expected a preset's name"
+            )));
+        }
+        None => toml::Table::new(),
+    };
+    let check: std::result::Result<Config, _> = toml::Value::Table(t.clone()).try_into();
+    check.map_err(|e| Error::param(format!("{what}: {e}")))?;
+    let mut out = base;
+    merge(&mut out, t);
+    Ok(out)
+}
+
+/// `over` merged into `base`: tables key by key, `terms` and every other value replaced.
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) if k != "terms" => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+/// Apply `KEY=VALUE` to `table`, the value parsed by the key's own declaration.
+fn set(table: &mut toml::Table, kv: &str) -> Result<()> {
+    use crate::params::typed_value;
+    let Some((key, value)) = kv.split_once('=') else {
+        return Err(Error::param(format!(
+            "--set {kv}: expected KEY=VALUE (e.g. csd.guidance=0; `distill --help` lists the keys)"
+        )));
+    };
+    let key = key.trim().replace('-', "_");
+    let (section, field) = key.split_once('.').unwrap_or(("", &key));
+    let v = match section {
+        "" => typed_value::<Config>("", field, value)?,
+        "csd" => typed_value::<CsdParams>("csd.", field, value)?,
+        "mvfc" => typed_value::<MvfcParams>("mvfc.", field, value)?,
+        "texture" => typed_value::<TextureParams>("texture.", field, value)?,
+        "terms" => {
+            let w: f32 = value
+                .trim()
+                .parse()
+                .map_err(|_| Error::param(format!("--set {kv}: a weight is a number")))?;
+            let mut t = Terms::default();
+            *t.weight_mut(field).map_err(Error::param)? = w;
+            let toml::Value::Table(mut terms) = table
+                .remove("terms")
+                .unwrap_or_else(|| toml::Value::try_from(Config::default().terms).expect("terms"))
+            else {
+                return Err(Error::param("terms is not a table"));
+            };
+            let name = if field == "csd_no_neg" {
+                "csd-no-neg"
+            } else {
+                field
+            };
+            terms.insert(name.to_string(), toml::Value::Float(w as f64));
+            table.insert("terms".into(), toml::Value::Table(terms));
+            return Ok(());
+        }
+        _ => {
+            return Err(Error::param(format!(
+                "--set {kv}: unknown section `{section}` (csd, mvfc, texture, terms)"
+            )));
+        }
+    };
+    if section.is_empty() {
+        table.insert(field.to_string(), v);
+    } else {
+        let toml::Value::Table(s) = table
+            .entry(section.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        else {
+            return Err(Error::param(format!("{section} is not a table")));
+        };
+        s.insert(field.to_string(), v);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::csd::Mode;
+
+    #[test]
+    fn the_defaults_are_the_papers_method_and_the_paper_preset_says_so() {
+        let d = Config::default();
+        assert_eq!(d.terms, Terms::parse("csd=1").unwrap());
+        assert_eq!(
+            (d.start, d.finish, d.split),
+            (Start::Scene, Finish::None, 0.0)
+        );
+        assert!(d.mvfc.enabled && d.mvfc.source);
+        assert_eq!(d.csd, CsdParams::default());
+        let paper = Config::layered(&[Source::Preset("paper".into())]).unwrap();
+        assert_eq!(paper, Config::default().checked().unwrap());
+        // What a file holds is what it reads back.
+        let back: Config = toml::from_str(&d.to_toml()).unwrap();
+        assert_eq!(back, d);
+    }
+
+    #[test]
+    fn layers_apply_in_order_and_terms_are_given_whole() {
+        let arf = Config::layered(&[Source::Preset("arf".into())]).unwrap();
+        assert_eq!(arf.terms.to_string(), "csd=1,nnfm=1,gram=0.1");
+        assert_eq!(
+            (arf.start, arf.finish, arf.split),
+            (Start::Projection, Finish::Colour, 2.0)
+        );
+        let c = Config::layered(&[
+            Source::Preset("arf".into()),
+            Source::Config("{ terms = { sds = 1.0 }, csd = { guidance = 3.0 } }".into()),
+            Source::Set("mvfc.gamma=0.5".into()),
+            Source::Set("terms.gram=0.2".into()),
+        ])
+        .unwrap();
+        assert_eq!(c.terms.to_string(), "sds=1,gram=0.2");
+        assert_eq!(
+            (c.csd.mode, c.csd.guidance, c.mvfc.gamma),
+            (Mode::Sds, 3.0, 0.5)
+        );
+        assert_eq!(c.start, Start::Projection);
+        let inline = Config::layered(&[Source::Config("{ preset = \"arf\", views = 2 }".into())]);
+        assert_eq!(inline.unwrap().start, Start::Projection);
+    }
+
+    #[test]
+    fn unknown_keys_bad_values_and_contradictions_are_named() {
+        let e = |l: Source| Config::layered(&[l]).unwrap_err().to_string();
+        assert!(e(Source::Set("guidance=1".into())).contains("`guidance`"));
+        assert!(e(Source::Set("csd.guidanc=1".into())).contains("csd.guidanc"));
+        assert!(e(Source::Set("start=paint".into())).contains("start=paint"));
+        assert!(e(Source::Config("{ view = 2 }".into())).contains("view"));
+        assert!(e(Source::Preset("arff".into())).contains("paper, arf"));
+        assert!(e(Source::Set("strength=2".into())).contains("strength"));
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("c.toml");
+        std::fs::write(&p, "[mvfc]\ngama = 1.0\n").unwrap();
+        let msg = e(Source::Config(p.display().to_string()));
+        assert!(msg.contains("c.toml") && msg.contains("gama"), "{msg}");
+        let both = Config::layered(&[
+            Source::Preset("arf".into()),
+            Source::Set("preserve_color=true".into()),
+        ]);
+        assert!(both.unwrap_err().to_string().contains("choose one"));
+    }
+
+    #[test]
+    fn help_lists_every_key_with_its_doc() {
+        let h = Config::help();
+        for key in [
+            "terms",
+            "start",
+            "finish",
+            "csd.guidance",
+            "mvfc.gamma",
+            "texture.views",
+        ] {
+            assert!(h.contains(&format!("  {key} ")), "{key}: {h}");
+        }
+        assert!(h.contains("[default: csd=1]") && h.contains("Adjacent views per iteration"));
+    }
+}

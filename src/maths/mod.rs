@@ -1,0 +1,12 @@
+//! General maths that the method, the baselines and the metrics share, kept apart from
+//! all three so that none imports another for it.
+//!
+//! | module | what |
+//! |---|---|
+//! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64), PSD square roots, small dense products |
+//! | [`gram`] | the Gram matrix of a feature map (Gatys et al. 2016, Eq. 3) |
+//! | [`warp`] | depth reprojection of one rendered view into another, with an occlusion test |
+
+pub mod gram;
+pub mod linalg;
+pub mod warp;
