@@ -667,12 +667,16 @@ pub fn write_checkpoint(
         }
         write_array(out, "last_targets.npy", &l.targets)?;
     }
-    out.set_meta(serde_json::json!({
+    let mut meta = serde_json::json!({
         "iteration": c.iteration,
         "gaussians": c.scene.len(),
         "sh_degree": c.scene.sh_degree,
         "last": c.last.map(|l| &l.report),
-    }));
+    });
+    if let Some(p) = c.last.and_then(|l| l.prior.as_ref()) {
+        meta["prior"] = p.clone();
+    }
+    out.set_meta(meta);
     Ok(())
 }
 

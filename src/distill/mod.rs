@@ -352,6 +352,7 @@ impl<'a> Distiller<'a> {
             report: report.clone(),
             latents: None,
             targets,
+            prior: None,
         });
         self.iteration += 1;
         Ok(report)
@@ -471,6 +472,7 @@ impl<'a> Distiller<'a> {
                 z_src: x.z_src,
             }),
             targets,
+            prior: self.prior.describe(),
         });
         self.iteration += 1;
         Ok(report)

@@ -110,6 +110,8 @@ pub struct LastIteration {
     pub latents: Option<LastLatents>,
     /// `[N, H, W, 3]`.
     pub targets: Array4<f32>,
+    /// What the prior says of itself ([`crate::prior::Prior::describe`]), if anything.
+    pub prior: Option<serde_json::Value>,
 }
 
 /// The last iteration's latents, `[N, C, h, w]` each.

@@ -192,6 +192,13 @@ pub trait Prior: Send {
         false
     }
 
+    /// What the prior is made of, for a checkpoint's manifest (`pipeline inspect`): e.g.
+    /// the patch prior's banks and its patch size per timestep. `None` (the default):
+    /// nothing beyond the model directory.
+    fn describe(&self) -> Option<serde_json::Value> {
+        None
+    }
+
     /// True when the `Content` prediction is the identity too (by default whenever the
     /// unconditional one is; a prior with a real content model returns false).
     fn content_is_identity(&self) -> bool {

@@ -22,12 +22,12 @@ pub(crate) fn stylizer_dir() -> Option<PathBuf> {
     crate::harness::model("stylizer")
 }
 
-fn sample_scene() -> Scene {
+pub(crate) fn sample_scene() -> Scene {
     fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply")).unwrap()
 }
 
 /// Source views of `scene` from an `n`-view orbit at `size` x `size`.
-fn source(scene: &Scene, n: usize, size: u32) -> (Vec<Camera>, SourceViews) {
+pub(crate) fn source(scene: &Scene, n: usize, size: u32) -> (Vec<Camera>, SourceViews) {
     let cams = load_cameras(
         &format!("orbit:{n},elev=30,radius=2.4"),
         &scene.bounds(),
@@ -40,7 +40,7 @@ fn source(scene: &Scene, n: usize, size: u32) -> (Vec<Camera>, SourceViews) {
 }
 
 /// A high-contrast procedural style: diagonal stripes of saturated colours.
-fn stripes() -> Array4<f32> {
+pub(crate) fn stripes() -> Array4<f32> {
     let cols = [
         [0.95, 0.85, 0.1],
         [0.1, 0.2, 0.8],
@@ -50,7 +50,8 @@ fn stripes() -> Array4<f32> {
     Array4::from_shape_fn((1, 3, 128, 128), |(_, c, y, x)| cols[((x + y) / 12) % 4][c])
 }
 
-fn run_loop(
+pub(crate) fn run_loop(
+    dir: &Path,
     scene: &Scene,
     cams: &[Camera],
     src: &SourceViews,
@@ -59,9 +60,8 @@ fn run_loop(
     set: Option<TimestepSet>,
     iters: usize,
 ) -> (Scene, Vec<Vec<f32>>) {
-    let dir = stylizer_dir().unwrap();
     let mut p = prior::open(
-        &dir,
+        dir,
         &PriorOptions {
             style_image: Some(style),
             strength: Some(strength),
@@ -69,7 +69,7 @@ fn run_loop(
         },
     )
     .unwrap();
-    let set = set.unwrap_or_else(|| prior::model_timesteps(&dir).unwrap().1);
+    let set = set.unwrap_or_else(|| prior::model_timesteps(dir).unwrap().1);
     let params = Config {
         views: 3,
         lr_dc: 0.05,
@@ -89,7 +89,7 @@ fn luma(c: &[f32]) -> f32 {
 
 /// Over covered pixels (alpha > 0.5) of every view: (RMS change of the un-premultiplied
 /// colour from the source, mean luma, fraction clipped in every channel).
-fn stats(src: &SourceViews, renders: &[Vec<f32>]) -> (f64, f64, f64) {
+pub(crate) fn stats(src: &SourceViews, renders: &[Vec<f32>]) -> (f64, f64, f64) {
     let (mut d2, mut l, mut clip, mut n) = (0.0f64, 0.0f64, 0usize, 0usize);
     for (v, r) in renders.iter().enumerate() {
         let a = &src.alpha[v];
@@ -122,9 +122,25 @@ fn stats(src: &SourceViews, renders: &[Vec<f32>]) -> (f64, f64, f64) {
 /// restyle for its neighbours, and the shared Gaussians carry that back into view 0).
 #[test]
 fn self_style_is_nearly_a_fixed_point() {
-    if stylizer_dir().is_none() {
+    let Some(dir) = stylizer_dir() else {
         return;
-    }
+    };
+    let (d_own, d_style) = self_style_changes(&dir);
+    assert!(
+        d_style > 0.05,
+        "the stripes style barely moved the scene: {d_style}"
+    );
+    // Exactly 0 in exact arithmetic (both branches see the same latents, and a target
+    // equal to the render asks for no step); the bound leaves room for rounding only.
+    assert!(
+        d_own < 0.02 * d_style,
+        "own style moved {d_own} vs stripes {d_style}"
+    );
+}
+
+/// RMS colour change of the covered pixels after 20 iterations with the prior at `dir`,
+/// with the style image equal to the content and with the stripes.
+pub(crate) fn self_style_changes(dir: &Path) -> (f64, f64) {
     let scene = sample_scene();
     let (cams, src) = source(&scene, 6, 96);
     let cams = vec![cams[0].clone(); 3];
@@ -136,21 +152,12 @@ fn self_style_is_nearly_a_fixed_point() {
     };
     let seen = fill::fill_background(&src.rgb[0], &src.alpha[0], [0.0; 3], 96, 96);
     let own = Array4::from_shape_fn((1, 3, 96, 96), |(_, c, y, x)| seen[(y * 96 + x) * 3 + c]);
-    let (_, r_own) = run_loop(&scene, &cams, &src, own, 1.0, None, 20);
-    let (_, r_style) = run_loop(&scene, &cams, &src, stripes(), 1.0, None, 20);
+    let (_, r_own) = run_loop(dir, &scene, &cams, &src, own, 1.0, None, 20);
+    let (_, r_style) = run_loop(dir, &scene, &cams, &src, stripes(), 1.0, None, 20);
     let (d_own, ..) = stats(&src, &r_own);
     let (d_style, ..) = stats(&src, &r_style);
     eprintln!("RMS colour change: own style {d_own:.4}, stripes {d_style:.4}");
-    assert!(
-        d_style > 0.05,
-        "the stripes style barely moved the scene: {d_style}"
-    );
-    // Exactly 0 in exact arithmetic (both branches see the same latents, and a target
-    // equal to the render asks for no step); the bound leaves room for rounding only.
-    assert!(
-        d_own < 0.02 * d_style,
-        "own style moved {d_own} vs stripes {d_style}"
-    );
+    (d_own, d_style)
 }
 
 /// The mean luma of covered pixels in the stylizer's output T(view, s_style) on the
@@ -208,7 +215,7 @@ fn no_brightness_drift_and_no_extra_clipping() {
     let mut lumas = Vec::new();
     let mut last = (0.0, 0.0, 0.0);
     for iters in [15, 30, 45] {
-        let (_, r) = run_loop(&scene, &cams, &src, style.clone(), 1.0, None, iters);
+        let (_, r) = run_loop(&stylizer_dir().unwrap(), &scene, &cams, &src, style.clone(), 1.0, None, iters);
         last = stats(&src, &r);
         lumas.push(last.1);
     }
@@ -247,7 +254,7 @@ fn extremes_are_finite() {
     let t_last = cfg.num_train_timesteps - 1;
     for (t, strength) in [(1, 1.0), (t_last, 1.0), (1, 0.0), (t_last, 0.0)] {
         let set = TimestepSet::new(&cfg, t, t, 1).unwrap();
-        let (s, r) = run_loop(&scene, &cams, &src, stripes(), strength, Some(set), 3);
+        let (s, r) = run_loop(&stylizer_dir().unwrap(), &scene, &cams, &src, stripes(), strength, Some(set), 3);
         assert!(
             s.sh_dc.iter().flatten().all(|v| v.is_finite()),
             "t {t} strength {strength}"
@@ -351,11 +358,17 @@ fn chunks_resume_and_kill_give_the_same_bytes() {
     let Some(stylizer) = stylizer_dir() else {
         return;
     };
+    resume_case(&stylizer);
+}
+
+/// Six iterations with the prior at `model` in one process, as two chunks of three, and
+/// as a chunk killed part-way and run again: the same bytes; strength 0 leaves the colours.
+pub(crate) fn resume_case(stylizer: &Path) {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let scene = repo_root().join("data-sample/scene.ply");
     render_source(&scene, "orbit:5,elev=30,radius=2.4", 64, &d.join("views"));
-    let base = distill_args(d, &stylizer);
+    let base = distill_args(d, stylizer);
     let start = std::time::Instant::now();
     ok(bin("distill")
         .args(&base)

@@ -10,11 +10,12 @@
 //! shift-invariant and the far patches carry ~0 weight).
 
 use crate::harness::{self, repo_root};
+use std::path::{Path, PathBuf};
 use fantasystyle::prior::patch::bank::{Bank, patches, patches_at};
 use fantasystyle::prior::patch::denoise::{self, Guide, Level, Search};
 use fantasystyle::rng::Rng;
 use fantasystyle_schemas::{read_npy_f32, write_npy};
-use ndarray::{Array2, Array3, Array4};
+use ndarray::{Array2, Array4};
 
 fn random(seed: u64, shape: (usize, usize, usize, usize), scale: f32) -> Array4<f32> {
     let mut r = Rng::new(seed);
@@ -70,5 +71,84 @@ fn patch_denoiser_matches_an_independent_numpy_brute_force() {
         let (e1, e2) = (max_abs(&exact, &want), max_abs(&fast, &want));
         assert!(e1 < 1e-5 && e2 < 1e-5, "k {k} sa {sa} guide {g}: exact {e1:e}, fast {e2:e}");
     }
-    let _ = Array3::<f32>::zeros((1, 1, 1));
+}
+
+/// The committed default prior, `priors/patch`.
+pub(crate) fn patch_dir() -> PathBuf {
+    repo_root().join("priors/patch")
+}
+
+/// A copy of `priors/patch` in `dir` with keys of its `patch` section replaced.
+pub(crate) fn patch_model(dir: &Path, keys: &[(&str, serde_json::Value)]) -> PathBuf {
+    let text = std::fs::read_to_string(patch_dir().join("model.json")).unwrap();
+    let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    for (k, v) in keys {
+        m["patch"][*k] = v.clone();
+    }
+    let out = dir.join("patch-model");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("model.json"), m.to_string()).unwrap();
+    out
+}
+
+/// With the style image equal to the content the default prior moves the scene a
+/// fraction of what a real style does. Not exactly zero, unlike the stylizer's: the
+/// style branch models the view's patches as a whole image (any patch anywhere), the
+/// source branch each pixel's neighbourhood, so a patch that recurs elsewhere in the
+/// view with other colours around it pulls a little.
+#[test]
+fn self_style_is_nearly_a_fixed_point_with_the_patch_prior() {
+    let (d_own, d_style) = crate::distill::self_style_changes(&patch_dir());
+    assert!(d_style > 0.05, "the stripes barely moved the scene: {d_style}");
+    assert!(
+        d_own < 0.25 * d_style,
+        "own style moved {d_own} vs stripes {d_style}"
+    );
+}
+
+/// Chunks, resume and a killed chunk give the same bytes with the patch prior (its banks
+/// are rebuilt from the style and the source views in each process).
+#[test]
+fn chunks_resume_and_kill_give_the_same_bytes_with_the_patch_prior() {
+    crate::distill::resume_case(&patch_dir());
+}
+
+/// The sample DAG as it ships (the default), at a small size: its stylized splat has
+/// exactly the input's Gaussians, with bit-identical positions, scales, rotations and
+/// opacities; only colours changed (issues 38 and 40).
+#[test]
+fn the_default_dag_keeps_the_geometry_bit_for_bit() {
+    let t = tempfile::tempdir().unwrap();
+    let dag = repo_root().join("data-sample/stylize.toml");
+    let o = std::process::Command::new(harness::pipeline_bin())
+        .arg("run")
+        .arg("--dag")
+        .arg(&dag)
+        .args(["--workdir", "run"])
+        .args(["--set", "render.width=48", "--set", "render.height=48"])
+        .args(["--set", "distill.chunks=1", "--set", "distill.chunk=3"])
+        .current_dir(t.path())
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let load = |p: &Path| fantasystyle::artifacts::load_scene(p).unwrap();
+    let input = load(&repo_root().join("data-sample/scene.ply"));
+    let out = load(&t.path().join("run/runs/final/scene.ply"));
+    assert_eq!(out.len(), input.len(), "Gaussians added or removed");
+    let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert!(bits(&out.positions) == bits(&input.positions), "positions changed");
+    assert!(bits(&out.log_scales) == bits(&input.log_scales), "scales changed");
+    let rot = |s: &fantasystyle::Scene| {
+        s.rotations.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>()
+    };
+    assert!(rot(&out) == rot(&input), "rotations changed");
+    let op = |s: &fantasystyle::Scene| s.opacity_logits.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert!(op(&out) == op(&input), "opacities changed");
+    let dc = |s: &fantasystyle::Scene| s.sh_dc.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert!(dc(&out) != dc(&input), "the colours did not change");
 }

@@ -134,6 +134,16 @@ fn with_the_nnfm_term_too() {
     )]);
 }
 
+/// The weight-free patch prior alone (priors/patch, its style scale set to the stripes'
+/// 128 px so that they keep their period on screen), with every VGG term off: the
+/// paper's CSD term is the only term.
+#[test]
+fn with_the_patch_prior_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let model = crate::patch_prior::patch_model(tmp.path(), &[("style_size", 128.into())]);
+    stripes_with(&model, None);
+}
+
 /// Distill a plane of small Gaussians after a stripe style with the texture term `parts`;
 /// every view then shows the stripes at their period, and neighbouring views agree.
 fn stripes_case(parts: &[Statistic]) {
@@ -144,6 +154,13 @@ fn stripes_case(parts: &[Statistic]) {
     ) else {
         return;
     };
+    let term = TextureTerm::new(Vgg16::load(&vgg_dir).unwrap(), &stripes(), parts, 1).unwrap();
+    stripes_with(&stylizer, Some(term));
+}
+
+/// Distill the plane after the stripes with the prior at `model` (and `term`, if any).
+fn stripes_with(model: &std::path::Path, term: Option<TextureTerm>) {
+    let stylizer = model;
     let scene = plane();
     let cams = cameras(&scene);
     let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
@@ -157,24 +174,24 @@ fn stripes_case(parts: &[Statistic]) {
     }
     let style = stripes();
     let mut p = prior::open(
-        &stylizer,
+        stylizer,
         &PriorOptions {
             style_image: Some(style.to_chw().insert_axis(ndarray::Axis(0))),
             ..Default::default()
         },
     )
     .unwrap();
-    let set = prior::model_timesteps(&stylizer).unwrap().1;
+    let set = prior::model_timesteps(stylizer).unwrap().1;
     let params = Config {
         views: 2,
         lr_dc: 0.05,
         colour_loss: ColourLoss::L2,
         ..Config::default()
     };
-    let term = TextureTerm::new(Vgg16::load(&vgg_dir).unwrap(), &style, parts, 1).unwrap();
-    let mut d = Distiller::new(&scene, &cams, &src, p.as_mut(), set, params, 0)
-        .unwrap()
-        .with_texture(term);
+    let mut d = Distiller::new(&scene, &cams, &src, p.as_mut(), set, params, 0).unwrap();
+    if let Some(term) = term {
+        d = d.with_texture(term);
+    }
     for _ in 0..60 {
         d.iterate().unwrap();
     }

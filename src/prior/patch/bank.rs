@@ -306,6 +306,14 @@ impl Bank {
         self.len() == 0
     }
 
+    /// Inverted-file cells (0: none).
+    pub fn cells(&self) -> usize {
+        self.reduced
+            .as_ref()
+            .and_then(|r| r.ivf.as_ref())
+            .map_or(0, |i| i.cells.len())
+    }
+
     /// Dimension the candidates are searched in (d with PCA, else k k C).
     pub fn search_dims(&self) -> usize {
         self.reduced

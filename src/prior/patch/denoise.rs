@@ -26,7 +26,7 @@
 //!   style patch is used about equally and no single flat patch wins everywhere.
 
 use super::bank::{Bank, row_norms};
-use ndarray::{Array2, ArrayView2, Axis, s};
+use ndarray::{Array2, ArrayView2, ArrayView3, ArrayView4, Axis, s};
 use rayon::prelude::*;
 
 /// The noise level of z_t = `sa` x0 + `sb` eps (`sa` = sqrt(ab), `sb` = sqrt(1 - ab)).
@@ -515,54 +515,114 @@ fn cell_order(
     order
 }
 
-/// The exact posterior mean `[P, C]` of noisy patches `x` `[P, D]` at `pixels` (b, y, x)
-/// under a *local* model of a batch of clean images: the candidates of pixel (b, y, x)
-/// are the patches of image b within `radius` of (y, x) (`source[b]` `[h w, D]`, every
-/// pixel's patch; Kamb & Ganguli's local score machine on one image per view).
+/// The exact posterior mean `[P, C]` at `pixels` (b, y, x) of the noisy images `z`
+/// `[B, C, h, w]` under a *local* model of the clean images `source` `[B, C, h, w]`:
+/// the candidates of pixel (b, y, x) are the k x k patches of image b centred within
+/// `radius` of (y, x) and inside the image (Kamb & Ganguli's local score machine on one
+/// image per view; patches read with reflection at the borders, as [`super::bank::patches`]).
+///
+/// Written per offset o rather than per patch: the squared distance of the patch at i to
+/// the one at i + o is a k x k box sum of e_o(p) = |z(p) - sa y(p + o)|^2, so one image of
+/// e_o and its summed-area table give every pixel's distance for that offset in O(1)
+/// (k^2 times fewer operations than comparing patches).
 pub fn denoise_local(
-    source: &[Array2<f32>],
-    (h, w, channels): (usize, usize, usize),
-    x: ArrayView2<'_, f32>,
+    source: ArrayView4<'_, f32>,
+    z: ArrayView4<'_, f32>,
     pixels: &[[usize; 3]],
+    k: usize,
     radius: usize,
     level: Level,
 ) -> Array2<f32> {
-    let k = ((x.ncols() / channels) as f64).sqrt().round() as usize;
-    let mid = ((k / 2) * k + k / 2) * channels;
+    let (nb, channels, h, w) = source.dim();
+    let side = 2 * radius + 1;
+    let offsets: Vec<(isize, isize)> = (0..side * side)
+        .map(|i| ((i / side) as isize - radius as isize, (i % side) as isize - radius as isize))
+        .collect();
+    // dist[b][o][y * w + x]: the squared patch distance of pixel (y, x) to offset o.
+    let dist: Vec<Vec<Vec<f32>>> = (0..nb)
+        .into_par_iter()
+        .map(|b| {
+            offsets
+                .par_iter()
+                .map(|&o| offset_distances(source.index_axis(Axis(0), b), z.index_axis(Axis(0), b), o, k, level.sa))
+                .collect()
+        })
+        .collect();
     let var2 = 2.0 * level.sb * level.sb;
     let mut out = vec![0.0f32; pixels.len() * channels];
     out.par_chunks_mut(channels)
         .zip(pixels.par_iter())
-        .enumerate()
-        .for_each(|(i, (o, &[b, y, xx]))| {
-            let xi = x.row(i);
-            let ys = y.saturating_sub(radius)..(y + radius + 1).min(h);
-            let xs = xx.saturating_sub(radius)..(xx + radius + 1).min(w);
-            let mut cand: Vec<(f32, usize)> = Vec::with_capacity(ys.len() * xs.len());
-            for yy in ys {
-                for xc in xs.clone() {
-                    let j = yy * w + xc;
-                    let yv = source[b].row(j);
-                    let d: f32 = xi
-                        .iter()
-                        .zip(yv)
-                        .map(|(a, c)| (a - level.sa * c) * (a - level.sa * c))
-                        .sum();
-                    cand.push((-d / var2, j));
-                }
-            }
+        .for_each(|(o, &[b, y, x])| {
+            let inside = |(dy, dx): (isize, isize)| {
+                let (yy, xx) = (y as isize + dy, x as isize + dx);
+                (yy >= 0 && yy < h as isize && xx >= 0 && xx < w as isize)
+                    .then_some((yy as usize, xx as usize))
+            };
+            let cand: Vec<(f32, usize, usize)> = offsets
+                .iter()
+                .enumerate()
+                .filter_map(|(oi, &off)| {
+                    inside(off).map(|(yy, xx)| (-dist[b][oi][y * w + x] / var2, yy, xx))
+                })
+                .collect();
             let top = cand.iter().map(|c| c.0).fold(f32::NEG_INFINITY, f32::max);
-            let mut z = 0.0f32;
-            for &(l, j) in &cand {
+            let mut zsum = 0.0f32;
+            for &(l, yy, xx) in &cand {
                 let wgt = (l - top).exp();
-                z += wgt;
+                zsum += wgt;
                 for ch in 0..channels {
-                    o[ch] += wgt * source[b][[j, mid + ch]];
+                    o[ch] += wgt * source[[b, ch, yy, xx]];
                 }
             }
-            o.iter_mut().for_each(|v| *v /= z);
+            o.iter_mut().for_each(|v| *v /= zsum);
         });
     Array2::from_shape_vec((pixels.len(), channels), out).expect("length matches")
+}
+
+/// For one image pair and offset o = (dy, dx): every pixel's squared distance between
+/// the k x k patch of `z` at it and `sa` times the patch of `y` at it + o (reflected
+/// reads), as a box sum of the per-pixel squared difference (a summed-area table in f64).
+fn offset_distances(
+    y: ArrayView3<'_, f32>,
+    z: ArrayView3<'_, f32>,
+    (dy, dx): (isize, isize),
+    k: usize,
+    sa: f32,
+) -> Vec<f32> {
+    use super::bank::reflect;
+    let (channels, h, w) = y.dim();
+    let m = (k / 2) as isize;
+    let (eh, ew) = (h + 2 * m as usize, w + 2 * m as usize);
+    // Summed-area table of e over the extended domain [-m, h + m) x [-m, w + m).
+    let mut sat = vec![0.0f64; (eh + 1) * (ew + 1)];
+    for ey in 0..eh {
+        let py = ey as isize - m;
+        let (zy, yy) = (reflect(py, h), reflect(py + dy, h));
+        let mut row = 0.0f64;
+        for ex in 0..ew {
+            let px = ex as isize - m;
+            let (zx, yx) = (reflect(px, w), reflect(px + dx, w));
+            let mut e = 0.0f32;
+            for c in 0..channels {
+                let d = z[[c, zy, zx]] - sa * y[[c, yy, yx]];
+                e += d * d;
+            }
+            row += e as f64;
+            sat[(ey + 1) * (ew + 1) + ex + 1] = sat[ey * (ew + 1) + ex + 1] + row;
+        }
+    }
+    let ks = k;
+    let mut out = vec![0.0f32; h * w];
+    for yi in 0..h {
+        for xi in 0..w {
+            // Pixel (yi, xi)'s patch covers extended rows yi..yi + k, columns xi..xi + k.
+            let (y0, x0, y1, x1) = (yi, xi, yi + ks, xi + ks);
+            let s = sat[y1 * (ew + 1) + x1] - sat[y0 * (ew + 1) + x1] - sat[y1 * (ew + 1) + x0]
+                + sat[y0 * (ew + 1) + x0];
+            out[yi * w + xi] = s.max(0.0) as f32;
+        }
+    }
+    out
 }
 
 /// The exact logit of bank patch `j` for query row `x` (query `r` of the guide's block).
@@ -763,5 +823,47 @@ mod tests {
         let gap = |e: &Array2<f32>| (&e.mean_axis(Axis(0)).unwrap() - &want).mapv(f32::abs).sum();
         let (plain, bal) = (gap(&run(0)), gap(&run(30)));
         assert!(bal < 0.25 * plain, "mean gap balanced {bal}, plain {plain}");
+    }
+
+    /// The local model by offsets and summed-area tables equals the patch-by-patch
+    /// posterior (the candidates' patches read with reflection, compared in full).
+    #[test]
+    fn the_local_model_by_offsets_is_the_patchwise_posterior() {
+        use super::super::bank::patches_at;
+        let (c, h, w, k, r) = (3, 9, 11, 5, 2);
+        let src = noisy_image(5, c, h, w).insert_axis(Axis(0));
+        let z = noisy_image(6, c, h, w).insert_axis(Axis(0));
+        let level = Level { sa: 0.8, sb: 0.6 };
+        let pixels: Vec<[usize; 3]> = (0..h * w).map(|i| [0, i / w, i % w]).collect();
+        let fast = denoise_local(src.view(), z.view(), &pixels, k, r, level);
+        let bank = patches(src.index_axis(Axis(0), 0), k, 1);
+        let x = patches_at(z.view(), k, &pixels);
+        let mid = ((k / 2) * k + k / 2) * c;
+        for (i, &[_, y, xx]) in pixels.iter().enumerate() {
+            let mut cand = Vec::new();
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xc in xx.saturating_sub(r)..(xx + r + 1).min(w) {
+                    let j = yy * w + xc;
+                    let d: f64 = x
+                        .row(i)
+                        .iter()
+                        .zip(bank.row(j))
+                        .map(|(a, b)| ((a - level.sa * b) as f64).powi(2))
+                        .sum();
+                    cand.push((-d / (2.0 * (level.sb as f64).powi(2)), j));
+                }
+            }
+            let top = cand.iter().map(|v| v.0).fold(f64::NEG_INFINITY, f64::max);
+            let zs: f64 = cand.iter().map(|v| (v.0 - top).exp()).sum();
+            for ch in 0..c {
+                let want: f64 = cand
+                    .iter()
+                    .map(|&(l, j)| (l - top).exp() * bank[[j, mid + ch]] as f64)
+                    .sum::<f64>()
+                    / zs;
+                let got = fast[[i, ch]] as f64;
+                assert!((got - want).abs() < 1e-5, "pixel {i} channel {ch}: {got} vs {want}");
+            }
+        }
     }
 }

@@ -550,11 +550,8 @@ impl PatchPrior {
     /// patches near the pixel ([`denoise::denoise_local`]).
     fn own(&self, z: ArrayView4<'_, f32>, k: usize, level: Level, win: &Window) -> Result<Array2<f32>> {
         let src = win.source("the source model (Prompt)")?;
-        let (_, c, h, w) = src.dim();
-        let banks: Vec<Array2<f32>> = src.axis_iter(Axis(0)).map(|v| patches(v, k, 1)).collect();
-        let x = patches_at(z, k, &win.pixels);
         let r = self.config.source_radius;
-        Ok(denoise::denoise_local(&banks, (h, w, c), x.view(), &win.pixels, r, level))
+        Ok(denoise::denoise_local(src.view(), z, &win.pixels, k, r, level))
     }
 
     /// The style model's estimate `[P, C]` at the object's pixels: balanced, guided, and
@@ -627,11 +624,8 @@ impl PatchPrior {
         let k = self.config.patch_max;
         let src = latent::pool(win.source("the source model (Prompt)")?.view(), sc);
         let (zp, coarse, lv) = coarse_queries(z, sc, level, win)?;
-        let (_, c, h, w) = src.dim();
-        let banks: Vec<Array2<f32>> = src.axis_iter(Axis(0)).map(|v| patches(v, k, 1)).collect();
-        let x = patches_at(zp.view(), k, &coarse);
         let r = self.config.source_radius;
-        let est = denoise::denoise_local(&banks, (h, w, c), x.view(), &coarse, r, lv);
+        let est = denoise::denoise_local(src.view(), zp.view(), &coarse, k, r, lv);
         Ok(refine(z, &zp, sc, level, win, &coarse, &est))
     }
 }
@@ -686,6 +680,39 @@ fn refine(
 impl Prior for PatchPrior {
     fn info(&self) -> &PriorInfo {
         &self.info
+    }
+
+    /// The style image's size in latent pixels, the banks built so far (scale, patch
+    /// side, patches, cells) and, per timestep of the model's set, the style model's patch
+    /// side, scale and motif scale (the patch's extent in render pixels).
+    fn describe(&self) -> Option<serde_json::Value> {
+        let f = self.info.downsample;
+        let tr = self.config.timesteps;
+        let set = crate::scheduler::TimestepSet::new(&self.info.scheduler, tr.t_min, tr.t_max, tr.count).ok()?;
+        let steps: Vec<serde_json::Value> = set
+            .steps()
+            .iter()
+            .filter_map(|&t| {
+                let (k, sc) = (self.patch_size(t).ok()?, self.style_scale(t));
+                let k = if sc > 1 { self.config.patch_max } else { k };
+                Some(serde_json::json!({"t": t, "patch": k, "scale": sc, "motif_px": k * sc * f}))
+            })
+            .collect();
+        let mut banks: Vec<_> = self.style_banks.iter().collect();
+        banks.sort_by_key(|(key, _)| **key);
+        let banks: Vec<serde_json::Value> = banks
+            .into_iter()
+            .map(|(&(scale, k), b)| {
+                serde_json::json!({"scale": scale, "patch": k, "patches": b.len(), "cells": b.cells()})
+            })
+            .collect();
+        let (_, h, w) = self.style.dim();
+        Some(serde_json::json!({
+            "family": "patch",
+            "style_latent": [h, w],
+            "style_banks": banks,
+            "timesteps": steps,
+        }))
     }
 
     fn unconditional_is_identity(&self) -> bool {
