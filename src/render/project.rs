@@ -536,28 +536,6 @@ fn gather_lanes(
     (p, q, ls, logit)
 }
 
-/// The rotation matrix of the normalised quaternion `(w, x, y, z)`.
-#[inline(always)]
-fn rotation_f32(w: f32, x: f32, y: f32, z: f32) -> [[f32; 3]; 3] {
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
-}
-
 /// `U = J W R S` (2x3) from the Jacobian's non-zero entries `[j00, j02, j11, j12]`, the
 /// camera rotation `r`, the Gaussian's rotation `rq` and scales `s`.
 #[inline(always)]
@@ -622,7 +600,7 @@ fn lanes(scene: &Scene, cam: &CamF, lo: usize, out: &mut LaneOut) {
         let q_ok = qn >= 1e-12;
         let inv = 1.0 / qn;
         let (w, x, y, z) = (qw * inv, qx * inv, qy * inv, qz * inv);
-        let rq = rotation_f32(w, x, y, z);
+        let rq = crate::geometry::unit_quat_rows(w, x, y, z);
         let s = [exp_f32(ls[0][l]), exp_f32(ls[1][l]), exp_f32(ls[2][l])];
         // The polynomial exp clamps at 88; a larger log-scale is left to the f64 path.
         let s_ok = (ls[0][l] < 88.0) & (ls[1][l] < 88.0) & (ls[2][l] < 88.0);
