@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Share of an object's pixels that are bluish (BENCHMARKS.md, "Plant x opart: the
+"""Share of an object's pixels that are bluish (docs/texture-term.md, "Plant x opart: the
 off-palette hues"): over all views of a views artifact, pixels with alpha > 0.5, colour
 un-premultiplied (rgb / alpha), with B > R + 0.08 and G > R. The op-art style (red, white,
 black) has none.

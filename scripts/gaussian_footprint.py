@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Screen size of a scene's Gaussians at the style projection's scale (BENCHMARKS.md,
+"""Screen size of a scene's Gaussians at the style projection's scale (docs/texture-term.md,
 "Plant x opart" / the plant x brick correction).
 
 For the Gaussians of opacity >= 0.5 (those `Placement::of` uses for the object's centre),
@@ -9,7 +9,7 @@ depth(centre) / fx, as in `src/baselines/projection.rs`.
 
     vendor/venv/bin/python scripts/gaussian_footprint.py SCENE.splat CAMERAS.json [--by-height]
 
-With --by-height (BENCHMARKS.md "Normals from the rendered surface"), also for all
+With --by-height (docs/style-projection.md "Normals from the rendered surface"), also for all
 Gaussians, in the lowest 30% of the object's height (-y up; the plant's pot) and the
 rest: the same sizes weighted by covered area (opacity x the two largest scales), and
 the area-weighted share whose axis of smallest scale lies within 37 degrees (|cos| > 0.8)

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""The histogram colour finish tried on plant x opart and not kept (BENCHMARKS.md
-"A histogram colour finish on plant x opart"): a distilled scene's DC colours moved so
+"""The histogram colour finish tried on plant x opart and not kept (docs/colour-transfer.md
+"Tried and not kept"): a distilled scene's DC colours moved so
 that its rendered object's colours follow the style image's whole distribution, not only
 its mean and covariance.
 

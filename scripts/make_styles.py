@@ -9,7 +9,7 @@ Writes three procedural styles far from the sample's style and from each other:
   opart.png     concentric zig-zag rings, black / white / red, hard edges
   mosaic.png    stained glass: Voronoi cells in a warm palette with dark leading
 and with --dev, instead, three development styles (for choosing settings outside the
-benchmark; BENCHMARKS.md "A texture term that carries arrangement"):
+benchmark; docs/texture-term.md "A texture term that carries arrangement"):
   tiles.png     coloured bricks in running bond with dark mortar (a regular arrangement)
   dots.png      yellow, red and green discs on a navy ground (small isolated motifs)
   waves.png     wavy parallel bands, navy / yellow / white, hard edges (a banded motif

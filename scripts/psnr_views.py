@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """PSNR and mean |difference| between two views artifacts of the same cameras
-(BENCHMARKS.md "Splitting the long Gaussians": a split scene's renders against the
+(docs/splitting.md: a split scene's renders against the
 unsplit scene's).
 
     vendor/venv/bin/python scripts/psnr_views.py VIEWS_A VIEWS_B

@@ -12,6 +12,7 @@
 //! values these functions have always produced.
 
 pub use glam::{DMat3, DVec3, Vec3};
+use std::ops::{Add, Mul, Sub};
 
 /// `v / |v|` (division, not multiplication by the reciprocal); not checked.
 #[inline]
@@ -46,23 +47,34 @@ pub fn quat_to_mat(q: [f64; 4]) -> Option<DMat3> {
         return None;
     }
     let [w, x, y, z] = q.map(|v| v / n);
-    Some(mat3([
+    Some(mat3(unit_quat_rows(w, x, y, z)))
+}
+
+/// The rows of the rotation matrix of the unit quaternion `(w, x, y, z)` (already
+/// normalised), in f32 (the projection's lanes) or f64.
+#[inline(always)]
+pub fn unit_quat_rows<T>(w: T, x: T, y: T, z: T) -> [[T; 3]; 3]
+where
+    T: Copy + From<f32> + Add<Output = T> + Sub<Output = T> + Mul<Output = T>,
+{
+    let (one, two) = (T::from(1.0), T::from(2.0));
+    [
         [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
+            one - two * (y * y + z * z),
+            two * (x * y - w * z),
+            two * (x * z + w * y),
         ],
         [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
+            two * (x * y + w * z),
+            one - two * (x * x + z * z),
+            two * (y * z - w * x),
         ],
         [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
+            two * (x * z - w * y),
+            two * (y * z + w * x),
+            one - two * (x * x + y * y),
         ],
-    ]))
+    ]
 }
 
 /// Unit quaternion `[w, x, y, z]`, `w >= 0`, of a rotation matrix (Shepperd's method).

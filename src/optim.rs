@@ -187,137 +187,12 @@ pub fn loss_and_grad_into(
     let lambda = p.ssim_weight;
     s.resize(npix);
     let m = |pix: usize| mask.map_or(1.0, |m| m[pix]);
-    // Masked images, planar per channel; the L1 term and its gradient.
-    let l1: f64 = {
-        let [x0, x1, x2] = planes(&mut s.x, npix);
-        let [y0, y1, y2] = planes(&mut s.y, npix);
-        let [g0, g1, g2] = planes(&mut s.gp, npix);
-        let sums: Vec<f64> = x0
-            .par_chunks_mut(SUM_CHUNK)
-            .zip(x1.par_chunks_mut(SUM_CHUNK))
-            .zip(x2.par_chunks_mut(SUM_CHUNK))
-            .zip(y0.par_chunks_mut(SUM_CHUNK))
-            .zip(y1.par_chunks_mut(SUM_CHUNK))
-            .zip(y2.par_chunks_mut(SUM_CHUNK))
-            .zip(g0.par_chunks_mut(SUM_CHUNK))
-            .zip(g1.par_chunks_mut(SUM_CHUNK))
-            .zip(g2.par_chunks_mut(SUM_CHUNK))
-            .enumerate()
-            .map(|(c, ((((((((x0, x1), x2), y0), y1), y2), g0), g1), g2))| {
-                let (xs, ys, gs) = ([x0, x1, x2], [y0, y1, y2], [g0, g1, g2]);
-                let mut l1 = 0.0f64;
-                let base = c * SUM_CHUNK;
-                for k in 0..xs[0].len() {
-                    let pix = base + k;
-                    let mk = m(pix);
-                    for ch in 0..3 {
-                        let i = pix * 3 + ch;
-                        let (xv, yv) = (mk * render[i], mk * target[i]);
-                        let d = xv - yv;
-                        l1 += d.abs() as f64;
-                        xs[ch][k] = xv;
-                        ys[ch][k] = yv;
-                        gs[ch][k] =
-                            (1.0 - lambda) * d.signum() * if d == 0.0 { 0.0 } else { 1.0 } / n;
-                    }
-                }
-                l1
-            })
-            .collect();
-        sums.iter().sum()
-    };
+    let l1 = masked_l1(s, render, target, &m, n, lambda);
     let mut ssim_sum = 0.0f64;
     if lambda > 0.0 {
         let k = gauss_window();
         for c in 0..3 {
-            let xs = &s.x[c * npix..(c + 1) * npix];
-            let ys = &s.y[c * npix..(c + 1) * npix];
-            let tmp = &mut s.tmp;
-            let [mx, my, pxx, pyy, pxy, b6] = &mut s.maps;
-            blur(xs, h, w, &k, tmp, mx);
-            blur(ys, h, w, &k, tmp, my);
-            blur_with(
-                |y, r: &mut [f32]| {
-                    for (o, a) in r.iter_mut().zip(&xs[y * w..(y + 1) * w]) {
-                        *o = a * a;
-                    }
-                },
-                h,
-                w,
-                &k,
-                tmp,
-                pxx,
-            );
-            blur_with(
-                |y, r: &mut [f32]| {
-                    for (o, a) in r.iter_mut().zip(&ys[y * w..(y + 1) * w]) {
-                        *o = a * a;
-                    }
-                },
-                h,
-                w,
-                &k,
-                tmp,
-                pyy,
-            );
-            blur_with(
-                |y, r: &mut [f32]| {
-                    let (a, b) = (&xs[y * w..(y + 1) * w], &ys[y * w..(y + 1) * w]);
-                    for (o, (a, b)) in r.iter_mut().zip(a.iter().zip(b)) {
-                        *o = a * b;
-                    }
-                },
-                h,
-                w,
-                &k,
-                tmp,
-                pxy,
-            );
-            // S = A1 A2 / (B1 B2) and its partials w.r.t. mu_x, E[x^2], E[xy], written
-            // over mu_x, E[x^2] and E[xy] (each is read at the same pixel first).
-            let g = -lambda / n;
-            let sums: Vec<f64> = mx
-                .par_chunks_mut(SUM_CHUNK)
-                .zip(my.par_chunks(SUM_CHUNK))
-                .zip(pxx.par_chunks_mut(SUM_CHUNK))
-                .zip(pyy.par_chunks(SUM_CHUNK))
-                .zip(pxy.par_chunks_mut(SUM_CHUNK))
-                .map(|((((mx, my), pxx), pyy), pxy)| {
-                    let mut s_sum = 0.0f64;
-                    for i in 0..mx.len() {
-                        let (ux, uy) = (mx[i], my[i]);
-                        let a1 = 2.0 * ux * uy + SSIM_C1;
-                        let a2 = 2.0 * (pxy[i] - ux * uy) + SSIM_C2;
-                        let b1 = ux * ux + uy * uy + SSIM_C1;
-                        let b2 = (pxx[i] - ux * ux) + (pyy[i] - uy * uy) + SSIM_C2;
-                        let den = b1 * b2;
-                        let s = a1 * a2 / den;
-                        s_sum += s as f64;
-                        mx[i] = g
-                            * ((2.0 * uy * a2 - 2.0 * uy * a1) / den - s * 2.0 * ux / b1
-                                + s * 2.0 * ux / b2);
-                        pxx[i] = g * (-s / b2);
-                        pxy[i] = g * (2.0 * a1 / den);
-                    }
-                    s_sum
-                })
-                .collect();
-            ssim_sum += sums.iter().sum::<f64>();
-            // Back through the blurs (self-adjoint) and the products.
-            blur(mx, h, w, &k, tmp, my);
-            blur(pxx, h, w, &k, tmp, pyy);
-            blur(pxy, h, w, &k, tmp, b6);
-            let (bmx, bpxx, bpxy) = (&*my, &*pyy, &*b6);
-            s.gp[c * npix..(c + 1) * npix]
-                .par_chunks_mut(SUM_CHUNK)
-                .enumerate()
-                .for_each(|(ci, gp)| {
-                    let o = ci * SUM_CHUNK;
-                    for (j, g) in gp.iter_mut().enumerate() {
-                        let i = o + j;
-                        *g += bmx[i] + 2.0 * xs[i] * bpxx[i] + ys[i] * bpxy[i];
-                    }
-                });
+            ssim_sum += ssim_channel(s, c, h, w, &k, -lambda / n);
         }
     }
     let ssim = if lambda > 0.0 {
@@ -341,6 +216,138 @@ pub fn loss_and_grad_into(
             }
         });
     loss as f32
+}
+
+/// The masked images, planar per channel (into `s.x` and `s.y`), and the L1 term: its
+/// sum, returned, and its gradient, written into `s.gp`.
+fn masked_l1(
+    s: &mut LossScratch,
+    render: &[f32],
+    target: &[f32],
+    m: &(impl Fn(usize) -> f32 + Sync),
+    n: f32,
+    lambda: f32,
+) -> f64 {
+    let npix = s.x.len() / 3;
+    let [x0, x1, x2] = planes(&mut s.x, npix);
+    let [y0, y1, y2] = planes(&mut s.y, npix);
+    let [g0, g1, g2] = planes(&mut s.gp, npix);
+    let sums: Vec<f64> = x0
+        .par_chunks_mut(SUM_CHUNK)
+        .zip(x1.par_chunks_mut(SUM_CHUNK))
+        .zip(x2.par_chunks_mut(SUM_CHUNK))
+        .zip(y0.par_chunks_mut(SUM_CHUNK))
+        .zip(y1.par_chunks_mut(SUM_CHUNK))
+        .zip(y2.par_chunks_mut(SUM_CHUNK))
+        .zip(g0.par_chunks_mut(SUM_CHUNK))
+        .zip(g1.par_chunks_mut(SUM_CHUNK))
+        .zip(g2.par_chunks_mut(SUM_CHUNK))
+        .enumerate()
+        .map(|(c, ((((((((x0, x1), x2), y0), y1), y2), g0), g1), g2))| {
+            let (xs, ys, gs) = ([x0, x1, x2], [y0, y1, y2], [g0, g1, g2]);
+            let mut l1 = 0.0f64;
+            let base = c * SUM_CHUNK;
+            for k in 0..xs[0].len() {
+                let pix = base + k;
+                let mk = m(pix);
+                for ch in 0..3 {
+                    let i = pix * 3 + ch;
+                    let (xv, yv) = (mk * render[i], mk * target[i]);
+                    let d = xv - yv;
+                    l1 += d.abs() as f64;
+                    xs[ch][k] = xv;
+                    ys[ch][k] = yv;
+                    gs[ch][k] = (1.0 - lambda) * d.signum() * if d == 0.0 { 0.0 } else { 1.0 } / n;
+                }
+            }
+            l1
+        })
+        .collect();
+    sums.iter().sum()
+}
+
+/// The blurred product `a * b` of two `[h, w]` planes into `out`.
+fn blur_product(
+    a: &[f32],
+    b: &[f32],
+    h: usize,
+    w: usize,
+    k: &[f32; WIN],
+    tmp: &mut [f32],
+    out: &mut [f32],
+) {
+    blur_with(
+        |y, r: &mut [f32]| {
+            let (a, b) = (&a[y * w..(y + 1) * w], &b[y * w..(y + 1) * w]);
+            for (o, (a, b)) in r.iter_mut().zip(a.iter().zip(b)) {
+                *o = a * b;
+            }
+        },
+        h,
+        w,
+        k,
+        tmp,
+        out,
+    );
+}
+
+/// Channel `c`'s SSIM term: returns the sum of its per-pixel SSIM and adds its gradient
+/// (scaled by `g` = -lambda / n) to `s.gp`'s plane `c`.
+fn ssim_channel(s: &mut LossScratch, c: usize, h: usize, w: usize, k: &[f32; WIN], g: f32) -> f64 {
+    let npix = h * w;
+    let xs = &s.x[c * npix..(c + 1) * npix];
+    let ys = &s.y[c * npix..(c + 1) * npix];
+    let tmp = &mut s.tmp;
+    let [mx, my, pxx, pyy, pxy, b6] = &mut s.maps;
+    blur(xs, h, w, k, tmp, mx);
+    blur(ys, h, w, k, tmp, my);
+    blur_product(xs, xs, h, w, k, tmp, pxx);
+    blur_product(ys, ys, h, w, k, tmp, pyy);
+    blur_product(xs, ys, h, w, k, tmp, pxy);
+    // S = A1 A2 / (B1 B2) and its partials w.r.t. mu_x, E[x^2], E[xy], written
+    // over mu_x, E[x^2] and E[xy] (each is read at the same pixel first).
+    let sums: Vec<f64> = mx
+        .par_chunks_mut(SUM_CHUNK)
+        .zip(my.par_chunks(SUM_CHUNK))
+        .zip(pxx.par_chunks_mut(SUM_CHUNK))
+        .zip(pyy.par_chunks(SUM_CHUNK))
+        .zip(pxy.par_chunks_mut(SUM_CHUNK))
+        .map(|((((mx, my), pxx), pyy), pxy)| {
+            let mut s_sum = 0.0f64;
+            for i in 0..mx.len() {
+                let (ux, uy) = (mx[i], my[i]);
+                let a1 = 2.0 * ux * uy + SSIM_C1;
+                let a2 = 2.0 * (pxy[i] - ux * uy) + SSIM_C2;
+                let b1 = ux * ux + uy * uy + SSIM_C1;
+                let b2 = (pxx[i] - ux * ux) + (pyy[i] - uy * uy) + SSIM_C2;
+                let den = b1 * b2;
+                let s = a1 * a2 / den;
+                s_sum += s as f64;
+                mx[i] = g
+                    * ((2.0 * uy * a2 - 2.0 * uy * a1) / den - s * 2.0 * ux / b1
+                        + s * 2.0 * ux / b2);
+                pxx[i] = g * (-s / b2);
+                pxy[i] = g * (2.0 * a1 / den);
+            }
+            s_sum
+        })
+        .collect();
+    // Back through the blurs (self-adjoint) and the products.
+    blur(mx, h, w, k, tmp, my);
+    blur(pxx, h, w, k, tmp, pyy);
+    blur(pxy, h, w, k, tmp, b6);
+    let (bmx, bpxx, bpxy) = (&*my, &*pyy, &*b6);
+    s.gp[c * npix..(c + 1) * npix]
+        .par_chunks_mut(SUM_CHUNK)
+        .enumerate()
+        .for_each(|(ci, gp)| {
+            let o = ci * SUM_CHUNK;
+            for (j, g) in gp.iter_mut().enumerate() {
+                let i = o + j;
+                *g += bmx[i] + 2.0 * xs[i] * bpxx[i] + ys[i] * bpxy[i];
+            }
+        });
+    sums.iter().sum::<f64>()
 }
 
 /// The three `npix` planes of a planar `[3][npix]` buffer.
@@ -697,6 +704,58 @@ pub struct ColourFit<'a> {
     cache_bytes: usize,
 }
 
+/// Each view's state: its cache (projection and compositing order, and alpha when the
+/// fit masks by it) when the cache mode allows, in view order; and the cached bytes. An
+/// error when no Gaussian is visible from any camera.
+fn plan_views(scene: &Scene, cameras: &[Camera], p: &FitParams) -> Result<(Vec<ViewState>, usize)> {
+    let mut states = Vec::with_capacity(cameras.len());
+    let mut cache_bytes = 0usize;
+    let mut any_visible = false;
+    // Views are projected and composited a window at a time on all cores; which
+    // caches are kept is decided in view order, as before.
+    let window = crate::parallel::window_for(rayon::current_num_threads());
+    for win in cameras.chunks(window) {
+        let caches: Vec<ViewCache> = win
+            .par_iter()
+            .map(|cam| ViewCache::from_frame(&project(scene, cam)))
+            .collect();
+        for (cam, cache) in win.iter().zip(caches) {
+            if cache.blends() == 0 {
+                tracing::warn!("camera {:?}: no Gaussian is visible", cam.name);
+            } else {
+                any_visible = true;
+            }
+            let keep = match p.cache {
+                CacheMode::On => true,
+                CacheMode::Off => false,
+                CacheMode::Budget(b) => cache_bytes + cache.bytes() <= b,
+            };
+            if keep {
+                cache_bytes += cache.bytes();
+                let alpha = if p.mask_alpha {
+                    cache.alpha()
+                } else {
+                    Vec::new()
+                };
+                states.push(ViewState::Cached {
+                    cache: Box::new(cache),
+                    alpha,
+                });
+            } else {
+                states.push(ViewState::Uncached);
+            }
+        }
+    }
+    if !any_visible {
+        return Err(Error::param(format!(
+            "no Gaussian of the scene ({} Gaussians) is visible from any of the {} cameras",
+            scene.len(),
+            cameras.len()
+        )));
+    }
+    Ok((states, cache_bytes))
+}
+
 impl<'a> ColourFit<'a> {
     /// Validate the inputs and plan the views: build the caches that the mode allows.
     pub fn new(
@@ -726,51 +785,7 @@ impl<'a> ColourFit<'a> {
             validate_camera(c)?;
         }
         check_options(p)?;
-        let mut states = Vec::with_capacity(cameras.len());
-        let mut cache_bytes = 0usize;
-        let mut any_visible = false;
-        // Views are projected and composited a window at a time on all cores; which
-        // caches are kept is decided in view order, as before.
-        let window = crate::parallel::window_for(rayon::current_num_threads());
-        for win in cameras.chunks(window) {
-            let caches: Vec<ViewCache> = win
-                .par_iter()
-                .map(|cam| ViewCache::from_frame(&project(scene, cam)))
-                .collect();
-            for (cam, cache) in win.iter().zip(caches) {
-                if cache.blends() == 0 {
-                    tracing::warn!("camera {:?}: no Gaussian is visible", cam.name);
-                } else {
-                    any_visible = true;
-                }
-                let keep = match p.cache {
-                    CacheMode::On => true,
-                    CacheMode::Off => false,
-                    CacheMode::Budget(b) => cache_bytes + cache.bytes() <= b,
-                };
-                if keep {
-                    cache_bytes += cache.bytes();
-                    let alpha = if p.mask_alpha {
-                        cache.alpha()
-                    } else {
-                        Vec::new()
-                    };
-                    states.push(ViewState::Cached {
-                        cache: Box::new(cache),
-                        alpha,
-                    });
-                } else {
-                    states.push(ViewState::Uncached);
-                }
-            }
-        }
-        if !any_visible {
-            return Err(Error::param(format!(
-                "no Gaussian of the scene ({} Gaussians) is visible from any of the {} cameras",
-                scene.len(),
-                cameras.len()
-            )));
-        }
+        let (states, cache_bytes) = plan_views(scene, cameras, p)?;
         let cached_views = states
             .iter()
             .filter(|s| matches!(s, ViewState::Cached { .. }))

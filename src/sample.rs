@@ -96,88 +96,108 @@ pub fn sample_scene(seed: u64) -> Scene {
         },
         rng: Rng::derive(seed, "sample-scene"),
     };
-    let spacing = |area: f64, m: usize| (area / m as f64).sqrt();
+    b.ground();
+    b.sphere();
+    b.cube();
+    b.cone();
+    b.s
+}
 
-    // Checkered ground disk, radius 1, in the plane y = 0 (normal toward -y, up).
-    let (m, rad) = (7000, 1.0);
-    let sz = 0.75 * spacing(std::f64::consts::PI * rad * rad, m);
-    for i in 0..m {
-        let r = rad * ((i as f64 + 0.5) / m as f64).sqrt();
-        let th = i as f64 * GOLDEN_ANGLE;
-        let (x, z) = (r * th.cos(), r * th.sin());
-        let cell = ((x / 0.25).floor() + (z / 0.25).floor()) as i64;
-        let albedo = if cell.rem_euclid(2) == 0 {
-            [0.92, 0.86, 0.70]
-        } else {
-            [0.12, 0.36, 0.42]
-        };
-        b.disk([x, 0.0, z], [0.0, -1.0, 0.0], sz, albedo, 0.05);
+/// The side of a square cell when `m` points share `area`.
+fn spacing(area: f64, m: usize) -> f64 {
+    (area / m as f64).sqrt()
+}
+
+impl Builder {
+    /// Checkered ground disk, radius 1, in the plane y = 0 (normal toward -y, up).
+    fn ground(&mut self) {
+        let (m, rad) = (7000, 1.0);
+        let sz = 0.75 * spacing(std::f64::consts::PI * rad * rad, m);
+        for i in 0..m {
+            let r = rad * ((i as f64 + 0.5) / m as f64).sqrt();
+            let th = i as f64 * GOLDEN_ANGLE;
+            let (x, z) = (r * th.cos(), r * th.sin());
+            let cell = ((x / 0.25).floor() + (z / 0.25).floor()) as i64;
+            let albedo = if cell.rem_euclid(2) == 0 {
+                [0.92, 0.86, 0.70]
+            } else {
+                [0.12, 0.36, 0.42]
+            };
+            self.disk([x, 0.0, z], [0.0, -1.0, 0.0], sz, albedo, 0.05);
+        }
     }
 
-    // Red/white banded sphere.
-    let (m, c, rad) = (4500, [-0.42, -0.29, 0.12], 0.28);
-    let sz = 0.75 * spacing(4.0 * std::f64::consts::PI * rad * rad, m);
-    for i in 0..m {
-        let yy = 1.0 - 2.0 * (i as f64 + 0.5) / m as f64;
-        let rr = (1.0 - yy * yy).max(0.0).sqrt();
-        let th = i as f64 * GOLDEN_ANGLE;
-        let n = [rr * th.cos(), yy, rr * th.sin()];
-        let band = ((yy + 1.0) * 4.0).floor() as i64;
-        let albedo = if band.rem_euclid(2) == 0 {
-            [0.88, 0.08, 0.08]
-        } else {
-            [0.95, 0.95, 0.93]
-        };
-        let p = [0, 1, 2].map(|k| c[k] + rad * n[k]);
-        b.disk(p, n, sz, albedo, 0.3);
+    /// Red/white banded sphere.
+    fn sphere(&mut self) {
+        let (m, c, rad) = (4500, [-0.42, -0.29, 0.12], 0.28);
+        let sz = 0.75 * spacing(4.0 * std::f64::consts::PI * rad * rad, m);
+        for i in 0..m {
+            let yy = 1.0 - 2.0 * (i as f64 + 0.5) / m as f64;
+            let rr = (1.0 - yy * yy).max(0.0).sqrt();
+            let th = i as f64 * GOLDEN_ANGLE;
+            let n = [rr * th.cos(), yy, rr * th.sin()];
+            let band = ((yy + 1.0) * 4.0).floor() as i64;
+            let albedo = if band.rem_euclid(2) == 0 {
+                [0.88, 0.08, 0.08]
+            } else {
+                [0.95, 0.95, 0.93]
+            };
+            let p = [0, 1, 2].map(|k| c[k] + rad * n[k]);
+            self.disk(p, n, sz, albedo, 0.3);
+        }
     }
 
-    // Blue cube, half-size 0.2, standing on the ground, turned 30 degrees about y.
-    let (per_face, c, h) = (600usize, [0.45, -0.2, 0.18], 0.2);
-    let (sa, ca) = (30f64.to_radians().sin(), 30f64.to_radians().cos());
-    let turn = |v: [f64; 3]| [ca * v[0] + sa * v[2], v[1], -sa * v[0] + ca * v[2]];
-    let g = (per_face as f64).sqrt().round() as usize; // 24 x 24 grid + jitter
-    let sz = 0.75 * (2.0 * h) / g as f64;
-    for face in 0..6 {
-        let axis = face / 2;
-        let sign = if face % 2 == 0 { 1.0 } else { -1.0 };
-        let mut n = [0.0; 3];
-        n[axis] = sign;
-        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-        for i in 0..g {
-            for j in 0..g {
-                let mut p = [0.0; 3];
-                p[axis] = sign * h;
-                p[u] =
-                    h * (2.0 * (i as f64 + 0.5 + 0.3 * (b.rng.uniform() - 0.5)) / g as f64 - 1.0);
-                p[v] =
-                    h * (2.0 * (j as f64 + 0.5 + 0.3 * (b.rng.uniform() - 0.5)) / g as f64 - 1.0);
-                let p = turn(p);
-                let p = [p[0] + c[0], p[1] + c[1], p[2] + c[2]];
-                b.disk(p, turn(n), sz, [0.12, 0.28, 0.88], 0.15);
+    /// Blue cube, half-size 0.2, standing on the ground, turned 30 degrees about y.
+    fn cube(&mut self) {
+        let (per_face, c, h) = (600usize, [0.45, -0.2, 0.18], 0.2);
+        let (sa, ca) = (30f64.to_radians().sin(), 30f64.to_radians().cos());
+        let turn = |v: [f64; 3]| [ca * v[0] + sa * v[2], v[1], -sa * v[0] + ca * v[2]];
+        let g = (per_face as f64).sqrt().round() as usize; // 24 x 24 grid + jitter
+        let sz = 0.75 * (2.0 * h) / g as f64;
+        for face in 0..6 {
+            let axis = face / 2;
+            let sign = if face % 2 == 0 { 1.0 } else { -1.0 };
+            let mut n = [0.0; 3];
+            n[axis] = sign;
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            for i in 0..g {
+                for j in 0..g {
+                    let mut p = [0.0; 3];
+                    p[axis] = sign * h;
+                    p[u] = h
+                        * (2.0 * (i as f64 + 0.5 + 0.3 * (self.rng.uniform() - 0.5)) / g as f64
+                            - 1.0);
+                    p[v] = h
+                        * (2.0 * (j as f64 + 0.5 + 0.3 * (self.rng.uniform() - 0.5)) / g as f64
+                            - 1.0);
+                    let p = turn(p);
+                    let p = [p[0] + c[0], p[1] + c[1], p[2] + c[2]];
+                    self.disk(p, turn(n), sz, [0.12, 0.28, 0.88], 0.15);
+                }
             }
         }
     }
 
-    // Yellow cone: base circle radius 0.22 on the ground, apex 0.55 above (toward -y).
-    let m = SAMPLE_GAUSSIANS - b.s.len();
-    let (c, rad, ht): ([f64; 3], f64, f64) = ([0.02, 0.0, -0.45], 0.22, 0.55);
-    let slant = (rad * rad + ht * ht).sqrt();
-    let sz = 0.75 * spacing(std::f64::consts::PI * rad * slant, m);
-    for i in 0..m {
-        // Area-uniform along the slant: distance from apex ~ sqrt(u).
-        let f = ((i as f64 + 0.5) / m as f64).sqrt();
-        let th = i as f64 * GOLDEN_ANGLE;
-        let (cr, sr) = (th.cos(), th.sin());
-        let p = [
-            c[0] + f * rad * cr,
-            c[1] - ht * (1.0 - f),
-            c[2] + f * rad * sr,
-        ];
-        let n = [ht * cr, -rad, ht * sr];
-        b.disk(p, n, sz, [0.97, 0.80, 0.10], 0.2);
+    /// Yellow cone: base circle radius 0.22 on the ground, apex 0.55 above (toward -y).
+    fn cone(&mut self) {
+        let m = SAMPLE_GAUSSIANS - self.s.len();
+        let (c, rad, ht): ([f64; 3], f64, f64) = ([0.02, 0.0, -0.45], 0.22, 0.55);
+        let slant = (rad * rad + ht * ht).sqrt();
+        let sz = 0.75 * spacing(std::f64::consts::PI * rad * slant, m);
+        for i in 0..m {
+            // Area-uniform along the slant: distance from apex ~ sqrt(u).
+            let f = ((i as f64 + 0.5) / m as f64).sqrt();
+            let th = i as f64 * GOLDEN_ANGLE;
+            let (cr, sr) = (th.cos(), th.sin());
+            let p = [
+                c[0] + f * rad * cr,
+                c[1] - ht * (1.0 - f),
+                c[2] + f * rad * sr,
+            ];
+            let n = [ht * cr, -rad, ht * sr];
+            self.disk(p, n, sz, [0.97, 0.80, 0.10], 0.2);
+        }
     }
-    b.s
 }
 
 /// A 256x256 painterly style image, `[H, W, 3]` in [0, 1] (deterministic).

@@ -132,46 +132,7 @@ pub fn inspect(path: &Path) -> Result<(String, Vec<(String, PathBuf)>)> {
     let mut out = String::new();
     let mut tensors = Vec::new();
     if path.is_dir() {
-        let art = match Artifact::open_any(path) {
-            Ok(a) => a,
-            Err(e) => {
-                let _ = writeln!(out, "WARNING: {e}");
-                Artifact::open_unverified(path)?
-            }
-        };
-        let m = &art.manifest;
-        let _ = writeln!(out, "artifact  {}", path.display());
-        let _ = writeln!(
-            out,
-            "kind      {} (schema version {})",
-            m.kind, m.schema_version
-        );
-        let _ = writeln!(
-            out,
-            "producer  {} {} params {}",
-            m.producer.stage,
-            m.producer.version,
-            fantasystyle_schemas::manifest::canonical_json(&m.producer.params)
-        );
-        for i in &m.inputs {
-            let _ = writeln!(
-                out,
-                "input     {:<10} {} ({})",
-                i.role,
-                i.path,
-                &i.blake3[..i.blake3.len().min(12)]
-            );
-        }
-        if !m.meta.is_null() {
-            let _ = writeln!(out, "meta      {}", m.meta);
-        }
-        for f in &m.files {
-            if f.name.ends_with(".npy") {
-                tensors.push((f.name.clone(), art.path(&f.name)));
-            } else {
-                let _ = writeln!(out, "file      {} ({} bytes)", f.name, f.bytes);
-            }
-        }
+        describe_artifact(path, &mut out, &mut tensors)?;
     } else if path.is_file() {
         let name = path
             .file_name()
@@ -209,6 +170,56 @@ pub fn inspect(path: &Path) -> Result<(String, Vec<(String, PathBuf)>)> {
         );
     }
     Ok((out, tensors))
+}
+
+/// The manifest of the artifact at `path` written to `out` (with a warning when its
+/// hashes do not check out), its tensors added to `tensors`.
+fn describe_artifact(
+    path: &Path,
+    out: &mut String,
+    tensors: &mut Vec<(String, PathBuf)>,
+) -> Result<()> {
+    let art = match Artifact::open_any(path) {
+        Ok(a) => a,
+        Err(e) => {
+            let _ = writeln!(out, "WARNING: {e}");
+            Artifact::open_unverified(path)?
+        }
+    };
+    let m = &art.manifest;
+    let _ = writeln!(out, "artifact  {}", path.display());
+    let _ = writeln!(
+        out,
+        "kind      {} (schema version {})",
+        m.kind, m.schema_version
+    );
+    let _ = writeln!(
+        out,
+        "producer  {} {} params {}",
+        m.producer.stage,
+        m.producer.version,
+        fantasystyle_schemas::manifest::canonical_json(&m.producer.params)
+    );
+    for i in &m.inputs {
+        let _ = writeln!(
+            out,
+            "input     {:<10} {} ({})",
+            i.role,
+            i.path,
+            &i.blake3[..i.blake3.len().min(12)]
+        );
+    }
+    if !m.meta.is_null() {
+        let _ = writeln!(out, "meta      {}", m.meta);
+    }
+    for f in &m.files {
+        if f.name.ends_with(".npy") {
+            tensors.push((f.name.clone(), art.path(&f.name)));
+        } else {
+            let _ = writeln!(out, "file      {} ({} bytes)", f.name, f.bytes);
+        }
+    }
+    Ok(())
 }
 
 /// Pick the tensor to draw: `want`, else the first of latents, z_tgt, rgb, else the

@@ -150,7 +150,6 @@ pub fn fit_objective(
     if cameras.is_empty() {
         return Err(Error::param("the view set is empty: nothing to stylize"));
     }
-    let nv = cameras.len() as f64;
     let mut fit = ColourFit::new(scene, cameras, targets, &opts.fit)?;
     let mut log = Vec::with_capacity(opts.steps + 1);
     let mut schedule = ViewSchedule::new(cameras.len(), opts.views_per_step, opts.seed);
@@ -176,86 +175,122 @@ pub fn fit_objective(
             break;
         }
         if last {
-            // The final scene's loss, without an update.
-            let imgs = render_all(fit.scene(), cameras, opts.fit.background)?;
-            for (v, img) in imgs.iter().enumerate() {
-                let (total, style, content) = match obj {
-                    Some(o) => {
-                        let t = o.eval(v, img)?;
-                        (t.total, t.style, t.content)
-                    }
-                    None => {
-                        let lp = crate::optim::LossParams {
-                            ssim_weight: opts.fit.ssim_weight,
-                        };
-                        let l = crate::optim::loss_and_grad(
-                            &img.data,
-                            &targets[v],
-                            None,
-                            img.height,
-                            img.width,
-                            lp,
-                        )
-                        .0 as f64;
-                        (l, l, 0.0)
-                    }
-                };
-                entry.total += total / nv;
-                entry.style += style / nv;
-                entry.content += content / nv;
-            }
+            final_loss(&fit, cameras, targets, obj, opts, &mut entry)?;
             log.push(entry);
             break;
         }
         let views = schedule.next_views();
-        let nv = views.len() as f64;
-        match obj {
+        one_step(
+            &mut fit,
+            cameras,
+            targets,
+            obj,
+            opts,
+            (step, &views),
+            &mut entry,
+        )?;
+        log.push(entry);
+        stopped = !on_step(step + 1, fit.scene())?;
+    }
+    Ok((fit.finish().0, log))
+}
+
+/// The final scene's loss over every view, without an update, into `entry`.
+fn final_loss(
+    fit: &ColourFit<'_>,
+    cameras: &[Camera],
+    targets: &[Vec<f32>],
+    obj: Option<&dyn Objective>,
+    opts: &FitOptions,
+    entry: &mut StepLog,
+) -> Result<()> {
+    let nv = cameras.len() as f64;
+    let imgs = render_all(fit.scene(), cameras, opts.fit.background)?;
+    for (v, img) in imgs.iter().enumerate() {
+        let (total, style, content) = match obj {
             Some(o) => {
-                let (mut style, mut content) = (0.0, 0.0);
-                let mut hook = |v: usize, rgb: &[f32], _alpha: Option<&[f32]>| {
-                    let cam = &cameras[v];
-                    let img = Image {
-                        width: cam.width as usize,
-                        height: cam.height as usize,
-                        data: rgb.to_vec(),
-                    };
-                    let t = o.eval(v, &img)?;
-                    if !t.total.is_finite() {
-                        return Err(Error::Other(format!(
-                            "the loss became {} at step {step}, view {v}",
-                            t.total
-                        )));
-                    }
-                    style += t.style / nv;
-                    content += t.content / nv;
-                    Ok((t.total, t.grad))
-                };
-                entry.total = fit.step_views(&views, &mut hook)?;
-                entry.style = style;
-                entry.content = content;
-            }
-            None if views.len() == cameras.len() => {
-                let l = fit.step() as f64;
-                (entry.total, entry.style) = (l, l);
+                let t = o.eval(v, img)?;
+                (t.total, t.style, t.content)
             }
             None => {
                 let lp = crate::optim::LossParams {
                     ssim_weight: opts.fit.ssim_weight,
                 };
-                let mut hook = |v: usize, rgb: &[f32], alpha: Option<&[f32]>| {
-                    let cam = &cameras[v];
-                    let (h, w) = (cam.height as usize, cam.width as usize);
-                    let (l, g) = crate::optim::loss_and_grad(rgb, &targets[v], alpha, h, w, lp);
-                    Ok((l as f64, g))
-                };
-                let l = fit.step_views(&views, &mut hook)?;
-                (entry.total, entry.style) = (l, l);
+                let l = crate::optim::loss_and_grad(
+                    &img.data,
+                    &targets[v],
+                    None,
+                    img.height,
+                    img.width,
+                    lp,
+                )
+                .0 as f64;
+                (l, l, 0.0)
             }
-        }
-        log.push(entry);
-        stopped = !on_step(step + 1, fit.scene())?;
+        };
+        entry.total += total / nv;
+        entry.style += style / nv;
+        entry.content += content / nv;
     }
-    Ok((fit.finish().0, log))
+    Ok(())
+}
+
+/// One step of the fit on `views` (step `step`): the objective's gradient, or the target
+/// fit's; its loss into `entry`.
+fn one_step(
+    fit: &mut ColourFit<'_>,
+    cameras: &[Camera],
+    targets: &[Vec<f32>],
+    obj: Option<&dyn Objective>,
+    opts: &FitOptions,
+    (step, views): (usize, &[usize]),
+    entry: &mut StepLog,
+) -> Result<()> {
+    let nv = views.len() as f64;
+    match obj {
+        Some(o) => {
+            let (mut style, mut content) = (0.0, 0.0);
+            let mut hook = |v: usize, rgb: &[f32], _alpha: Option<&[f32]>| {
+                let cam = &cameras[v];
+                let img = Image {
+                    width: cam.width as usize,
+                    height: cam.height as usize,
+                    data: rgb.to_vec(),
+                };
+                let t = o.eval(v, &img)?;
+                if !t.total.is_finite() {
+                    return Err(Error::Other(format!(
+                        "the loss became {} at step {step}, view {v}",
+                        t.total
+                    )));
+                }
+                style += t.style / nv;
+                content += t.content / nv;
+                Ok((t.total, t.grad))
+            };
+            entry.total = fit.step_views(views, &mut hook)?;
+            entry.style = style;
+            entry.content = content;
+        }
+        None if views.len() == cameras.len() => {
+            let l = fit.step() as f64;
+            (entry.total, entry.style) = (l, l);
+        }
+        None => {
+            let lp = crate::optim::LossParams {
+                ssim_weight: opts.fit.ssim_weight,
+            };
+            let mut hook = |v: usize, rgb: &[f32], alpha: Option<&[f32]>| {
+                let cam = &cameras[v];
+                let (h, w) = (cam.height as usize, cam.width as usize);
+                let (l, g) = crate::optim::loss_and_grad(rgb, &targets[v], alpha, h, w, lp);
+                Ok((l as f64, g))
+            };
+            let l = fit.step_views(views, &mut hook)?;
+            (entry.total, entry.style) = (l, l);
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

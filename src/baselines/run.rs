@@ -3,7 +3,7 @@
 //! steps ([`transfer_colours`], [`project`]); what it produced ([`Outcome`]) for the
 //! `stylize-baseline` stage to write.
 //!
-//! * `gram`, `nnfm`: the VGG objectives ([`super::gram`], [`super::nnfm`]) against the
+//! * `gram`, `nnfm`: the VGG objectives ([`mod@super::gram`], [`mod@super::nnfm`]) against the
 //!   original renders (content) and the style;
 //! * `refit`: each original view stylized by the 2D stylizer on its own, then the colours
 //!   fitted to those images (L1 + D-SSIM); the stylizations' high-frequency agreement
@@ -401,6 +401,33 @@ pub fn optimise(
     fit(p, scene, cams, &originals, prepared, &monitor, t0)
 }
 
+/// The colour fit's options from the run's parameters.
+fn fit_options(p: &RunParams) -> FitOptions {
+    FitOptions {
+        steps: p.steps,
+        fit: crate::optim::FitParams {
+            lr_dc: p.lr_dc,
+            lr_rest: p.lr_rest,
+            background: p.background,
+            ..crate::optim::FitParams::default()
+        },
+        monitor_every: p.monitor_every,
+        views_per_step: (p.views_per_step > 0).then_some(p.views_per_step),
+        seed: p.seed,
+    }
+}
+
+/// The fit's progress bar over `steps` steps.
+fn progress_bar(steps: usize) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(steps as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message("stylize-baseline");
+    bar
+}
+
 /// The fit of a prepared method, with a progress bar, the checkpoints of `p.save_at` and
 /// the budget; its outcome.
 fn fit(
@@ -417,25 +444,9 @@ fn fit(
     } else {
         prepared.stylized.iter().map(|i| i.data.clone()).collect()
     };
-    let opts = FitOptions {
-        steps: p.steps,
-        fit: crate::optim::FitParams {
-            lr_dc: p.lr_dc,
-            lr_rest: p.lr_rest,
-            background: p.background,
-            ..crate::optim::FitParams::default()
-        },
-        monitor_every: p.monitor_every,
-        views_per_step: (p.views_per_step > 0).then_some(p.views_per_step),
-        seed: p.seed,
-    };
+    let opts = fit_options(p);
     let setup_s = t0.elapsed().as_secs_f64();
-    let bar = indicatif::ProgressBar::new(p.steps as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps {elapsed}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_message("stylize-baseline");
+    let bar = progress_bar(p.steps);
     let mut checkpoints = Vec::new();
     let (mut steps_done, mut wall_s) = (0, setup_s);
     let (scene, steps) = fit_objective(

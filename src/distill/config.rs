@@ -70,7 +70,7 @@ pub struct Config {
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
     pub fit_rest: bool,
     /// Adam learning rate of the SH DC colours (3DGS trains from scratch at 0.0025 over
-    /// 30k steps; a few hundred distillation steps need more: BENCHMARKS.md "Colour-fit
+    /// 30k steps; a few hundred distillation steps need more: docs/method.md "Colour-fit
     /// learning rate").
     #[arg(long, default_value_t = 0.05)]
     pub lr_dc: f32,

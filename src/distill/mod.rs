@@ -37,7 +37,7 @@
 //!    configuration's weighted list of terms ([`terms`]): the prior's term above, and
 //!    optionally VGG texture terms of the object (`nnfm`, `gram`: not part of
 //!    FantasyStyle; what carries a style's motifs with the CPU stylizer prior,
-//!    BENCHMARKS.md "Texture").
+//!    docs/texture-term.md).
 //!
 //! The whole configuration is one type, [`Config`] ([`config`]: keys, defaults, presets);
 //! a run may start from the scene as it is or after a start, and end after a finish

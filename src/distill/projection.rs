@@ -6,7 +6,7 @@
 //! Why: a texture statistic inside the loop (NNFM, Gram; [`crate::distill::terms::texture`]) and
 //! the 2D stylizer both ask each view for motifs where that view's content puts them, and
 //! views 22-45 degrees apart disagree, so bands and rings average into blobs of the style's
-//! colours (BENCHMARKS.md "Style projection"). A motif painted once on the surface is the
+//! colours (docs/style-projection.md). A motif painted once on the surface is the
 //! same motif from every view by construction; the loop then refines it.
 //!
 //! **Normals** ([`surface_normals`]). Each Gaussian takes the normal of the rendered
@@ -24,7 +24,7 @@
 //! it is not (0.63 on the plant; 0.5 for unrelated directions; on its pot only half of
 //! the covered area has the axis within 37 degrees of the radial direction), and a
 //! Gaussian whose axis picks the wrong plane takes an unrelated style sample: the pot's
-//! bands blurred into one gradient (BENCHMARKS.md "Normals from the rendered surface").
+//! bands blurred into one gradient (docs/style-projection.md "Normals from the rendered surface").
 //!
 //! **Triplanar mapping** (the terrain-texturing technique of GPU Gems 3, ch. 1): the
 //! Gaussian's mean is projected on the three axis planes; each projection samples the

@@ -3,7 +3,7 @@
 //!
 //! Geometry stays frozen during stylization, so a colour changes only as finely as the
 //! Gaussians that carry it: a Gaussian 8 px long on screen paints one colour over 8 px,
-//! and a motif with 5 px bands cannot land on it (BENCHMARKS.md, "Splitting the long
+//! and a motif with 5 px bands cannot land on it (docs/splitting.md, "Splitting the long
 //! Gaussians"). Before the first iteration, every Gaussian whose 2-sigma extent along its
 //! longest axis exceeds a length is replaced by two, placed along that axis `u` at
 //! `mu +- a s u` (`s` the axis's scale) with that scale `c s`, `c = 0.7` and

@@ -24,7 +24,7 @@
 //! * **KID over the object's surface** (`kid_object`). The whole-view KID compares
 //!   orbit views (an object on black) with crops of the style image, so what it mostly
 //!   measures is that difference of framing: on the quality benchmark the untouched
-//!   original renders had a lower mean than every method (BENCHMARKS.md "A KID that sees
+//!   original renders had a lower mean than every method (docs/evaluation.md "A KID that sees
 //!   the object's surface"). This one compares like with like: [`PATCH_SIDE`]-pixel
 //!   squares from inside the object (mean alpha of the original view at least
 //!   [`PATCH_COVERAGE`], up to [`PATCHES_PER_VIEW`] per view by default (`evaluate

@@ -360,6 +360,14 @@ impl ModelManifest {
             // The stylizer and patch priors validate their own fields.
             return Ok(());
         }
+        self.validate_vae(md)?;
+        self.validate_graphs(md)?;
+        self.validate_image(md)?;
+        self.validate_text(md)
+    }
+
+    /// The latent shape and the VAE's scaling factor (checked against the family).
+    fn validate_vae(&self, md: &ModelDir) -> Result<()> {
         if self.latent_channels == 0 || self.downsample == 0 {
             return Err(md.err("latent_channels and downsample must be positive"));
         }
@@ -384,6 +392,11 @@ impl ModelManifest {
                 self.vae_scaling_factor, self.family
             )));
         }
+        Ok(())
+    }
+
+    /// The required graphs (VAE encoder and decoder, UNet) and the ControlNet's agreement with the UNet.
+    fn validate_graphs(&self, md: &ModelDir) -> Result<()> {
         let required = [
             ("vae_encoder", self.vae_encoder.as_ref().map(|g| &g.file)),
             ("vae_decoder", self.vae_decoder.as_ref().map(|g| &g.file)),
@@ -413,6 +426,11 @@ impl ModelManifest {
                 return Err(md.err("controlnet.scale must be finite"));
             }
         }
+        Ok(())
+    }
+
+    /// The image encoder and the image conditioning's scales, with the UNet inputs they need.
+    fn validate_image(&self, md: &ModelDir) -> Result<()> {
         if let Some(ie) = &self.image_encoder {
             check_file(md, "image_encoder", &ie.file)?;
             if ie.size == 0 || ie.std.iter().any(|s| *s <= 0.0) {
@@ -459,6 +477,11 @@ impl ModelManifest {
                 }
             }
         }
+        Ok(())
+    }
+
+    /// The text encoder and the text embeddings (null and prompts, pooled where the UNet takes them).
+    fn validate_text(&self, md: &ModelDir) -> Result<()> {
         if let Some(enc) = self.text.as_ref().and_then(|t| t.encoder.as_ref()) {
             check_file(md, "text.encoder", &enc.file)?;
             if enc.tokenizers.is_empty() {

@@ -31,7 +31,10 @@
 //! agree with what we feed, floating-point I/O is float32, and the graph has no input we
 //! would not feed. Errors name the file, the graph and the input.
 
-use super::manifest::{Family, ImageConditioning, ImageEncoderGraph, ModelDir, ModelManifest};
+use super::manifest::{
+    ControlNetGraph, Family, ImageConditioning, ImageEncoderGraph, ModelDir, ModelManifest,
+    SimpleGraph, TextConfig, UnetGraph,
+};
 use super::preprocess::{check_finite, check_images, fit_square};
 use super::session::{Graph, Kind, f32_value, input};
 use super::text::{Text, TextEncoder};
@@ -224,83 +227,9 @@ impl OnnxPrior {
         );
         let text_cfg = m.text.as_ref().expect("validated");
 
-        // Text embeddings.
-        let read_text = |file: &str, pooled: &Option<String>, what: &str| -> Result<Text> {
-            Ok(Text {
-                hidden: load_npy3(&md, what, file)?,
-                pooled: pooled
-                    .as_ref()
-                    .map(|p| load_npy2(&md, what, p))
-                    .transpose()?,
-            })
-        };
-        let null = read_text(&text_cfg.null.file, &text_cfg.null.pooled, "text.null")?;
-        // The prompt: pre-embedded if exported, else through the text encoder.
-        let exported = match &opts.prompt {
-            None => Some(&text_cfg.prompts[0]),
-            Some(want) => text_cfg.prompts.iter().find(|p| &p.text == want),
-        };
-        let (prompt, source) = match (exported, &opts.prompt, &text_cfg.encoder) {
-            (Some(e), _, _) => (
-                read_text(&e.file, &e.pooled, "text.prompts")?,
-                e.file.clone(),
-            ),
-            (None, Some(want), Some(enc)) => {
-                let mut te = TextEncoder::load(&md, enc, &cfg)?;
-                (te.encode(want)?, enc.file.clone())
-            }
-            (None, want, _) => {
-                return Err(md.err(format!(
-                    "no embedding for prompt {:?} and no text encoder in this model; exported \
-                     prompts: {:?} (re-export with scripts/export_models.py, which adds the text \
-                     encoder, or pass one of these)",
-                    want.as_deref().unwrap_or_default(),
-                    text_cfg.prompts.iter().map(|p| &p.text).collect::<Vec<_>>()
-                )));
-            }
-        };
-        if prompt.hidden.shape() != null.hidden.shape()
-            || prompt.pooled.as_ref().map(|p| p.dim()) != null.pooled.as_ref().map(|p| p.dim())
-        {
-            return Err(md.err(format!(
-                "the prompt embedding from {source} has shape {:?} (pooled {:?}), the null \
-                 embedding {:?} (pooled {:?}): they must agree",
-                prompt.hidden.shape(),
-                prompt.pooled.as_ref().map(|p| p.dim()),
-                null.hidden.shape(),
-                null.pooled.as_ref().map(|p| p.dim()),
-            )));
-        }
+        let (null, prompt) = Self::texts(&md, text_cfg, opts, &cfg)?;
         let (l, d) = (null.hidden.dim().1, null.hidden.dim().2);
-
-        // VAE.
-        let vae_encoder = Graph::load(&md, "vae_encoder", &ve.file, &cfg)?;
-        vae_encoder.check(false, &ve.input, Kind::F32(&[4]), &[(1, 3)])?;
-        vae_encoder.check(true, &ve.output, Kind::F32(&[4]), &[])?;
-        vae_encoder.check_all_fed(&[&ve.input])?;
-        if let Some(ch) = vae_encoder
-            .session
-            .outputs()
-            .iter()
-            .find(|o| o.name() == ve.output)
-            .and_then(|o| match o.dtype() {
-                ValueType::Tensor { shape, .. } => shape.get(1).copied(),
-                _ => None,
-            })
-            && ch >= 0
-            && ch as usize != c
-            && ch as usize != 2 * c
-        {
-            return Err(vae_encoder.err(format_args!(
-                "output `{}` has {ch} channels, expected {c} (mean) or {} (mean and logvar)",
-                ve.output,
-                2 * c
-            )));
-        }
-        let vae_decoder = Graph::load(&md, "vae_decoder", &vd.file, &cfg)?;
-        vae_decoder.check(false, &vd.input, Kind::F32(&[4]), &[(1, c)])?;
-        vae_decoder.check(true, &vd.output, Kind::F32(&[4]), &[(1, 3)])?;
-        vae_decoder.check_all_fed(&[&vd.input])?;
+        let (vae_encoder, vae_decoder) = Self::vae(&md, ve, vd, c, &cfg)?;
 
         // Image-prompt encoder.
         let image_tokens = match &m.image_encoder {
@@ -314,89 +243,12 @@ impl OnnxPrior {
             )?),
         };
 
-        // UNet.
-        let unet = Graph::load(&md, "unet", &u.file, &cfg)?;
-        let mut fed: Vec<&str> = vec![&u.sample, &u.timestep, &u.encoder_hidden_states];
-        unet.check(false, &u.sample, Kind::F32(&[4]), &[(1, c)])?;
-        unet.check(false, &u.timestep, Kind::Timestep, &[])?;
-        unet.check(
-            false,
-            &u.encoder_hidden_states,
-            Kind::F32(&[3]),
-            &[(1, l), (2, d)],
-        )?;
-        unet.check(true, &u.output, Kind::F32(&[4]), &[(1, c)])?;
-        if let Some(te) = &u.text_embeds {
-            let p = null.pooled.as_ref().expect("validated").dim().1;
-            unet.check(false, te, Kind::F32(&[2]), &[(1, p)])?;
-            fed.push(te);
-        }
-        if let Some(ti) = &u.time_ids {
-            unet.check(false, ti, Kind::F32(&[2]), &[(1, 6)])?;
-            fed.push(ti);
-        }
-        match (&u.image_tokens, &image_tokens) {
-            (Some(it), Some(tok)) => {
-                let (_, n, dd) = tok.uncond.dim();
-                unet.check(false, it, Kind::F32(&[3]), &[(1, n), (2, dd)])?;
-                fed.push(it);
-                if let (Some(sc), Some(s)) = (&u.image_scale, &tok.scales) {
-                    unet.check(false, sc, Kind::F32(&[2]), &[(1, s.none.dim().1)])?;
-                    fed.push(sc);
-                }
-            }
-            (Some(it), None) => {
-                return Err(unet.err(format_args!(
-                    "input `{it}` (image tokens) needs an image_encoder graph in the manifest"
-                )));
-            }
-            _ => {}
-        }
-        for r in &u.down_residuals {
-            unet.check(false, r, Kind::F32(&[4]), &[])?;
-            fed.push(r);
-        }
-        if let Some(r) = &u.mid_residual {
-            unet.check(false, r, Kind::F32(&[4]), &[])?;
-            fed.push(r);
-        }
-        unet.check_all_fed(&fed)?;
-
-        // ControlNet.
-        let controlnet = match &m.controlnet {
-            None => None,
-            Some(cn) => {
-                let g = Graph::load(&md, "controlnet", &cn.file, &cfg)?;
-                let mut fed: Vec<&str> = vec![
-                    &cn.sample,
-                    &cn.timestep,
-                    &cn.encoder_hidden_states,
-                    &cn.cond,
-                ];
-                g.check(false, &cn.sample, Kind::F32(&[4]), &[(1, c)])?;
-                g.check(false, &cn.timestep, Kind::Timestep, &[])?;
-                g.check(
-                    false,
-                    &cn.encoder_hidden_states,
-                    Kind::F32(&[3]),
-                    &[(1, l), (2, d)],
-                )?;
-                g.check(false, &cn.cond, Kind::F32(&[4]), &[(1, 3)])?;
-                if let Some(te) = &cn.text_embeds {
-                    g.check(false, te, Kind::F32(&[2]), &[])?;
-                    fed.push(te);
-                }
-                if let Some(ti) = &cn.time_ids {
-                    g.check(false, ti, Kind::F32(&[2]), &[(1, 6)])?;
-                    fed.push(ti);
-                }
-                for o in cn.down_outputs.iter().chain([&cn.mid_output]) {
-                    g.check(true, o, Kind::F32(&[4]), &[])?;
-                }
-                g.check_all_fed(&fed)?;
-                Some(g)
-            }
-        };
+        let unet = Self::unet(&md, u, (c, l, d), &null, image_tokens.as_ref(), &cfg)?;
+        let controlnet = m
+            .controlnet
+            .as_ref()
+            .map(|cn| Self::controlnet(&md, cn, (c, l, d), &cfg))
+            .transpose()?;
 
         let schedule = Schedule::new(m.scheduler.clone()).map_err(|e| md.err(e.to_string()))?;
         let coinciding_style_content = image_tokens.as_ref().and_then(|t| t.coinciding(&m));
@@ -424,6 +276,238 @@ impl OnnxPrior {
         })
     }
 
+    /// The null and prompt text embeddings: the prompt pre-embedded if exported, else
+    /// through the text encoder; their shapes must agree.
+    fn texts(
+        md: &ModelDir,
+        text_cfg: &TextConfig,
+        opts: &PriorOptions,
+        cfg: &SessionConfig,
+    ) -> Result<(Text, Text)> {
+        let read_text = |file: &str, pooled: &Option<String>, what: &str| -> Result<Text> {
+            Ok(Text {
+                hidden: load_npy3(md, what, file)?,
+                pooled: pooled
+                    .as_ref()
+                    .map(|p| load_npy2(md, what, p))
+                    .transpose()?,
+            })
+        };
+        let null = read_text(&text_cfg.null.file, &text_cfg.null.pooled, "text.null")?;
+        // The prompt: pre-embedded if exported, else through the text encoder.
+        let exported = match &opts.prompt {
+            None => Some(&text_cfg.prompts[0]),
+            Some(want) => text_cfg.prompts.iter().find(|p| &p.text == want),
+        };
+        let (prompt, source) = match (exported, &opts.prompt, &text_cfg.encoder) {
+            (Some(e), _, _) => (
+                read_text(&e.file, &e.pooled, "text.prompts")?,
+                e.file.clone(),
+            ),
+            (None, Some(want), Some(enc)) => {
+                let mut te = TextEncoder::load(md, enc, cfg)?;
+                (te.encode(want)?, enc.file.clone())
+            }
+            (None, want, _) => {
+                return Err(md.err(format!(
+                    "no embedding for prompt {:?} and no text encoder in this model; exported \
+                     prompts: {:?} (re-export with scripts/export_models.py, which adds the text \
+                     encoder, or pass one of these)",
+                    want.as_deref().unwrap_or_default(),
+                    text_cfg.prompts.iter().map(|p| &p.text).collect::<Vec<_>>()
+                )));
+            }
+        };
+        if prompt.hidden.shape() != null.hidden.shape()
+            || prompt.pooled.as_ref().map(|p| p.dim()) != null.pooled.as_ref().map(|p| p.dim())
+        {
+            return Err(md.err(format!(
+                "the prompt embedding from {source} has shape {:?} (pooled {:?}), the null \
+                 embedding {:?} (pooled {:?}): they must agree",
+                prompt.hidden.shape(),
+                prompt.pooled.as_ref().map(|p| p.dim()),
+                null.hidden.shape(),
+                null.pooled.as_ref().map(|p| p.dim()),
+            )));
+        }
+        Ok((null, prompt))
+    }
+
+    /// The VAE encoder and decoder, checked against the manifest (`c` latent channels).
+    fn vae(
+        md: &ModelDir,
+        ve: &SimpleGraph,
+        vd: &SimpleGraph,
+        c: usize,
+        cfg: &SessionConfig,
+    ) -> Result<(Graph, Graph)> {
+        let vae_encoder = Graph::load(md, "vae_encoder", &ve.file, cfg)?;
+        vae_encoder.check(false, &ve.input, Kind::F32(&[4]), &[(1, 3)])?;
+        vae_encoder.check(true, &ve.output, Kind::F32(&[4]), &[])?;
+        vae_encoder.check_all_fed(&[&ve.input])?;
+        if let Some(ch) = vae_encoder
+            .session
+            .outputs()
+            .iter()
+            .find(|o| o.name() == ve.output)
+            .and_then(|o| match o.dtype() {
+                ValueType::Tensor { shape, .. } => shape.get(1).copied(),
+                _ => None,
+            })
+            && ch >= 0
+            && ch as usize != c
+            && ch as usize != 2 * c
+        {
+            return Err(vae_encoder.err(format_args!(
+                "output `{}` has {ch} channels, expected {c} (mean) or {} (mean and logvar)",
+                ve.output,
+                2 * c
+            )));
+        }
+        let vae_decoder = Graph::load(md, "vae_decoder", &vd.file, cfg)?;
+        vae_decoder.check(false, &vd.input, Kind::F32(&[4]), &[(1, c)])?;
+        vae_decoder.check(true, &vd.output, Kind::F32(&[4]), &[(1, 3)])?;
+        vae_decoder.check_all_fed(&[&vd.input])?;
+        Ok((vae_encoder, vae_decoder))
+    }
+
+    /// The UNet, checked against the manifest: `(c, l, d)` = latent channels, text
+    /// tokens and text width; every input fed.
+    fn unet(
+        md: &ModelDir,
+        u: &UnetGraph,
+        (c, l, d): (usize, usize, usize),
+        null: &Text,
+        image_tokens: Option<&ImageTokens>,
+        cfg: &SessionConfig,
+    ) -> Result<Graph> {
+        let unet = Graph::load(md, "unet", &u.file, cfg)?;
+        let mut fed: Vec<&str> = vec![&u.sample, &u.timestep, &u.encoder_hidden_states];
+        unet.check(false, &u.sample, Kind::F32(&[4]), &[(1, c)])?;
+        unet.check(false, &u.timestep, Kind::Timestep, &[])?;
+        unet.check(
+            false,
+            &u.encoder_hidden_states,
+            Kind::F32(&[3]),
+            &[(1, l), (2, d)],
+        )?;
+        unet.check(true, &u.output, Kind::F32(&[4]), &[(1, c)])?;
+        if let Some(te) = &u.text_embeds {
+            let p = null.pooled.as_ref().expect("validated").dim().1;
+            unet.check(false, te, Kind::F32(&[2]), &[(1, p)])?;
+            fed.push(te);
+        }
+        if let Some(ti) = &u.time_ids {
+            unet.check(false, ti, Kind::F32(&[2]), &[(1, 6)])?;
+            fed.push(ti);
+        }
+        match (&u.image_tokens, image_tokens) {
+            (Some(it), Some(tok)) => {
+                let (_, n, dd) = tok.uncond.dim();
+                unet.check(false, it, Kind::F32(&[3]), &[(1, n), (2, dd)])?;
+                fed.push(it);
+                if let (Some(sc), Some(s)) = (&u.image_scale, &tok.scales) {
+                    unet.check(false, sc, Kind::F32(&[2]), &[(1, s.none.dim().1)])?;
+                    fed.push(sc);
+                }
+            }
+            (Some(it), None) => {
+                return Err(unet.err(format_args!(
+                    "input `{it}` (image tokens) needs an image_encoder graph in the manifest"
+                )));
+            }
+            _ => {}
+        }
+        for r in &u.down_residuals {
+            unet.check(false, r, Kind::F32(&[4]), &[])?;
+            fed.push(r);
+        }
+        if let Some(r) = &u.mid_residual {
+            unet.check(false, r, Kind::F32(&[4]), &[])?;
+            fed.push(r);
+        }
+        unet.check_all_fed(&fed)?;
+        Ok(unet)
+    }
+
+    /// The ControlNet, checked against the manifest like the UNet.
+    fn controlnet(
+        md: &ModelDir,
+        cn: &ControlNetGraph,
+        (c, l, d): (usize, usize, usize),
+        cfg: &SessionConfig,
+    ) -> Result<Graph> {
+        let g = Graph::load(md, "controlnet", &cn.file, cfg)?;
+        let mut fed: Vec<&str> = vec![
+            &cn.sample,
+            &cn.timestep,
+            &cn.encoder_hidden_states,
+            &cn.cond,
+        ];
+        g.check(false, &cn.sample, Kind::F32(&[4]), &[(1, c)])?;
+        g.check(false, &cn.timestep, Kind::Timestep, &[])?;
+        g.check(
+            false,
+            &cn.encoder_hidden_states,
+            Kind::F32(&[3]),
+            &[(1, l), (2, d)],
+        )?;
+        g.check(false, &cn.cond, Kind::F32(&[4]), &[(1, 3)])?;
+        if let Some(te) = &cn.text_embeds {
+            g.check(false, te, Kind::F32(&[2]), &[])?;
+            fed.push(te);
+        }
+        if let Some(ti) = &cn.time_ids {
+            g.check(false, ti, Kind::F32(&[2]), &[(1, 6)])?;
+            fed.push(ti);
+        }
+        for o in cn.down_outputs.iter().chain([&cn.mid_output]) {
+            g.check(true, o, Kind::F32(&[4]), &[])?;
+        }
+        g.check_all_fed(&fed)?;
+        Ok(g)
+    }
+
+    /// The style image through the image encoder: its style and content tokens
+    /// (`[1, N, D]` each).
+    fn encode_style(
+        g: &mut Graph,
+        ie: &ImageEncoderGraph,
+        img: &Array4<f32>,
+    ) -> Result<(Array3<f32>, Array3<f32>)> {
+        if img.dim().0 != 1 {
+            return Err(Error::param(format!(
+                "style image: expected [1, 3, H, W], got {:?}",
+                img.shape()
+            )));
+        }
+        check_images(img.view(), 1, "style image")?;
+        let mut x = fit_square(img.view(), ie.size);
+        for (k, mut ch) in x.axis_iter_mut(Axis(1)).enumerate() {
+            ch.mapv_inplace(|v| (v - ie.mean[k]) / ie.std[k]);
+        }
+        let out = g.run(
+            vec![input(&ie.input, f32_value(x)?)],
+            &[&ie.style_output, &ie.content_output],
+        )?;
+        let to3 = |a: &ArrayD<f32>, o: &str| -> Result<Array3<f32>> {
+            a.clone()
+                .into_dimensionality()
+                .ok()
+                .filter(|a: &Array3<f32>| a.dim().0 == 1)
+                .ok_or_else(|| {
+                    g.err(format_args!(
+                        "output `{o}` has shape {:?}, expected [1, N, D]",
+                        a.shape()
+                    ))
+                })
+        };
+        Ok((
+            to3(&out[0], &ie.style_output)?,
+            to3(&out[1], &ie.content_output)?,
+        ))
+    }
+
     /// Run the image encoder on the style image: (uncond, style, content) tokens, and the
     /// per-layer scales of `image_conditioning`.
     fn image_tokens(
@@ -446,37 +530,8 @@ impl OnnxPrior {
         let (style_t, content_t) = match style {
             None => (None, None),
             Some(img) => {
-                if img.dim().0 != 1 {
-                    return Err(Error::param(format!(
-                        "style image: expected [1, 3, H, W], got {:?}",
-                        img.shape()
-                    )));
-                }
-                check_images(img.view(), 1, "style image")?;
-                let mut x = fit_square(img.view(), ie.size);
-                for (k, mut ch) in x.axis_iter_mut(Axis(1)).enumerate() {
-                    ch.mapv_inplace(|v| (v - ie.mean[k]) / ie.std[k]);
-                }
-                let out = g.run(
-                    vec![input(&ie.input, f32_value(x)?)],
-                    &[&ie.style_output, &ie.content_output],
-                )?;
-                let to3 = |a: &ArrayD<f32>, o: &str| -> Result<Array3<f32>> {
-                    a.clone()
-                        .into_dimensionality()
-                        .ok()
-                        .filter(|a: &Array3<f32>| a.dim().0 == 1)
-                        .ok_or_else(|| {
-                            g.err(format_args!(
-                                "output `{o}` has shape {:?}, expected [1, N, D]",
-                                a.shape()
-                            ))
-                        })
-                };
-                (
-                    Some(to3(&out[0], &ie.style_output)?),
-                    Some(to3(&out[1], &ie.content_output)?),
-                )
+                let (st, ct) = Self::encode_style(&mut g, ie, img)?;
+                (Some(st), Some(ct))
             }
         };
         let uncond = match (&ie.uncond_tokens, &style_t) {
@@ -543,6 +598,75 @@ impl OnnxPrior {
             )));
         }
         check_finite(z, what)
+    }
+
+    /// The UNet's input rows for `conds` on the batch `z_t`: row block i carries
+    /// conds[i] (text, pooled text, image tokens and scales), with the control image when
+    /// the model has a ControlNet.
+    fn rows(
+        &self,
+        z_t: ArrayView4<'_, f32>,
+        conds: &[Cond],
+        control: Option<ArrayView4<'_, f32>>,
+    ) -> Result<Rows> {
+        let (b, _, h, w) = z_t.dim();
+        let k = conds.len();
+        let f = self.info.downsample;
+        let (ih, iw) = (h * f, w * f);
+
+        // Batch: row block i carries conds[i].
+        let mut texts = Vec::with_capacity(k);
+        let mut pooled = Vec::with_capacity(k);
+        let mut imgs = Vec::with_capacity(k);
+        let mut scales = Vec::with_capacity(k);
+        for &cd in conds {
+            let CondParts {
+                text,
+                tokens: img,
+                scales: scale,
+            } = self.cond_parts(cd)?;
+            texts.push(Self::repeat(&text.hidden, b));
+            if let Some(p) = &text.pooled {
+                pooled.push(Self::repeat(p, b));
+            }
+            if let Some(i) = img {
+                imgs.push(Self::repeat(i, b));
+            }
+            if let Some(s) = scale {
+                scales.push(Self::repeat(s, b));
+            }
+        }
+        let ctrl = match &self.md.manifest.controlnet {
+            None => None,
+            Some(cn) => {
+                let ctrl = control.ok_or_else(|| {
+                    Error::param(format!(
+                        "model `{}` has a ControlNet: predict_eps needs a {:?} control image",
+                        self.info.name, cn.control
+                    ))
+                })?;
+                if ctrl.dim() != (b, 3, ih, iw) {
+                    return Err(Error::param(format!(
+                        "control image has shape {:?}, expected [{b}, 3, {ih}, {iw}]",
+                        ctrl.shape()
+                    )));
+                }
+                check_finite(ctrl, "control image")?;
+                Some(cat(&vec![ctrl; k]))
+            }
+        };
+        Ok(Rows {
+            z: cat(&vec![z_t; k]),
+            ehs: cat(&texts.iter().map(|a| a.view()).collect::<Vec<_>>()),
+            pooled: (!pooled.is_empty())
+                .then(|| cat(&pooled.iter().map(|a| a.view()).collect::<Vec<_>>())),
+            time_ids: Array2::from_shape_fn((k * b, 6), |(_, j)| [ih, iw, 0, 0, ih, iw][j] as f32),
+            image_tokens: (!imgs.is_empty())
+                .then(|| cat(&imgs.iter().map(|a| a.view()).collect::<Vec<_>>())),
+            image_scale: (!scales.is_empty())
+                .then(|| cat(&scales.iter().map(|a| a.view()).collect::<Vec<_>>())),
+            control: ctrl,
+        })
     }
 
     /// Text, image tokens and image scales of one conditioning.
@@ -743,62 +867,7 @@ impl Prior for OnnxPrior {
         }
         let (b, c, h, w) = z_t.dim();
         let k = conds.len();
-        let f = self.info.downsample;
-        let (ih, iw) = (h * f, w * f);
-
-        // Batch: row block i carries conds[i].
-        let mut texts = Vec::with_capacity(k);
-        let mut pooled = Vec::with_capacity(k);
-        let mut imgs = Vec::with_capacity(k);
-        let mut scales = Vec::with_capacity(k);
-        for &cd in conds {
-            let CondParts {
-                text,
-                tokens: img,
-                scales: scale,
-            } = self.cond_parts(cd)?;
-            texts.push(Self::repeat(&text.hidden, b));
-            if let Some(p) = &text.pooled {
-                pooled.push(Self::repeat(p, b));
-            }
-            if let Some(i) = img {
-                imgs.push(Self::repeat(i, b));
-            }
-            if let Some(s) = scale {
-                scales.push(Self::repeat(s, b));
-            }
-        }
-        let ctrl = match &self.md.manifest.controlnet {
-            None => None,
-            Some(cn) => {
-                let ctrl = control.ok_or_else(|| {
-                    Error::param(format!(
-                        "model `{}` has a ControlNet: predict_eps needs a {:?} control image",
-                        self.info.name, cn.control
-                    ))
-                })?;
-                if ctrl.dim() != (b, 3, ih, iw) {
-                    return Err(Error::param(format!(
-                        "control image has shape {:?}, expected [{b}, 3, {ih}, {iw}]",
-                        ctrl.shape()
-                    )));
-                }
-                check_finite(ctrl, "control image")?;
-                Some(cat(&vec![ctrl; k]))
-            }
-        };
-        let rows = Rows {
-            z: cat(&vec![z_t; k]),
-            ehs: cat(&texts.iter().map(|a| a.view()).collect::<Vec<_>>()),
-            pooled: (!pooled.is_empty())
-                .then(|| cat(&pooled.iter().map(|a| a.view()).collect::<Vec<_>>())),
-            time_ids: Array2::from_shape_fn((k * b, 6), |(_, j)| [ih, iw, 0, 0, ih, iw][j] as f32),
-            image_tokens: (!imgs.is_empty())
-                .then(|| cat(&imgs.iter().map(|a| a.view()).collect::<Vec<_>>())),
-            image_scale: (!scales.is_empty())
-                .then(|| cat(&scales.iter().map(|a| a.view()).collect::<Vec<_>>())),
-            control: ctrl,
-        };
+        let rows = self.rows(z_t, conds, control)?;
         // Rows per call: the attention scores of the first UNet level grow with the
         // square of the latent pixels (SD 1.5 at 64x64 latents: 0.5 GB per row).
         let per_call = match self.unet_batch {

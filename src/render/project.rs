@@ -373,26 +373,10 @@ fn finish(
 // ---------------------------------------------------------------------------------------
 // The f64 path (fallback and reference).
 
-/// Project Gaussian `i` in f64; `None` when culled. The slow path: used where the f32
-/// lanes overflow, and as the reference in tests.
-fn project_one_f64(scene: &Scene, cam: &Cam, margin: BoxMargin, i: usize) -> Option<One> {
-    let p = scene.positions[i];
-    let p = [p[0] as f64, p[1] as f64, p[2] as f64];
+/// The screen-space covariance `[a, b, c]` (dilated) of Gaussian `i` at camera-space
+/// position `t`, in f64: `J W R S (J W R S)^T`; `None` for a degenerate rotation.
+fn cov2d_f64(scene: &Scene, cam: &Cam, i: usize, t: [f64; 3]) -> Option<[f64; 3]> {
     let r = &cam.r;
-    let t = [
-        r[0][0] * p[0] + r[0][1] * p[1] + r[0][2] * p[2] + cam.t[0],
-        r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + cam.t[1],
-        r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + cam.t[2],
-    ];
-    // Written so that NaN is rejected too.
-    let in_front = t[2] >= NEAR && t.iter().all(|v| v.is_finite());
-    if !in_front {
-        return None;
-    }
-    let opacity = 1.0 / (1.0 + (-(scene.opacity_logits[i] as f64)).exp());
-    if opacity.is_nan() || opacity < ALPHA_MIN as f64 {
-        return None;
-    }
     let rq = crate::geometry::rows(crate::geometry::quat_to_mat(
         scene.rotations[i].map(f64::from),
     )?);
@@ -430,6 +414,31 @@ fn project_one_f64(scene: &Scene, cam: &Cam, margin: BoxMargin, i: usize) -> Opt
     let ca = u[0][0] * u[0][0] + u[0][1] * u[0][1] + u[0][2] * u[0][2] + DILATION;
     let cb = u[0][0] * u[1][0] + u[0][1] * u[1][1] + u[0][2] * u[1][2];
     let cc = u[1][0] * u[1][0] + u[1][1] * u[1][1] + u[1][2] * u[1][2] + DILATION;
+    Some([ca, cb, cc])
+}
+
+/// Project Gaussian `i` in f64; `None` when culled. The slow path: used where the f32
+/// lanes overflow, and as the reference in tests.
+fn project_one_f64(scene: &Scene, cam: &Cam, margin: BoxMargin, i: usize) -> Option<One> {
+    let p = scene.positions[i];
+    let p = [p[0] as f64, p[1] as f64, p[2] as f64];
+    let r = &cam.r;
+    let t = [
+        r[0][0] * p[0] + r[0][1] * p[1] + r[0][2] * p[2] + cam.t[0],
+        r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + cam.t[1],
+        r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + cam.t[2],
+    ];
+    // Written so that NaN is rejected too.
+    let in_front = t[2] >= NEAR && t.iter().all(|v| v.is_finite());
+    if !in_front {
+        return None;
+    }
+    let opacity = 1.0 / (1.0 + (-(scene.opacity_logits[i] as f64)).exp());
+    if opacity.is_nan() || opacity < ALPHA_MIN as f64 {
+        return None;
+    }
+    let [ca, cb, cc] = cov2d_f64(scene, cam, i, t)?;
+    let z = t[2];
     let det = ca * cc - cb * cb;
     if !(det > 0.0 && det.is_finite()) {
         return None;
@@ -495,10 +504,19 @@ struct LaneOut {
     depth: [f32; LANES],
 }
 
-/// The f32 arithmetic of `LANES` Gaussians `lo..lo + LANES` (all present). Branch-free
-/// per lane so that the loops vectorise.
+/// The lane inputs of Gaussians `lo..lo + LANES`, one array per component: positions,
+/// rotations, log-scales, opacity logits.
 #[inline(always)]
-fn lanes(scene: &Scene, cam: &CamF, lo: usize, out: &mut LaneOut) {
+#[allow(clippy::type_complexity)]
+fn gather_lanes(
+    scene: &Scene,
+    lo: usize,
+) -> (
+    [[f32; LANES]; 3],
+    [[f32; LANES]; 4],
+    [[f32; LANES]; 3],
+    [f32; LANES],
+) {
     let mut p = [[0.0f32; LANES]; 3];
     let mut q = [[0.0f32; LANES]; 4];
     let mut ls = [[0.0f32; LANES]; 3];
@@ -515,6 +533,54 @@ fn lanes(scene: &Scene, cam: &CamF, lo: usize, out: &mut LaneOut) {
         }
         logit[l] = scene.opacity_logits[i];
     }
+    (p, q, ls, logit)
+}
+
+/// `U = J W R S` (2x3) from the Jacobian's non-zero entries `[j00, j02, j11, j12]`, the
+/// camera rotation `r`, the Gaussian's rotation `rq` and scales `s`.
+#[inline(always)]
+fn jwrs_f32(r: &[[f32; 3]; 3], j: [f32; 4], rq: &[[f32; 3]; 3], s: [f32; 3]) -> [[f32; 3]; 2] {
+    let [j00, j02, j11, j12] = j;
+    let mut tw = [[0.0f32; 3]; 2];
+    for b in 0..3 {
+        tw[0][b] = j00 * r[0][b] + j02 * r[2][b];
+        tw[1][b] = j11 * r[1][b] + j12 * r[2][b];
+    }
+    let mut u = [[0.0f32; 3]; 2];
+    for a in 0..2 {
+        for b in 0..3 {
+            u[a][b] = (tw[a][0] * rq[0][b] + tw[a][1] * rq[1][b] + tw[a][2] * rq[2][b]) * s[b];
+        }
+    }
+    u
+}
+
+/// The screen-space covariance `[a, b, c]` of `U U^T` dilated by `dil`, and its
+/// determinant (Lagrange's identity: the cross product of U's rows, free of the
+/// cancellation in `a c - b^2`).
+#[inline(always)]
+fn cov2d_f32(u: &[[f32; 3]; 2], dil: f32) -> [f32; 4] {
+    let n0 = u[0][0] * u[0][0] + u[0][1] * u[0][1] + u[0][2] * u[0][2];
+    let n1 = u[1][0] * u[1][0] + u[1][1] * u[1][1] + u[1][2] * u[1][2];
+    let cb = u[0][0] * u[1][0] + u[0][1] * u[1][1] + u[0][2] * u[1][2];
+    let cross = [
+        u[0][1] * u[1][2] - u[0][2] * u[1][1],
+        u[0][2] * u[1][0] - u[0][0] * u[1][2],
+        u[0][0] * u[1][1] - u[0][1] * u[1][0],
+    ];
+    let ca = n0 + dil;
+    let cc = n1 + dil;
+    let det = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2])
+        + dil * (n0 + n1)
+        + dil * dil;
+    [ca, cb, cc, det]
+}
+
+/// The f32 arithmetic of `LANES` Gaussians `lo..lo + LANES` (all present). Branch-free
+/// per lane so that the loops vectorise.
+#[inline(always)]
+fn lanes(scene: &Scene, cam: &CamF, lo: usize, out: &mut LaneOut) {
+    let (p, q, ls, logit) = gather_lanes(scene, lo);
     let r = &cam.r;
     let near = NEAR as f32;
     let dil = DILATION as f32;
@@ -534,23 +600,7 @@ fn lanes(scene: &Scene, cam: &CamF, lo: usize, out: &mut LaneOut) {
         let q_ok = qn >= 1e-12;
         let inv = 1.0 / qn;
         let (w, x, y, z) = (qw * inv, qx * inv, qy * inv, qz * inv);
-        let rq = [
-            [
-                1.0 - 2.0 * (y * y + z * z),
-                2.0 * (x * y - w * z),
-                2.0 * (x * z + w * y),
-            ],
-            [
-                2.0 * (x * y + w * z),
-                1.0 - 2.0 * (x * x + z * z),
-                2.0 * (y * z - w * x),
-            ],
-            [
-                2.0 * (x * z - w * y),
-                2.0 * (y * z + w * x),
-                1.0 - 2.0 * (x * x + y * y),
-            ],
-        ];
+        let rq = crate::geometry::unit_quat_rows(w, x, y, z);
         let s = [exp_f32(ls[0][l]), exp_f32(ls[1][l]), exp_f32(ls[2][l])];
         // The polynomial exp clamps at 88; a larger log-scale is left to the f64 path.
         let s_ok = (ls[0][l] < 88.0) & (ls[1][l] < 88.0) & (ls[2][l] < 88.0);
@@ -563,30 +613,8 @@ fn lanes(scene: &Scene, cam: &CamF, lo: usize, out: &mut LaneOut) {
         let j11 = cam.fy / zc;
         let j12 = -cam.fy * tyc / (zc * zc);
         // T = J W (2x3), then U = T R S (2x3).
-        let mut tw = [[0.0f32; 3]; 2];
-        for b in 0..3 {
-            tw[0][b] = j00 * r[0][b] + j02 * r[2][b];
-            tw[1][b] = j11 * r[1][b] + j12 * r[2][b];
-        }
-        let mut u = [[0.0f32; 3]; 2];
-        for a in 0..2 {
-            for b in 0..3 {
-                u[a][b] = (tw[a][0] * rq[0][b] + tw[a][1] * rq[1][b] + tw[a][2] * rq[2][b]) * s[b];
-            }
-        }
-        let n0 = u[0][0] * u[0][0] + u[0][1] * u[0][1] + u[0][2] * u[0][2];
-        let n1 = u[1][0] * u[1][0] + u[1][1] * u[1][1] + u[1][2] * u[1][2];
-        let cb = u[0][0] * u[1][0] + u[0][1] * u[1][1] + u[0][2] * u[1][2];
-        let cross = [
-            u[0][1] * u[1][2] - u[0][2] * u[1][1],
-            u[0][2] * u[1][0] - u[0][0] * u[1][2],
-            u[0][0] * u[1][1] - u[0][1] * u[1][0],
-        ];
-        let ca = n0 + dil;
-        let cc = n1 + dil;
-        let det = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2])
-            + dil * (n0 + n1)
-            + dil * dil;
+        let u = jwrs_f32(r, [j00, j02, j11, j12], &rq, s);
+        let [ca, cb, cc, det] = cov2d_f32(&u, dil);
         let conic = [cc / det, -cb / det, ca / det];
         let mx = cam.fx * tx / zc + cam.cx;
         let my = cam.fy * ty / zc + cam.cy;

@@ -255,6 +255,24 @@ fn loss_f64(
         .sum()
 }
 
+/// The fixed blend weights `(pixel, scene index, w)` of a view: a forward with unit
+/// colours per Gaussian would be costly, so they are read from the cache by one-hot
+/// colours on a tiny scene.
+fn blend_weights(cache: &ViewCache, ids: &[u32], npix: usize) -> Vec<(usize, usize, f64)> {
+    let mut weights = Vec::new();
+    for (j, &id) in ids.iter().enumerate() {
+        let mut col = vec![[0.0f32; 3]; ids.len()];
+        col[j] = [1.0, 0.0, 0.0];
+        let img = cache.forward(&col, [0.0; 3]);
+        for p in 0..npix {
+            if img[p * 3] != 0.0 {
+                weights.push((p, id as usize, img[p * 3] as f64));
+            }
+        }
+    }
+    weights
+}
+
 /// Colour gradients agree with central finite differences of an f64 reference, for SH
 /// degrees 0..3, with both clamped and unclamped colours present. Relative error (L2
 /// over all coefficients whose raw colours are away from the clamp kink) < 1e-4
@@ -266,22 +284,9 @@ fn colour_gradient_matches_finite_differences() {
         let cam = front_camera(40, 32, 40.0, 3.0);
         let centre = cam.center();
         let cache = ViewCache::build(&scene, &cam).unwrap();
-        // Extract the fixed weights (pixel, scene index, w) by a forward with unit
-        // colours per Gaussian would be costly; instead read them from the cache by
-        // one-hot colours on a tiny scene.
         let ids = cache.gaussians().to_vec();
         let npix = 40 * 32;
-        let mut weights = Vec::new();
-        for (j, &id) in ids.iter().enumerate() {
-            let mut col = vec![[0.0f32; 3]; ids.len()];
-            col[j] = [1.0, 0.0, 0.0];
-            let img = cache.forward(&col, [0.0; 3]);
-            for p in 0..npix {
-                if img[p * 3] != 0.0 {
-                    weights.push((p, id as usize, img[p * 3] as f64));
-                }
-            }
-        }
+        let weights = blend_weights(&cache, &ids, npix);
         let mut rng = Rng::new(7);
         let r: Vec<f64> = (0..npix * 3).map(|_| rng.normal()).collect();
         let rf: Vec<f32> = r.iter().map(|&v| v as f32).collect();

@@ -263,8 +263,7 @@ fn builder(cfg: &SessionConfig) -> Result<ort::session::builder::SessionBuilder>
         .map_err(|e| Error::Onnx(e.to_string()))?;
     // onnxruntime's pool threads spin between operators by default; here they would
     // burn the cores that rayon's workers (rendering, the colour step, other sessions
-    // run side by side) and other processes need: on the 2-core machine, about a fifth
-    // of `distill`'s CPU samples were that spin loop (BENCHMARKS.md, "distill per phase").
+    // run side by side) and other processes need.
     b = b
         .with_intra_op_spinning(false)
         .map_err(|e| Error::Onnx(e.to_string()))?;

@@ -116,10 +116,54 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
     if !bytes.starts_with(b"ply") {
         return Err(bad("not a PLY file (does not start with `ply`)".into()));
     }
-    // Find the end of the header: a line `end_header`.
+    let (lines, body) = header_lines(bytes);
+    let body = body.ok_or_else(|| bad("PLY header has no `end_header` line".into()))?;
+    let mut format = None;
+    let mut elements: Vec<Element> = Vec::new();
+    for (ln, line) in lines.iter().enumerate().skip(1) {
+        let tok: Vec<&str> = line.split_whitespace().collect();
+        let at = |what: String| bad(format!("header line {}: {what}", ln + 1));
+        match tok.first().copied() {
+            None | Some("comment") | Some("obj_info") => {}
+            Some("format") => format = Some(parse_format(tok.get(1).copied(), &at, &bad)?),
+            Some("element") => {
+                let (Some(name), Some(count)) = (tok.get(1), tok.get(2)) else {
+                    return Err(at(format!("malformed `{line}`")));
+                };
+                let count = count.parse::<usize>().map_err(|_| {
+                    at(format!(
+                        "element count `{count}` is not a non-negative integer"
+                    ))
+                })?;
+                elements.push(Element {
+                    name: name.to_string(),
+                    count,
+                    props: Vec::new(),
+                    has_list: false,
+                });
+            }
+            Some("property") => {
+                let Some(el) = elements.last_mut() else {
+                    return Err(at("property before any element".into()));
+                };
+                parse_property(el, &tok, line, &at, &bad)?;
+            }
+            Some(other) => return Err(at(format!("unexpected keyword `{other}`"))),
+        }
+    }
+    let format = format.ok_or_else(|| bad("PLY header has no `format` line".into()))?;
+    Ok(Header {
+        format,
+        elements,
+        body,
+    })
+}
+
+/// The header's lines before `end_header` (trimmed) and the byte offset of the body
+/// (`None` without an `end_header` line in the first megabyte).
+fn header_lines(bytes: &[u8]) -> (Vec<String>, Option<usize>) {
     let mut pos = 0usize;
     let mut lines = Vec::new();
-    let mut body = None;
     while pos < bytes.len() {
         let end = bytes[pos..]
             .iter()
@@ -132,92 +176,59 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
             .to_string();
         pos = end.map(|e| e + 1).unwrap_or(bytes.len());
         if line == "end_header" {
-            body = Some(pos);
-            break;
+            return (lines, Some(pos));
         }
         lines.push(line);
         if pos > 1 << 20 {
             break; // a header is never a megabyte long
         }
     }
-    let body = body.ok_or_else(|| bad("PLY header has no `end_header` line".into()))?;
-    let mut format = None;
-    let mut elements: Vec<Element> = Vec::new();
-    for (ln, line) in lines.iter().enumerate().skip(1) {
-        let tok: Vec<&str> = line.split_whitespace().collect();
-        match tok.first().copied() {
-            None | Some("comment") | Some("obj_info") => {}
-            Some("format") => {
-                format = Some(match tok.get(1).copied() {
-                    Some("ascii") => Format::Ascii,
-                    Some("binary_little_endian") => Format::BinaryLe,
-                    Some("binary_big_endian") => {
-                        return Err(bad("big-endian PLY (binary_big_endian) is not supported; \
-                             convert it to binary_little_endian"
-                            .into()));
-                    }
-                    other => {
-                        return Err(bad(format!(
-                            "header line {}: unknown PLY format {:?}",
-                            ln + 1,
-                            other.unwrap_or("")
-                        )));
-                    }
-                })
-            }
-            Some("element") => {
-                let (Some(name), Some(count)) = (tok.get(1), tok.get(2)) else {
-                    return Err(bad(format!("header line {}: malformed `{line}`", ln + 1)));
-                };
-                let count = count.parse::<usize>().map_err(|_| {
-                    bad(format!(
-                        "header line {}: element count `{count}` is not a non-negative integer",
-                        ln + 1
-                    ))
-                })?;
-                elements.push(Element {
-                    name: name.to_string(),
-                    count,
-                    props: Vec::new(),
-                    has_list: false,
-                });
-            }
-            Some("property") => {
-                let Some(el) = elements.last_mut() else {
-                    return Err(bad(format!(
-                        "header line {}: property before any element",
-                        ln + 1
-                    )));
-                };
-                if tok.get(1) == Some(&"list") {
-                    el.has_list = true;
-                    continue;
-                }
-                let (Some(ty), Some(name)) = (tok.get(1), tok.get(2)) else {
-                    return Err(bad(format!("header line {}: malformed `{line}`", ln + 1)));
-                };
-                let ty = PType::parse(ty).ok_or_else(|| {
-                    bad(format!(
-                        "unknown property type `{ty}` for property `{name}` of element `{}`",
-                        el.name
-                    ))
-                })?;
-                el.props.push((name.to_string(), ty));
-            }
-            Some(other) => {
-                return Err(bad(format!(
-                    "header line {}: unexpected keyword `{other}`",
-                    ln + 1
-                )));
-            }
-        }
+    (lines, None)
+}
+
+/// The `format` line's format (`at`: an error naming the line, `bad`: one naming only
+/// the file).
+fn parse_format(
+    kind: Option<&str>,
+    at: &dyn Fn(String) -> Error,
+    bad: &dyn Fn(String) -> Error,
+) -> Result<Format> {
+    match kind {
+        Some("ascii") => Ok(Format::Ascii),
+        Some("binary_little_endian") => Ok(Format::BinaryLe),
+        Some("binary_big_endian") => Err(bad(
+            "big-endian PLY (binary_big_endian) is not supported; convert it to \
+             binary_little_endian"
+                .into(),
+        )),
+        other => Err(at(format!("unknown PLY format {:?}", other.unwrap_or("")))),
     }
-    let format = format.ok_or_else(|| bad("PLY header has no `format` line".into()))?;
-    Ok(Header {
-        format,
-        elements,
-        body,
-    })
+}
+
+/// A `property` line (`tok`, its words) of element `el`: a list marks the element, a
+/// scalar property is added with its type.
+fn parse_property(
+    el: &mut Element,
+    tok: &[&str],
+    line: &str,
+    at: &dyn Fn(String) -> Error,
+    bad: &dyn Fn(String) -> Error,
+) -> Result<()> {
+    if tok.get(1) == Some(&"list") {
+        el.has_list = true;
+        return Ok(());
+    }
+    let (Some(ty), Some(name)) = (tok.get(1), tok.get(2)) else {
+        return Err(at(format!("malformed `{line}`")));
+    };
+    let ty = PType::parse(ty).ok_or_else(|| {
+        bad(format!(
+            "unknown property type `{ty}` for property `{name}` of element `{}`",
+            el.name
+        ))
+    })?;
+    el.props.push((name.to_string(), ty));
+    Ok(())
 }
 
 /// Column indices of the properties the INRIA parameterisation needs.

@@ -107,26 +107,7 @@ pub fn read_spz(path: &Path) -> Result<Scene> {
 /// Parse `.spz` bytes (the gzip-compressed file); `path` is used in error messages only.
 pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Scene> {
     let bad = |r: String| Error::input(path, r);
-    if bytes.len() >= 8 && u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) == MAGIC {
-        let v = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]);
-        return Err(bad(if v >= 4 {
-            format!(
-                "the uncompressed NGSP container of .spz version {v} is not supported; this \
-                 reader reads versions 2 and 3 (gzip; re-save it as version 3)"
-            )
-        } else {
-            format!(
-                "an uncompressed .spz stream (version {v}); .spz files of versions 2 and 3 \
-                 are gzip-compressed"
-            )
-        }));
-    }
-    if bytes.len() < 2 || bytes[0] != 0x1f || bytes[1] != 0x8b {
-        return Err(bad(
-            "not a gzip stream (a .spz file is gzip-compressed; truncated or not a .spz file?)"
-                .into(),
-        ));
-    }
+    check_gzip(bytes).map_err(bad)?;
     let mut dec = flate2::read::GzDecoder::new(bytes);
     let gz = |e: std::io::Error| bad(format!("corrupt gzip stream: {e}"));
     let mut h = [0u8; HEADER];
@@ -137,40 +118,13 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Scene> {
              {HEADER}-byte header"
         )));
     }
-    let u32_at = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]);
-    let (magic, version, n) = (u32_at(0), u32_at(4), u32_at(8) as usize);
-    let (degree, fb, flags) = (h[12] as usize, h[13], h[14]);
-    if magic != MAGIC {
-        return Err(bad(format!(
-            "bad magic {magic:#010x} (expected {MAGIC:#010x}, \"NGSP\"): not a .spz file"
-        )));
-    }
-    match version {
-        2 | 3 => {}
-        1 => {
-            return Err(bad(
-                "version 1 (float16 positions, never released) is not supported; this reader \
-                 reads versions 2 and 3"
-                    .into(),
-            ));
-        }
-        v => {
-            return Err(bad(format!(
-                "unsupported version {v} (this reader reads versions 2 and 3)"
-            )));
-        }
-    }
-    if degree > 4 {
-        return Err(bad(format!("SH degree {degree} (the format allows 0..=4)")));
-    }
-    if fb > 30 {
-        return Err(bad(format!(
-            "{fb} fractional bits for 24-bit positions (corrupt header?)"
-        )));
-    }
-    if n == 0 {
-        return Err(bad("no Gaussians (the header's count is 0)".into()));
-    }
+    let SpzHeader {
+        version,
+        n,
+        degree,
+        fb,
+        flags,
+    } = check_header(&h).map_err(bad)?;
     let per = record_bytes(version, degree);
     let data_len = (n as u64) * (per as u64);
     let extensions = flags & FLAG_EXTENSIONS != 0;
@@ -205,7 +159,98 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Scene> {
             ext_len
         )));
     }
-    if extensions {
+    warn_unread(path, extensions.then_some(ext_len), flags, degree);
+    let s = decode(&rest[ext_len..], n, version, degree, fb);
+    s.validate(path)?;
+    Ok(s)
+}
+
+/// Refuse what is not a gzip stream, naming an uncompressed `.spz` stream as such.
+fn check_gzip(bytes: &[u8]) -> std::result::Result<(), String> {
+    if bytes.len() >= 8 && u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) == MAGIC {
+        let v = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]);
+        return Err(if v >= 4 {
+            format!(
+                "the uncompressed NGSP container of .spz version {v} is not supported; this \
+                 reader reads versions 2 and 3 (gzip; re-save it as version 3)"
+            )
+        } else {
+            format!(
+                "an uncompressed .spz stream (version {v}); .spz files of versions 2 and 3 \
+                 are gzip-compressed"
+            )
+        });
+    }
+    if bytes.len() < 2 || bytes[0] != 0x1f || bytes[1] != 0x8b {
+        return Err(
+            "not a gzip stream (a .spz file is gzip-compressed; truncated or not a .spz file?)"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+/// A `.spz` header's fields.
+struct SpzHeader {
+    version: u32,
+    /// Gaussians.
+    n: usize,
+    degree: usize,
+    /// Fractional bits of the 24-bit positions.
+    fb: u8,
+    flags: u8,
+}
+
+/// The decompressed header `h`, checked: magic, version 2 or 3, SH degree, fractional
+/// bits, a count above 0.
+fn check_header(h: &[u8; HEADER]) -> std::result::Result<SpzHeader, String> {
+    let u32_at = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]);
+    let (magic, version, n) = (u32_at(0), u32_at(4), u32_at(8) as usize);
+    let (degree, fb, flags) = (h[12] as usize, h[13], h[14]);
+    if magic != MAGIC {
+        return Err(format!(
+            "bad magic {magic:#010x} (expected {MAGIC:#010x}, \"NGSP\"): not a .spz file"
+        ));
+    }
+    match version {
+        2 | 3 => {}
+        1 => {
+            return Err(
+                "version 1 (float16 positions, never released) is not supported; this reader \
+                 reads versions 2 and 3"
+                    .into(),
+            );
+        }
+        v => {
+            return Err(format!(
+                "unsupported version {v} (this reader reads versions 2 and 3)"
+            ));
+        }
+    }
+    if degree > 4 {
+        return Err(format!("SH degree {degree} (the format allows 0..=4)"));
+    }
+    if fb > 30 {
+        return Err(format!(
+            "{fb} fractional bits for 24-bit positions (corrupt header?)"
+        ));
+    }
+    if n == 0 {
+        return Err("no Gaussians (the header's count is 0)".into());
+    }
+    Ok(SpzHeader {
+        version,
+        n,
+        degree,
+        fb,
+        flags,
+    })
+}
+
+/// Warn about what the reader skips or does not render: extensions (`ext_len` bytes),
+/// antialiasing, SH degree 4's coefficients.
+fn warn_unread(path: &Path, ext_len: Option<usize>, flags: u8, degree: usize) {
+    if let Some(ext_len) = ext_len {
         tracing::warn!(
             "{}: skipped {ext_len} bytes of .spz extensions; SH coefficients are decoded with \
              the default [-1, 1] range",
@@ -219,16 +264,12 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Scene> {
             path.display()
         );
     }
-    let d = &rest[ext_len..];
-    let s = decode(d, n, version, degree, fb);
     if degree == 4 {
         tracing::warn!(
             "{}: SH degree 4 is read as degree 3 (the degree-4 coefficients are dropped)",
             path.display()
         );
     }
-    s.validate(path)?;
-    Ok(s)
 }
 
 /// Read until `buf` is full or the stream ends; the number of bytes read.

@@ -93,14 +93,7 @@ pub struct Args {
 /// The stage: read the views and the style, evaluate (or compute the reference only,
 /// then `None`), write the artifact.
 pub fn run(a: Args) -> Result<Option<Metrics>> {
-    let p = EvalParams {
-        lpips_net: a.lpips_net,
-        short_range: a.short_range,
-        long_range: a.long_range,
-        seed: a.seed,
-        object_squares: a.object_squares,
-        threads: a.threads.n,
-    };
+    let p = eval_params(&a);
     p.validate()?;
     let orig = crate::timing::load(|| read_view_set(&a.original))?;
     let Some(stylized) = &a.stylized else {
@@ -165,16 +158,32 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     wr.write_json("metrics.json", &ev.metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;
     crate::timing::io(|| wr.commit())?;
-    let m = ev.metrics;
+    log_metrics(&ev.metrics, &a.out);
+    Ok(Some(ev.metrics))
+}
+
+/// The evaluation's parameters from the command line.
+fn eval_params(a: &Args) -> EvalParams {
+    EvalParams {
+        lpips_net: a.lpips_net,
+        short_range: a.short_range,
+        long_range: a.long_range,
+        seed: a.seed,
+        object_squares: a.object_squares,
+        threads: a.threads.n,
+    }
+}
+
+/// The headline metrics, logged.
+fn log_metrics(m: &Metrics, out: &std::path::Path) {
     tracing::info!(
         "evaluate: LPIPS_content {} FID_style {} ArtFID {} short-range LPIPS {} -> {}",
         fmt_opt(m.lpips_content, 4),
         fmt_opt(m.fid_style.value, 2),
         fmt_opt(m.artfid, 2),
         fmt_opt(m.short_range.lpips_mean, 4),
-        a.out.display()
+        out.display()
     );
-    Ok(Some(m))
 }
 
 /// The agreement ceiling of `--refit-baseline`: its stylizations' and the original

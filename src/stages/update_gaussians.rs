@@ -59,7 +59,7 @@ pub struct Args {
     pub out: PathBuf,
     /// Adam learning rate of the degree-0 SH coefficients f_dc. 3DGS trains from scratch
     /// at 0.0025 over 30k steps; a colour fit of tens to hundreds of steps needs more
-    /// (BENCHMARKS.md, "Colour-fit learning rate": 300 steps reach 30 dB at 0.0025, 53 dB
+    /// (docs/method.md, "Colour-fit learning rate": 300 steps reach 30 dB at 0.0025, 53 dB
     /// at 0.01).
     #[arg(long, default_value_t = 0.01)]
     pub lr_dc: f32,

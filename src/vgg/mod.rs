@@ -17,10 +17,10 @@
 //! Two engines compute these passes. The Rust engine (this module) is the reference:
 //! convolutions are im2col + SGEMM on `matrixmultiply` (through
 //! `ndarray::linalg::general_mat_mul`; measured against the `gemm` crate, BENCHMARKS.md
-//! "Baselines"), parallel over bands of output rows (each band: its own im2col buffer and
-//! a single-threaded GEMM into its column block of the output), which bounds the im2col
-//! memory and needs no synchronisation; it is tested against finite differences and an
-//! f64 forward in-process. The onnxruntime engine (`src/vgg/onnx.rs`, after
+//! "VGG16 and the NNFM search on onnxruntime"), parallel over bands of output rows (each
+//! band: its own im2col buffer and a single-threaded GEMM into its column block of the
+//! output), which bounds the im2col memory and needs no synchronisation; it is tested
+//! against finite differences and an f64 forward in-process. The onnxruntime engine (`src/vgg/onnx.rs`, after
 //! [`Vgg16::on_onnxruntime`]) builds the forward pass and the backward pass as forward
 //! graphs from the same weights (the backward's transposed convolutions, ReLU masks and
 //! max-unpooling written out as operators) and runs them on onnxruntime's convolution

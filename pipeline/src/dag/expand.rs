@@ -427,14 +427,7 @@ fn matrix_items(m: &toml::Value) -> Result<Vec<Item>, ForeachError> {
         }
         let mut labels: Vec<String> = Vec::new();
         for x in a {
-            let s = match x {
-                toml::Value::String(s) => s.clone(),
-                toml::Value::Integer(i) => i.to_string(),
-                other => return Err(ForeachError::ItemType(other.type_str())),
-            };
-            if !ok_label(&s) {
-                return Err(ForeachError::Label(s));
-            }
+            let s = label_of(x)?;
             if labels.contains(&s) {
                 return Err(ForeachError::Twice(s));
             }
@@ -493,6 +486,19 @@ fn foreach_items(
     }
 }
 
+/// A list item as a label: a string or an integer, of the characters a label may have.
+fn label_of(x: &toml::Value) -> Result<String, ForeachError> {
+    let s = match x {
+        toml::Value::String(s) => s.clone(),
+        toml::Value::Integer(i) => i.to_string(),
+        other => return Err(ForeachError::ItemType(other.type_str())),
+    };
+    if !ok_label(&s) {
+        return Err(ForeachError::Label(s));
+    }
+    Ok(s)
+}
+
 /// A list `["a", "b"]`: one item each, `${prev}` the one before.
 fn list_items(a: &[toml::Value]) -> Result<Vec<Item>, ForeachError> {
     if a.is_empty() {
@@ -500,14 +506,7 @@ fn list_items(a: &[toml::Value]) -> Result<Vec<Item>, ForeachError> {
     }
     let mut items: Vec<Item> = Vec::new();
     for x in a {
-        let s = match x {
-            toml::Value::String(s) => s.clone(),
-            toml::Value::Integer(i) => i.to_string(),
-            other => return Err(ForeachError::ItemType(other.type_str())),
-        };
-        if !ok_label(&s) {
-            return Err(ForeachError::Label(s));
-        }
+        let s = label_of(x)?;
         if items.iter().any(|i| i.value == s) {
             return Err(ForeachError::Twice(s));
         }

@@ -11,7 +11,7 @@
 //!
 //! Only the prior's term is FantasyStyle; `nnfm` and `gram` are texture terms added
 //! because the CPU stylizer prior cannot carry a style's motifs on its own (the `arf`
-//! preset; BENCHMARKS.md "Texture"). The VGG terms share one forward and one backward
+//! preset; docs/texture-term.md). The VGG terms share one forward and one backward
 //! pass per view ([`texture::TextureTerm`]), so they are one module with a weight per
 //! statistic. Per view, the colour step's gradient at the render is the prior term's
 //! (zero without one) plus the texture terms', in that order ([`super::step::colour_step`]).
@@ -94,16 +94,21 @@ impl Terms {
         })
     }
 
-    /// Refuse a negative or non-finite weight and two of the prior's terms.
-    pub fn validate(&self) -> Result<()> {
-        let all = [
+    /// Each term's name (as the configuration spells it) and weight.
+    fn named(&self) -> [(&'static str, f32); 6] {
+        [
             ("csd", self.csd),
             ("sds", self.sds),
             ("dds", self.dds),
             ("csd-no-neg", self.csd_no_neg),
             ("nnfm", self.nnfm),
             ("gram", self.gram),
-        ];
+        ]
+    }
+
+    /// Refuse a negative or non-finite weight and two of the prior's terms.
+    pub fn validate(&self) -> Result<()> {
+        let all = self.named();
         if let Some((n, w)) = all.iter().find(|(_, w)| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::param(format!(
                 "terms: the weight of {n} must be finite and >= 0, got {w}"
@@ -170,14 +175,7 @@ impl Terms {
 
 impl std::fmt::Display for Terms {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let all = [
-            ("csd", self.csd),
-            ("sds", self.sds),
-            ("dds", self.dds),
-            ("csd-no-neg", self.csd_no_neg),
-            ("nnfm", self.nnfm),
-            ("gram", self.gram),
-        ];
+        let all = self.named();
         let on: Vec<String> = all
             .iter()
             .filter(|(_, w)| *w != 0.0)

@@ -1,6 +1,6 @@
 //! The VGG texture terms of the colour step, `nnfm` and `gram` (not part of FantasyStyle:
 //! added because the CPU prior cannot carry a style's motifs on its own, see
-//! BENCHMARKS.md "Texture").
+//! docs/texture-term.md).
 //!
 //! The 2D stylizer draws strokes where each view's own content puts them, so views that
 //! see a surface from 22-45 degrees apart ask for strokes in different places, and the
@@ -29,13 +29,13 @@
 //! only how often each feature occurs; matching whole relu3 features keeps local
 //! arrangements of 20-40 px (a brick's corner, a ring's arc), which is what a regular
 //! pattern's motif is made of. Cosine distance is nearly blind to colour, so the `arf`
-//! preset pairs it with a start that brings the style's colours (BENCHMARKS.md "A texture
+//! preset pairs it with a start that brings the style's colours (docs/texture-term.md "A texture
 //! term that carries arrangement"). `nnfm` and `gram` together add their losses (their
 //! layers' gradients sum in one VGG backward, nnfm's first), each with its weight from
 //! the configuration's `terms` ([`Statistic::weight`]): at equal weights the Gram
 //! gradient is much the larger and decides the picture; the `arf` preset's NNFM at 1 with
 //! Gram at 0.1 keeps NNFM's arrangements and adds more, smaller motifs in more of the
-//! style's colours (BENCHMARKS.md "NNFM plus a light Gram statistic").
+//! style's colours (docs/texture-term.md "NNFM plus a light Gram statistic").
 //!
 //! Cost: one forward and backward of VGG16 up to the deepest layer used (relu2_2 for
 //! Gram, relu3_3 for NNFM, about twice the Gram cost with the nearest-neighbour search) on
@@ -74,7 +74,7 @@ pub struct TextureParams {
     pub downsample: usize,
     /// The terms on this many of each iteration's views (rotating; scaled so that the
     /// gradient is the same in expectation); 0 = every view. 1 looked the same as every
-    /// view at about 0.7x the CPU (BENCHMARKS.md "Texture").
+    /// view at about 0.7x the CPU (docs/texture-term.md).
     #[arg(long, default_value_t = 1)]
     pub views: usize,
     /// VGG16 layers matched, with one VGG term (receptive fields: relu1_2 5 px, relu2_2
