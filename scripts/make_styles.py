@@ -14,14 +14,22 @@ benchmark; docs/texture-term.md "A texture term that carries arrangement"):
   dots.png      yellow, red and green discs on a navy ground (small isolated motifs)
   waves.png     wavy parallel bands, navy / yellow / white, hard edges (a banded motif
                 like opart's rings, without their centre)
-and one photographic texture:
-  brick.png     scikit-image's `brick` (a brick-wall photo, CC0, see
-                benches/quality/styles/CREDITS.md), 512x512 grayscale box-averaged to SIZE
-                and written as RGB. Read from the scikit-image package's data directory
-                without importing it (no pooch download: the file ships in the wheel): from
-                an installed scikit-image, or from a wheel file given with --skimage-wheel
-                (`pip download --no-deps scikit-image==0.26.0` fetches one). Skipped with a
-                message when neither is available.
+and three photographs from scikit-image's sample data (licences in
+benches/quality/styles/CREDITS.md):
+  brick.png     scikit-image's `brick` (a brick-wall photo, CC0): the photographic texture,
+                512x512 grayscale box-averaged to SIZE and written as RGB;
+  astronaut.png scikit-image's `astronaut` (a portrait photograph of Eileen Collins, NASA,
+                public domain): a style with recognisable content, 512x512 RGB
+                box-averaged to SIZE;
+  coffee.png    scikit-image's `coffee` (a cup on a saucer, CC0): a photograph of objects,
+                600x400 RGB, the 400x400 square around the saucer (columns 80..480)
+                area-averaged to SIZE.
+The two content-bearing photographs are for measuring content leakage (issue 38): a
+method that pastes the style image onto the scene shows a helmet, a cup. The files are
+read from the scikit-image package's data directory without importing it (no pooch
+download: they ship in the wheel): from an installed scikit-image, or from a wheel file
+given with --skimage-wheel (`pip download --no-deps scikit-image==0.26.0` fetches one).
+Skipped with a message when neither is available.
 """
 import os
 import struct
@@ -141,8 +149,9 @@ def waves(size):
     return np.array([[20, 30, 90], [250, 205, 40], [245, 245, 235]], float)[k]
 
 
-def read_png_gray8(data):
-    """An 8-bit grayscale, non-interlaced PNG (scikit-image's textures) as uint8 [H, W]."""
+def read_png8(data):
+    """An 8-bit grayscale or RGB, non-interlaced PNG (scikit-image's sample images) as
+    uint8 [H, W] (grayscale) or [H, W, 3] (RGB)."""
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     pos, idat = 8, b""
     while pos < len(data):
@@ -150,26 +159,28 @@ def read_png_gray8(data):
         t, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
         if t == b"IHDR":
             w, h, depth, ctype, _, _, interlace = struct.unpack(">IIBBBBB", body)
-            if (depth, ctype, interlace) != (8, 0, 0):
-                raise ValueError(f"expected 8-bit grayscale, non-interlaced; got depth {depth} type {ctype}")
+            if depth != 8 or ctype not in (0, 2) or interlace != 0:
+                raise ValueError(f"expected 8-bit grayscale or RGB, non-interlaced; got depth {depth} type {ctype}")
+            ch = 1 if ctype == 0 else 3
         elif t == b"IDAT":
             idat += body
         pos += 12 + n
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w)
-    out = np.zeros((h, w), np.int64)
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * ch)
+    out = np.zeros((h, w * ch), np.int64)
     for y in range(h):
         f, line = raw[y, 0], raw[y, 1:].astype(np.int64)
-        prev = out[y - 1] if y else np.zeros(w, np.int64)
+        prev = out[y - 1] if y else np.zeros(w * ch, np.int64)
         if f == 0:
             cur = line
         elif f == 2:
             cur = (line + prev) % 256
         else:
-            cur = np.zeros(w, np.int64)
-            for i in range(w):
-                a = cur[i - 1] if i else 0
+            # a = the byte one pixel to the left (ch bytes back), b = above, c = above-left.
+            cur = np.zeros(w * ch, np.int64)
+            for i in range(w * ch):
+                a = cur[i - ch] if i >= ch else 0
                 b = prev[i]
-                c = prev[i - 1] if i else 0
+                c = prev[i - ch] if i >= ch else 0
                 if f == 1:
                     p = a
                 elif f == 3:
@@ -179,7 +190,21 @@ def read_png_gray8(data):
                     p = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
                 cur[i] = (line[i] + p) % 256
         out[y] = cur
-    return out.astype(np.uint8)
+    out = out.astype(np.uint8)
+    return out.reshape(h, w) if ch == 1 else out.reshape(h, w, 3)
+
+
+def area_matrix(n_in, n_out):
+    """[n_out, n_in] weights of exact area averaging: output sample k covers the input
+    interval [k n_in / n_out, (k + 1) n_in / n_out), each input pixel weighted by the
+    length it overlaps (rows sum to 1; an integer factor is a plain box average)."""
+    r = np.zeros((n_out, n_in))
+    s = n_in / n_out
+    for k in range(n_out):
+        a, b = k * s, (k + 1) * s
+        for i in range(int(np.floor(a)), min(int(np.ceil(b)), n_in)):
+            r[k, i] = min(b, i + 1) - max(a, i)
+    return r / r.sum(1, keepdims=True)
 
 
 def skimage_file(name, wheel):
@@ -196,14 +221,20 @@ def skimage_file(name, wheel):
     return open(path, "rb").read() if os.path.isfile(path) else None
 
 
-def photo_texture(name, size, wheel):
+def photo(name, size, wheel, x0=0, y0=0, side=None):
+    """scikit-image's NAME: the square [x0, x0 + side) x [y0, y0 + side) (side: the
+    shorter side) area-averaged to SIZE x SIZE, as RGB floats in [0, 255]; None when the
+    data are not found."""
     data = skimage_file(name, wheel)
     if data is None:
         return None
-    g = read_png_gray8(data).astype(np.float64)
-    f = g.shape[0] // size
-    g = g[: size * f, : size * f].reshape(size, f, size, f).mean((1, 3))
-    return np.repeat(g[..., None], 3, -1)
+    g = read_png8(data).astype(np.float64)
+    side = side or min(g.shape[:2])
+    g = g[y0:y0 + side, x0:x0 + side]
+    r = area_matrix(side, size)
+    if g.ndim == 2:
+        return np.repeat((r @ g @ r.T)[..., None], 3, -1)
+    return np.stack([r @ g[..., c] @ r.T for c in range(3)], -1)
 
 
 def main():
@@ -232,14 +263,17 @@ def main():
         print("wrote", path)
     if dev:
         return
-    brick = photo_texture("brick.png", size, wheel)
-    path = os.path.join(out, "brick.png")
-    if brick is None:
-        print(f"skipped {path}: scikit-image's data not found (give --skimage-wheel WHEEL)")
-    else:
-        write_png(path, brick + 0.5)
-        print("wrote", path)
-
+    # (file, output name, crop x0): the coffee photograph is 600x400, its saucer spans
+    # columns ~75..480.
+    for file, name, x0 in [("brick.png", "brick", 0), ("astronaut.png", "astronaut", 0),
+                           ("coffee.png", "coffee", 80)]:
+        img = photo(file, size, wheel, x0=x0)
+        path = os.path.join(out, name + ".png")
+        if img is None:
+            print(f"skipped {path}: scikit-image's data not found (give --skimage-wheel WHEEL)")
+        else:
+            write_png(path, img + 0.5)
+            print("wrote", path)
 
 if __name__ == "__main__":
     main()
