@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """The stylizer's float graphs against the shipped int8 ones (BENCHMARKS.md, "The
-stylizer's transfer graph in float" and "The style-prediction graph in float").
+stylizer's transfer graph in float" and "Reproducibility across instruction sets").
 
 Transfer graph: the mean |difference| of the two graphs' outputs on the test image of
 `float_graphs_are_the_int8_network` (96x128: a checkerboard-modulated ramp, a vertical

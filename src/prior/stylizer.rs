@@ -10,7 +10,7 @@
 //! shipped graphs' quantize/dequantize pairs are fused by onnxruntime into int8 kernels
 //! that differ by instruction set (style vectors 0.54 apart, of 3.0, between AVX2 and
 //! AVX-512 VNNI), the float graphs' outputs only by float rounding (1e-6; BENCHMARKS.md,
-//! "The style-prediction graph in float").
+//! "Reproducibility across instruction sets").
 //!
 //! **As a diffusion prior.** It works in pixel space: the "VAE" is the identity
 //! (latent channels 3, downsample 1, latent = image in `[0,1]`). It is an x0-predictor:

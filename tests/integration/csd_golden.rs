@@ -355,7 +355,7 @@ fn stylizer_csd_matches_numpy_reference() {
 /// (`vendor/models/stylizer-int8`), those run as the ONNX standard defines them
 /// (onnxruntime's basic optimisation level: each QuantizeLinear / DequantizeLinear as an
 /// operator of its own, in float), not fused into the int8 kernels onnxruntime picks by
-/// instruction set, whose outputs differ between CPUs (issue 40: style vectors 0.48 apart,
+/// instruction set, whose outputs differ between CPUs (issue 40: style vectors 0.54 apart,
 /// of 3.0, between AVX2 and AVX-512 VNNI).
 ///
 /// Style prediction, on the style image and a 96x128 image with edges, gradients and

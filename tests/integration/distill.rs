@@ -207,7 +207,7 @@ fn stylized_luma(src: &SourceViews, style: &Array4<f32>) -> f64 {
 ///
 /// Why they hold on any CPU: the networks are float graphs (`scripts/setup/20_stylizer.py`),
 /// whose outputs differ between instruction sets by float rounding (style vectors 1e-6
-/// of 3.6, BENCHMARKS.md "The style-prediction graph in float"), and the loop converges
+/// of 3.6, BENCHMARKS.md "Reproducibility across instruction sets"), and the loop converges
 /// to its fixed point (the luma after 45 and 90 iterations agrees to 4e-4) instead of
 /// amplifying such differences; measured between AVX-512, AVX2 and SSE4.2 (qemu), the
 /// lumas here agree to 1e-4 or better, against margins of 0.02 or more.
