@@ -6,14 +6,21 @@ stylization" model, Ghiasi et al. 2017, in its MobileNet/int8 "lite" form: a sty
 prediction network and a style transfer network) into a temporary directory, extracts the
 two ONNX graphs and writes two model directories (family `stylizer`, model.json each):
 
-  vendor/models/stylizer/       the default: the transfer graph in float (dequantize):
-                                its int8 weights turned into f32 constants, the
-                                activations' quantize/dequantize pairs removed; the prior's
+  vendor/models/stylizer/       the default: both graphs in float (dequantize): their
+                                int8 weights turned into f32 constants, the activations'
+                                quantize/dequantize pairs removed. The transfer graph's
                                 phase of `distill` takes 0.72-0.77x the time on two cores
-                                (BENCHMARKS.md, "The stylizer's transfer graph in float")
+                                (BENCHMARKS.md, "The stylizer's transfer graph in float");
+                                the style-prediction graph in float makes the style vector
+                                independent of the CPU's instruction set up to float
+                                rounding (onnxruntime fuses the shipped graph's
+                                quantize/dequantize pairs into int8 kernels that differ by
+                                instruction set: style vectors 0.48 apart, of 3.0, between
+                                AVX2 and AVX-512 VNNI; BENCHMARKS.md, "The style-prediction
+                                graph in float")
   vendor/models/stylizer-int8/  the graphs as the wheel ships them (for comparison; the
-                                test `float_transfer_graph_is_the_int8_network` checks the
-                                two against each other)
+                                tests `float_graphs_are_the_int8_network` check the two
+                                against each other). Not reproducible across CPUs.
 
 Idempotent: does nothing when the graphs and manifests are present and hash-check.
 
@@ -71,7 +78,7 @@ def manifest(hashes, variant="stylizer"):
     stylizer's own fields live under `stylizer` (parsed by src/prior/stylizer.rs)."""
     name, kind = VARIANTS[variant]
     how = {
-        "float": "; transfer graph dequantized to float at set-up (int8 weights as f32, "
+        "float": "; both graphs dequantized to float at set-up (int8 weights as f32, "
         "activation quantization removed)",
         "int8": "; graphs as shipped (int8 weights, quantized activations)",
     }[kind]
@@ -148,7 +155,7 @@ def make_dynamic(path):
 
 
 def dequantize(path):
-    """Rewrite the transfer graph in float: each DequantizeLinear of a constant (the int8
+    """Rewrite a quantize-dequantize graph (either of the two) in float: each DequantizeLinear of a constant (the int8
     weights) becomes the f32 constant (q - zero_point) * scale (per axis where the scale
     is a vector); each activation's QuantizeLinear -> DequantizeLinear pair (possibly with
     a Reshape or Transpose between them, as the exporter placed some) is bypassed, so the
@@ -225,7 +232,7 @@ def in_place(out, variant):
             return False
         m, want = m["stylizer"], want["stylizer"]
         # Older set-ups: a static transform size, another timestep set, the shipped int8
-        # graph under the default name.
+        # graphs (or an int8 style-prediction graph) under the default name.
         if any(m.get(k) != want[k] for k in ("timesteps", "source")):
             return False
         if m["transform"].get("dynamic") is not True:
@@ -269,8 +276,8 @@ def main(root):
                     check_graph(part, GRAPHS[name])
                     if name == "arbitrary_transform.onnx":
                         make_dynamic(part)
-                        if kind == "float":
-                            dequantize(part)
+                    if kind == "float":
+                        dequantize(part)
                     os.replace(part, dst)
                     hashes[name] = sha256(dst)
             mpath = os.path.join(out, "model.json")
@@ -279,7 +286,7 @@ def main(root):
                 json.dump(manifest(hashes, variant), f, indent=2)
                 f.write("\n")
             os.replace(part, mpath)
-            print(f"  stylizer: wrote {out} ({kind} transfer graph)")
+            print(f"  stylizer: wrote {out} ({kind} graphs)")
 
 
 if __name__ == "__main__":

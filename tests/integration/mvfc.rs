@@ -6,6 +6,9 @@ use fantasystyle::mvfc::{MvfcParams, mvfc};
 use fantasystyle_schemas::read_npy_f32;
 use ndarray::{Array3, Array4};
 
+/// A case of `tests/golden/mvfc/`. Committed bytes, on purpose: float64 numpy of the
+/// formulas (no network), which differ between CPUs by float64 rounding (1e-16
+/// relative), far below the tolerances (2e-5 and up).
 fn golden(name: &str) -> (Array4<f32>, Array3<f32>, Array4<f32>) {
     let dir = repo_root().join("tests/golden/mvfc");
     let z = read_npy_f32(&dir.join(format!("{name}_z.npy"))).unwrap();

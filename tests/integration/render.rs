@@ -67,6 +67,9 @@ fn compare(name: &str, what: &str, got: &[f32], want: &[f32], channels: usize, s
     );
 }
 
+/// Committed bytes, on purpose: `tests/golden/render/` is the float64 numpy rasterizer
+/// (`scripts/reference/render_ref.py`), no network; it differs between CPUs by float64
+/// rounding (1e-16 relative), far below the tolerances.
 #[test]
 fn render_matches_numpy_reference() {
     let dir = repo_root().join("tests/golden/render");
