@@ -323,9 +323,12 @@ fn oracle_predictions(
     {
         // The mixture of the exact model and the style's layout model.
         let exact = exact_tgt();
-        let r = r.broadcast(exact.dim()).map(|v| v.to_owned()).ok_or_else(|| {
-            Error::Other(format!("content responsibility of shape {:?}", r.shape()))
-        })?;
+        let r = r
+            .broadcast(exact.dim())
+            .map(|v| v.to_owned())
+            .ok_or_else(|| {
+                Error::Other(format!("content responsibility of shape {:?}", r.shape()))
+            })?;
         et[k] = Zip::from(&exact)
             .and(&r)
             .and(x.z_tgt)

@@ -216,7 +216,10 @@ impl OnnxPrior {
     pub fn from_model_dir(md: ModelDir, opts: &PriorOptions) -> Result<Self> {
         let m = md.manifest.clone();
         if matches!(m.family, Family::Stylizer | Family::Patch) {
-            return Err(md.err(format!("family `{:?}` is not an ONNX diffusion model", m.family)));
+            return Err(md.err(format!(
+                "family `{:?}` is not an ONNX diffusion model",
+                m.family
+            )));
         }
         let cfg = opts.session_config();
         let c = m.latent_channels;

@@ -84,11 +84,8 @@ pub fn control_image(
         )));
     }
     if kind == ControlKind::SourceAlpha {
-        let rgba = ndarray::concatenate(
-            Axis(3),
-            &[rgb.view(), alpha.view().insert_axis(Axis(3))],
-        )
-        .map_err(|e| Error::Other(e.to_string()))?;
+        let rgba = ndarray::concatenate(Axis(3), &[rgb.view(), alpha.view().insert_axis(Axis(3))])
+            .map_err(|e| Error::Other(e.to_string()))?;
         return Ok(rgba.permuted_axes([0, 3, 1, 2]).to_owned());
     }
     let mut out = Array4::<f32>::zeros((b, 3, h, w));

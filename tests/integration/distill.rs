@@ -242,7 +242,16 @@ fn no_brightness_drift_and_no_extra_clipping() {
             / n as f64
     };
     let l2d = stylized_luma(&src, &style);
-    let at = run_loop(&stylizer_dir().unwrap(), &scene, &cams, &src, style, 1.0, None, &[45, 90]);
+    let at = run_loop(
+        &stylizer_dir().unwrap(),
+        &scene,
+        &cams,
+        &src,
+        style,
+        1.0,
+        None,
+        &[45, 90],
+    );
     let (l45, (_, l90, clip)) = (stats(&src, &at[0].1).1, stats(&src, &at[1].1));
     eprintln!(
         "luma: source {l0:.4}, style {ls:.4}, the 2D stylizer's output on the source views \
@@ -273,7 +282,17 @@ fn extremes_are_finite() {
     let t_last = cfg.num_train_timesteps - 1;
     for (t, strength) in [(1, 1.0), (t_last, 1.0), (1, 0.0), (t_last, 0.0)] {
         let set = TimestepSet::new(&cfg, t, t, 1).unwrap();
-        let (s, r) = run_loop(&stylizer_dir().unwrap(), &scene, &cams, &src, stripes(), strength, Some(set), &[3]).remove(0);
+        let (s, r) = run_loop(
+            &stylizer_dir().unwrap(),
+            &scene,
+            &cams,
+            &src,
+            stripes(),
+            strength,
+            Some(set),
+            &[3],
+        )
+        .remove(0);
         assert!(
             s.sh_dc.iter().flatten().all(|v| v.is_finite()),
             "t {t} strength {strength}"

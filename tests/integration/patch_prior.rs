@@ -10,12 +10,12 @@
 //! shift-invariant and the far patches carry ~0 weight).
 
 use crate::harness::{self, repo_root};
-use std::path::{Path, PathBuf};
 use fantasystyle::prior::patch::bank::{Bank, patches, patches_at};
 use fantasystyle::prior::patch::denoise::{self, Guide, Level, Search};
 use fantasystyle::rng::Rng;
 use fantasystyle_schemas::{read_npy_f32, write_npy};
 use ndarray::{Array2, Array4};
+use std::path::{Path, PathBuf};
 
 fn random(seed: u64, shape: (usize, usize, usize, usize), scale: f32) -> Array4<f32> {
     let mut r = Rng::new(seed);
@@ -25,7 +25,9 @@ fn random(seed: u64, shape: (usize, usize, usize, usize), scale: f32) -> Array4<
 
 /// Every pixel (b, y, x) of a batch, in order.
 fn all_pixels(b: usize, h: usize, w: usize) -> Vec<[usize; 3]> {
-    (0..b * h * w).map(|i| [i / (h * w), (i / w) % h, i % w]).collect()
+    (0..b * h * w)
+        .map(|i| [i / (h * w), (i / w) % h, i % w])
+        .collect()
 }
 
 fn max_abs(a: &Array2<f32>, b: &Array2<f32>) -> f32 {
@@ -46,7 +48,12 @@ fn patch_denoiser_matches_an_independent_numpy_brute_force() {
     write_npy(&d.join("guide_style.npy"), &[10, 9], gs.as_slice().unwrap()).unwrap();
     write_npy(&d.join("guide_z.npy"), &[2, 6, 7], gz.as_slice().unwrap()).unwrap();
     let pixels = all_pixels(2, 6, 7);
-    for (k, sa, sb, g) in [(3, 0.98, 0.2, 0.0), (5, 0.7, 0.71, 0.0), (3, 0.3, 0.95, 0.0), (3, 0.9, 0.44, 0.3)] {
+    for (k, sa, sb, g) in [
+        (3, 0.98, 0.2, 0.0),
+        (5, 0.7, 0.71, 0.0),
+        (3, 0.3, 0.95, 0.0),
+        (3, 0.9, 0.44, 0.3),
+    ] {
         let params = serde_json::json!({"k": k, "sa": sa, "sb": sb, "guide_weight": g});
         std::fs::write(d.join("params.json"), params.to_string()).unwrap();
         let st = std::process::Command::new(&py)
@@ -62,14 +69,28 @@ fn patch_denoiser_matches_an_independent_numpy_brute_force() {
         });
         let bank = Bank::new(patches(style.view(), k, 1), k, 3, None, 0).unwrap();
         let q = patches_at(z.view(), k, &pixels);
-        let (gq, gb) = (patches_at(gz.view(), k, &pixels), patches(gs.index_axis(ndarray::Axis(0), 0), k, 1));
-        let guide = (g > 0.0).then(|| Guide { query: gq.view(), bank: gb.view(), weight: g });
+        let (gq, gb) = (
+            patches_at(gz.view(), k, &pixels),
+            patches(gs.index_axis(ndarray::Axis(0), 0), k, 1),
+        );
+        let guide = (g > 0.0).then(|| Guide {
+            query: gq.view(),
+            bank: gb.view(),
+            weight: g,
+        });
         let level = Level { sa, sb };
         let exact = denoise::denoise_exact(&bank, q.view(), level, guide);
-        let search = Search { shortlist: 0, probe: 0, balance: 0 };
+        let search = Search {
+            shortlist: 0,
+            probe: 0,
+            balance: 0,
+        };
         let fast = denoise::denoise(&bank, q.view(), level, search, guide);
         let (e1, e2) = (max_abs(&exact, &want), max_abs(&fast, &want));
-        assert!(e1 < 1e-5 && e2 < 1e-5, "k {k} sa {sa} guide {g}: exact {e1:e}, fast {e2:e}");
+        assert!(
+            e1 < 1e-5 && e2 < 1e-5,
+            "k {k} sa {sa} guide {g}: exact {e1:e}, fast {e2:e}"
+        );
     }
 }
 
@@ -99,7 +120,10 @@ pub(crate) fn patch_model(dir: &Path, keys: &[(&str, serde_json::Value)]) -> Pat
 #[test]
 fn self_style_is_nearly_a_fixed_point_with_the_patch_prior() {
     let (d_own, d_style) = crate::distill::self_style_changes(&patch_dir());
-    assert!(d_style > 0.05, "the stripes barely moved the scene: {d_style}");
+    assert!(
+        d_style > 0.05,
+        "the stripes barely moved the scene: {d_style}"
+    );
     assert!(
         d_own < 0.25 * d_style,
         "own style moved {d_own} vs stripes {d_style}"
@@ -141,14 +165,35 @@ fn the_default_dag_keeps_the_geometry_bit_for_bit() {
     let out = load(&t.path().join("run/runs/final/scene.ply"));
     assert_eq!(out.len(), input.len(), "Gaussians added or removed");
     let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
-    assert!(bits(&out.positions) == bits(&input.positions), "positions changed");
-    assert!(bits(&out.log_scales) == bits(&input.log_scales), "scales changed");
+    assert!(
+        bits(&out.positions) == bits(&input.positions),
+        "positions changed"
+    );
+    assert!(
+        bits(&out.log_scales) == bits(&input.log_scales),
+        "scales changed"
+    );
     let rot = |s: &fantasystyle::Scene| {
-        s.rotations.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>()
+        s.rotations
+            .iter()
+            .flatten()
+            .map(|x| x.to_bits())
+            .collect::<Vec<_>>()
     };
     assert!(rot(&out) == rot(&input), "rotations changed");
-    let op = |s: &fantasystyle::Scene| s.opacity_logits.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let op = |s: &fantasystyle::Scene| {
+        s.opacity_logits
+            .iter()
+            .map(|x| x.to_bits())
+            .collect::<Vec<_>>()
+    };
     assert!(op(&out) == op(&input), "opacities changed");
-    let dc = |s: &fantasystyle::Scene| s.sh_dc.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let dc = |s: &fantasystyle::Scene| {
+        s.sh_dc
+            .iter()
+            .flatten()
+            .map(|x| x.to_bits())
+            .collect::<Vec<_>>()
+    };
     assert!(dc(&out) != dc(&input), "the colours did not change");
 }

@@ -52,8 +52,8 @@ pub fn patches(img: ArrayView3<'_, f32>, k: usize, stride: usize) -> Array2<f32>
                 }
             }
         });
-    let out = Array2::from_shape_vec((ys.len() * xs.len(), d), out).expect("length matches");
-    out
+
+    Array2::from_shape_vec((ys.len() * xs.len(), d), out).expect("length matches")
 }
 
 /// The k x k patches `[P, k k C]` of a batch `[B, C, h, w]` around `pixels` (b, y, x),
@@ -111,8 +111,8 @@ impl Pca {
         let mean = x.mean_axis(Axis(0)).expect("non-empty");
         let xc = &x - &mean.view().insert_axis(Axis(0));
         let mut rng = Rng::derive(0, "patch-pca");
-        let mut v = Array2::from_shape_vec((d, dims), rng.normals_f32(d * dims))
-            .expect("length matches");
+        let mut v =
+            Array2::from_shape_vec((d, dims), rng.normals_f32(d * dims)).expect("length matches");
         orthonormalise(&mut v);
         for _ in 0..iters.max(1) {
             let xv = xc.dot(&v);
@@ -143,7 +143,10 @@ fn orthonormalise(v: &mut Array2<f32>) {
                 v[[r, j]] -= (dot * v[[r, i]] as f64) as f32;
             }
         }
-        let norm: f64 = (0..d).map(|r| (v[[r, j]] as f64).powi(2)).sum::<f64>().sqrt();
+        let norm: f64 = (0..d)
+            .map(|r| (v[[r, j]] as f64).powi(2))
+            .sum::<f64>()
+            .sqrt();
         if norm > 1e-12 {
             for r in 0..d {
                 v[[r, j]] = (v[[r, j]] as f64 / norm) as f32;
@@ -267,7 +270,7 @@ impl Bank {
         pca: Option<Pca>,
         cells: usize,
     ) -> Result<Bank> {
-        if k % 2 == 0 || patches.ncols() != k * k * channels || patches.nrows() == 0 {
+        if k.is_multiple_of(2) || patches.ncols() != k * k * channels || patches.nrows() == 0 {
             return Err(Error::param(format!(
                 "patch bank: {} patches of width {} for k = {k}, C = {channels} (k odd, width k k C)",
                 patches.nrows(),
@@ -361,7 +364,13 @@ impl PatchGaussian {
 
     /// log N(x; sa mu, sa^2 S + sb^2 I) for a query whose PCA coordinates (of x - sa mu)
     /// are `coords` and whose squared distance to sa mu is `dist2`.
-    pub fn log_density(&self, coords: ndarray::ArrayView1<'_, f32>, dist2: f32, sa: f32, sb: f32) -> f32 {
+    pub fn log_density(
+        &self,
+        coords: ndarray::ArrayView1<'_, f32>,
+        dist2: f32,
+        sa: f32,
+        sb: f32,
+    ) -> f32 {
         let two_pi = 2.0 * std::f32::consts::PI;
         let mut ll = 0.0f32;
         let mut kept = 0.0f32;
@@ -438,7 +447,7 @@ mod tests {
         }
         // Reconstruction from two coordinates loses only the noise.
         let coords = pca.project(x.view(), 1.0);
-        let back = coords.dot(&pca.basis.t()) + &pca.mean.view().insert_axis(Axis(0));
+        let back = coords.dot(&pca.basis.t()) + pca.mean.view().insert_axis(Axis(0));
         let err = (&back - &x).mapv(|v| v * v).mean().unwrap().sqrt();
         assert!(err < 5e-3, "rms reconstruction error {err}");
     }

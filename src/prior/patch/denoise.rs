@@ -145,7 +145,10 @@ pub fn denoise(
     let mut out = vec![0.0f32; q * c];
     out.par_chunks_mut(c).enumerate().for_each(|(i, o)| {
         for l in 0..cand.per {
-            let (j, w) = (cand.index[i * cand.per + l] as usize, weights[i * cand.per + l]);
+            let (j, w) = (
+                cand.index[i * cand.per + l] as usize,
+                weights[i * cand.per + l],
+            );
             for ch in 0..c {
                 o[ch] += w * bank.centres[[j, ch]];
             }
@@ -172,7 +175,10 @@ pub fn denoise_with_evidence(
         let l = &cand.logit[i * cand.per..(i + 1) * cand.per];
         evidence.push(logsumexp32(l.iter().copied()));
         for k in 0..cand.per {
-            let (j, w) = (cand.index[i * cand.per + k] as usize, weights[i * cand.per + k]);
+            let (j, w) = (
+                cand.index[i * cand.per + k] as usize,
+                weights[i * cand.per + k],
+            );
             for ch in 0..c {
                 o[ch] += w * bank.centres[[j, ch]];
             }
@@ -371,7 +377,11 @@ impl CellSearch<'_> {
                     let d = xn[i] - 2.0 * sa * xr.dot(&y) + sa * sa * self.red.norms[j as usize];
                     approx.push(-d.max(0.0) / var2);
                 }
-                let n = if per == 0 { members.len() } else { per.min(members.len()) };
+                let n = if per == 0 {
+                    members.len()
+                } else {
+                    per.min(members.len())
+                };
                 top_indices(&approx, n, &mut top, &mut tmp);
                 let logits: Vec<(u32, f32)> = top
                     .iter()
@@ -439,12 +449,19 @@ impl CellSearch<'_> {
         let (mut f, mut g) = (vec![0.0f32; q], vec![0.0f32; k]);
         let rows = |g: &[f32], f: &mut [f32], tau: f32| {
             f.par_iter_mut().enumerate().for_each(|(i, fi)| {
-                let (ci, cc) = (&idx[i * near..(i + 1) * near], &cost[i * near..(i + 1) * near]);
+                let (ci, cc) = (
+                    &idx[i * near..(i + 1) * near],
+                    &cost[i * near..(i + 1) * near],
+                );
                 *fi = -tau * logsumexp32((0..near).map(|l| (g[ci[l] as usize] - cc[l]) / tau));
             });
         };
         for r in 0..iters {
-            let frac = if iters > 1 { r as f32 / (iters - 1) as f32 } else { 1.0 };
+            let frac = if iters > 1 {
+                r as f32 / (iters - 1) as f32
+            } else {
+                1.0
+            };
             let tau = hot * (cold / hot).powf(frac);
             rows(&g, &mut f, tau);
             // Column sums through the sparse rows.
@@ -492,7 +509,6 @@ fn logsumexp32(xs: impl Iterator<Item = f32> + Clone) -> f32 {
     top + xs.map(|v| (v - top).exp()).sum::<f32>().ln()
 }
 
-
 /// The `probe` cells whose centroid, times `sa`, is nearest to the query (its centroid
 /// dot products `dots` `[K]`).
 fn cell_order(
@@ -536,7 +552,12 @@ pub fn denoise_local(
     let (nb, channels, h, w) = source.dim();
     let side = 2 * radius + 1;
     let offsets: Vec<(isize, isize)> = (0..side * side)
-        .map(|i| ((i / side) as isize - radius as isize, (i % side) as isize - radius as isize))
+        .map(|i| {
+            (
+                (i / side) as isize - radius as isize,
+                (i % side) as isize - radius as isize,
+            )
+        })
         .collect();
     // dist[b][o][y * w + x]: the squared patch distance of pixel (y, x) to offset o.
     let dist: Vec<Vec<Vec<f32>>> = (0..nb)
@@ -544,7 +565,15 @@ pub fn denoise_local(
         .map(|b| {
             offsets
                 .par_iter()
-                .map(|&o| offset_distances(source.index_axis(Axis(0), b), z.index_axis(Axis(0), b), o, k, level.sa))
+                .map(|&o| {
+                    offset_distances(
+                        source.index_axis(Axis(0), b),
+                        z.index_axis(Axis(0), b),
+                        o,
+                        k,
+                        level.sa,
+                    )
+                })
                 .collect()
         })
         .collect();
@@ -733,7 +762,9 @@ mod tests {
             balance: 0,
         };
         let fast = denoise(&b, x.view(), level, search, None);
-        let err = (&fast - &exact).mapv(f32::abs).fold(0.0f32, |a, v| a.max(*v));
+        let err = (&fast - &exact)
+            .mapv(f32::abs)
+            .fold(0.0f32, |a, v| a.max(*v));
         assert!(err < 1e-5, "max error {err}");
     }
 
@@ -756,7 +787,11 @@ mod tests {
         let z = noisy_image(9, 3, 4, 4);
         let q = patches(z.view(), 3, 1);
         let got = denoise_exact(&one, q.view(), Level { sa: 0.5, sb: 0.87 }, None);
-        assert!(got.rows().into_iter().all(|r| (0..3).all(|c| r[c] == one.centres[[0, c]])));
+        assert!(
+            got.rows()
+                .into_iter()
+                .all(|r| (0..3).all(|c| r[c] == one.centres[[0, c]]))
+        );
         // Large t (ab -> 0): every patch equally likely, the bank's mean centre.
         let far = Level { sa: 1e-4, sb: 1.0 };
         let got = denoise_exact(&b, q.view(), far, None);
@@ -820,7 +855,11 @@ mod tests {
             denoise(&b, x.view(), level, search, None)
         };
         let want = b.centres.mean_axis(Axis(0)).unwrap();
-        let gap = |e: &Array2<f32>| (&e.mean_axis(Axis(0)).unwrap() - &want).mapv(f32::abs).sum();
+        let gap = |e: &Array2<f32>| {
+            (&e.mean_axis(Axis(0)).unwrap() - &want)
+                .mapv(f32::abs)
+                .sum()
+        };
         let (plain, bal) = (gap(&run(0)), gap(&run(30)));
         assert!(bal < 0.25 * plain, "mean gap balanced {bal}, plain {plain}");
     }
@@ -862,7 +901,10 @@ mod tests {
                     .sum::<f64>()
                     / zs;
                 let got = fast[[i, ch]] as f64;
-                assert!((got - want).abs() < 1e-5, "pixel {i} channel {ch}: {got} vs {want}");
+                assert!(
+                    (got - want).abs() < 1e-5,
+                    "pixel {i} channel {ch}: {got} vs {want}"
+                );
             }
         }
     }

@@ -178,7 +178,12 @@ mod tests {
         let up = decode(c.view(), 2);
         assert_eq!(up.dim(), (1, 3, 6, 6));
         assert!(up.iter().all(|v| (v - 0.625).abs() < 1e-6));
-        assert!(encode(up.view(), 2).unwrap().iter().all(|v| (v - 0.25).abs() < 1e-6));
+        assert!(
+            encode(up.view(), 2)
+                .unwrap()
+                .iter()
+                .all(|v| (v - 0.25).abs() < 1e-6)
+        );
         assert!(encode(up.view(), 4).is_err());
     }
 

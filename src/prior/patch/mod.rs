@@ -5,13 +5,30 @@
 //! annealed form of texture optimization (Kwatra et al., SIGGRAPH 2005): it draws the
 //! style's motifs, not its layout.
 //!
-//! **Latent space** ([`latent`]): pixels at 1/f of the render's resolution, in `[-1, 1]`.
-//! The schedule is the model manifest's (SD's scaled-linear betas by default).
+//! **Latent space** ([`latent`]): pixels at 1/f of the render's resolution, in `[-1, 1]`
+//! (f = the manifest's `downsample`; the default prior, `priors/patch`, works at f = 1:
+//! at f = 2 the strokes came out blurred, docs/patch-prior.md). The schedule is the
+//! manifest's (SD's scaled-linear betas).
 //!
 //! **Patch size per timestep**: k(t) grows with the noise, from `patch_min` at the set's
 //! smallest timestep to `patch_max` at its largest (linear in sqrt(1 - ab), odd sizes),
-//! as the trained UNets' effective receptive field does in the ELS calibration:
-//! coarse-to-fine over the timesteps.
+//! as the trained UNets' effective receptive field does in the ELS calibration.
+//! **Coarse to fine**: from `coarse_from` up, the style model matches `patch_max`
+//! patches of the latents and the style pooled `coarse_scale` times (4 x 9 = 36 render
+//! pixels on the default), so the large timesteps place the style's motifs at their
+//! scale and the small ones draw their strokes (Kwatra et al. 2005; GPNN).
+//!
+//! **Balanced use** ([`denoise::Search::balance`]): the style model's posterior over
+//! its patches is replaced by an entropic optimal-transport coupling between the
+//! window's noisy patches and the style's (Sinkhorn over k-means cells of the bank),
+//! so that every part of the style is used about equally over the object (bidirectional
+//! similarity, Simakov et al. 2008; Houdard et al. 2021). Without it the flat patches
+//! win everywhere and the object goes to one colour.
+//!
+//! **Object only**: the prior's control image is the source view with its coverage
+//! (`ControlKind::SourceAlpha`); only the object's latent pixels are queried (the
+//! background keeps z_t's own estimate), so the fill around the object takes none of
+//! the style's patches.
 //!
 //! **The conditionings** (the paper's CSD, eq. 7-9: Phi_tgt = beta (eps(z_tgt, [P, style]) -
 //! eps(z_tgt, content)), Phi_src = beta (eps(z_src, P) - eps(z_src, null))), each a
@@ -19,14 +36,17 @@
 //!
 //! | Cond | the model | its patches |
 //! |---|---|---|
-//! | PromptStyle `[P, style]` | the style's texture | the style image's k(t) patches, with balanced use ([`denoise::Search::balance`]) and the structure guide |
-//! | Content | the style image's content: its layout, its objects | the style image's k(t) patches at 1/`content_scale` of its resolution (the noise of pooled latents is sqrt(1 - ab) / scale): what reproduces the style image's large structures |
-//! | Prompt `P` | the scene's own look | each source view's own k(t) patches within `source_radius` of the pixel (a local model of that view) |
-//! | Null | no condition | the moment-matched Gaussian of the style's and the source views' pixels ([`latent::PixelGaussian`]) |
+//! | PromptStyle `[P, style]` | the style's texture | the style image's k(t) patches, balanced, optionally with the structure guide |
+//! | Content | the style image's content | `content: identity` (the default): the exact unconditional model, so negative guidance is zero; `layout`: a per-pixel mixture of that and the style image's layout (its patches at 1/`content_scale`, weighed by responsibility against a PPCA model of generic patches), so negative guidance pushes away from copying the style image's large structures |
+//! | Prompt `P` | the scene's own look | each source view's own k(t) patches within `source_radius` of the pixel (a local model of that view, [`denoise::denoise_local`]) |
+//! | Null | no condition | `null: identity` (the default): the exact unconditional model, whose prediction CSD takes as the noise itself (as for the 2D stylizer); `gaussian`: the moment-matched pixel Gaussian ([`latent::PixelGaussian`]), which diverged: its shrinkage towards the mean turned into a push away from the source |
 //!
-//! so negative guidance (Content) pushes away from copying the style image's large-scale
-//! structure, and the source branch cancels what the style term would ask of the scene's
-//! own look. eps(z_t, c) = (z_t - sqrt(ab) x0_c) / sqrt(1 - ab).
+//! With the defaults CSD's gradient is beta (eps([P, style], z_tgt) - eps(P, z_src)): the
+//! style's patch model on the current render minus the scene's own patch model on the
+//! source render, with the same noise; the source branch cancels what the style term
+//! would ask of a scene that already looks like itself. eps(z_t, c) = (z_t - sqrt(ab)
+//! x0_c) / sqrt(1 - ab). Beta only scales that difference (no unguided term), so CSD is
+//! insensitive to it up to the step size (docs/patch-prior.md, CFG).
 //!
 //! **Structure** (the ControlNet's role): with `guide_weight` > 0 the style model compares
 //! a noise-free structure channel of the source view (band-passed luminance) with the
@@ -223,7 +243,9 @@ impl PatchPrior {
         };
         let strength = opts.strength.unwrap_or(1.0);
         if !(0.0..=1.0).contains(&strength) {
-            return Err(Error::param(format!("strength {strength} is not in [0, 1]")));
+            return Err(Error::param(format!(
+                "strength {strength} is not in [0, 1]"
+            )));
         }
         Ok(PatchPrior {
             info,
@@ -367,7 +389,9 @@ impl Window {
     ) -> Result<Window> {
         let (b, _, h, w) = shape;
         let all = || -> Vec<[usize; 3]> {
-            (0..b * h * w).map(|i| [i / (h * w), (i / w) % h, i % w]).collect()
+            (0..b * h * w)
+                .map(|i| [i / (h * w), (i / w) % h, i % w])
+                .collect()
         };
         let Some(c) = control else {
             return Ok(Window {
@@ -543,15 +567,31 @@ impl PatchPrior {
             let logit = prior_logit + ll_bank - ll_gen;
             resp[[n, 0, y, xx]] = 1.0 / (1.0 + (-logit).exp());
         }
-        Ok((latent::upsample(img.view(), s), latent::upsample(resp.view(), s)))
+        Ok((
+            latent::upsample(img.view(), s),
+            latent::upsample(resp.view(), s),
+        ))
     }
 
     /// The source model's estimate `[P, C]` at the object's pixels: each view's own
     /// patches near the pixel ([`denoise::denoise_local`]).
-    fn own(&self, z: ArrayView4<'_, f32>, k: usize, level: Level, win: &Window) -> Result<Array2<f32>> {
+    fn own(
+        &self,
+        z: ArrayView4<'_, f32>,
+        k: usize,
+        level: Level,
+        win: &Window,
+    ) -> Result<Array2<f32>> {
         let src = win.source("the source model (Prompt)")?;
         let r = self.config.source_radius;
-        Ok(denoise::denoise_local(src.view(), z, &win.pixels, k, r, level))
+        Ok(denoise::denoise_local(
+            src.view(),
+            z,
+            &win.pixels,
+            k,
+            r,
+            level,
+        ))
     }
 
     /// The style model's estimate `[P, C]` at the object's pixels: balanced, guided, and
@@ -644,8 +684,11 @@ fn coarse_queries(
             "patch prior: latents of {w}x{h} do not divide by coarse_scale {sc}"
         )));
     }
-    let mut coarse: Vec<[usize; 3]> =
-        win.pixels.iter().map(|&[n, y, x]| [n, y / sc, x / sc]).collect();
+    let mut coarse: Vec<[usize; 3]> = win
+        .pixels
+        .iter()
+        .map(|&[n, y, x]| [n, y / sc, x / sc])
+        .collect();
     coarse.sort_unstable();
     coarse.dedup();
     let lv = Level {
@@ -688,7 +731,9 @@ impl Prior for PatchPrior {
     fn describe(&self) -> Option<serde_json::Value> {
         let f = self.info.downsample;
         let tr = self.config.timesteps;
-        let set = crate::scheduler::TimestepSet::new(&self.info.scheduler, tr.t_min, tr.t_max, tr.count).ok()?;
+        let set =
+            crate::scheduler::TimestepSet::new(&self.info.scheduler, tr.t_min, tr.t_max, tr.count)
+                .ok()?;
         let steps: Vec<serde_json::Value> = set
             .steps()
             .iter()
