@@ -252,3 +252,17 @@ fn chain_is_distill_with_the_tiny_sd_fixture() {
         chain_equals_distill(tempfile::tempdir().unwrap().path(), &case);
     }
 }
+
+/// The weight-free patch prior (priors/patch: its source-and-coverage control image, its
+/// banks rebuilt by each stage process); windows of 2 of 4 views.
+#[test]
+fn chain_is_distill_with_the_patch_prior() {
+    let case = Case {
+        model: crate::patch_prior::patch_dir(),
+        prior: &[],
+        config: &[],
+        cameras: "orbit:4,elev=30,radius=2.4",
+        window: 2,
+    };
+    chain_equals_distill(tempfile::tempdir().unwrap().path(), &case);
+}

@@ -149,7 +149,7 @@ fn self_style_is_nearly_a_fixed_point() {
 
 /// RMS colour change of the covered pixels after 20 iterations with the prior at `dir`,
 /// with the style image equal to the content and with the stripes.
-pub(crate) fn self_style_changes(dir: &Path) -> (f64, f64) {
+fn self_style_changes(dir: &Path) -> (f64, f64) {
     let scene = sample_scene();
     let (cams, src) = source(&scene, 6, 96);
     let cams = vec![cams[0].clone(); 3];

@@ -2,12 +2,10 @@
 //! an independent float64 numpy brute force computed here, on this machine
 //! (`scripts/reference/patch_ref.py`), with and without the structure guide.
 //!
-//! Tolerance 1e-5 absolute on clean estimates in [-1, 1]: the Rust brute force
-//! accumulates in f64 and rounds once to f32 (error ~6e-8); the fast path with the whole
-//! bank as its shortlist sums f32 distances of at most 75 terms and a softmax over at
-//! most 100 patches, each term's relative error ~1e-7, so its logits are off by
-//! ~1e-5 x |logit| at the extremes and its weights by less (the softmax is
-//! shift-invariant and the far patches carry ~0 weight).
+//! Tolerance 1e-5 absolute on clean estimates in [-1, 1] for the exact denoiser: it
+//! accumulates in f64 and rounds once to f32 (error ~6e-8). The fast path (the search
+//! with the whole bank as its shortlist) computes its logits in f32: 1e-4 (why, beside
+//! the assertion).
 
 use crate::harness::{self, repo_root};
 use fantasystyle::prior::patch::bank::{Bank, patches, patches_at};
@@ -87,10 +85,11 @@ fn patch_denoiser_matches_an_independent_numpy_brute_force() {
         };
         let fast = denoise::denoise(&bank, q.view(), level, search, guide);
         let (e1, e2) = (max_abs(&exact, &want), max_abs(&fast, &want));
-        assert!(
-            e1 < 1e-5 && e2 < 1e-5,
-            "k {k} sa {sa} guide {g}: exact {e1:e}, fast {e2:e}"
-        );
+        assert!(e1 < 1e-5, "k {k} sa {sa} guide {g}: exact {e1:e}");
+        // The fast path computes its logits in f32: a logit of size |d| / (2 sb^2) (~500 at
+        // sb = 0.2 over 27-75 terms) carries ~6e-8 x 500 = 3e-5 of rounding, which moves
+        // the softmax weights, and the estimate, by about as much.
+        assert!(e2 < 1e-4, "k {k} sa {sa} guide {g}: fast {e2:e}");
     }
 }
 
@@ -110,24 +109,6 @@ pub(crate) fn patch_model(dir: &Path, keys: &[(&str, serde_json::Value)]) -> Pat
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("model.json"), m.to_string()).unwrap();
     out
-}
-
-/// With the style image equal to the content the default prior moves the scene a
-/// fraction of what a real style does. Not exactly zero, unlike the stylizer's: the
-/// style branch models the view's patches as a whole image (any patch anywhere), the
-/// source branch each pixel's neighbourhood, so a patch that recurs elsewhere in the
-/// view with other colours around it pulls a little.
-#[test]
-fn self_style_is_nearly_a_fixed_point_with_the_patch_prior() {
-    let (d_own, d_style) = crate::distill::self_style_changes(&patch_dir());
-    assert!(
-        d_style > 0.05,
-        "the stripes barely moved the scene: {d_style}"
-    );
-    assert!(
-        d_own < 0.25 * d_style,
-        "own style moved {d_own} vs stripes {d_style}"
-    );
 }
 
 /// Chunks, resume and a killed chunk give the same bytes with the patch prior (its banks

@@ -309,6 +309,14 @@ impl CellSearch<'_> {
                 for c in cells {
                     members.extend_from_slice(&self.ivf.cells[c]);
                 }
+                if members.is_empty() {
+                    // Every probed cell empty (k-means leaves some on a small bank): the
+                    // nearest cell that has members.
+                    let all = cell_order(cd.row(r), &self.ivf.norms, sa, self.ivf.cells.len());
+                    if let Some(c) = all.into_iter().find(|&c| !self.ivf.cells[c].is_empty()) {
+                        members.extend_from_slice(&self.ivf.cells[c]);
+                    }
+                }
                 vals.clear();
                 let xr = xp.row(r);
                 for &j in &members {

@@ -192,6 +192,8 @@ pub struct PatchPrior {
     style: Array3<f32>,
     /// Its structure channel `[1, h, w]`.
     style_guide: Array3<f32>,
+    /// Whether a style image was given (else only encode and decode work).
+    has_style: bool,
     strength: f32,
     /// Banks by (scale, patch side): the style model's; by patch side: the content model's.
     style_banks: HashMap<(usize, usize), Bank>,
@@ -225,10 +227,13 @@ impl PatchPrior {
         if m.latent_channels != 3 {
             return Err(md.err("a patch prior's latents are pixels: latent_channels 3"));
         }
-        let Some(style) = opts.style_image.as_ref() else {
-            return Err(Error::param("the patch prior needs the style image"));
+        // Without a style image (`encode-latents`, which only encodes) the prior encodes
+        // and decodes; its predictions refuse ([`PatchPrior::predict_eps`]).
+        let has_style = opts.style_image.is_some();
+        let style = match opts.style_image.as_ref() {
+            Some(s) => style_latent(s.view(), config.style_size, m.downsample)?,
+            None => Array3::zeros((3, 8, 8)),
         };
-        let style = style_latent(style.view(), config.style_size, m.downsample)?;
         let schedule = Schedule::new(m.scheduler.clone()).map_err(|e| md.err(e.to_string()))?;
         let tr = config.timesteps;
         let sb = |t: usize| schedule.coefficients(t).map(|c| c.1);
@@ -251,6 +256,7 @@ impl PatchPrior {
             info,
             schedule,
             style_guide: structure(style.view()),
+            has_style,
             style,
             config,
             strength,
@@ -805,6 +811,9 @@ impl Prior for PatchPrior {
                 "patch prior: latents of {} channels, expected 3",
                 z_t.dim().1
             )));
+        }
+        if !self.has_style {
+            return Err(Error::param("the patch prior needs the style image"));
         }
         let win = Window::of(control, self.info.downsample, z_t.dim())?;
         let mut out = Vec::with_capacity(conds.len());
