@@ -202,12 +202,24 @@ def method_table(res):
               f"{ci(list(orig.values()), 4)} over {len(orig)} cases")
 
 
+# The prior benchmark (benches/quality/prior.toml, --methods prior): the default (fs), its
+# ablations, the arf preset and the baselines.
+PRIOR_METHODS = ["original", "fs", "fs_nomvfc", "fs_sds", "fs_dds", "fs_neg", "fs_cfg3", "fs_cfg15",
+                 "sds_cfg3", "sds_cfg15", "arf", "colour", "project", "gram", "nnfm"]
+WINS = {"quality": (["ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80", "ours_split", "ours_nnfm_d2", "ng_noprior"],
+                    ["colour", "project", "gram", "nnfm", "refit", "nomvfc", "sds", "ng_nomvfc", "ng_sds", "ng_noprior", "ours",
+                     "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80"]),
+        "prior": (["fs"], ["arf", "colour", "project", "gram", "nnfm", "fs_nomvfc", "fs_sds", "fs_dds", "fs_neg"])}
+WHICH = "quality"
+
+
 def wins(res, cases):
     keys = [("gram_relu1_2", "Gram relu1_2"), ("gram_relu2_2", "Gram relu2_2"), ("kid", "KID_style"),
-            ("kid_obj", "KID object squares"), ("spec", "spectrum distance"), ("short", "short-range LPIPS")]
-    for mine in ["ours", "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80", "ours_split", "ours_nnfm_d2", "ng_noprior"]:
-        others = ["colour", "project", "gram", "nnfm", "refit", "nomvfc", "sds", "ng_nomvfc", "ng_sds", "ng_noprior", "ours",
-                  "ours_nnfm", "ours_nnfm_gram", "ours_proj", "ours_proj80"]
+            ("kid_obj", "KID object squares"), ("spec", "spectrum distance"), ("short", "short-range LPIPS"),
+            ("lpips_content", "LPIPS content")]
+    mines, all_others = WINS[WHICH]
+    for mine in mines:
+        others = all_others
         if mine == "ng_noprior":
             # The default without the prior's calls, against the baselines at its own time.
             others = ["colour", "gram_fast", "nnfm_fast", "ours_nnfm_gram"]
@@ -356,7 +368,14 @@ def main():
     p.add_argument("--styles")
     p.add_argument("--lock")
     p.add_argument("--plot")
+    p.add_argument("--methods", choices=["quality", "prior"], default="quality",
+                   help="which benchmark's methods: quality.toml's or prior.toml's")
     a = p.parse_args()
+    global METHODS, SHEET_ROWS, WHICH
+    WHICH = a.methods
+    if a.methods == "prior":
+        METHODS = PRIOR_METHODS
+        SHEET_ROWS = [m for m in PRIOR_METHODS if m != "original"]
     runs = a.runs.rstrip("/")
     parent = os.path.dirname(os.path.abspath(runs))
     styles_dir = a.styles or os.path.join(parent, "styles")
