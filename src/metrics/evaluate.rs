@@ -8,7 +8,8 @@
 //! short/long-range consistency (LPIPS and RMSE after depth warping), also on the
 //! original renders as a floor; a VGG16 Gram-matrix distance to the style image; and the
 //! texture measures of [`super::texture`] (among them KID over squares of the object's
-//! surface against squares of the style, which the whole-view KID cannot see).
+//! surface against squares of the style, which the whole-view KID cannot see); and the
+//! content leakage of [`super::leakage`].
 //!
 //! The half of it that depends only on the original views and the style image is
 //! [`super::reference::Reference`], computed here or read from an `eval-reference`
@@ -22,6 +23,7 @@
 use super::consistency::{self, PairScore};
 use super::fid::{self, FeatureSet};
 use super::gram;
+use super::leakage::{self, Leakage};
 use super::lpips;
 use super::nets::{LpipsModel, LpipsNet, Nets};
 use super::reference::Reference;
@@ -125,6 +127,8 @@ pub struct Metrics {
     pub warnings: Vec<String>,
     /// Measures that see texture ([`super::texture`]).
     pub texture: TextureMetrics,
+    /// Content leakage ([`super::leakage`]).
+    pub leakage: Leakage,
 }
 
 /// What ArtFID means here (written beside the value).
@@ -393,6 +397,7 @@ pub fn evaluate(
     };
     drop(ph);
     pb.inc(1);
+    let leakage = crate::timing::phase("leakage", || leakage::leakage(orig, styl, style));
     let artfid = match (lpips_content, fid_style.value) {
         (Some(l), Some(f)) => Some(fid::artfid(l, f)),
         _ => None,
@@ -429,6 +434,7 @@ pub fn evaluate(
         ),
         warnings,
         texture,
+        leakage,
     };
     pb.finish_and_clear();
     Ok(Evaluation {

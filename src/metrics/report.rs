@@ -579,6 +579,7 @@ pub fn evaluation_report(
     ];
     p.section("Metrics", &table(&["metric", "value", "notes"], &rows));
     p.section("Texture", &super::texture::html(&m.texture));
+    p.section("Content leakage", &super::leakage::html(&m.leakage));
 
     let mut imgs = String::from("<p>Style image:</p>");
     imgs.push_str(&figure(style, 256, "style"));
