@@ -130,6 +130,9 @@ def case(runs, scene, style, method, lock):
         "long": m["long_range"]["lpips_mean"], "long_orig": m["long_range"]["original_lpips_mean"],
         "clip": ob["clipped_stylized"], "clip_orig": ob["clipped_original"],
         "fringe": ob["fringe_brightening"],
+        # Content leakage (src/metrics/leakage.rs; absent from older metrics.json).
+        "leak": (m.get("leakage") or {}).get("value"),
+        "leak_ci": (m.get("leakage") or {}).get("ci95"),
         "stats": ob["stats_distance_stylized"], "stats_orig": ob["stats_distance_original"],
         "gram_whole": m["gram_style"] / m["gram_style_original"] if m.get("gram_style_original") else None,
         "wall": stage_seconds(lock, f"{method}@{scene}.{style}"),
@@ -158,7 +161,7 @@ COLUMNS = [("gram_relu1_2", "Gram relu1_2 (s/o)", 3), ("gram_relu2_2", "Gram rel
            ("kid", "KID_style", 4), ("kid_obj", "KID object squares", 4), ("spec_ratio", "spectrum dist. (s/o)", 3),
            ("lpips_content", "LPIPS content", 3), ("short", "short-range LPIPS", 4),
            ("long", "long-range LPIPS", 4), ("clip", "clipped obj. px", 3),
-           ("fringe", "fringe brightening", 4), ("wall", "wall s", 1)]
+           ("fringe", "fringe brightening", 4), ("leak", "content leakage", 3), ("wall", "wall s", 1)]
 
 
 def case_table(res):
@@ -177,6 +180,8 @@ def case_table(res):
                 vals.append(f"{100 * (r['clip_orig'] or 0):.1f}% -> {100 * (r['clip'] or 0):.1f}%")
             elif k == "fringe":
                 vals.append("-" if r["fringe"] is None else f"{r['fringe']:+.4f}")
+            elif k == "leak" and r["leak_ci"]:
+                vals.append(f"{fmt(r['leak'], d)} [{r['leak_ci'][0]:.{d}f}, {r['leak_ci'][1]:.{d}f}]")
             else:
                 vals.append(fmt(r[k], d))
         per = lambda p: "-" if not p else f"{1 / p:.1f}"

@@ -8,7 +8,8 @@
 //! short/long-range consistency (LPIPS and RMSE after depth warping), also on the
 //! original renders as a floor; a VGG16 Gram-matrix distance to the style image; and the
 //! texture measures of [`super::texture`] (among them KID over squares of the object's
-//! surface against squares of the style, which the whole-view KID cannot see).
+//! surface against squares of the style, which the whole-view KID cannot see); and the
+//! content leakage of [`super::leakage`].
 //!
 //! The half of it that depends only on the original views and the style image is
 //! [`super::reference::Reference`], computed here or read from an `eval-reference`
@@ -22,6 +23,7 @@
 use super::consistency::{self, PairScore};
 use super::fid::{self, FeatureSet};
 use super::gram;
+use super::leakage::{self, Leakage};
 use super::lpips;
 use super::nets::{LpipsModel, LpipsNet, Nets};
 use super::reference::{EvalParams, GRAM_MAX_SIDE, Reference, style_crops};
@@ -95,6 +97,8 @@ pub struct Metrics {
     pub warnings: Vec<String>,
     /// Measures that see texture ([`super::texture`]).
     pub texture: TextureMetrics,
+    /// Content leakage ([`super::leakage`]).
+    pub leakage: Leakage,
 }
 
 /// What ArtFID means here (written beside the value).
@@ -445,6 +449,7 @@ fn measure(
 
     let sm = style_measures(nets, (orig, styl, style), p, r, object_gram, &mut warnings)?;
     pb.inc(2);
+    let leakage = crate::timing::phase("leakage", || leakage::leakage(orig, styl, style));
     if style.width < 64 || style.height < 64 {
         warnings.push(format!(
             "the style image is only {}x{}: its crops are upsampled for FID_style and the Gram distance sees few positions",
@@ -480,6 +485,7 @@ fn measure(
         ),
         warnings,
         texture: sm.texture,
+        leakage,
     };
     pb.finish_and_clear();
     Ok(Evaluation {

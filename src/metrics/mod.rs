@@ -12,6 +12,7 @@
 //! | [`gram`] | Gram-matrix style distance on VGG16 features (the Gram matrix itself: [`crate::maths::gram`]) |
 //! | [`spectrum`] | radially averaged luminance power spectrum (the motif scale) |
 //! | [`texture`] | measures that see texture: per-layer object Gram, KID interval, spectrum, object colour |
+//! | [`leakage`] | content leakage: the object's large-scale structure that the scene does not explain |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`reference`](mod@reference) | the half of an evaluation that depends only on the original views and the style |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
@@ -24,6 +25,7 @@ pub mod evaluate;
 pub mod fid;
 pub mod gram;
 pub mod html;
+pub mod leakage;
 pub mod lpips;
 pub mod nets;
 pub mod reference;

@@ -177,6 +177,7 @@ pub fn evaluation_report(
     }
     p.section("Metrics", &metrics_table(m));
     p.section("Texture", &super::texture::html(&m.texture));
+    p.section("Content leakage", &super::leakage::html(&m.leakage));
 
     p.section(
         "Original / stylized / style",

@@ -205,7 +205,15 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
         24
     );
 
+    // Content leakage: a colour map of the original leaves little large-scale structure.
+    let leak = json["leakage"]["value"].as_f64().unwrap();
+    assert!(
+        (0.0..0.1).contains(&leak),
+        "leakage of a colour map: {leak}"
+    );
+
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("<h2>Content leakage</h2>"));
     assert!(html.contains("<h2>Texture</h2>") && html.contains("Radially averaged luminance"));
     assert!(html.contains("KID of object squares vs style squares"));
     assert!(html.contains("ArtFID") && html.contains("standard FID Inception"));
