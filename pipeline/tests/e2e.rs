@@ -435,6 +435,8 @@ fn sample_dag_is_valid() {
     std::fs::create_dir_all(&ds).unwrap();
     std::fs::create_dir_all(d.path().join("vendor/models/stylizer")).unwrap();
     std::fs::write(d.path().join("vendor/models/stylizer/model.json"), "{}").unwrap();
+    std::fs::create_dir_all(d.path().join("priors/patch")).unwrap();
+    std::fs::write(d.path().join("priors/patch/model.json"), "{}").unwrap();
     for f in ["stylize.toml", "params.toml"] {
         std::fs::copy(src.join(f), ds.join(f)).unwrap();
     }

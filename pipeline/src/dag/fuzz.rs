@@ -171,7 +171,11 @@ fn seeds(dir: &Path) -> Vec<(String, String)> {
     for f in ["scene.ply", "cameras.json", "style.png", "in.txt"] {
         std::fs::write(dir.join(f), "x").unwrap();
     }
-    for d in ["vendor/models/stylizer", "vendor/models/lpips/vgg16"] {
+    for d in [
+        "vendor/models/stylizer",
+        "vendor/models/lpips/vgg16",
+        "priors/patch",
+    ] {
         std::fs::create_dir_all(dir.join(d)).unwrap();
     }
     out
