@@ -497,17 +497,8 @@ impl PatchPrior {
         pixels: &[[usize; 3]],
     ) -> Result<Array2<f32>> {
         let s = self.config.content_scale;
-        let (b, c, h, w) = z.dim();
-        if h % s != 0 || w % s != 0 {
-            return Err(Error::param(format!(
-                "patch prior: latents of {w}x{h} do not divide by content_scale {s}"
-            )));
-        }
-        let zp = latent::pool(z, s);
-        let (hs, ws) = (h / s, w / s);
-        let coarse: Vec<[usize; 3]> = (0..b * hs * ws)
-            .map(|i| [i / (hs * ws), (i / ws) % hs, i % ws])
-            .collect();
+        let (zp, coarse) = pooled_grid(z, s)?;
+        let (b, c, hs, ws) = zp.dim();
         let x = patches_at(zp.view(), k, &coarse);
         let search = self.config.search(false);
         let lv = Level {
@@ -534,17 +525,8 @@ impl PatchPrior {
         let (sa, sb) = self.schedule.coefficients(t)?;
         let k = self.patch_size(t)?;
         let s = self.config.content_scale;
-        let (b, c, h, w) = z.dim();
-        if h % s != 0 || w % s != 0 {
-            return Err(Error::param(format!(
-                "patch prior: latents of {w}x{h} do not divide by content_scale {s}"
-            )));
-        }
-        let zp = latent::pool(z, s);
-        let (hs, ws) = (h / s, w / s);
-        let coarse: Vec<[usize; 3]> = (0..b * hs * ws)
-            .map(|i| [i / (hs * ws), (i / ws) % hs, i % ws])
-            .collect();
+        let (zp, coarse) = pooled_grid(z, s)?;
+        let (b, c, hs, ws) = zp.dim();
         let x = patches_at(zp.view(), k, &coarse);
         let lv = Level {
             sa: sa as f32,
@@ -678,6 +660,23 @@ impl PatchPrior {
 
 /// The latents pooled `sc` times, the coarse pixels under the object's pixels, and the
 /// pooled noise level (sb / sc).
+/// The latents pooled `s` times (the content model's scale) and every pixel of the
+/// pooled grid, in order.
+fn pooled_grid(z: ArrayView4<'_, f32>, s: usize) -> Result<(Array4<f32>, Vec<[usize; 3]>)> {
+    let (b, _, h, w) = z.dim();
+    if h % s != 0 || w % s != 0 {
+        return Err(Error::param(format!(
+            "patch prior: latents of {w}x{h} do not divide by content_scale {s}"
+        )));
+    }
+    let zp = latent::pool(z, s);
+    let (hs, ws) = (h / s, w / s);
+    let coarse = (0..b * hs * ws)
+        .map(|i| [i / (hs * ws), (i / ws) % hs, i % ws])
+        .collect();
+    Ok((zp, coarse))
+}
+
 fn coarse_queries(
     z: ArrayView4<'_, f32>,
     sc: usize,
