@@ -12,6 +12,7 @@
 //! | `targets` (or `views`) | csd-step | [`read_targets`]: rgb `[N,H,W,3]` |
 //! | `scene` | update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] |
 //! | `scene` with optimizer state (a checkpoint) | distill, update-gaussians (one iteration) | [`read_checkpoint`], [`load_progress`]; written by [`write_checkpoint`] |
+//! | `selection` | select | [`read_selection`]: a weight per Gaussian `[N]` in [0, 1]; written by [`write_selection`] |
 //! | `eval-reference` | evaluate --reference-only | [`read_eval_reference_for`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`write_eval_reference`] |
 //!
 //! Artifacts of one iteration of the stage chain (`render-views --window` ->
@@ -464,6 +465,40 @@ const REFERENCE_SCORES: &str = "reference.json";
 
 fn style_gram_file(tap: usize) -> String {
     format!("style_gram_{tap}.npy")
+}
+
+/// The weights file of a `selection` artifact.
+pub const SELECTION_WEIGHTS: &str = "weights.npy";
+
+/// Read the `selection` artifact `dir`: one weight per Gaussian, each in [0, 1] (errors
+/// name the file).
+pub fn read_selection(dir: &Path) -> Result<crate::selection::Selection> {
+    let art = Artifact::open(dir, ArtifactKind::Selection)?;
+    let t = art.read_f32(SELECTION_WEIGHTS)?;
+    let path = art.path(SELECTION_WEIGHTS);
+    if t.shape.len() != 1 {
+        return Err(Error::input(
+            path,
+            format!("expected shape [N], found {:?}", t.shape),
+        ));
+    }
+    crate::selection::Selection::new(t.data, &path)
+}
+
+/// Write `sel` into `out` (a `selection` artifact): the weights, and in `meta` the
+/// number of Gaussians, how many are selected and `meta`'s own fields.
+pub fn write_selection(
+    out: &mut fantasystyle_schemas::ArtifactWriter,
+    sel: &crate::selection::Selection,
+    meta: serde_json::Value,
+) -> Result<()> {
+    out.write_tensor(SELECTION_WEIGHTS, &[sel.len()], &sel.weights)?;
+    let mut m = serde_json::json!({"gaussians": sel.len(), "selected": sel.selected()});
+    if let (Some(m), serde_json::Value::Object(extra)) = (m.as_object_mut(), meta) {
+        m.extend(extra);
+    }
+    out.set_meta(m);
+    Ok(())
 }
 
 /// Write an evaluation reference into `out` (an `eval-reference` artifact): what

@@ -52,6 +52,7 @@ pub mod runtime;
 pub mod sample;
 pub mod scene;
 pub mod scheduler;
+pub mod selection;
 pub mod stages;
 pub mod sweep;
 pub mod timing;

@@ -463,20 +463,36 @@ impl Adam {
 
     /// One update of `params` with gradient `grad`.
     pub fn step(&mut self, params: &mut [f32], grad: &[f32]) {
+        self.step_weighted(params, grad, None);
+    }
+
+    /// One update of `params` with gradient `grad`, each parameter's step scaled by the
+    /// weight of its group (`weights`: one weight per `params.len() / weights.len()`
+    /// consecutive parameters, a Gaussian's): weight 0 leaves the parameter's bits as
+    /// they are, weight 1 (or no weights) is the plain Adam step. The moments follow the
+    /// gradient either way.
+    pub fn step_weighted(&mut self, params: &mut [f32], grad: &[f32], weights: Option<&[f32]>) {
         self.t += 1;
         let bc1 = 1.0 - self.beta1.powi(self.t);
         let bc2 = 1.0 - self.beta2.powi(self.t);
         let (b1, b2, lr, eps) = (self.beta1, self.beta2, self.lr, self.eps);
+        let per = weights.map_or(1, |w| (params.len() / w.len().max(1)).max(1));
         params
             .par_iter_mut()
             .zip(grad.par_iter())
             .zip(self.m.par_iter_mut().zip(self.v.par_iter_mut()))
-            .for_each(|((p, &g), (m, v))| {
+            .enumerate()
+            .for_each(|(i, ((p, &g), (m, v)))| {
                 *m = b1 * *m + (1.0 - b1) * g;
                 *v = b2 * *v + (1.0 - b2) * g * g;
                 let mh = *m / bc1;
                 let vh = *v / bc2;
-                *p -= lr * mh / (vh.sqrt() + eps);
+                let w = weights.map_or(1.0, |w| w[i / per]);
+                if w == 1.0 {
+                    *p -= lr * mh / (vh.sqrt() + eps);
+                } else if w != 0.0 {
+                    *p -= w * (lr * mh / (vh.sqrt() + eps));
+                }
             });
     }
 }
@@ -702,6 +718,8 @@ pub struct ColourFit<'a> {
     losses: Vec<f32>,
     cached_views: usize,
     cache_bytes: usize,
+    /// Per-Gaussian weights of the colour updates ([`crate::selection`]); None: all 1.
+    weights: Option<Vec<f32>>,
 }
 
 /// Each view's state: its cache (projection and compositing order, and alpha when the
@@ -815,7 +833,25 @@ impl<'a> ColourFit<'a> {
             losses: Vec::new(),
             cached_views,
             cache_bytes,
+            weights: None,
         })
+    }
+
+    /// Scale each Gaussian's colour updates by its weight in `sel` (one per Gaussian of
+    /// the scene, in [0, 1]; weight 0: the Gaussian's colours keep their bits); None:
+    /// every Gaussian moves freely (the same bytes as never calling this).
+    pub fn set_weights(&mut self, sel: Option<&crate::selection::Selection>) -> Result<()> {
+        if let Some(s) = sel
+            && s.len() != self.scene.len()
+        {
+            return Err(Error::param(format!(
+                "selection of {} Gaussians for a scene of {}",
+                s.len(),
+                self.scene.len()
+            )));
+        }
+        self.weights = sel.map(|s| s.weights.clone());
+        Ok(())
     }
 
     /// Views whose contributions are cached, and the bytes the caches hold.
@@ -976,8 +1012,10 @@ impl<'a> ColourFit<'a> {
             self.grad_rest = grad_rest;
             return Ok((loss_sum / nv as f64, gdc));
         }
-        self.adam_dc.step(&mut self.dc, &gdc);
-        self.adam_rest.step(&mut self.scene.sh_rest, &grad_rest);
+        let w = self.weights.as_deref();
+        self.adam_dc.step_weighted(&mut self.dc, &gdc, w);
+        self.adam_rest
+            .step_weighted(&mut self.scene.sh_rest, &grad_rest, w);
         let dc = &self.dc;
         self.scene
             .sh_dc

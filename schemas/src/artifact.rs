@@ -912,6 +912,10 @@ mod fixtures {
                 )?;
                 w.write_tensor("views_pool3.npy", &[1, 2], &ramp(2))?;
             }
+            ArtifactKind::Selection => {
+                w.write_tensor("weights.npy", &[4], &[0.0, 1.0, 0.5, 1.0])?;
+                w.set_meta(serde_json::json!({"selected": 3, "gaussians": 4}));
+            }
         }
         w.commit()
     }

@@ -41,10 +41,14 @@ pub enum ArtifactKind {
     /// (Inception features, the style's Gram matrices, the original's scores):
     /// `reference.json` and `.npy` features; `meta` holds the settings it was made with.
     EvalReference,
+    /// A weight in [0, 1] per Gaussian of one scene (which Gaussians a stylization may
+    /// change, and how much): `weights.npy` `[N]` f32; `meta` holds the count selected,
+    /// their bounds and what the selection was made from.
+    Selection,
 }
 
 impl ArtifactKind {
-    pub const ALL: [ArtifactKind; 7] = [
+    pub const ALL: [ArtifactKind; 8] = [
         ArtifactKind::Views,
         ArtifactKind::Latents,
         ArtifactKind::NoisedLatents,
@@ -52,6 +56,7 @@ impl ArtifactKind {
         ArtifactKind::Scene,
         ArtifactKind::Evaluation,
         ArtifactKind::EvalReference,
+        ArtifactKind::Selection,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -63,6 +68,7 @@ impl ArtifactKind {
             ArtifactKind::Scene => "scene",
             ArtifactKind::Evaluation => "evaluation",
             ArtifactKind::EvalReference => "eval-reference",
+            ArtifactKind::Selection => "selection",
         }
     }
 
@@ -86,6 +92,7 @@ impl ArtifactKind {
             ArtifactKind::Scene => &["scene.ply"],
             ArtifactKind::Evaluation => &["metrics.json"],
             ArtifactKind::EvalReference => &["reference.json"],
+            ArtifactKind::Selection => &["weights.npy"],
         }
     }
 }

@@ -263,6 +263,13 @@ impl<'a> Distiller<'a> {
         })
     }
 
+    /// Scale every colour update by the Gaussians' weights in `sel` ([`crate::selection`]:
+    /// weight 0 keeps a Gaussian's colours bit for bit); None changes nothing.
+    pub fn with_selection(mut self, sel: Option<&crate::selection::Selection>) -> Result<Self> {
+        self.fit.set_weights(sel)?;
+        Ok(self)
+    }
+
     /// Add the low-layer texture term to every colour step.
     pub fn with_texture(mut self, term: terms::texture::TextureTerm) -> Self {
         self.texture = Some(term);
@@ -557,13 +564,14 @@ impl Outcome {
     }
 }
 
-/// What [`distill`] runs: the loop's parameters, its timesteps, how many iterations and
-/// the optional texture term.
-pub struct Run {
+/// What [`distill`] runs: the loop's parameters, its timesteps, how many iterations, the
+/// optional texture term and the optional selection of the Gaussians that may change.
+pub struct Run<'s> {
     pub params: Config,
     pub set: TimestepSet,
     pub iters: u64,
     pub texture: Option<terms::texture::TextureTerm>,
+    pub selection: Option<&'s crate::selection::Selection>,
 }
 
 /// Run `run.iters` iterations of the loop from `start` (a scene, or a checkpoint with
@@ -576,7 +584,7 @@ pub fn distill(
     cameras: &[Camera],
     source: &SourceViews,
     prior: &mut dyn Prior,
-    run: Run,
+    run: Run<'_>,
     cost: Option<&CostModel>,
 ) -> Result<Outcome> {
     let Run {
@@ -584,6 +592,7 @@ pub fn distill(
         set,
         iters,
         texture,
+        selection,
     } = run;
     let (conds, f) = (params.csd.conds(), prior.info().downsample);
     let per_iter = params.views.min(cameras.len());
@@ -602,7 +611,8 @@ pub fn distill(
     crate::prior::cost::announce(cost, "distill", &plan(iters));
     let it = start.iteration;
     let ph = crate::timing::span("setup");
-    let mut d = Distiller::new(&start.scene, cameras, source, prior, set, params, it)?;
+    let mut d = Distiller::new(&start.scene, cameras, source, prior, set, params, it)?
+        .with_selection(selection)?;
     d.set_optimizer_state(start.state())?;
     if let Some((shape, data)) = start.hf_prev.clone() {
         d.set_agreement_state(&shape, data)?;

@@ -31,7 +31,8 @@
 
 use super::{ConfigArgs, PriorArgs, Threads};
 use crate::artifacts::{
-    CHECKPOINT_HF_PREV, CheckpointParts, extend_history, load_scene, read_progress, read_views,
+    CHECKPOINT_HF_PREV, CheckpointParts, extend_history, load_scene, read_progress, read_selection,
+    read_views,
     write_checkpoint,
 };
 use crate::distill::ends::{self, Finish, Start, StartInputs};
@@ -86,6 +87,11 @@ pub struct Args {
     pub source_views: PathBuf,
     #[command(flatten)]
     pub prior: PriorArgs,
+    /// Only these Gaussians change (a `selection` artifact, written by `select`, of the
+    /// scene being stylized): each one's colour updates are scaled by its weight, and a
+    /// Gaussian of weight 0 keeps its bytes through the start, the loop and the finish.
+    #[arg(long)]
+    pub selection: Option<PathBuf>,
     /// Iterations to run in this process (0: only the start, from a scene, and the
     /// finish).
     #[arg(long)]
@@ -157,6 +163,19 @@ pub fn run(a: Args) -> Result<()> {
             format!("shape {shape:?}, but the source views need [{n}, 3, {h}, {w}]"),
         ));
     }
+    let selection = match &a.selection {
+        Some(dir) => {
+            let sel = crate::timing::load(|| read_selection(dir))?;
+            sel.check_for(start.scene.len(), dir)?;
+            Some(sel)
+        }
+        None => None,
+    };
+    // A selection holds every colour change to its weights: `keep` blends a change.
+    let keep = |before: &Scene, after: Scene| match &selection {
+        Some(s) => s.blend(before, &after),
+        None => Ok(after),
+    };
     // Strength 0 is "unchanged" exactly: no start, no iteration, no finish.
     let styled = config.strength > 0.0;
     if styled && a.resume.is_none() {
@@ -168,15 +187,18 @@ pub fn run(a: Args) -> Result<()> {
             style_path: &a.prior.style,
             style_size: config.texture.style_size,
         };
-        start.scene = ends::start(config.start, &start.scene, &inputs)?;
+        let started = ends::start(config.start, &start.scene, &inputs)?;
+        start.scene = keep(&start.scene, started)?;
     }
-    let mut outcome = iterate(&a, &config, &start, &cameras, &source, &style)?;
+    let sel = selection.as_ref();
+    let mut outcome = iterate(&a, &config, &start, &cameras, &source, &style, sel)?;
     if styled && config.finish != Finish::None {
         let scene = &outcome.scene;
         let bg = source.background;
-        outcome.scene = a
+        let finished = a
             .threads
             .install(|| ends::finish(config.finish, scene, &cameras, &style, bg))??;
+        outcome.scene = keep(&outcome.scene, finished)?;
     }
     write(&a, &config, start, &outcome)
 }
@@ -189,6 +211,7 @@ fn iterate(
     cameras: &[Camera],
     source: &SourceViews,
     style: &crate::imageio::Image,
+    selection: Option<&crate::selection::Selection>,
 ) -> Result<Outcome> {
     let (_, model_set) = model_timesteps(&a.prior.model)?;
     if config.strength == 0.0 || a.iters == 0 {
@@ -208,6 +231,7 @@ fn iterate(
         set,
         iters: a.iters,
         texture,
+        selection,
     };
     let (pr, c) = (prior.as_mut(), cost.as_ref());
     a.threads
@@ -227,6 +251,9 @@ fn write(a: &Args, config: &Config, start: Progress, outcome: &Outcome) -> Resul
         _ => {}
     }
     out.add_input("source-views", &a.source_views)?;
+    if let Some(dir) = &a.selection {
+        out.add_input("selection", dir)?;
+    }
     a.prior.add_inputs(&mut out)?;
     write_scene(&mut out, &outcome.scene, &a.format, &a.out)?;
     let mut history = start.history;
