@@ -22,6 +22,7 @@
 //! names, every other at 0). Unknown keys are errors, named with their file.
 
 use super::ends::{Finish, Start};
+use super::synthesis::SynthesisParams;
 use super::terms::texture::TextureParams;
 use super::terms::{ColourLoss, Terms};
 use crate::csd::CsdParams;
@@ -46,8 +47,10 @@ pub struct Config {
     /// the object); the last two are ARF's, not FantasyStyle (src/distill/ends.rs).
     #[arg(long, value_enum, default_value = "scene")]
     pub start: Start,
-    /// How a run ends: `none` or `colour` (the result's colours moved onto the style's
-    /// mean and covariance, ARF's colour transfer after the optimisation).
+    /// How a run ends: `none`, `colour` (the result's colours moved onto the style's
+    /// mean and covariance, ARF's colour transfer after the optimisation) or `patches`
+    /// (the patch prior's deterministic t -> 0 end: texture optimisation of the colours
+    /// with the style's patches, coarse to fine, `[synthesis]`).
     #[arg(long, value_enum, default_value = "none")]
     pub finish: Finish,
     /// Read by the `split` stage, not by distill: split every Gaussian longer than this
@@ -110,6 +113,9 @@ pub struct Config {
     /// The VGG texture terms (`[texture]`).
     #[arg(skip)]
     pub texture: TextureParams,
+    /// The patch synthesis of `finish = "patches"` (`[synthesis]`).
+    #[arg(skip)]
+    pub synthesis: SynthesisParams,
 }
 
 impl Default for Config {
@@ -159,6 +165,7 @@ impl Config {
         self.csd.mode = self.terms.prior().map_or(self.csd.mode, |(m, _)| m);
         self.csd.validate()?;
         self.mvfc.validate()?;
+        self.synthesis.validate()?;
         let positive = |x: f32| x.is_finite() && x >= 0.0;
         if !positive(self.lr_dc) {
             return Err(Error::param("lr_dc must be finite and >= 0"));
@@ -212,6 +219,7 @@ impl Config {
         s += &crate::params::key_help::<CsdParams>("csd.");
         s += &crate::params::key_help::<MvfcParams>("mvfc.");
         s += &crate::params::key_help::<TextureParams>("texture.");
+        s += &crate::params::key_help::<SynthesisParams>("synthesis.");
         s
     }
 }
@@ -296,6 +304,7 @@ fn set(table: &mut toml::Table, kv: &str) -> Result<()> {
         "csd" => typed_value::<CsdParams>("csd.", field, value)?,
         "mvfc" => typed_value::<MvfcParams>("mvfc.", field, value)?,
         "texture" => typed_value::<TextureParams>("texture.", field, value)?,
+        "synthesis" => typed_value::<SynthesisParams>("synthesis.", field, value)?,
         "terms" => {
             let w: f32 = value
                 .trim()
@@ -320,7 +329,7 @@ fn set(table: &mut toml::Table, kv: &str) -> Result<()> {
         }
         _ => {
             return Err(Error::param(format!(
-                "--set {kv}: unknown section `{section}` (csd, mvfc, texture, terms)"
+                "--set {kv}: unknown section `{section}` (csd, mvfc, texture, synthesis, terms)"
             )));
         }
     };

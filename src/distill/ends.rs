@@ -7,6 +7,7 @@
 //! |---|---|---|
 //! | `start = "colour"` | the object's colour mean and covariance (over the source views) moved onto the style image's, each Gaussian then clamped into the style's colour extent (ARF's colour pre-transfer) | [`super::colour_transfer`] |
 //! | `start = "projection"` | the style image texture-mapped onto the object: triplanar projection along each Gaussian's normal, one style pixel per render pixel at the object (the texture terms' motif scale, `texture.style_size`), shaded by each Gaussian's relative brightness | [`super::projection`] |
+//! | `finish = "patches"` | the patch prior's deterministic t -> 0 end: the colours fitted, coarse to fine, to every view's average of its nearest style patches, targets held, patch use balanced (texture optimisation, Kwatra et al. 2005) | [`super::synthesis`] |
 //! | `finish = "colour"` | the result's colour statistics (over its renders from the source cameras) moved onto the style's once more (ARF's colour transfer after the optimisation): the loop's palette drift taken back, the texture's arrangement kept | [`super::colour_transfer`] |
 //!
 //! A start applies to a fresh run (from a scene, iteration 0): a checkpoint has been
@@ -41,6 +42,9 @@ pub enum Finish {
     /// With the colours moved onto the style's mean and covariance once more (ARF's
     /// colour transfer after the optimisation).
     Colour,
+    /// With the patch prior's deterministic end: texture optimisation of the colours
+    /// with the style's patches, coarse to fine (`[synthesis]`).
+    Patches,
 }
 
 crate::params::serde_by_value_name!(Start, Finish);
@@ -99,15 +103,22 @@ fn project(scene: &Scene, inputs: &StartInputs<'_>) -> Result<Scene> {
     Ok(project_style(scene, &img, &at, &normals.normals))
 }
 
+/// What a finish needs besides the scene: the cameras, the style image, the background,
+/// the configuration (`texture.style_size`, `[synthesis]`) and the selection, if any.
+#[derive(Debug, Clone, Copy)]
+pub struct FinishInputs<'a> {
+    pub cameras: &'a [Camera],
+    pub style: &'a Image,
+    pub background: [f32; 3],
+    pub config: &'a super::Config,
+    pub selection: Option<&'a crate::selection::Selection>,
+}
+
 /// `scene` after the finish `kind`: for `colour`, the colour statistics of its own renders
-/// from `cameras` over `background` moved onto those of the style image.
-pub fn finish(
-    kind: Finish,
-    scene: &Scene,
-    cameras: &[Camera],
-    style: &Image,
-    background: [f32; 3],
-) -> Result<Scene> {
+/// from the cameras moved onto those of the style image; for `patches`, the patch
+/// synthesis ([`super::synthesis`]).
+pub fn finish(kind: Finish, scene: &Scene, inputs: &FinishInputs<'_>) -> Result<Scene> {
+    let (cameras, style, background) = (inputs.cameras, inputs.style, inputs.background);
     match kind {
         Finish::None => Ok(scene.clone()),
         Finish::Colour => {
@@ -116,6 +127,20 @@ pub fn finish(
             let views: Vec<(&[f32], &[f32])> =
                 renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
             move_palette("colour finish", scene, &views, background, style)
+        }
+        Finish::Patches => {
+            let c = inputs.config;
+            let size = c.texture.style_size;
+            let (out, _) = super::synthesis::synthesize(
+                scene,
+                cameras,
+                style,
+                background,
+                size,
+                &c.synthesis,
+                inputs.selection,
+            )?;
+            Ok(out)
         }
     }
 }

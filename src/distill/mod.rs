@@ -66,6 +66,7 @@ pub mod projection;
 pub mod record;
 pub mod split;
 pub mod step;
+pub mod synthesis;
 pub mod terms;
 
 use crate::optim::{ColourFit, OptimizerState};

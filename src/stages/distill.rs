@@ -194,10 +194,16 @@ pub fn run(a: Args) -> Result<()> {
     let mut outcome = iterate(&a, &config, &start, &cameras, &source, &style, sel)?;
     if styled && config.finish != Finish::None {
         let scene = &outcome.scene;
-        let bg = source.background;
+        let inputs = ends::FinishInputs {
+            cameras: &cameras,
+            style: &style,
+            background: source.background,
+            config: &config,
+            selection: selection.as_ref(),
+        };
         let finished = a
             .threads
-            .install(|| ends::finish(config.finish, scene, &cameras, &style, bg))??;
+            .install(|| ends::finish(config.finish, scene, &inputs))??;
         outcome.scene = keep(&outcome.scene, finished)?;
     }
     write(&a, &config, start, &outcome)
