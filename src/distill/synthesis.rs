@@ -10,12 +10,14 @@
 //!    ones draw their strokes), searched exactly in PCA coordinates; the chosen patches'
 //!    overlapping pixels are averaged into the view's target (Kwatra's least-squares
 //!    E-step with r = 2).
-//! 2. **Balance**: a style patch's k-means cell that was used more than its share of the
-//!    bank in the previous round costs `balance` x (the mean match distance) x (its
-//!    excess use ratio): the occurrence penalty of self-tuning texture optimisation
-//!    (Kaspar et al., EG 2015), in the form of the patch prior's cell-wise balance
-//!    (docs/patch-prior.md), so the object takes all of the style's palette rather than
-//!    its commonest patch.
+//! 2. **Balance**: the matches of all views are made together, through an entropic
+//!    coupling of the object's patches to the style bank's k-means cells (Sinkhorn in the
+//!    log domain, the cells' marginal their share of the bank relaxed by the exponent
+//!    `balance`, the KL-penalised unbalanced form of Chizat et al. 2018); each patch takes
+//!    the nearest style patch of its cell. The patch prior balances its posterior the same
+//!    way (docs/patch-prior.md); without it the object takes the style's patches nearest
+//!    its own colour only (self-tuning texture optimisation, Kaspar et al. 2015, makes the
+//!    same point with an occurrence penalty).
 //! 3. **M-step**: the colours fitted to every view's held target for `steps` Adam steps
 //!    (L2, all views at once: the Gaussians that several views share take the
 //!    least-squares compromise of their targets). A coarse level's target changes the
@@ -62,8 +64,10 @@ pub struct SynthesisParams {
     /// Adam learning rate of the SH DC colours in the fit.
     #[arg(long, default_value_t = 0.05)]
     pub lr: f32,
-    /// Weight of the occurrence penalty (0: plain nearest patches).
-    #[arg(long, default_value_t = 1.0)]
+    /// Balance of the style's patch use, in [0, 1]: the exponent of the cells' marginal
+    /// in the coupling of the object's patches to the style's cells (0: each patch its
+    /// nearest; 1: every cell used in proportion to its share of the style).
+    #[arg(long, default_value_t = 0.5)]
     pub balance: f32,
     /// PCA dimensions of the search.
     #[arg(long, default_value_t = 24)]
@@ -90,9 +94,11 @@ impl SynthesisParams {
                 "synthesis.stride, style_stride and pca_dims must be >= 1",
             ));
         }
-        if !(self.lr.is_finite() && self.lr >= 0.0 && self.balance.is_finite() && self.balance >= 0.0)
-        {
-            return Err(Error::param("synthesis.lr and balance must be finite and >= 0"));
+        if !(self.lr.is_finite() && self.lr >= 0.0) {
+            return Err(Error::param("synthesis.lr must be finite and >= 0"));
+        }
+        if !(0.0..=1.0).contains(&self.balance) {
+            return Err(Error::param("synthesis.balance must lie in [0, 1]"));
         }
         Ok(())
     }
@@ -121,7 +127,11 @@ impl StyleLevel {
         let mut cell_of = vec![0u32; m];
         let mut share = vec![1.0f32; 1];
         if let Some(ivf) = bank.reduced.as_ref().and_then(|r| r.ivf.as_ref()) {
-            share = ivf.cells.iter().map(|c| c.len() as f32 / m as f32).collect();
+            share = ivf
+                .cells
+                .iter()
+                .map(|c| c.len() as f32 / m as f32)
+                .collect();
             for (c, rows) in ivf.cells.iter().enumerate() {
                 for &r in rows {
                     cell_of[r as usize] = c as u32;
@@ -135,37 +145,139 @@ impl StyleLevel {
         })
     }
 
-    /// The nearest bank patch of each query `[P, D]` (PCA coordinates, exact search) with
-    /// each cell's `penalty` added: (patch index, squared distance without the penalty).
-    fn nearest(&self, q: &Array2<f32>, penalty: &[f32]) -> Vec<(u32, f32)> {
-        let r = self.bank.reduced.as_ref().expect("synthesis banks have a PCA");
+    /// For each query `[P, D]` and each cell of the bank, the nearest patch of that cell
+    /// (exact search in PCA coordinates): `[P x cells]` squared distances and patch
+    /// indices (infinite distance for an empty cell).
+    fn nearest_per_cell(&self, q: &Array2<f32>) -> (Vec<f32>, Vec<u32>) {
+        let r = self
+            .bank
+            .reduced
+            .as_ref()
+            .expect("synthesis banks have a PCA");
+        let cells = self.share.len();
         let qc = r.pca.project(q.view(), 1.0);
         let qn: Vec<f32> = qc.rows().into_iter().map(|row| row.dot(&row)).collect();
-        let pen: Vec<f32> = self.cell_of.iter().map(|&c| penalty[c as usize]).collect();
         let rows: Vec<usize> = (0..qc.nrows()).collect();
-        rows.par_chunks(256)
-            .flat_map_iter(|chunk| {
+        let out: Vec<(Vec<f32>, Vec<u32>)> = rows
+            .par_chunks(256)
+            .map(|chunk| {
                 let block = qc.slice(ndarray::s![chunk[0]..chunk[0] + chunk.len(), ..]);
                 let dots = block.dot(&r.coords.t());
-                let out: Vec<(u32, f32)> = dots
-                    .rows()
-                    .into_iter()
-                    .zip(chunk)
-                    .map(|(row, &i)| {
-                        let mut best = (0u32, f32::INFINITY, f32::INFINITY);
-                        for (j, (&d, (&n, &pj))) in row.iter().zip(r.norms.iter().zip(&pen)).enumerate() {
-                            let dist = (qn[i] + n - 2.0 * d).max(0.0);
-                            if dist + pj < best.2 {
-                                best = (j as u32, dist, dist + pj);
-                            }
+                let mut dist = vec![f32::INFINITY; chunk.len() * cells];
+                let mut arg = vec![0u32; chunk.len() * cells];
+                for (k, (row, &i)) in dots.rows().into_iter().zip(chunk).enumerate() {
+                    let (d, a) = (&mut dist[k * cells..], &mut arg[k * cells..]);
+                    for (j, (&dot, &n)) in row.iter().zip(r.norms.iter()).enumerate() {
+                        let c = self.cell_of[j] as usize;
+                        let v = (qn[i] + n - 2.0 * dot).max(0.0);
+                        if v < d[c] {
+                            d[c] = v;
+                            a[c] = j as u32;
                         }
-                        (best.0, best.1)
-                    })
-                    .collect();
-                out.into_iter()
+                    }
+                }
+                (dist, arg)
+            })
+            .collect();
+        let (mut dist, mut arg) = (Vec::new(), Vec::new());
+        for (d, a) in out {
+            dist.extend(d);
+            arg.extend(a);
+        }
+        (dist, arg)
+    }
+
+    /// Each query's style patch (index, squared distance): the nearest patch of the cell
+    /// the balanced coupling gives it (module docs, step 2). `balance` is the exponent
+    /// rho of the cells' marginal (0: every query its nearest patch; 1: the cells used in
+    /// proportion to their share of the bank), `eps` the coupling's temperature relative
+    /// to the mean nearest distance.
+    fn assign(&self, q: &Array2<f32>, balance: f32, eps: f32) -> Vec<(u32, f32)> {
+        let cells = self.share.len();
+        let (dist, arg) = self.nearest_per_cell(q);
+        let p = q.nrows();
+        let best = |row: &[f32], lv: &[f32], t: f32| -> usize {
+            let mut b = (0usize, f32::NEG_INFINITY);
+            for (c, (&d, &v)) in row.iter().zip(lv).enumerate() {
+                let s = v - d / t;
+                if s > b.1 {
+                    b = (c, s);
+                }
+            }
+            b.0
+        };
+        let mut log_v = vec![0.0f32; cells];
+        if balance > 0.0 && p > 0 {
+            let mean_min = dist
+                .chunks(cells)
+                .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min) as f64)
+                .sum::<f64>()
+                / p as f64;
+            let t = (eps as f64 * mean_min).max(1e-6) as f32;
+            let log_share: Vec<f32> = self.share.iter().map(|s| s.max(1e-12).ln()).collect();
+            let mut log_u = vec![0.0f32; p];
+            for _ in 0..SINKHORN_ITERS {
+                log_u
+                    .par_iter_mut()
+                    .zip(dist.par_chunks(cells))
+                    .for_each(|(u, row)| {
+                        *u = -logsumexp(row.iter().zip(&log_v).map(|(&d, &v)| v - d / t));
+                    });
+                let col = column_logsumexp(&dist, &log_u, cells, t);
+                // The cells' marginal p share_c, relaxed by the exponent rho = balance
+                // (the KL-penalised unbalanced form, Chizat et al. 2018).
+                let log_p = (p as f32).ln();
+                for c in 0..cells {
+                    log_v[c] = if col[c].is_finite() {
+                        balance * (log_share[c] + log_p - col[c])
+                    } else {
+                        0.0
+                    };
+                }
+            }
+            return dist
+                .chunks(cells)
+                .zip(arg.chunks(cells))
+                .map(|(row, a)| {
+                    let c = best(row, &log_v, t);
+                    (a[c], row[c])
+                })
+                .collect();
+        }
+        dist.chunks(cells)
+            .zip(arg.chunks(cells))
+            .map(|(row, a)| {
+                let c = best(row, &log_v, 1.0);
+                (a[c], row[c])
             })
             .collect()
     }
+}
+
+/// Sinkhorn iterations of the balance.
+const SINKHORN_ITERS: usize = 30;
+
+/// log sum exp of `xs` (stable).
+fn logsumexp(xs: impl Iterator<Item = f32> + Clone) -> f32 {
+    let m = xs.clone().fold(f32::NEG_INFINITY, f32::max);
+    if !m.is_finite() {
+        return m;
+    }
+    m + xs.map(|x| (x - m).exp()).sum::<f32>().ln()
+}
+
+/// For each cell c, log sum_q exp(log_u_q - dist_qc / t).
+fn column_logsumexp(dist: &[f32], log_u: &[f32], cells: usize, t: f32) -> Vec<f32> {
+    (0..cells)
+        .into_par_iter()
+        .map(|c| {
+            logsumexp(
+                dist.chunks(cells)
+                    .zip(log_u)
+                    .map(|(row, &u)| u - row[c] / t),
+            )
+        })
+        .collect()
 }
 
 /// What the synthesis did, per level.
@@ -221,56 +333,91 @@ pub fn synthesize(
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
         let level = StyleLevel::new(style, style_size / s, p, stride)?;
-        let mut penalty = vec![0.0f32; level.share.len()];
-        let mut last = (0.0f32, 0usize, 0.0f64);
+        let mut last = RoundStats::default();
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
-            let mut used = vec![0usize; level.share.len()];
-            let mut dist_sum = 0.0f64;
-            let mut count = 0usize;
-            let mut targets = Vec::with_capacity(all.len());
-            for &v in &all {
-                let rgb = fit.render_view(v);
-                let cam = &cameras[v];
-                let (h, w) = (cam.height as usize, cam.width as usize);
-                let view = ViewImage::new(&rgb, &alpha[v], background, (h, w), s);
-                let (t, m) = view.target(&level, &penalty, p, &rgb, &alpha[v]);
-                for &(j, d) in &m {
-                    used[level.cell_of[j as usize] as usize] += 1;
-                    dist_sum += d as f64;
-                }
-                count += m.len();
-                targets.push(t);
-            }
-            let mean_d = (dist_sum / count.max(1) as f64) as f32;
-            penalty = balance_penalty(&used, &level.share, mean_d, p.balance);
-            let mut loss = 0.0;
+            let (targets, stats) = e_step(&fit, cameras, &level, s, &alpha, background, p);
             for _ in 0..p.steps {
-                loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
+                last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
             }
-            last = (mean_d, used.iter().filter(|&&u| u > 0).count(), loss);
+            (last.distance, last.cells_used) = (stats.distance, stats.cells_used);
             bar.inc(1);
         }
         tracing::info!(
             "patch synthesis level {s}: {} style patches, mean distance {:.4}, {} of {} cells used, loss {:.5}",
             level.bank.len(),
-            last.0,
-            last.1,
+            last.distance,
+            last.cells_used,
             level.share.len(),
-            last.2
+            last.loss
         );
         reports.push(LevelReport {
             level: s,
             bank: level.bank.len(),
-            distance: last.0,
-            cells_used: last.1,
+            distance: last.distance,
+            cells_used: last.cells_used,
             cells: level.share.len(),
-            loss: last.2,
+            loss: last.loss,
         });
     }
     bar.finish_and_clear();
     Ok((fit.scene().clone(), reports))
 }
+
+/// What one round's matches were like.
+#[derive(Debug, Clone, Copy, Default)]
+struct RoundStats {
+    distance: f32,
+    cells_used: usize,
+    loss: f64,
+}
+
+/// The E-step of one round at level `s`: every view's object patches matched together
+/// (one balanced coupling over all views), each view's target `[H, W, 3]`.
+fn e_step(
+    fit: &ColourFit<'_>,
+    cameras: &[Camera],
+    level: &StyleLevel,
+    s: usize,
+    alpha: &[Vec<f32>],
+    background: [f32; 3],
+    p: &SynthesisParams,
+) -> (Vec<Vec<f32>>, RoundStats) {
+    let n = alpha.len();
+    let renders: Vec<Vec<f32>> = (0..n).map(|v| fit.render_view(v)).collect();
+    let size = |v: usize| {
+        let c = &cameras[v];
+        (c.height as usize, c.width as usize)
+    };
+    let views: Vec<ViewImage> = (0..n)
+        .into_par_iter()
+        .map(|v| ViewImage::new(&renders[v], &alpha[v], background, size(v), s))
+        .collect();
+    let queries: Vec<(Vec<[usize; 3]>, Array2<f32>)> = views.iter().map(|v| v.queries(p)).collect();
+    let rows: Vec<ndarray::ArrayView2<'_, f32>> = queries.iter().map(|q| q.1.view()).collect();
+    let all = ndarray::concatenate(Axis(0), &rows).expect("patches of one width");
+    let m = level.assign(&all, p.balance, BALANCE_EPS);
+    let mut used = vec![false; level.share.len()];
+    for &(j, _) in &m {
+        used[level.cell_of[j as usize] as usize] = true;
+    }
+    let stats = RoundStats {
+        distance: (m.iter().map(|x| x.1 as f64).sum::<f64>() / m.len().max(1) as f64) as f32,
+        cells_used: used.iter().filter(|&&u| u).count(),
+        loss: 0.0,
+    };
+    let mut offset = 0;
+    let mut targets = Vec::with_capacity(n);
+    for (v, (pixels, _)) in queries.iter().enumerate() {
+        let mv = &m[offset..offset + pixels.len()];
+        offset += pixels.len();
+        targets.push(views[v].target(level, pixels, mv, p.patch, &renders[v], &alpha[v]));
+    }
+    (targets, stats)
+}
+
+/// The coupling's temperature relative to the mean nearest distance.
+const BALANCE_EPS: f32 = 0.1;
 
 /// The mean squared error of `rgb` against `target` and its gradient.
 fn l2(rgb: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
@@ -289,18 +436,6 @@ fn l2(rgb: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
     (loss, grad)
 }
 
-/// Each cell's penalty for the next round: `weight` x `mean_d` x its use beyond its share.
-fn balance_penalty(used: &[usize], share: &[f32], mean_d: f32, weight: f32) -> Vec<f32> {
-    let total: usize = used.iter().sum();
-    used.iter()
-        .zip(share)
-        .map(|(&u, &s)| {
-            let expected = (s * total as f32).max(1e-6);
-            weight * mean_d * (u as f32 / expected - 1.0).max(0.0)
-        })
-        .collect()
-}
-
 /// One view at one level: its colour over a fill of itself, pooled, and its coverage.
 struct ViewImage {
     /// `[1, 3, h, w]`.
@@ -308,6 +443,8 @@ struct ViewImage {
     /// `[h, w]`.
     alpha: Array2<f32>,
     s: usize,
+    /// The full-resolution size (H, W).
+    full: (usize, usize),
 }
 
 impl ViewImage {
@@ -330,19 +467,12 @@ impl ViewImage {
             colour,
             alpha: a,
             s,
+            full: (h, w),
         }
     }
 
-    /// The view's full-resolution target (`[H, W, 3]`: the render plus its coverage times
-    /// the upsampled change of the vote over the pooled colour) and the matches.
-    fn target(
-        &self,
-        level: &StyleLevel,
-        penalty: &[f32],
-        p: &SynthesisParams,
-        rgb: &[f32],
-        alpha: &[f32],
-    ) -> (Vec<f32>, Vec<(u32, f32)>) {
+    /// The object's pixels on the grid of step `stride` and their patches `[P, k k 3]`.
+    fn queries(&self, p: &SynthesisParams) -> (Vec<[usize; 3]>, Array2<f32>) {
         let (_, _, hl, wl) = self.colour.dim();
         let step = p.stride.max(1);
         let pixels: Vec<[usize; 3]> = (0..hl)
@@ -350,14 +480,29 @@ impl ViewImage {
             .flat_map(|y| (0..wl).step_by(step).map(move |x| [0, y, x]))
             .filter(|&[_, y, x]| self.alpha[[y, x]] > OBJECT)
             .collect();
-        if pixels.is_empty() {
-            return (rgb.to_vec(), Vec::new());
-        }
         let q = patches_at(self.colour.view(), p.patch, &pixels);
-        let m = level.nearest(&q, penalty);
-        let delta = self.vote(level, &pixels, &m, p.patch);
+        (pixels, q)
+    }
+
+    /// The view's full-resolution target (`[H, W, 3]`: the render plus its coverage times
+    /// the upsampled change of the vote over the pooled colour) from the matches `m` of
+    /// its `pixels`.
+    fn target(
+        &self,
+        level: &StyleLevel,
+        pixels: &[[usize; 3]],
+        m: &[(u32, f32)],
+        k: usize,
+        rgb: &[f32],
+        alpha: &[f32],
+    ) -> Vec<f32> {
+        if pixels.is_empty() {
+            return rgb.to_vec();
+        }
+        let (_, _, hl, wl) = self.colour.dim();
+        let delta = self.vote(level, pixels, m, k);
         let (h, w) = (hl * self.s, wl * self.s);
-        let full_w = rgb.len() / 3 / h.max(1);
+        let full_w = self.full.1;
         let mut t = rgb.to_vec();
         for y in 0..h {
             for x in 0..w {
@@ -369,12 +514,18 @@ impl ViewImage {
                 }
             }
         }
-        (t, m)
+        t
     }
 
     /// The average of the matched patches over each object pixel they cover, minus the
     /// pooled colour (`[3, h, w]`; 0 where no patch voted or off the object).
-    fn vote(&self, level: &StyleLevel, pixels: &[[usize; 3]], m: &[(u32, f32)], k: usize) -> Array3<f32> {
+    fn vote(
+        &self,
+        level: &StyleLevel,
+        pixels: &[[usize; 3]],
+        m: &[(u32, f32)],
+        k: usize,
+    ) -> Array3<f32> {
         let (_, _, hl, wl) = self.colour.dim();
         let mut acc = Array3::<f32>::zeros((3, hl, wl));
         let mut wt = Array2::<f32>::zeros((hl, wl));
@@ -431,14 +582,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_penalty_falls_on_cells_used_beyond_their_share_only() {
-        let p = balance_penalty(&[10, 0, 30], &[0.25, 0.25, 0.5], 2.0, 1.0);
-        // 40 uses: expected 10, 10, 20.
-        assert_eq!(p, vec![0.0, 0.0, 2.0 * 0.5]);
-        assert_eq!(balance_penalty(&[10, 0, 30], &[0.25, 0.25, 0.5], 2.0, 0.0), vec![0.0; 3]);
-    }
-
-    #[test]
     fn upsampling_is_exact_at_level_one_and_constant_on_a_constant() {
         let d = Array3::from_shape_fn((3, 4, 4), |(c, y, x)| (c * 16 + y * 4 + x) as f32);
         assert_eq!(upsample_at(&d, 2, 3, 1), [11.0, 27.0, 43.0]);
@@ -455,7 +598,11 @@ mod tests {
         let mut data = vec![0.0f32; 32 * 32 * 3];
         for y in 0..32 {
             for x in 0..32 {
-                let v = if x < 16 { [0.9, 0.1, 0.1] } else { [0.1, 0.1, 0.9] };
+                let v = if x < 16 {
+                    [0.9, 0.1, 0.1]
+                } else {
+                    [0.1, 0.1, 0.9]
+                };
                 data[(y * 32 + x) * 3..(y * 32 + x) * 3 + 3].copy_from_slice(&v);
             }
         }
@@ -473,8 +620,7 @@ mod tests {
         let red = Array2::from_shape_fn((1, 27), |(_, i)| [0.85, 0.15, 0.1][i % 3]);
         let blue = Array2::from_shape_fn((1, 27), |(_, i)| [0.1, 0.15, 0.85][i % 3]);
         for (q, want) in [(red, 0.9f32), (blue, 0.1)] {
-            let pen = vec![0.0; level.share.len()];
-            let (j, _) = level.nearest(&q, &pen)[0];
+            let (j, _) = level.assign(&q, 0.0, BALANCE_EPS)[0];
             assert_eq!(level.bank.centres[[j as usize, 0]], want);
         }
     }

@@ -75,7 +75,10 @@ impl Selection {
             ));
         }
         if self.selected() == 0 {
-            return Err(Error::input(from, "the selection is empty (every weight is 0)"));
+            return Err(Error::input(
+                from,
+                "the selection is empty (every weight is 0)",
+            ));
         }
         Ok(())
     }
@@ -121,7 +124,10 @@ mod tests {
         let p = Path::new("sel/weights.npy");
         for bad in [-0.1f32, 1.5, f32::NAN] {
             let e = Selection::new(vec![0.0, bad], p).unwrap_err().to_string();
-            assert!(e.contains("sel/weights.npy") && e.contains("Gaussian 1"), "{e}");
+            assert!(
+                e.contains("sel/weights.npy") && e.contains("Gaussian 1"),
+                "{e}"
+            );
         }
         assert!(Selection::new(vec![0.0, 1.0, 0.25], p).is_ok());
     }
@@ -130,7 +136,12 @@ mod tests {
     fn an_empty_or_mismatched_selection_is_an_error() {
         let p = Path::new("s");
         let none = Selection::new(vec![0.0; 3], p).unwrap();
-        assert!(none.check_for(3, p).unwrap_err().to_string().contains("empty"));
+        assert!(
+            none.check_for(3, p)
+                .unwrap_err()
+                .to_string()
+                .contains("empty")
+        );
         let some = Selection::new(vec![0.0, 1.0, 0.0], p).unwrap();
         assert!(some.check_for(4, p).unwrap_err().to_string().contains("4"));
         assert!(some.check_for(3, p).is_ok());
@@ -161,8 +172,17 @@ mod tests {
                     continue;
                 }
             };
-            assert_eq!(out.sh_dc[i].map(f32::to_bits), want.sh_dc[i].map(f32::to_bits), "{from}");
-            let r = |s: &Scene| s.sh_rest[i * k..(i + 1) * k].iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                out.sh_dc[i].map(f32::to_bits),
+                want.sh_dc[i].map(f32::to_bits),
+                "{from}"
+            );
+            let r = |s: &Scene| {
+                s.sh_rest[i * k..(i + 1) * k]
+                    .iter()
+                    .map(|x| x.to_bits())
+                    .collect::<Vec<_>>()
+            };
             assert_eq!(r(&out), r(want), "{from}");
         }
         assert_eq!(out.positions, a.positions);

@@ -32,8 +32,7 @@
 use super::{ConfigArgs, PriorArgs, Threads};
 use crate::artifacts::{
     CHECKPOINT_HF_PREV, CheckpointParts, extend_history, load_scene, read_progress, read_selection,
-    read_views,
-    write_checkpoint,
+    read_views, write_checkpoint,
 };
 use crate::distill::ends::{self, Finish, Start, StartInputs};
 use crate::distill::terms::Terms;
