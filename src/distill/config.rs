@@ -10,8 +10,9 @@
 //!
 //! 1. the defaults;
 //! 2. a preset (`--preset NAME`): a configuration file of the repository's `presets/`
-//!    directory, built into the binaries ([`PRESETS`]): `paper` (FantasyStyle alone) and
-//!    `arf` (ARF's recipe on the loop: the sample DAG's configuration);
+//!    directory, built into the binaries ([`PRESETS`]): `default` (the sample DAG's:
+//!    FantasyStyle's loop ended by the patch prior's deterministic limit), `paper`
+//!    (FantasyStyle alone) and `arf` (ARF's recipe on the loop);
 //! 3. configuration files and inline tables (`--config FILE` or `--config '{ k = v }'`,
 //!    in order; a table's `preset = "NAME"` puts that preset under it);
 //! 4. single keys (`--set KEY=VALUE`, dotted for a section: `csd.guidance=0`), parsed as
@@ -125,7 +126,8 @@ impl Default for Config {
 }
 
 /// The presets: `presets/NAME.toml` of the repository, built into the binaries.
-pub const PRESETS: [(&str, &str); 2] = [
+pub const PRESETS: [(&str, &str); 3] = [
+    ("default", include_str!("../../presets/default.toml")),
     ("paper", include_str!("../../presets/paper.toml")),
     ("arf", include_str!("../../presets/arf.toml")),
 ];
@@ -367,6 +369,34 @@ mod tests {
         // What a file holds is what it reads back.
         let back: Config = toml::from_str(&d.to_toml()).unwrap();
         assert_eq!(back, d);
+    }
+
+    #[test]
+    fn the_default_preset_is_the_paper_ended_by_the_patch_synthesis() {
+        let d = Config::layered(&[Source::Preset("default".into())]).unwrap();
+        let paper = Config::default().checked().unwrap();
+        assert_eq!(d.finish, Finish::Patches);
+        assert_eq!(
+            Config {
+                finish: Finish::None,
+                ..d.clone()
+            },
+            paper
+        );
+        let c = Config::layered(&[
+            Source::Preset("default".into()),
+            Source::Set("synthesis.levels=4,1".into()),
+            Source::Set("synthesis.balance=0.5".into()),
+        ])
+        .unwrap();
+        assert_eq!(
+            (c.synthesis.levels.clone(), c.synthesis.balance),
+            (vec![4, 1], 0.5)
+        );
+        let e = Config::layered(&[Source::Set("synthesis.balance=2".into())]).unwrap_err();
+        assert!(e.to_string().contains("synthesis.balance"), "{e}");
+        let e = Config::layered(&[Source::Set("synthesis.patch=6".into())]).unwrap_err();
+        assert!(e.to_string().contains("synthesis.patch"), "{e}");
     }
 
     #[test]

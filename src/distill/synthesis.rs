@@ -8,8 +8,8 @@
 //!    style patch nearest to it (the style image at `texture.style_size / s` pixels, so a
 //!    patch covers k s render pixels: coarse levels place motifs at their own scale, fine
 //!    ones draw their strokes), searched exactly in PCA coordinates; the chosen patches'
-//!    overlapping pixels are averaged into the view's target (Kwatra's least-squares
-//!    E-step with r = 2).
+//!    overlapping pixels are averaged into the view's target (Kwatra's E-step with his
+//!    robust weights, r = 0.8, and a Gaussian fall-off from each patch's centre).
 //! 2. **Balance**: the matches of all views are made together, through an entropic
 //!    coupling of the object's patches to the style bank's k-means cells (Sinkhorn in the
 //!    log domain, the cells' marginal their share of the bank relaxed by the exponent
@@ -67,7 +67,7 @@ pub struct SynthesisParams {
     /// Balance of the style's patch use, in [0, 1]: the exponent of the cells' marginal
     /// in the coupling of the object's patches to the style's cells (0: each patch its
     /// nearest; 1: every cell used in proportion to its share of the style).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 1.0)]
     pub balance: f32,
     /// PCA dimensions of the search.
     #[arg(long, default_value_t = 24)]
@@ -416,6 +416,11 @@ fn e_step(
     (targets, stats)
 }
 
+/// The votes' Gaussian fall-off from a patch's centre, sigma as a fraction of the patch
+/// side (overlapping patches that disagree average to a blur; weighing each by its
+/// nearness to the centre keeps the strokes sharper).
+const VOTE_SIGMA: f32 = 0.25;
+
 /// The coupling's temperature relative to the mean nearest distance.
 const BALANCE_EPS: f32 = 0.1;
 
@@ -530,18 +535,25 @@ impl ViewImage {
         let mut acc = Array3::<f32>::zeros((3, hl, wl));
         let mut wt = Array2::<f32>::zeros((hl, wl));
         let r = (k / 2) as isize;
-        for (&[_, y, x], &(j, _)) in pixels.iter().zip(m) {
+        let sigma = VOTE_SIGMA * k as f32;
+        let mean_d = m.iter().map(|x| x.1).sum::<f32>() / m.len().max(1) as f32;
+        for (&[_, y, x], &(j, d)) in pixels.iter().zip(m) {
             let patch = level.bank.patches.row(j as usize);
+            // Kwatra et al.'s robust weight |d|^(r - 2) with r = 0.8 (d: the match's
+            // distance), relative to the mean distance so that it stays bounded.
+            let robust = ((d + 0.01 * mean_d + 1e-12) / (mean_d + 1e-12)).powf(-0.6);
             let mut q = 0;
             for dy in -r..=r {
                 for dx in -r..=r {
                     let (yy, xx) = (y as isize + dy, x as isize + dx);
                     if yy >= 0 && xx >= 0 && (yy as usize) < hl && (xx as usize) < wl {
                         let (yy, xx) = (yy as usize, xx as usize);
+                        let g =
+                            robust * (-((dy * dy + dx * dx) as f32) / (2.0 * sigma * sigma)).exp();
                         for c in 0..3 {
-                            acc[[c, yy, xx]] += patch[q + c];
+                            acc[[c, yy, xx]] += g * patch[q + c];
                         }
-                        wt[[yy, xx]] += 1.0;
+                        wt[[yy, xx]] += g;
                     }
                     q += 3;
                 }
