@@ -218,6 +218,33 @@ impl Builder {
     }
 }
 
+/// Ground-truth masks of the Gaussians `part` of `scene` as seen (occlusion included)
+/// from each camera: 1 where they make up more than half of the pixel's colour (the
+/// full scene rendered with colour 1 on `part`, 0 elsewhere, over black), else 0;
+/// `[H, W]` per camera.
+pub fn part_masks(
+    scene: &Scene,
+    part: std::ops::Range<usize>,
+    cameras: &[crate::Camera],
+) -> crate::Result<Vec<Vec<f32>>> {
+    cameras
+        .iter()
+        .map(|cam| {
+            let cache = crate::render::ViewCache::build(scene, cam)?;
+            let colours: Vec<[f32; 3]> = cache
+                .gaussians()
+                .iter()
+                .map(|&g| [if part.contains(&(g as usize)) { 1.0 } else { 0.0 }; 3])
+                .collect();
+            let rgb = cache.forward(&colours, [0.0; 3]);
+            Ok(rgb
+                .chunks_exact(3)
+                .map(|c| if c[0] > 0.5 { 1.0 } else { 0.0 })
+                .collect())
+        })
+        .collect()
+}
+
 /// A 256x256 painterly style image, `[H, W, 3]` in [0, 1] (deterministic).
 pub fn style_image(seed: u64) -> (usize, usize, Vec<f32>) {
     const W: usize = 256;
