@@ -19,7 +19,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .ok_or(format!("no part `{part}`"))?
         .1;
     let (cams, _) = fantasystyle::camera::load_camera_file(std::path::Path::new(cameras))?;
-    let cams: Vec<_> = cams.into_iter().filter(|c| names.contains(&c.name)).collect();
+    let cams: Vec<_> = cams
+        .into_iter()
+        .filter(|c| names.contains(&c.name))
+        .collect();
     if cams.len() != names.len() {
         return Err(format!("not every camera of {names:?} is in {cameras}").into());
     }

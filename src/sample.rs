@@ -234,7 +234,13 @@ pub fn part_masks(
             let colours: Vec<[f32; 3]> = cache
                 .gaussians()
                 .iter()
-                .map(|&g| [if part.contains(&(g as usize)) { 1.0 } else { 0.0 }; 3])
+                .map(|&g| {
+                    [if part.contains(&(g as usize)) {
+                        1.0
+                    } else {
+                        0.0
+                    }; 3]
+                })
                 .collect();
             let rgb = cache.forward(&colours, [0.0; 3]);
             Ok(rgb
