@@ -107,7 +107,8 @@ fn build(seed: u64) -> (Scene, Vec<(&'static str, std::ops::Range<usize>)>) {
         rng: Rng::derive(seed, "sample-scene"),
     };
     let mut parts = Vec::with_capacity(4);
-    let steps: [(&'static str, fn(&mut Builder)); 4] = [
+    type Add = fn(&mut Builder);
+    let steps: [(&'static str, Add); 4] = [
         ("ground", Builder::ground),
         ("sphere", Builder::sphere),
         ("cube", Builder::cube),
