@@ -89,6 +89,16 @@ const GOLDEN_ANGLE: f64 = 2.399_963_229_728_653;
 
 /// The sample scene (deterministic).
 pub fn sample_scene(seed: u64) -> Scene {
+    build(seed).0
+}
+
+/// The sample scene's parts in the scene's order: `("ground" | "sphere" | "cube" |
+/// "cone", the indices of its Gaussians)` (for ground-truth selections).
+pub fn sample_parts(seed: u64) -> Vec<(&'static str, std::ops::Range<usize>)> {
+    build(seed).1
+}
+
+fn build(seed: u64) -> (Scene, Vec<(&'static str, std::ops::Range<usize>)>) {
     let mut b = Builder {
         s: Scene {
             sh_degree: 1,
@@ -96,11 +106,20 @@ pub fn sample_scene(seed: u64) -> Scene {
         },
         rng: Rng::derive(seed, "sample-scene"),
     };
-    b.ground();
-    b.sphere();
-    b.cube();
-    b.cone();
-    b.s
+    let mut parts = Vec::with_capacity(4);
+    type Add = fn(&mut Builder);
+    let steps: [(&'static str, Add); 4] = [
+        ("ground", Builder::ground),
+        ("sphere", Builder::sphere),
+        ("cube", Builder::cube),
+        ("cone", Builder::cone),
+    ];
+    for (name, add) in steps {
+        let start = b.s.len();
+        add(&mut b);
+        parts.push((name, start..b.s.len()));
+    }
+    (b.s, parts)
 }
 
 /// The side of a square cell when `m` points share `area`.
@@ -198,6 +217,39 @@ impl Builder {
             self.disk(p, n, sz, [0.97, 0.80, 0.10], 0.2);
         }
     }
+}
+
+/// Ground-truth masks of the Gaussians `part` of `scene` as seen (occlusion included)
+/// from each camera: 1 where they make up more than half of the pixel's colour (the
+/// full scene rendered with colour 1 on `part`, 0 elsewhere, over black), else 0;
+/// `[H, W]` per camera.
+pub fn part_masks(
+    scene: &Scene,
+    part: std::ops::Range<usize>,
+    cameras: &[crate::Camera],
+) -> crate::Result<Vec<Vec<f32>>> {
+    cameras
+        .iter()
+        .map(|cam| {
+            let cache = crate::render::ViewCache::build(scene, cam)?;
+            let colours: Vec<[f32; 3]> = cache
+                .gaussians()
+                .iter()
+                .map(|&g| {
+                    [if part.contains(&(g as usize)) {
+                        1.0
+                    } else {
+                        0.0
+                    }; 3]
+                })
+                .collect();
+            let rgb = cache.forward(&colours, [0.0; 3]);
+            Ok(rgb
+                .chunks_exact(3)
+                .map(|c| if c[0] > 0.5 { 1.0 } else { 0.0 })
+                .collect())
+        })
+        .collect()
 }
 
 /// A 256x256 painterly style image, `[H, W, 3]` in [0, 1] (deterministic).
@@ -300,6 +352,18 @@ mod tests {
                 let x = SH_C0 * v + 0.5;
                 assert!((0.0..=1.0).contains(&x), "{x}");
             }
+        }
+        let parts = sample_parts(0);
+        let names: Vec<&str> = parts.iter().map(|p| p.0).collect();
+        assert_eq!(names, ["ground", "sphere", "cube", "cone"]);
+        assert_eq!(parts[0].1.start, 0);
+        assert_eq!(parts[3].1.end, SAMPLE_GAUSSIANS);
+        assert!(parts.windows(2).all(|w| w[0].1.end == w[1].1.start));
+        // The sphere's centres lie on the sphere (centre (-0.42, -0.29, 0.12), r 0.28).
+        for i in parts[1].1.clone() {
+            let p = s.positions[i];
+            let d = ((p[0] + 0.42).powi(2) + (p[1] + 0.29).powi(2) + (p[2] - 0.12).powi(2)).sqrt();
+            assert!((d - 0.28).abs() < 1e-4, "{i}: {d}");
         }
         let (w, h, img) = style_image(0);
         assert_eq!(img.len(), w * h * 3);

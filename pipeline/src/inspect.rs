@@ -212,12 +212,33 @@ fn describe_artifact(
     if !m.meta.is_null() {
         let _ = writeln!(out, "meta      {}", m.meta);
     }
+    if m.kind == fantasystyle_schemas::ArtifactKind::Selection {
+        describe_selection(&art, out)?;
+    }
     for f in &m.files {
         if f.name.ends_with(".npy") {
             tensors.push((f.name.clone(), art.path(&f.name)));
         } else {
             let _ = writeln!(out, "file      {} ({} bytes)", f.name, f.bytes);
         }
+    }
+    Ok(())
+}
+
+/// A selection's summary: how many Gaussians are selected (weight > 0) and fully (1),
+/// from `weights.npy`, and the bounds of their centres, from the meta `select` writes.
+fn describe_selection(art: &Artifact, out: &mut String) -> Result<()> {
+    let t = read_any(&art.path("weights.npy"))?;
+    let n = t.data.len();
+    let some = t.data.iter().filter(|&&w| w > 0.0).count();
+    let full = t.data.iter().filter(|&&w| w >= 1.0).count();
+    let _ = writeln!(
+        out,
+        "selected  {some} of {n} Gaussians ({full} with weight 1)"
+    );
+    let b = &art.manifest.meta["bounds"];
+    if b.is_object() {
+        let _ = writeln!(out, "bounds    min {} max {}", b["min"], b["max"]);
     }
     Ok(())
 }

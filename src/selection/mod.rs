@@ -12,9 +12,84 @@
 //! A selection is written as a `selection` artifact (`weights.npy` `[N]`, read and
 //! written by [`crate::artifacts::read_selection`] and
 //! [`crate::artifacts::write_selection`]).
+//!
+//! Selections are made from [`SOURCES`] (`KIND:SPEC`, parsed by [`parse_source`]): the
+//! shapes of [`shapes`] (box, ellipsoid, half-space around the Gaussians' centres) and
+//! masks drawn on views lifted in closed form ([`lift`], FlashSplat, ECCV 2024); [`ops`]
+//! combines them (union, intersection, complement). A new source is one new file here
+//! and one line of [`SOURCES`].
 
 use crate::{Error, Result, Scene};
 use std::path::Path;
+
+pub mod lift;
+pub mod ops;
+pub mod shapes;
+
+/// What every source may need besides its own spec: the cameras masks were drawn on and
+/// how masks are lifted.
+#[derive(Debug, Clone, Default)]
+pub struct Context {
+    /// A camera spec (`orbit:N`, a camera file or directory, a views artifact).
+    pub cameras: Option<String>,
+    pub lift: lift::LiftOptions,
+}
+
+/// A selection source, parsed from its spec.
+pub trait Make: std::fmt::Debug + Send + Sync {
+    /// The selection of `scene`.
+    fn make(&self, scene: &Scene, ctx: &Context) -> Result<Selection>;
+    /// What it was made from, for the artifact's meta.
+    fn describe(&self, ctx: &Context) -> serde_json::Value;
+}
+
+impl Make for shapes::Shape {
+    fn make(&self, scene: &Scene, _: &Context) -> Result<Selection> {
+        Ok(self.select(scene))
+    }
+    fn describe(&self, _: &Context) -> serde_json::Value {
+        self.to_json()
+    }
+}
+
+/// One kind of source: its name (the `KIND` of `KIND:SPEC`), its spec's syntax, its
+/// parser.
+pub struct SourceKind {
+    pub name: &'static str,
+    pub syntax: &'static str,
+    pub parse: fn(&str) -> Result<Box<dyn Make>>,
+}
+
+fn boxed(s: Result<shapes::Shape>) -> Result<Box<dyn Make>> {
+    Ok(Box::new(s?))
+}
+
+/// The registry of sources, one line each.
+#[rustfmt::skip]
+pub const SOURCES: &[SourceKind] = &[
+    SourceKind { name: "box", syntax: "MINX,MINY,MINZ,MAXX,MAXY,MAXZ", parse: |s| boxed(shapes::Shape::parse_box(s)) },
+    SourceKind { name: "ellipsoid", syntax: "CX,CY,CZ,RX,RY,RZ", parse: |s| boxed(shapes::Shape::parse_ellipsoid(s)) },
+    SourceKind { name: "half-space", syntax: "NX,NY,NZ,D (n . p >= d)", parse: |s| boxed(shapes::Shape::parse_half_space(s)) },
+    SourceKind { name: "masks", syntax: "DIR (a PNG per camera, named after it; --cameras)", parse: lift::MaskSource::parse },
+];
+
+/// Parse `KIND:SPEC` through [`SOURCES`].
+pub fn parse_source(s: &str) -> Result<Box<dyn Make>> {
+    let (kind, spec) = s.split_once(':').unwrap_or((s, ""));
+    match SOURCES.iter().find(|k| k.name == kind) {
+        Some(k) => (k.parse)(spec),
+        None => {
+            let known: Vec<String> = SOURCES
+                .iter()
+                .map(|k| format!("{}:{}", k.name, k.syntax))
+                .collect();
+            Err(Error::param(format!(
+                "selection source `{s}`: expected one of {}",
+                known.join("; ")
+            )))
+        }
+    }
+}
 
 /// A weight in [0, 1] per Gaussian of one scene.
 #[derive(Debug, Clone, PartialEq)]
@@ -81,6 +156,19 @@ impl Selection {
             ));
         }
         Ok(())
+    }
+
+    /// Axis-aligned bounds of the centres of the selected Gaussians (weight > 0) of
+    /// `scene` (empty when none is).
+    pub fn bounds(&self, scene: &Scene) -> crate::geometry::Bounds {
+        crate::geometry::Bounds::of_points(
+            scene
+                .positions
+                .iter()
+                .zip(&self.weights)
+                .filter(|(_, w)| **w > 0.0)
+                .map(|(p, _)| p),
+        )
     }
 
     /// `updated`'s colours where the weight is 1, `original`'s bit for bit where it is 0,

@@ -30,6 +30,7 @@ pub mod evaluate;
 pub mod make_sample;
 pub mod mvfc_filter;
 pub mod render_views;
+pub mod select;
 pub mod split;
 pub mod stylize_baseline;
 pub mod sweep;

@@ -18,6 +18,7 @@ mod patch_prior;
 mod render;
 mod runtime;
 mod scene;
+mod selection;
 mod snakemake_sample;
 mod spz;
 mod texture;
