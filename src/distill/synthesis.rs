@@ -83,7 +83,7 @@ impl Default for SynthesisParams {
 impl SynthesisParams {
     /// Checked ranges.
     pub fn validate(&self) -> Result<()> {
-        if self.patch % 2 == 0 || self.patch < 3 {
+        if self.patch.is_multiple_of(2) || self.patch < 3 {
             return Err(Error::param("synthesis.patch must be odd and >= 3"));
         }
         if self.levels.is_empty() || self.levels.iter().any(|&s| s == 0 || s > 32) {
