@@ -144,6 +144,22 @@ fn lifted_masks_reproduce_the_sphere_on_views_they_were_not_drawn_on() {
     }
 }
 
+/// Every field of Gaussian `i` of `s` as bits (position, scales, rotation, DC colour,
+/// opacity, higher SH coefficients).
+fn bits(s: &Scene, i: usize) -> Vec<u32> {
+    let k = 3 * s.rest_per_channel();
+    let mut v: Vec<u32> = s.positions[i]
+        .iter()
+        .chain(&s.log_scales[i])
+        .chain(&s.rotations[i])
+        .chain(&s.sh_dc[i])
+        .map(|x| x.to_bits())
+        .collect();
+    v.push(s.opacity_logits[i].to_bits());
+    v.extend(s.sh_rest[i * k..(i + 1) * k].iter().map(|x| x.to_bits()));
+    v
+}
+
 #[test]
 fn distill_with_a_selection_changes_only_the_selected_gaussians() {
     let tmp = tempfile::tempdir().unwrap();
@@ -192,19 +208,6 @@ fn distill_with_a_selection_changes_only_the_selected_gaussians() {
     let a = fantasystyle::artifacts::load_scene(&sample_ply()).unwrap();
     let b = fantasystyle::artifacts::load_scene(&d.join("out")).unwrap();
     assert_eq!(a.len(), b.len());
-    let k = 3 * a.rest_per_channel();
-    let bits = |s: &Scene, i: usize| -> Vec<u32> {
-        let mut v: Vec<u32> = s.positions[i]
-            .iter()
-            .chain(&s.log_scales[i])
-            .chain(&s.rotations[i])
-            .chain(&s.sh_dc[i])
-            .map(|x| x.to_bits())
-            .collect();
-        v.push(s.opacity_logits[i].to_bits());
-        v.extend(s.sh_rest[i * k..(i + 1) * k].iter().map(|x| x.to_bits()));
-        v
-    };
     let mut changed = 0;
     for i in 0..a.len() {
         if s.contains(&i) {
@@ -392,17 +395,6 @@ fn a_real_scene_keeps_the_unselected_gaussians_bit_for_bit() {
         .arg("--out")
         .arg(d.join("out")));
     let out = fantasystyle::artifacts::load_scene(&d.join("out")).unwrap();
-    let bits = |s: &Scene, i: usize| -> Vec<u32> {
-        let mut v: Vec<u32> = s.positions[i]
-            .iter()
-            .chain(&s.log_scales[i])
-            .chain(&s.rotations[i])
-            .chain(&s.sh_dc[i])
-            .map(|x| x.to_bits())
-            .collect();
-        v.push(s.opacity_logits[i].to_bits());
-        v
-    };
     let (mut changed, mut selected) = (0, 0);
     for i in 0..a.len() {
         if inside[i] {
