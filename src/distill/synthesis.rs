@@ -322,6 +322,10 @@ pub fn synthesize(
         .map(|r| r.alpha)
         .collect();
     let all: Vec<usize> = (0..cameras.len()).collect();
+    let sizes: Vec<(usize, usize)> = cameras
+        .iter()
+        .map(|c| (c.height as usize, c.width as usize))
+        .collect();
     let mut reports = Vec::new();
     let bar = indicatif::ProgressBar::new((p.levels.len() * p.rounds) as u64);
     bar.set_style(
@@ -336,7 +340,8 @@ pub fn synthesize(
         let mut last = RoundStats::default();
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
-            let (targets, stats) = e_step(&fit, cameras, &level, s, &alpha, background, p);
+            let renders: Vec<Vec<f32>> = all.iter().map(|&v| fit.render_view(v)).collect();
+            let (targets, stats) = e_step(&renders, &sizes, &level, s, &alpha, background, p);
             for _ in 0..p.steps {
                 last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
             }
@@ -364,6 +369,41 @@ pub fn synthesize(
     Ok((fit.scene().clone(), reports))
 }
 
+/// The same synthesis in 2D, view by view's images with nothing shared: the prior's own
+/// stylization of each view (`images` `[H, W, 3]` composited over `background` with
+/// coverage `alpha`, `sizes` (H, W) per view), each round's target becoming the image.
+/// A quick look at what a style does before a 3D run, and the 2D ceiling that the colour
+/// fit of [`synthesize`] approaches on the frozen Gaussians. The views are matched
+/// together (one balanced coupling), as in 3D.
+pub fn synthesize_images(
+    images: &[Vec<f32>],
+    alpha: &[Vec<f32>],
+    sizes: &[(usize, usize)],
+    style: &Image,
+    background: [f32; 3],
+    style_size: usize,
+    p: &SynthesisParams,
+) -> Result<Vec<Vec<f32>>> {
+    p.validate()?;
+    if images.len() != alpha.len() || images.len() != sizes.len() {
+        return Err(Error::param(format!(
+            "preview: {} images, {} coverages, {} sizes",
+            images.len(),
+            alpha.len(),
+            sizes.len()
+        )));
+    }
+    let mut out = images.to_vec();
+    for &s in &p.levels {
+        let stride = if s == 1 { p.style_stride } else { 1 };
+        let level = StyleLevel::new(style, style_size / s, p, stride)?;
+        for _ in 0..p.rounds {
+            out = e_step(&out, sizes, &level, s, alpha, background, p).0;
+        }
+    }
+    Ok(out)
+}
+
 /// What one round's matches were like.
 #[derive(Debug, Clone, Copy, Default)]
 struct RoundStats {
@@ -374,9 +414,10 @@ struct RoundStats {
 
 /// The E-step of one round at level `s`: every view's object patches matched together
 /// (one balanced coupling over all views), each view's target `[H, W, 3]`.
+/// `renders` `[H, W, 3]` and `alpha` `[H, W]` per view, `sizes` (H, W) per view.
 fn e_step(
-    fit: &ColourFit<'_>,
-    cameras: &[Camera],
+    renders: &[Vec<f32>],
+    sizes: &[(usize, usize)],
     level: &StyleLevel,
     s: usize,
     alpha: &[Vec<f32>],
@@ -384,14 +425,9 @@ fn e_step(
     p: &SynthesisParams,
 ) -> (Vec<Vec<f32>>, RoundStats) {
     let n = alpha.len();
-    let renders: Vec<Vec<f32>> = (0..n).map(|v| fit.render_view(v)).collect();
-    let size = |v: usize| {
-        let c = &cameras[v];
-        (c.height as usize, c.width as usize)
-    };
     let views: Vec<ViewImage> = (0..n)
         .into_par_iter()
-        .map(|v| ViewImage::new(&renders[v], &alpha[v], background, size(v), s))
+        .map(|v| ViewImage::new(&renders[v], &alpha[v], background, sizes[v], s))
         .collect();
     let queries: Vec<(Vec<[usize; 3]>, Array2<f32>)> = views.iter().map(|v| v.queries(p)).collect();
     let rows: Vec<ndarray::ArrayView2<'_, f32>> = queries.iter().map(|q| q.1.view()).collect();

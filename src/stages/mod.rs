@@ -29,6 +29,7 @@ pub mod encode_latents;
 pub mod evaluate;
 pub mod make_sample;
 pub mod mvfc_filter;
+pub mod preview;
 pub mod render_views;
 pub mod select;
 pub mod split;

@@ -178,3 +178,94 @@ fn the_default_dag_keeps_the_geometry_bit_for_bit() {
     };
     assert!(dc(&out) != dc(&input), "the colours did not change");
 }
+
+/// `preview`: the prior's 2D stylization of chosen views is a views artifact of those
+/// views (their cameras, depth and alpha as the source's), changed on the object only,
+/// the same bytes on a second run; a view index past the artifact is refused naming it.
+#[test]
+fn preview_is_a_views_artifact_and_deterministic() {
+    let t = tempfile::tempdir().unwrap();
+    let d = t.path();
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_preview"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_render-views"))
+        .arg("--scene")
+        .arg(repo_root().join("data-sample/scene.ply"))
+        .args([
+            "--cameras",
+            "orbit:4",
+            "--width",
+            "64",
+            "--height",
+            "64",
+            "--out",
+        ])
+        .arg(d.join("views"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let style = repo_root().join("data-sample/style.png");
+    let (views, style) = (d.join("views"), style.to_str().unwrap().to_string());
+    let args = |out: &str| {
+        let v = views.to_str().unwrap().to_string();
+        let o = d.join(out).to_str().unwrap().to_string();
+        vec![
+            "--source-views".to_string(),
+            v,
+            "--style".into(),
+            style.clone(),
+        ]
+        .into_iter()
+        .chain(["--preset", "default", "--views", "1,3", "--set"].map(String::from))
+        .chain(["synthesis.levels=2,1".into(), "--out".into(), o])
+        .collect::<Vec<String>>()
+    };
+    for out in ["p1", "p2"] {
+        let a = args(out);
+        let o = run(&a.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let src = fantasystyle::artifacts::read_views(&views).unwrap();
+    let p = fantasystyle::artifacts::read_views(&d.join("p1")).unwrap();
+    assert_eq!(p.dim(), (2, 64, 64));
+    let again = std::fs::read(d.join("p2/rgb.npy")).unwrap();
+    assert_eq!(std::fs::read(d.join("p1/rgb.npy")).unwrap(), again);
+    for (i, v) in [1usize, 3].into_iter().enumerate() {
+        assert_eq!(
+            p.alpha.index_axis(ndarray::Axis(0), i),
+            src.alpha.index_axis(ndarray::Axis(0), v)
+        );
+        let (mut on, mut off) = (0.0f64, 0.0f64);
+        for y in 0..64 {
+            for x in 0..64 {
+                let a = src.alpha[[v, y, x]];
+                let diff: f64 = (0..3)
+                    .map(|c| (p.rgb[[i, y, x, c]] - src.rgb[[v, y, x, c]]).abs() as f64)
+                    .sum();
+                if a > 0.5 {
+                    on += diff;
+                } else if a < 1e-4 {
+                    off += diff;
+                }
+            }
+        }
+        assert!(
+            on > 1.0 && off == 0.0,
+            "view {v}: change {on} on the object, {off} off it"
+        );
+    }
+    let mut bad = args("p3");
+    let i = bad.iter().position(|s| s == "1,3").unwrap();
+    bad[i] = "9".into();
+    let o = run(&bad.iter().map(String::as_str).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--views 9") && err.contains("views"),
+        "{err}"
+    );
+    assert!(!d.join("p3").exists());
+}
