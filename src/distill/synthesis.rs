@@ -31,9 +31,10 @@ use super::fill::fill_background;
 use crate::imageio::Image;
 use crate::optim::{ColourFit, FitParams};
 use crate::prior::patch::bank::{Bank, Pca, patches, patches_at};
+use crate::prior::patch::latent::{pool, upsample};
 use crate::selection::Selection;
 use crate::{Camera, Error, Result, Scene};
-use ndarray::{Array2, Array3, Axis};
+use ndarray::{Array2, Array3, Array4, Axis};
 use rayon::prelude::*;
 
 /// The settings of the patch synthesis (the `[synthesis]` section of the method's
@@ -492,18 +493,14 @@ impl ViewImage {
     fn new(rgb: &[f32], alpha: &[f32], bg: [f32; 3], (h, w): (usize, usize), s: usize) -> Self {
         let filled = fill_background(rgb, alpha, bg, h, w);
         let (hl, wl) = (h / s, w / s);
-        let inv = 1.0 / (s * s) as f32;
-        let mut colour = ndarray::Array4::<f32>::zeros((1, 3, hl, wl));
-        let mut a = Array2::<f32>::zeros((hl, wl));
-        for y in 0..hl * s {
-            for x in 0..wl * s {
-                let (yl, xl) = (y / s, x / s);
-                for c in 0..3 {
-                    colour[[0, c, yl, xl]] += filled[(y * w + x) * 3 + c] * inv;
-                }
-                a[[yl, xl]] += alpha[y * w + x] * inv;
-            }
-        }
+        // The image's part of whole s x s blocks, pooled (the patch prior's pooling).
+        let (hc, wc) = (hl * s, wl * s);
+        let img = Array4::from_shape_fn((1, 3, hc, wc), |(_, c, y, x)| filled[(y * w + x) * 3 + c]);
+        let cov = Array4::from_shape_fn((1, 1, hc, wc), |(_, _, y, x)| alpha[y * w + x]);
+        let colour = pool(img.view(), s);
+        let a = pool(cov.view(), s)
+            .index_axis_move(Axis(0), 0)
+            .index_axis_move(Axis(0), 0);
         ViewImage {
             colour,
             alpha: a,
@@ -544,14 +541,14 @@ impl ViewImage {
         let delta = self.vote(level, pixels, m, k);
         let (h, w) = (hl * self.s, wl * self.s);
         let full_w = self.full.1;
+        let up = upsample(delta.view().insert_axis(Axis(0)), self.s);
         let mut t = rgb.to_vec();
         for y in 0..h {
             for x in 0..w {
-                let d = upsample_at(&delta, y, x, self.s);
                 let i = y * full_w + x;
                 let a = alpha[i];
                 for c in 0..3 {
-                    t[i * 3 + c] = rgb[i * 3 + c] + a * d[c];
+                    t[i * 3 + c] = rgb[i * 3 + c] + a * up[[0, c, y, x]];
                 }
             }
         }
@@ -606,36 +603,21 @@ impl ViewImage {
     }
 }
 
-/// Bilinear upsampling of `d` `[3, h, w]` by `s` at full-resolution pixel (y, x) (pixel
-/// centres aligned; clamped at the borders).
-fn upsample_at(d: &Array3<f32>, y: usize, x: usize, s: usize) -> [f32; 3] {
-    let (_, h, w) = d.dim();
-    if s == 1 {
-        return [d[[0, y, x]], d[[1, y, x]], d[[2, y, x]]];
-    }
-    let fy = ((y as f32 + 0.5) / s as f32 - 0.5).clamp(0.0, (h - 1) as f32);
-    let fx = ((x as f32 + 0.5) / s as f32 - 0.5).clamp(0.0, (w - 1) as f32);
-    let (y0, x0) = (fy.floor() as usize, fx.floor() as usize);
-    let (y1, x1) = ((y0 + 1).min(h - 1), (x0 + 1).min(w - 1));
-    let (ty, tx) = (fy - y0 as f32, fx - x0 as f32);
-    std::array::from_fn(|c| {
-        let top = d[[c, y0, x0]] * (1.0 - tx) + d[[c, y0, x1]] * tx;
-        let bot = d[[c, y1, x0]] * (1.0 - tx) + d[[c, y1, x1]] * tx;
-        top * (1.0 - ty) + bot * ty
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn upsampling_is_exact_at_level_one_and_constant_on_a_constant() {
-        let d = Array3::from_shape_fn((3, 4, 4), |(c, y, x)| (c * 16 + y * 4 + x) as f32);
-        assert_eq!(upsample_at(&d, 2, 3, 1), [11.0, 27.0, 43.0]);
-        let k = Array3::from_elem((3, 4, 4), 0.25f32);
+        // The targets' upsampling is the patch prior's (`latent::upsample`).
+        let d = ndarray::Array4::from_shape_fn((1, 3, 4, 4), |(_, c, y, x)| {
+            (c * 16 + y * 4 + x) as f32
+        });
+        let at = |u: &ndarray::Array4<f32>, y: usize, x: usize| [0, 1, 2].map(|c| u[[0, c, y, x]]);
+        assert_eq!(at(&upsample(d.view(), 1), 2, 3), [11.0, 27.0, 43.0]);
+        let k = ndarray::Array4::from_elem((1, 3, 4, 4), 0.25f32);
         for (y, x) in [(0, 0), (7, 3), (15, 15)] {
-            assert_eq!(upsample_at(&k, y, x, 4), [0.25; 3]);
+            assert_eq!(at(&upsample(k.view(), 4), y, x), [0.25; 3]);
         }
     }
 

@@ -224,6 +224,19 @@ fn distill_with_a_selection_changes_only_the_selected_gaussians() {
     assert!(changed > s.len() / 2, "{changed}");
 }
 
+/// A selection artifact written by hand at `dir` with `weights` (unchecked: for bad input).
+fn hand_selection(dir: &Path, weights: &[f32]) {
+    let mut w = fantasystyle_schemas::ArtifactWriter::create(
+        dir,
+        fantasystyle_schemas::ArtifactKind::Selection,
+        fantasystyle_schemas::Producer::new("hand", "0", serde_json::json!({})),
+    )
+    .unwrap();
+    w.write_tensor("weights.npy", &[weights.len()], weights)
+        .unwrap();
+    w.commit().unwrap();
+}
+
 /// A `select` run that must fail: exit 2, stderr naming `names` and `says`, no `out`.
 fn refused(args: &[&str], extra: &[&Path], out: &Path, names: &str, says: &str) {
     let o = bin("select")
@@ -307,17 +320,9 @@ fn select_bad_input_is_a_clear_error() {
     );
     // Weights outside [0, 1] in a hand-written selection.
     let bad = d.join("bad");
-    let mut w = fantasystyle_schemas::ArtifactWriter::create(
-        &bad,
-        fantasystyle_schemas::ArtifactKind::Selection,
-        fantasystyle_schemas::Producer::new("hand", "0", serde_json::json!({})),
-    )
-    .unwrap();
     let mut weights = vec![0.0f32; fantasystyle::sample::SAMPLE_GAUSSIANS];
     weights[7] = 1.5;
-    w.write_tensor("weights.npy", &[weights.len()], &weights)
-        .unwrap();
-    w.commit().unwrap();
+    hand_selection(&bad, &weights);
     let args = [
         &scene[..],
         &["--from", "half-space:0,-1,0,0.005", "--union"],
@@ -325,15 +330,7 @@ fn select_bad_input_is_a_clear_error() {
     .concat();
     refused(&args, &[&bad], &out, "weights.npy", "outside [0, 1]");
     // A selection of another scene.
-    let mut w = fantasystyle_schemas::ArtifactWriter::create(
-        &d.join("short"),
-        fantasystyle_schemas::ArtifactKind::Selection,
-        fantasystyle_schemas::Producer::new("hand", "0", serde_json::json!({})),
-    )
-    .unwrap();
-    w.write_tensor("weights.npy", &[3], &[1.0f32, 0.0, 1.0])
-        .unwrap();
-    w.commit().unwrap();
+    hand_selection(&d.join("short"), &[1.0, 0.0, 1.0]);
     let args = [
         &scene[..],
         &["--from", "half-space:0,-1,0,0.005", "--intersect"],
