@@ -27,6 +27,8 @@
 //! mean that concentrates on the nearest patch), run without noise and with the targets
 //! held (docs/patch-prior.md, "The deterministic end").
 
+pub mod guide;
+
 use super::fill::fill_background;
 use crate::imageio::Image;
 use crate::optim::{ColourFit, FitParams};
@@ -73,6 +75,17 @@ pub struct SynthesisParams {
     /// PCA dimensions of the search.
     #[arg(long, default_value_t = 24)]
     pub pca_dims: usize,
+    /// The structure guide's weight (ControlNet's role): how much the frozen source
+    /// render's luminance, remapped to the style's, counts beside the colours in the
+    /// match and the coupling (0: unguided; 1: a pixel's guide weighs like its three
+    /// colour channels). See `guide.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub control: f32,
+    /// The guidance scale at t -> 0: how far each patch moves from the scene's own
+    /// (the source branch) toward its style patch (the style branch): 1 takes the style
+    /// patch, 0 keeps the scene.
+    #[arg(long, default_value_t = 1.0)]
+    pub guidance: f32,
 }
 
 impl Default for SynthesisParams {
@@ -101,6 +114,12 @@ impl SynthesisParams {
         if !(0.0..=1.0).contains(&self.balance) {
             return Err(Error::param("synthesis.balance must lie in [0, 1]"));
         }
+        if !(self.control.is_finite() && (0.0..=100.0).contains(&self.control)) {
+            return Err(Error::param("synthesis.control must lie in [0, 100]"));
+        }
+        if !(self.guidance.is_finite() && (0.0..=2.0).contains(&self.guidance)) {
+            return Err(Error::param("synthesis.guidance must lie in [0, 2]"));
+        }
         Ok(())
     }
 }
@@ -110,65 +129,125 @@ const CELLS: usize = 64;
 /// A synthesis pixel is the object's when its pooled coverage exceeds this.
 const OBJECT: f32 = 0.5;
 
-/// One level's style model: the bank and each patch's cell.
+/// One level's style model: the bank, each patch's cell, and the search space (the
+/// patches' colour PCA coordinates, beside their guide's when the end is guided).
 struct StyleLevel {
     bank: Bank,
     cell_of: Vec<u32>,
     /// Each cell's share of the bank.
     share: Vec<f32>,
+    /// The guide's part of the search, when the end is guided.
+    guide: Option<GuideSpace>,
+    /// Search coordinates `[M, d]` of the bank's patches and their squared norms.
+    coords: Array2<f32>,
+    norms: Vec<f32>,
 }
 
+/// The guide channel's reduced space: its PCA and its weight in the search (the square
+/// root of `3 control`, module [`guide`]).
+struct GuideSpace {
+    pca: Pca,
+    weight: f32,
+}
+
+/// PCA dimensions of the guide's patches.
+const GUIDE_DIMS: usize = 8;
+/// A style patch joins the bank when at least this share of its pixels is motif
+/// ([`guide::motif_mask`]).
+const MOTIF_SHARE: f32 = 0.5;
+
 impl StyleLevel {
-    fn new(style: &Image, side: usize, p: &SynthesisParams, stride: usize) -> Result<StyleLevel> {
-        let img = style.with_shorter_side(side.max(p.patch)).to_chw();
-        let pts = patches(img.view(), p.patch, stride);
+    /// The level's model of `style` at `side` px on its shorter side, its patches on the
+    /// grid of step `stride`; guided (the style's own luma beside its colours) when
+    /// `guided` and `p.control` > 0.
+    fn new(
+        style: &Image,
+        side: usize,
+        p: &SynthesisParams,
+        stride: usize,
+        guided: bool,
+    ) -> Result<StyleLevel> {
+        let sized = style.with_shorter_side(side.max(p.patch));
+        let img = sized.to_chw();
+        let (h, w) = (sized.height, sized.width);
+        let keep = motif_rows(&sized, p.patch, stride);
+        let pts = select_rows(patches(img.view(), p.patch, stride), &keep);
         let pca = Pca::fit(pts.view(), p.pca_dims.min(pts.ncols()), 12)?;
         let bank = Bank::new(pts, p.patch, 3, Some(pca), CELLS)?;
         let m = bank.len();
         let mut cell_of = vec![0u32; m];
         let mut share = vec![1.0f32; 1];
-        if let Some(ivf) = bank.reduced.as_ref().and_then(|r| r.ivf.as_ref()) {
+        let r = bank.reduced.as_ref().expect("synthesis banks have a PCA");
+        if let Some(ivf) = r.ivf.as_ref() {
             share = ivf
                 .cells
                 .iter()
                 .map(|c| c.len() as f32 / m as f32)
                 .collect();
             for (c, rows) in ivf.cells.iter().enumerate() {
-                for &r in rows {
-                    cell_of[r as usize] = c as u32;
+                for &row in rows {
+                    cell_of[row as usize] = c as u32;
                 }
             }
         }
+        let (guide, coords) = if guided && p.control > 0.0 {
+            let l = Array3::from_shape_vec((1, h, w), guide::luma(&sized.data))
+                .expect("one luma per pixel");
+            let gp = select_rows(patches(l.view(), p.patch, stride), &keep);
+            let gpca = Pca::fit(gp.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
+            let space = GuideSpace {
+                weight: (3.0 * p.control).sqrt(),
+                pca: gpca,
+            };
+            let gc = space.pca.project(gp.view(), 1.0) * space.weight;
+            let coords = ndarray::concatenate(Axis(1), &[r.coords.view(), gc.view()])
+                .expect("one row per patch");
+            (Some(space), coords)
+        } else {
+            (None, r.coords.clone())
+        };
+        let norms = coords.rows().into_iter().map(|row| row.dot(&row)).collect();
         Ok(StyleLevel {
             bank,
             cell_of,
             share,
+            guide,
+            coords,
+            norms,
         })
     }
 
-    /// For each query `[P, D]` and each cell of the bank, the nearest patch of that cell
-    /// (exact search in PCA coordinates): `[P x cells]` squared distances and patch
-    /// indices (infinite distance for an empty cell).
-    fn nearest_per_cell(&self, q: &Array2<f32>) -> (Vec<f32>, Vec<u32>) {
-        let r = self
-            .bank
-            .reduced
-            .as_ref()
-            .expect("synthesis banks have a PCA");
-        let cells = self.share.len();
+    /// The search coordinates of queries: colour patches `q` `[P, k k 3]` and, when the
+    /// level is guided, their guide patches `g` `[P, k k]`.
+    fn project(&self, q: &Array2<f32>, g: Option<&Array2<f32>>) -> Array2<f32> {
+        let r = self.bank.reduced.as_ref().expect("synthesis banks have a PCA");
         let qc = r.pca.project(q.view(), 1.0);
+        match (&self.guide, g) {
+            (Some(space), Some(g)) => {
+                let gc = space.pca.project(g.view(), 1.0) * space.weight;
+                ndarray::concatenate(Axis(1), &[qc.view(), gc.view()]).expect("one row each")
+            }
+            _ => qc,
+        }
+    }
+
+    /// For each query (search coordinates `qc` `[P, d]`) and each cell of the bank, the
+    /// nearest patch of that cell (exact search): `[P x cells]` squared distances and
+    /// patch indices (infinite distance for an empty cell).
+    fn nearest_per_cell(&self, qc: &Array2<f32>) -> (Vec<f32>, Vec<u32>) {
+        let cells = self.share.len();
         let qn: Vec<f32> = qc.rows().into_iter().map(|row| row.dot(&row)).collect();
         let rows: Vec<usize> = (0..qc.nrows()).collect();
         let out: Vec<(Vec<f32>, Vec<u32>)> = rows
             .par_chunks(256)
             .map(|chunk| {
                 let block = qc.slice(ndarray::s![chunk[0]..chunk[0] + chunk.len(), ..]);
-                let dots = block.dot(&r.coords.t());
+                let dots = block.dot(&self.coords.t());
                 let mut dist = vec![f32::INFINITY; chunk.len() * cells];
                 let mut arg = vec![0u32; chunk.len() * cells];
                 for (k, (row, &i)) in dots.rows().into_iter().zip(chunk).enumerate() {
                     let (d, a) = (&mut dist[k * cells..], &mut arg[k * cells..]);
-                    for (j, (&dot, &n)) in row.iter().zip(r.norms.iter()).enumerate() {
+                    for (j, (&dot, &n)) in row.iter().zip(self.norms.iter()).enumerate() {
                         let c = self.cell_of[j] as usize;
                         let v = (qn[i] + n - 2.0 * dot).max(0.0);
                         if v < d[c] {
@@ -188,15 +267,15 @@ impl StyleLevel {
         (dist, arg)
     }
 
-    /// Each query's style patch (index, squared distance): the nearest patch of the cell
-    /// the balanced coupling gives it (module docs, step 2). `balance` is the exponent
+    /// Each query's style patch (index, squared distance): for search coordinates `qc`
+    /// ([`Self::project`]), the nearest patch of the cell the balanced coupling gives it (module docs, step 2). `balance` is the exponent
     /// rho of the cells' marginal (0: every query its nearest patch; 1: the cells used in
     /// proportion to their share of the bank), `eps` the coupling's temperature relative
     /// to the mean nearest distance.
-    fn assign(&self, q: &Array2<f32>, balance: f32, eps: f32) -> Vec<(u32, f32)> {
+    fn assign(&self, qc: &Array2<f32>, balance: f32, eps: f32) -> Vec<(u32, f32)> {
         let cells = self.share.len();
-        let (dist, arg) = self.nearest_per_cell(q);
-        let p = q.nrows();
+        let (dist, arg) = self.nearest_per_cell(qc);
+        let p = qc.nrows();
         let best = |row: &[f32], lv: &[f32], t: f32| -> usize {
             let mut b = (0usize, f32::NEG_INFINITY);
             for (c, (&d, &v)) in row.iter().zip(lv).enumerate() {
@@ -258,6 +337,34 @@ impl StyleLevel {
 /// Sinkhorn iterations of the balance.
 const SINKHORN_ITERS: usize = 30;
 
+/// Which patches of `style` (on the grid of step `stride`, [`patches`]' order) are
+/// mostly motif, not a flat background ([`guide::motif_mask`]); every patch when fewer
+/// than `CELLS` would be.
+fn motif_rows(style: &Image, k: usize, stride: usize) -> Vec<bool> {
+    let motif = guide::motif_mask(style);
+    if motif.iter().all(|&m| m) {
+        return Vec::new();
+    }
+    let m = Array3::from_shape_fn((1, style.height, style.width), |(_, y, x)| {
+        f32::from(u8::from(motif[y * style.width + x]))
+    });
+    let share = patches(m.view(), k, stride).mean_axis(Axis(1)).expect("k >= 1");
+    let keep: Vec<bool> = share.iter().map(|&s| s >= MOTIF_SHARE).collect();
+    if keep.iter().filter(|&&k| k).count() < CELLS {
+        return Vec::new();
+    }
+    keep
+}
+
+/// The rows of `x` whose `keep` holds (all of them when `keep` is empty).
+fn select_rows(x: Array2<f32>, keep: &[bool]) -> Array2<f32> {
+    if keep.is_empty() {
+        return x;
+    }
+    let rows: Vec<usize> = (0..x.nrows()).filter(|&i| keep[i]).collect();
+    x.select(Axis(0), &rows)
+}
+
 /// log sum exp of `xs` (stable).
 fn logsumexp(xs: impl Iterator<Item = f32> + Clone) -> f32 {
     let m = xs.clone().fold(f32::NEG_INFINITY, f32::max);
@@ -318,15 +425,17 @@ pub fn synthesize(
     };
     let mut fit = ColourFit::without_targets(scene, cameras, &fp)?;
     fit.set_weights(selection)?;
-    let alpha: Vec<Vec<f32>> = crate::render::render_all(scene, cameras, background)?
-        .into_iter()
-        .map(|r| r.alpha)
-        .collect();
-    let all: Vec<usize> = (0..cameras.len()).collect();
     let sizes: Vec<(usize, usize)> = cameras
         .iter()
         .map(|c| (c.height as usize, c.width as usize))
         .collect();
+    let (rgb, alpha): (Vec<Vec<f32>>, Vec<Vec<f32>>) =
+        crate::render::render_all(scene, cameras, background)?
+            .into_iter()
+            .map(|r| (r.rgb, r.alpha))
+            .unzip();
+    let src = Frozen::new(rgb, alpha, &sizes, style, background, p);
+    let all: Vec<usize> = (0..cameras.len()).collect();
     let mut reports = Vec::new();
     let bar = indicatif::ProgressBar::new((p.levels.len() * p.rounds) as u64);
     bar.set_style(
@@ -337,12 +446,12 @@ pub fn synthesize(
     );
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
-        let level = StyleLevel::new(style, style_size / s, p, stride)?;
+        let level = StyleLevel::new(style, style_size / s, p, stride, src.guides.is_some())?;
         let mut last = RoundStats::default();
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
             let renders: Vec<Vec<f32>> = all.iter().map(|&v| fit.render_view(v)).collect();
-            let (targets, stats) = e_step(&renders, &sizes, &level, s, &alpha, background, p);
+            let (targets, stats) = e_step(&renders, &sizes, &level, s, &src, p);
             for _ in 0..p.steps {
                 last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
             }
@@ -394,12 +503,13 @@ pub fn synthesize_images(
             sizes.len()
         )));
     }
+    let src = Frozen::new(images.to_vec(), alpha.to_vec(), sizes, style, background, p);
     let mut out = images.to_vec();
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
-        let level = StyleLevel::new(style, style_size / s, p, stride)?;
+        let level = StyleLevel::new(style, style_size / s, p, stride, src.guides.is_some())?;
         for _ in 0..p.rounds {
-            out = e_step(&out, sizes, &level, s, alpha, background, p).0;
+            out = e_step(&out, sizes, &level, s, &src, p).0;
         }
     }
     Ok(out)
@@ -413,27 +523,62 @@ struct RoundStats {
     loss: f64,
 }
 
+/// What the synthesis holds fixed: the views as they were at its start (the source
+/// branch's colours, `[H, W, 3]`), their coverage `[H, W]`, the background, and the
+/// structure guides `[H, W]` when `control` > 0 ([`guide::source_guides`]).
+struct Frozen {
+    rgb: Vec<Vec<f32>>,
+    alpha: Vec<Vec<f32>>,
+    background: [f32; 3],
+    guides: Option<Vec<Vec<f32>>>,
+}
+
+impl Frozen {
+    fn new(
+        rgb: Vec<Vec<f32>>,
+        alpha: Vec<Vec<f32>>,
+        sizes: &[(usize, usize)],
+        style: &Image,
+        background: [f32; 3],
+        p: &SynthesisParams,
+    ) -> Frozen {
+        let guides = (p.control > 0.0).then(|| {
+            let to = guide::style_moments(style);
+            guide::source_guides(&rgb, &alpha, sizes, background, &to)
+        });
+        Frozen {
+            rgb,
+            alpha,
+            background,
+            guides,
+        }
+    }
+}
+
 /// The E-step of one round at level `s`: every view's object patches matched together
 /// (one balanced coupling over all views), each view's target `[H, W, 3]`.
-/// `renders` `[H, W, 3]` and `alpha` `[H, W]` per view, `sizes` (H, W) per view.
+/// `renders` `[H, W, 3]` per view, `sizes` (H, W) per view.
 fn e_step(
     renders: &[Vec<f32>],
     sizes: &[(usize, usize)],
     level: &StyleLevel,
     s: usize,
-    alpha: &[Vec<f32>],
-    background: [f32; 3],
+    src: &Frozen,
     p: &SynthesisParams,
 ) -> (Vec<Vec<f32>>, RoundStats) {
-    let n = alpha.len();
+    let n = src.alpha.len();
     let views: Vec<ViewImage> = (0..n)
         .into_par_iter()
-        .map(|v| ViewImage::new(&renders[v], &alpha[v], background, sizes[v], s))
+        .map(|v| ViewImage::new(&renders[v], src, v, sizes[v], s, p))
         .collect();
-    let queries: Vec<(Vec<[usize; 3]>, Array2<f32>)> = views.iter().map(|v| v.queries(p)).collect();
-    let rows: Vec<ndarray::ArrayView2<'_, f32>> = queries.iter().map(|q| q.1.view()).collect();
-    let all = ndarray::concatenate(Axis(0), &rows).expect("patches of one width");
-    let m = level.assign(&all, p.balance, BALANCE_EPS);
+    let queries: Vec<Query> = views.iter().map(|v| v.queries(p)).collect();
+    let stack = |f: &dyn Fn(&Query) -> Option<ndarray::ArrayView2<'_, f32>>| {
+        let rows: Option<Vec<_>> = queries.iter().map(f).collect();
+        rows.map(|r| ndarray::concatenate(Axis(0), &r).expect("patches of one width"))
+    };
+    let colour = stack(&|q| Some(q.colour.view())).expect("every view has colours");
+    let guides = stack(&|q| q.guide.as_ref().map(|g| g.view()));
+    let m = level.assign(&level.project(&colour, guides.as_ref()), p.balance, BALANCE_EPS);
     let mut used = vec![false; level.share.len()];
     for &(j, _) in &m {
         used[level.cell_of[j as usize] as usize] = true;
@@ -445,12 +590,20 @@ fn e_step(
     };
     let mut offset = 0;
     let mut targets = Vec::with_capacity(n);
-    for (v, (pixels, _)) in queries.iter().enumerate() {
-        let mv = &m[offset..offset + pixels.len()];
-        offset += pixels.len();
-        targets.push(views[v].target(level, pixels, mv, p.patch, &renders[v], &alpha[v]));
+    for (v, q) in queries.iter().enumerate() {
+        let mv = &m[offset..offset + q.pixels.len()];
+        offset += q.pixels.len();
+        targets.push(views[v].target(level, &q.pixels, mv, p, &renders[v], &src.alpha[v]));
     }
     (targets, stats)
+}
+
+/// One view's queries at one level: the object's pixels on the grid, their colour
+/// patches `[P, k k 3]` and, when guided, their guide patches `[P, k k]`.
+struct Query {
+    pixels: Vec<[usize; 3]>,
+    colour: Array2<f32>,
+    guide: Option<Array2<f32>>,
 }
 
 /// The votes' Gaussian fall-off from a patch's centre, sigma as a fraction of the patch
@@ -478,39 +631,60 @@ fn l2(rgb: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
     (loss, grad)
 }
 
-/// One view at one level: its colour over a fill of itself, pooled, and its coverage.
+/// One view at one level: its colour over a fill of itself, pooled, its coverage, and
+/// (when the guidance scale is below 1 or the end is guided) its source colour and
+/// its guide, pooled.
 struct ViewImage {
     /// `[1, 3, h, w]`.
-    colour: ndarray::Array4<f32>,
+    colour: Array4<f32>,
     /// `[h, w]`.
     alpha: Array2<f32>,
+    /// The source branch's colour `[1, 3, h, w]`, when `guidance` != 1.
+    source: Option<Array4<f32>>,
+    /// The structure guide `[1, 1, h, w]`, when guided.
+    guide: Option<Array4<f32>>,
     s: usize,
     /// The full-resolution size (H, W).
     full: (usize, usize),
 }
 
+/// `[H, W, C]` values pooled over whole `s` x `s` blocks (the patch prior's pooling):
+/// `[1, C, H / s, W / s]`.
+fn pooled(x: &[f32], c: usize, (h, w): (usize, usize), s: usize) -> Array4<f32> {
+    let (hc, wc) = ((h / s) * s, (w / s) * s);
+    let img = Array4::from_shape_fn((1, c, hc, wc), |(_, ch, y, xx)| x[(y * w + xx) * c + ch]);
+    pool(img.view(), s)
+}
+
 impl ViewImage {
-    fn new(rgb: &[f32], alpha: &[f32], bg: [f32; 3], (h, w): (usize, usize), s: usize) -> Self {
-        let filled = fill_background(rgb, alpha, bg, h, w);
-        let (hl, wl) = (h / s, w / s);
-        // The image's part of whole s x s blocks, pooled (the patch prior's pooling).
-        let (hc, wc) = (hl * s, wl * s);
-        let img = Array4::from_shape_fn((1, 3, hc, wc), |(_, c, y, x)| filled[(y * w + x) * 3 + c]);
-        let cov = Array4::from_shape_fn((1, 1, hc, wc), |(_, _, y, x)| alpha[y * w + x]);
-        let colour = pool(img.view(), s);
-        let a = pool(cov.view(), s)
+    fn new(
+        rgb: &[f32],
+        src: &Frozen,
+        v: usize,
+        size: (usize, usize),
+        s: usize,
+        p: &SynthesisParams,
+    ) -> Self {
+        let (alpha, bg) = (&src.alpha[v][..], src.background);
+        let filled = |x: &[f32]| fill_background(x, alpha, bg, size.0, size.1);
+        let colour = pooled(&filled(rgb), 3, size, s);
+        let a = pooled(alpha, 1, size, s)
             .index_axis_move(Axis(0), 0)
             .index_axis_move(Axis(0), 0);
+        let source = (p.guidance != 1.0).then(|| pooled(&filled(&src.rgb[v]), 3, size, s));
+        let guide = src.guides.as_ref().map(|g| pooled(&g[v], 1, size, s));
         ViewImage {
             colour,
             alpha: a,
+            source,
+            guide,
             s,
-            full: (h, w),
+            full: size,
         }
     }
 
-    /// The object's pixels on the grid of step `stride` and their patches `[P, k k 3]`.
-    fn queries(&self, p: &SynthesisParams) -> (Vec<[usize; 3]>, Array2<f32>) {
+    /// The object's pixels on the grid of step `stride` and their patches.
+    fn queries(&self, p: &SynthesisParams) -> Query {
         let (_, _, hl, wl) = self.colour.dim();
         let step = p.stride.max(1);
         let pixels: Vec<[usize; 3]> = (0..hl)
@@ -518,8 +692,16 @@ impl ViewImage {
             .flat_map(|y| (0..wl).step_by(step).map(move |x| [0, y, x]))
             .filter(|&[_, y, x]| self.alpha[[y, x]] > OBJECT)
             .collect();
-        let q = patches_at(self.colour.view(), p.patch, &pixels);
-        (pixels, q)
+        let colour = patches_at(self.colour.view(), p.patch, &pixels);
+        let guide = self
+            .guide
+            .as_ref()
+            .map(|g| patches_at(g.view(), p.patch, &pixels));
+        Query {
+            pixels,
+            colour,
+            guide,
+        }
     }
 
     /// The view's full-resolution target (`[H, W, 3]`: the render plus its coverage times
@@ -530,7 +712,7 @@ impl ViewImage {
         level: &StyleLevel,
         pixels: &[[usize; 3]],
         m: &[(u32, f32)],
-        k: usize,
+        p: &SynthesisParams,
         rgb: &[f32],
         alpha: &[f32],
     ) -> Vec<f32> {
@@ -538,7 +720,7 @@ impl ViewImage {
             return rgb.to_vec();
         }
         let (_, _, hl, wl) = self.colour.dim();
-        let delta = self.vote(level, pixels, m, k);
+        let delta = self.vote(level, pixels, m, p);
         let (h, w) = (hl * self.s, wl * self.s);
         let full_w = self.full.1;
         let up = upsample(delta.view().insert_axis(Axis(0)), self.s);
@@ -562,8 +744,9 @@ impl ViewImage {
         level: &StyleLevel,
         pixels: &[[usize; 3]],
         m: &[(u32, f32)],
-        k: usize,
+        p: &SynthesisParams,
     ) -> Array3<f32> {
+        let k = p.patch;
         let (_, _, hl, wl) = self.colour.dim();
         let mut acc = Array3::<f32>::zeros((3, hl, wl));
         let mut wt = Array2::<f32>::zeros((hl, wl));
@@ -593,9 +776,17 @@ impl ViewImage {
             }
         }
         let colour = self.colour.index_axis(Axis(0), 0);
+        // The guidance scale: from the source's colour toward the style's vote (at 1 the
+        // vote itself, bit for bit).
+        let g = p.guidance;
         Array3::from_shape_fn((3, hl, wl), |(c, y, x)| {
             if wt[[y, x]] > 0.0 && self.alpha[[y, x]] > 0.0 {
-                (acc[[c, y, x]] / wt[[y, x]]).clamp(0.0, 1.0) - colour[[c, y, x]]
+                let vote = (acc[[c, y, x]] / wt[[y, x]]).clamp(0.0, 1.0);
+                let to = match &self.source {
+                    Some(src) => src[[0, c, y, x]] + g * (vote - src[[0, c, y, x]]),
+                    None => vote,
+                };
+                to - colour[[c, y, x]]
             } else {
                 0.0
             }
@@ -646,11 +837,11 @@ mod tests {
             pca_dims: 4,
             ..SynthesisParams::default()
         };
-        let level = StyleLevel::new(&style, 32, &p, 1).unwrap();
+        let level = StyleLevel::new(&style, 32, &p, 1, false).unwrap();
         let red = Array2::from_shape_fn((1, 27), |(_, i)| [0.85, 0.15, 0.1][i % 3]);
         let blue = Array2::from_shape_fn((1, 27), |(_, i)| [0.1, 0.15, 0.85][i % 3]);
         for (q, want) in [(red, 0.9f32), (blue, 0.1)] {
-            let (j, _) = level.assign(&q, 0.0, BALANCE_EPS)[0];
+            let (j, _) = level.assign(&level.project(&q, None), 0.0, BALANCE_EPS)[0];
             assert_eq!(level.bank.centres[[j as usize, 0]], want);
         }
     }

@@ -1,0 +1,263 @@
+//! The structure guide of the patch synthesis: the content control of the deterministic
+//! end (ControlNet's role in FantasyStyle, Sec. 4.2; issue 47).
+//!
+//! Guided patch synthesis keeps a target's structure by matching guide channels beside
+//! the colours: Image Analogies' luminance remapping (Hertzmann et al. 2001, Sec. 3.4),
+//! StyLit's guides (Fiser et al. 2016), EbSynth's (Jamriska et al. 2019). Here every
+//! object patch carries, beside its current colours, the luminance of the *frozen*
+//! source render (never the current colours), remapped to the style's luminance mean
+//! and spread: `g = (L - mean_obj) / std_obj * std_style + mean_style` (Rec. 601 luma;
+//! the object's moments over every view's covered pixels). Every style patch carries
+//! its own luminance. The match's cost is then
+//! `|colour_q - colour_s|^2 + 3 control |g_q - g_s|^2` (a pixel's guide weighs like its
+//! three colour channels at `control` = 1), inside the balanced coupling too, so the
+//! style's dark cells go where the object is dark, its edges where the object has
+//! edges. `control` = 0 is the unguided end.
+//!
+//! The style's moments are its *motifs'*: a style photographed on a plain background
+//! (an object on black) has a flat region of one colour touching its border, which is
+//! not a motif. [`motif_mask`] finds it (a flood fill from the border through pixels
+//! near the border's dominant colour with no local texture); its patches leave the
+//! bank and its pixels the moments, so its share of the style is not forced onto the
+//! object (and the object is not remapped to black).
+
+use super::super::fill::{push_pull, unpremultiply};
+use crate::imageio::Image;
+
+/// Rec. 601 luma weights.
+pub const LUMA: [f32; 3] = [0.299, 0.587, 0.114];
+
+/// The luma of `[N, 3]` pixels.
+pub fn luma(rgb: &[f32]) -> Vec<f32> {
+    rgb.chunks_exact(3)
+        .map(|p| LUMA[0] * p[0] + LUMA[1] * p[1] + LUMA[2] * p[2])
+        .collect()
+}
+
+/// Mean and standard deviation of a set of values.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Moments {
+    pub mean: f32,
+    pub std: f32,
+}
+
+impl Moments {
+    /// The moments of the `values` whose `keep` holds (mean 0.5, std 0.25 when none does).
+    pub fn of(values: impl Iterator<Item = (f32, bool)>) -> Moments {
+        let (mut n, mut s, mut s2) = (0.0f64, 0.0f64, 0.0f64);
+        for (v, k) in values {
+            if k {
+                n += 1.0;
+                s += v as f64;
+                s2 += (v as f64) * (v as f64);
+            }
+        }
+        if n < 1.0 {
+            return Moments {
+                mean: 0.5,
+                std: 0.25,
+            };
+        }
+        let mean = s / n;
+        let var = (s2 / n - mean * mean).max(0.0);
+        Moments {
+            mean: mean as f32,
+            std: var.sqrt().max(1e-3) as f32,
+        }
+    }
+
+    /// `v` moved from these moments onto `to`'s.
+    pub fn remap(&self, v: f32, to: &Moments) -> f32 {
+        (v - self.mean) / self.std * to.std + to.mean
+    }
+}
+
+/// A pixel is the background's colour when within this RGB distance of it.
+const BACKGROUND_TOLERANCE: f32 = 0.1;
+/// ... and flat when its 5x5 neighbourhood's luma spread is below this.
+const BACKGROUND_FLAT: f32 = 0.03;
+/// The border must be this much of one colour for the style to have a background.
+const BACKGROUND_BORDER_SHARE: f32 = 0.6;
+
+/// The style's motif pixels (`[h w]`, row-major): every pixel except a flat background,
+/// the connected region of pixels near the border's dominant colour with no local
+/// texture that touches the border (module docs). Every pixel when the border is not
+/// dominated by one colour (textures, paintings, patterns).
+pub fn motif_mask(img: &Image) -> Vec<bool> {
+    let (h, w) = (img.height, img.width);
+    let px = |y: usize, x: usize| -> [f32; 3] {
+        let i = (y * w + x) * 3;
+        [img.data[i], img.data[i + 1], img.data[i + 2]]
+    };
+    let border: Vec<(usize, usize)> = (0..w)
+        .flat_map(|x| [(0, x), (h - 1, x)])
+        .chain((0..h).flat_map(|y| [(y, 0), (y, w - 1)]))
+        .collect();
+    // The border's dominant colour: the channel-wise median.
+    let mut bg = [0.0f32; 3];
+    for (c, b) in bg.iter_mut().enumerate() {
+        let mut v: Vec<f32> = border.iter().map(|&(y, x)| px(y, x)[c]).collect();
+        v.sort_by(f32::total_cmp);
+        *b = v[v.len() / 2];
+    }
+    let near = |p: [f32; 3]| {
+        let d: f32 = (0..3).map(|c| (p[c] - bg[c]).powi(2)).sum();
+        d.sqrt() < BACKGROUND_TOLERANCE
+    };
+    let share = border.iter().filter(|&&(y, x)| near(px(y, x))).count() as f32 / border.len() as f32;
+    let mut motif = vec![true; h * w];
+    if share < BACKGROUND_BORDER_SHARE {
+        return motif;
+    }
+    let l = luma(&img.data);
+    let flat = local_spread(&l, h, w, 2);
+    let candidate = |i: usize| near(px(i / w, i % w)) && flat[i] < BACKGROUND_FLAT;
+    let mut stack: Vec<usize> = border
+        .iter()
+        .map(|&(y, x)| y * w + x)
+        .filter(|&i| candidate(i))
+        .collect();
+    while let Some(i) = stack.pop() {
+        if !motif[i] {
+            continue;
+        }
+        motif[i] = false;
+        let (y, x) = (i / w, i % w);
+        let mut push = |yy: usize, xx: usize| {
+            let j = yy * w + xx;
+            if motif[j] && candidate(j) {
+                stack.push(j);
+            }
+        };
+        if y > 0 {
+            push(y - 1, x);
+        }
+        if y + 1 < h {
+            push(y + 1, x);
+        }
+        if x > 0 {
+            push(y, x - 1);
+        }
+        if x + 1 < w {
+            push(y, x + 1);
+        }
+    }
+    motif
+}
+
+/// The range (max - min) of `v` `[h, w]` over each pixel's (2r+1)^2 neighbourhood.
+fn local_spread(v: &[f32], h: usize, w: usize, r: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; h * w];
+    for y in 0..h {
+        for x in 0..w {
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                    lo = lo.min(v[yy * w + xx]);
+                    hi = hi.max(v[yy * w + xx]);
+                }
+            }
+            out[y * w + x] = hi - lo;
+        }
+    }
+    out
+}
+
+/// The style's luma moments over its motif pixels.
+pub fn style_moments(style: &Image) -> Moments {
+    let motif = motif_mask(style);
+    let l = luma(&style.data);
+    Moments::of(l.into_iter().zip(motif))
+}
+
+/// The source views' guides (`[H W]` each): each view's un-premultiplied luma remapped
+/// from the object's moments (over every view's pixels of coverage > 0.5) onto `style`,
+/// extended into the uncovered background by push-pull like the colours
+/// ([`super::super::fill`]). `rgb` `[H, W, 3]` and `alpha` `[H, W]` per view, `sizes`
+/// (H, W) per view.
+pub fn source_guides(
+    rgb: &[Vec<f32>],
+    alpha: &[Vec<f32>],
+    sizes: &[(usize, usize)],
+    background: [f32; 3],
+    style: &Moments,
+) -> Vec<Vec<f32>> {
+    let lumas: Vec<Vec<f32>> = rgb
+        .iter()
+        .zip(alpha)
+        .map(|(c, a)| luma(&unpremultiply(c, a, background)))
+        .collect();
+    let object = Moments::of(
+        lumas
+            .iter()
+            .zip(alpha)
+            .flat_map(|(l, a)| l.iter().zip(a).map(|(&v, &a)| (v, a > 0.5))),
+    );
+    lumas
+        .iter()
+        .zip(alpha)
+        .zip(sizes)
+        .map(|((l, a), &(h, w))| {
+            let g3: Vec<f32> = l
+                .iter()
+                .flat_map(|&v| [object.remap(v, style); 3])
+                .collect();
+            push_pull(&g3, a, h, w).into_iter().step_by(3).collect()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) -> Image {
+        let data = (0..h * w).flat_map(|i| f(i / w, i % w)).collect();
+        Image {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    #[test]
+    fn an_object_on_black_has_a_background_and_a_texture_has_none() {
+        // A textured disc on black: the black outside is background, the disc motif.
+        let disc = image(64, 64, |y, x| {
+            let (dy, dx) = (y as f32 - 32.0, x as f32 - 32.0);
+            if dy * dy + dx * dx < 400.0 {
+                let v = if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.2 };
+                [v, 0.5, 0.3]
+            } else {
+                [0.02, 0.02, 0.02]
+            }
+        });
+        let m = motif_mask(&disc);
+        assert!(!m[0] && !m[64 * 64 - 1], "the corners are background");
+        assert!(m[32 * 64 + 32], "the centre is motif");
+        let kept = m.iter().filter(|&&v| v).count() as f32 / m.len() as f32;
+        assert!((0.25..0.45).contains(&kept), "kept {kept}");
+        // The moments are the disc's, not the black's.
+        let mo = style_moments(&disc);
+        assert!(mo.mean > 0.3, "{mo:?}");
+        // Black and white stripes touching the border: no background.
+        let stripes = image(64, 64, |_, x| if (x / 8) % 2 == 0 { [0.0; 3] } else { [1.0; 3] });
+        assert!(motif_mask(&stripes).iter().all(|&v| v));
+    }
+
+    #[test]
+    fn the_source_guide_has_the_styles_moments_on_the_object() {
+        let (h, w) = (16, 16);
+        let rgb: Vec<f32> = (0..h * w).flat_map(|i| [(i % w) as f32 / 16.0; 3]).collect();
+        let alpha = vec![1.0f32; h * w];
+        let to = Moments {
+            mean: 0.2,
+            std: 0.05,
+        };
+        let g = source_guides(&[rgb], &[alpha], &[(h, w)], [0.0; 3], &to);
+        let got = Moments::of(g[0].iter().map(|&v| (v, true)));
+        assert!((got.mean - 0.2).abs() < 1e-4 && (got.std - 0.05).abs() < 1e-4);
+        // Monotone in the luma: brighter pixels stay brighter.
+        assert!(g[0][15] > g[0][0]);
+    }
+}
