@@ -331,8 +331,8 @@ fn malformed_dags_exit_2_naming_file_line_and_problem() {
             "dag.toml:2: stage `a`: cmd: undefined variable `${nope}`",
         ),
         (
-            "[stages.a]\nforeach = { from = 2, to = 1 }\ncmd = \"a\"\n",
-            "dag.toml:2: stage `a`: bad foreach: range is empty (from = 2, to = 1)",
+            "[stages.a]\nforeach = { from = 3, to = 1 }\ncmd = \"a\"\n",
+            "dag.toml:2: stage `a`: bad foreach: range is empty (from = 3, to = 1)",
         ),
     ];
     for (text, want) in cases {

@@ -112,6 +112,9 @@ pub struct FinishInputs<'a> {
     pub background: [f32; 3],
     pub config: &'a super::Config,
     pub selection: Option<&'a crate::selection::Selection>,
+    /// The source views' colours (`[H, W, 3]` per camera), if the run has them: the
+    /// patch synthesis takes its structure guide and source branch from them.
+    pub source: Option<&'a [Vec<f32>]>,
 }
 
 /// `scene` after the finish `kind`: for `colour`, the colour statistics of its own renders
@@ -139,6 +142,7 @@ pub fn finish(kind: Finish, scene: &Scene, inputs: &FinishInputs<'_>) -> Result<
                 size,
                 &c.synthesis,
                 inputs.selection,
+                inputs.source,
             )?;
             Ok(out)
         }

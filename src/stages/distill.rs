@@ -199,6 +199,7 @@ pub fn run(a: Args) -> Result<()> {
             background: source.background,
             config: &config,
             selection: selection.as_ref(),
+            source: Some(&source.rgb),
         };
         let finished = a
             .threads

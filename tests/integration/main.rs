@@ -20,7 +20,7 @@ mod runtime;
 mod scene;
 mod selection;
 mod snakemake_sample;
-mod structure_guide;
 mod spz;
+mod structure_guide;
 mod texture;
 mod viewer;

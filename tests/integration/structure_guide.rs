@@ -58,7 +58,10 @@ fn luma(rgb: &[f32]) -> Vec<f64> {
 
 /// Pearson correlation of `a` and `b` over the pixels where `keep` holds.
 fn correlation(a: &[f64], b: &[f64], keep: &[bool]) -> f64 {
-    let pairs: Vec<(f64, f64)> = (0..a.len()).filter(|&i| keep[i]).map(|i| (a[i], b[i])).collect();
+    let pairs: Vec<(f64, f64)> = (0..a.len())
+        .filter(|&i| keep[i])
+        .map(|i| (a[i], b[i]))
+        .collect();
     let n = pairs.len() as f64;
     let (ma, mb) = (
         pairs.iter().map(|p| p.0).sum::<f64>() / n,
@@ -119,7 +122,7 @@ fn a_guided_sphere_takes_the_dark_stripes_where_it_is_dark() {
             guidance,
             ..SynthesisParams::default()
         };
-        synthesize(&scene, &cams, &stripes(), [0.0; 3], 96, &p, None)
+        synthesize(&scene, &cams, &stripes(), [0.0; 3], 96, &p, None, None)
             .unwrap()
             .0
     };
@@ -130,13 +133,22 @@ fn a_guided_sphere_takes_the_dark_stripes_where_it_is_dark() {
         shading_kept(&scene, &unguided, &cams),
     );
     eprintln!("shading kept: guided {g:.3}, unguided {u:.3}");
-    assert!(g > 0.8, "guided: the dark tone does not follow the shading ({g:.3})");
+    assert!(
+        g > 0.8,
+        "guided: the dark tone does not follow the shading ({g:.3})"
+    );
     assert!(g > u + 0.2, "the guide changed little: {g:.3} vs {u:.3}");
     assert_eq!(guided.positions, scene.positions);
     assert_eq!(guided.log_scales, scene.log_scales);
     assert_eq!(guided.rotations, scene.rotations);
     assert_eq!(guided.opacity_logits, scene.opacity_logits);
-    let bits = |s: &Scene| s.sh_dc.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let bits = |s: &Scene| {
+        s.sh_dc
+            .iter()
+            .flatten()
+            .map(|x| x.to_bits())
+            .collect::<Vec<_>>()
+    };
     assert_eq!(bits(&run(1.0, 1.0)), bits(&guided), "a second run differs");
     // The guidance scale 0 moves every patch to the scene's own: the colours stay near.
     let kept = run(1.0, 0.0);
@@ -149,6 +161,10 @@ fn a_guided_sphere_takes_the_dark_stripes_where_it_is_dark() {
             .sum();
         (d / scene.len() as f64).sqrt()
     };
-    eprintln!("RMS SH DC change: guidance 0 {:.4}, 1 {:.4}", change(&kept), change(&guided));
+    eprintln!(
+        "RMS SH DC change: guidance 0 {:.4}, 1 {:.4}",
+        change(&kept),
+        change(&guided)
+    );
     assert!(change(&kept) < 0.2 * change(&guided));
 }

@@ -214,7 +214,7 @@ fn with_the_patch_synthesis_alone() {
         rounds: 3,
         ..SynthesisParams::default()
     };
-    let run = || synthesize(&scene, &cams, &stripes(), [0.0; 3], 128, &p, None).unwrap();
+    let run = || synthesize(&scene, &cams, &stripes(), [0.0; 3], 128, &p, None, None).unwrap();
     let (out, reports) = run();
     eprintln!("{}", serde_json::to_string(&reports).unwrap());
     assert_eq!(out.positions, scene.positions);

@@ -558,7 +558,8 @@ fn range_items(
         Some(toml::Value::String(s)) if s.is_empty() || ok_label(s) => s.clone(),
         Some(_) => return Err(ForeachError::Prefix),
     };
-    if to < from {
+    // `to = from - 1` is a count of zero (e.g. `distill.chunks = 0`): no instance.
+    if to < from.saturating_sub(1) {
         return Err(ForeachError::EmptyRange { from, to });
     }
     if to

@@ -452,6 +452,35 @@ outs = ["runs/r0/"]
         assert!(dag.select(&["nope".into()]).is_err());
     }
 
+    /// A range of zero instances (`to = from - 1`, e.g. zero chunks) expands to no
+    /// stage, and a stage reading `r${rounds}` then reads the init's `r0`.
+    #[test]
+    fn a_range_of_zero_instances_is_no_stage() {
+        let dag = try_parse(
+            r#"
+[vars]
+rounds = 0
+[stages.step]
+foreach = { from = 1, to = "${rounds}", prefix = "r" }
+cmd = "step --in runs/r${prev} --out runs/r${item}"
+deps = ["runs/r${prev}"]
+outs = ["runs/r${item}"]
+[stages.init]
+cmd = "init"
+deps = ["./in.txt"]
+outs = ["runs/r0/"]
+[stages.last]
+cmd = "last --in runs/r${rounds}"
+deps = ["runs/r${rounds}"]
+outs = ["runs/last"]
+"#,
+        )
+        .unwrap();
+        let names: Vec<_> = dag.stages.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["init", "last"]);
+        assert_eq!(dag.stages[1].upstream, [0]);
+    }
+
     /// A params table passed whole (`${m.loop}`) is one argument, an inline TOML table,
     /// and the stage tracks the table: a `--set` of a key in it (even a new one, for the
     /// stage to check) changes that stage's command and tracked value and no other

@@ -76,8 +76,10 @@ impl Moments {
 const BACKGROUND_TOLERANCE: f32 = 0.1;
 /// ... and flat when its 5x5 neighbourhood's luma spread is below this.
 const BACKGROUND_FLAT: f32 = 0.03;
-/// The border must be this much of one colour for the style to have a background.
-const BACKGROUND_BORDER_SHARE: f32 = 0.6;
+/// The border must be this much of one flat colour for the style to have a background.
+const BACKGROUND_BORDER_SHARE: f32 = 0.75;
+/// Pixels of the background's colour it grows by beside the motif.
+const BACKGROUND_RING: usize = 3;
 
 /// The style's motif pixels (`[h w]`, row-major): every pixel except a flat background,
 /// the connected region of pixels near the border's dominant colour with no local
@@ -104,14 +106,18 @@ pub fn motif_mask(img: &Image) -> Vec<bool> {
         let d: f32 = (0..3).map(|c| (p[c] - bg[c]).powi(2)).sum();
         d.sqrt() < BACKGROUND_TOLERANCE
     };
-    let share = border.iter().filter(|&&(y, x)| near(px(y, x))).count() as f32 / border.len() as f32;
+    let l = luma(&img.data);
+    let flat = local_spread(&l, h, w, 2);
+    let candidate = |i: usize| near(px(i / w, i % w)) && flat[i] < BACKGROUND_FLAT;
+    let share = border
+        .iter()
+        .filter(|&&(y, x)| candidate(y * w + x))
+        .count() as f32
+        / border.len() as f32;
     let mut motif = vec![true; h * w];
     if share < BACKGROUND_BORDER_SHARE {
         return motif;
     }
-    let l = luma(&img.data);
-    let flat = local_spread(&l, h, w, 2);
-    let candidate = |i: usize| near(px(i / w, i % w)) && flat[i] < BACKGROUND_FLAT;
     let mut stack: Vec<usize> = border
         .iter()
         .map(|&(y, x)| y * w + x)
@@ -142,7 +148,36 @@ pub fn motif_mask(img: &Image) -> Vec<bool> {
             push(y, x + 1);
         }
     }
+    // The flatness test misses the background's last pixels beside the motif (their
+    // neighbourhood reaches it): the background grows into pixels of its colour there.
+    for _ in 0..BACKGROUND_RING {
+        let grown: Vec<usize> = (0..h * w)
+            .filter(|&i| motif[i] && near(px(i / w, i % w)))
+            .filter(|&i| {
+                let (y, x) = (i / w, i % w);
+                (y > 0 && !motif[i - w])
+                    || (y + 1 < h && !motif[i + w])
+                    || (x > 0 && !motif[i - 1])
+                    || (x + 1 < w && !motif[i + 1])
+            })
+            .collect();
+        for i in grown {
+            motif[i] = false;
+        }
+    }
     motif
+}
+
+/// `img` with its background (`motif` false) replaced by its motif's colours extended
+/// by push-pull ([`super::super::fill`]): a patch on the motif's edge then holds no
+/// background colour.
+pub fn fill_background(img: &Image, motif: &[bool]) -> Image {
+    let weight: Vec<f32> = motif.iter().map(|&m| f32::from(u8::from(m))).collect();
+    Image {
+        width: img.width,
+        height: img.height,
+        data: push_pull(&img.data, &weight, img.height, img.width),
+    }
 }
 
 /// The range (max - min) of `v` `[h, w]` over each pixel's (2r+1)^2 neighbourhood.
@@ -241,14 +276,20 @@ mod tests {
         let mo = style_moments(&disc);
         assert!(mo.mean > 0.3, "{mo:?}");
         // Black and white stripes touching the border: no background.
-        let stripes = image(64, 64, |_, x| if (x / 8) % 2 == 0 { [0.0; 3] } else { [1.0; 3] });
+        let stripes = image(
+            64,
+            64,
+            |_, x| if (x / 8) % 2 == 0 { [0.0; 3] } else { [1.0; 3] },
+        );
         assert!(motif_mask(&stripes).iter().all(|&v| v));
     }
 
     #[test]
     fn the_source_guide_has_the_styles_moments_on_the_object() {
         let (h, w) = (16, 16);
-        let rgb: Vec<f32> = (0..h * w).flat_map(|i| [(i % w) as f32 / 16.0; 3]).collect();
+        let rgb: Vec<f32> = (0..h * w)
+            .flat_map(|i| [(i % w) as f32 / 16.0; 3])
+            .collect();
         let alpha = vec![1.0f32; h * w];
         let to = Moments {
             mean: 0.2,

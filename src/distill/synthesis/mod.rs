@@ -28,6 +28,7 @@
 //! held (docs/patch-prior.md, "The deterministic end").
 
 pub mod guide;
+pub mod negative;
 
 use super::fill::fill_background;
 use crate::imageio::Image;
@@ -86,6 +87,12 @@ pub struct SynthesisParams {
     /// patch, 0 keeps the scene.
     #[arg(long, default_value_t = 1.0)]
     pub guidance: f32,
+    /// The negative scale at t -> 0: the cost, in mean match distances, of a style patch
+    /// that continues the piece a neighbouring patch copied (the content branch's
+    /// prediction, the style image's own layout); higher copies smaller pieces. See
+    /// `negative.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub negative: f32,
 }
 
 impl Default for SynthesisParams {
@@ -120,6 +127,9 @@ impl SynthesisParams {
         if !(self.guidance.is_finite() && (0.0..=2.0).contains(&self.guidance)) {
             return Err(Error::param("synthesis.guidance must lie in [0, 2]"));
         }
+        if !(self.negative.is_finite() && (0.0..=100.0).contains(&self.negative)) {
+            return Err(Error::param("synthesis.negative must lie in [0, 100]"));
+        }
         Ok(())
     }
 }
@@ -141,6 +151,8 @@ struct StyleLevel {
     /// Search coordinates `[M, d]` of the bank's patches and their squared norms.
     coords: Array2<f32>,
     norms: Vec<f32>,
+    /// Each bank patch's centre (y, x) in the level's style image.
+    pos: Vec<[i32; 2]>,
 }
 
 /// The guide channel's reduced space: its PCA and its weight in the search (the square
@@ -168,9 +180,20 @@ impl StyleLevel {
         guided: bool,
     ) -> Result<StyleLevel> {
         let sized = style.with_shorter_side(side.max(p.patch));
+        let motif = guide::motif_mask(&sized);
+        let keep = motif_rows(&motif, &sized, p.patch, stride);
+        let sized = if keep.is_empty() {
+            sized
+        } else {
+            guide::fill_background(&sized, &motif)
+        };
         let img = sized.to_chw();
         let (h, w) = (sized.height, sized.width);
-        let keep = motif_rows(&sized, p.patch, stride);
+        let xs = w.div_ceil(stride);
+        let pos: Vec<[i32; 2]> = (0..h.div_ceil(stride) * xs)
+            .filter(|&r| keep.is_empty() || keep[r])
+            .map(|r| [((r / xs) * stride) as i32, ((r % xs) * stride) as i32])
+            .collect();
         let pts = select_rows(patches(img.view(), p.patch, stride), &keep);
         let pca = Pca::fit(pts.view(), p.pca_dims.min(pts.ncols()), 12)?;
         let bank = Bank::new(pts, p.patch, 3, Some(pca), CELLS)?;
@@ -214,13 +237,18 @@ impl StyleLevel {
             guide,
             coords,
             norms,
+            pos,
         })
     }
 
     /// The search coordinates of queries: colour patches `q` `[P, k k 3]` and, when the
     /// level is guided, their guide patches `g` `[P, k k]`.
     fn project(&self, q: &Array2<f32>, g: Option<&Array2<f32>>) -> Array2<f32> {
-        let r = self.bank.reduced.as_ref().expect("synthesis banks have a PCA");
+        let r = self
+            .bank
+            .reduced
+            .as_ref()
+            .expect("synthesis banks have a PCA");
         let qc = r.pca.project(q.view(), 1.0);
         match (&self.guide, g) {
             (Some(space), Some(g)) => {
@@ -273,9 +301,55 @@ impl StyleLevel {
     /// proportion to their share of the bank), `eps` the coupling's temperature relative
     /// to the mean nearest distance.
     fn assign(&self, qc: &Array2<f32>, balance: f32, eps: f32) -> Vec<(u32, f32)> {
-        let cells = self.share.len();
         let (dist, arg) = self.nearest_per_cell(qc);
-        let p = qc.nrows();
+        let cells = self.share.len();
+        self.couple(&dist, balance, eps)
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| (arg[i * cells + c], dist[i * cells + c]))
+            .collect()
+    }
+
+    /// Each query's style patch (index, squared distance) as [`Self::assign`] gives it,
+    /// with the negative branch ([`negative`]) when `p.negative` > 0: a first pass, then
+    /// every candidate coherent with a neighbour's first match pays the negative cost
+    /// and the coupling is made again. `nbrs`: each query's neighbours.
+    fn match_all(
+        &self,
+        qc: &Array2<f32>,
+        nbrs: &[Vec<negative::Neighbour>],
+        p: &SynthesisParams,
+    ) -> Vec<(u32, f32)> {
+        if p.negative <= 0.0 {
+            return self.assign(qc, p.balance, BALANCE_EPS);
+        }
+        let (raw, arg) = self.nearest_per_cell(qc);
+        let cells = self.share.len();
+        let pick = |d: &[f32]| -> Vec<usize> {
+            self.couple(d, p.balance, BALANCE_EPS)
+                .into_iter()
+                .enumerate()
+                .map(|(i, c)| i * cells + c)
+                .collect()
+        };
+        let first: Vec<u32> = pick(&raw).into_iter().map(|k| arg[k]).collect();
+        let n = first.len().max(1) as f64;
+        let mean_min = raw
+            .chunks(cells)
+            .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min) as f64)
+            .sum::<f64>()
+            / n;
+        let mut dist = raw.clone();
+        let cost = (p.negative as f64 * mean_min) as f32;
+        negative::penalise(&mut dist, &arg, &first, nbrs, &self.pos, cost);
+        pick(&dist).into_iter().map(|k| (arg[k], raw[k])).collect()
+    }
+
+    /// Each query's cell under the balanced coupling of its distances `dist`
+    /// `[P x cells]` to the cells' nearest patches ([`Self::assign`]).
+    fn couple(&self, dist: &[f32], balance: f32, eps: f32) -> Vec<usize> {
+        let cells = self.share.len();
+        let p = dist.len() / cells.max(1);
         let best = |row: &[f32], lv: &[f32], t: f32| -> usize {
             let mut b = (0usize, f32::NEG_INFINITY);
             for (c, (&d, &v)) in row.iter().zip(lv).enumerate() {
@@ -315,21 +389,10 @@ impl StyleLevel {
                     };
                 }
             }
-            return dist
-                .chunks(cells)
-                .zip(arg.chunks(cells))
-                .map(|(row, a)| {
-                    let c = best(row, &log_v, t);
-                    (a[c], row[c])
-                })
-                .collect();
+            return dist.chunks(cells).map(|row| best(row, &log_v, t)).collect();
         }
         dist.chunks(cells)
-            .zip(arg.chunks(cells))
-            .map(|(row, a)| {
-                let c = best(row, &log_v, 1.0);
-                (a[c], row[c])
-            })
+            .map(|row| best(row, &log_v, 1.0))
             .collect()
     }
 }
@@ -338,17 +401,18 @@ impl StyleLevel {
 const SINKHORN_ITERS: usize = 30;
 
 /// Which patches of `style` (on the grid of step `stride`, [`patches`]' order) are
-/// mostly motif, not a flat background ([`guide::motif_mask`]); every patch when fewer
-/// than `CELLS` would be.
-fn motif_rows(style: &Image, k: usize, stride: usize) -> Vec<bool> {
-    let motif = guide::motif_mask(style);
+/// mostly `motif`, not a flat background ([`guide::motif_mask`]); empty (every patch)
+/// when the style has no background or fewer than `CELLS` patches would be kept.
+fn motif_rows(motif: &[bool], style: &Image, k: usize, stride: usize) -> Vec<bool> {
     if motif.iter().all(|&m| m) {
         return Vec::new();
     }
     let m = Array3::from_shape_fn((1, style.height, style.width), |(_, y, x)| {
         f32::from(u8::from(motif[y * style.width + x]))
     });
-    let share = patches(m.view(), k, stride).mean_axis(Axis(1)).expect("k >= 1");
+    let share = patches(m.view(), k, stride)
+        .mean_axis(Axis(1))
+        .expect("k >= 1");
     let keep: Vec<bool> = share.iter().map(|&s| s >= MOTIF_SHARE).collect();
     if keep.iter().filter(|&&k| k).count() < CELLS {
         return Vec::new();
@@ -399,13 +463,20 @@ pub struct LevelReport {
     /// Cells used in the last round, of the bank's.
     pub cells_used: usize,
     pub cells: usize,
+    /// The share of neighbouring object patches that copied neighbouring style patches
+    /// in the last round (the pieces copied whole, [`negative::coherence`]).
+    pub coherence: f32,
     /// Loss of the last fit step.
     pub loss: f64,
 }
 
 /// `scene`'s colours synthesised from `style` on the views of `cameras` (module docs);
 /// `style_size` is the style's shorter side in render pixels (the motif scale), and a
-/// `selection` scales each Gaussian's updates by its weight.
+/// `selection` scales each Gaussian's updates by its weight. The structure guide and
+/// the source branch come from `source` (`[H, W, 3]` per view of `cameras`: the input
+/// scene's renders, before any loop changed its colours) when given, else from
+/// `scene`'s own renders.
+#[allow(clippy::too_many_arguments)]
 pub fn synthesize(
     scene: &Scene,
     cameras: &[Camera],
@@ -414,6 +485,7 @@ pub fn synthesize(
     style_size: usize,
     p: &SynthesisParams,
     selection: Option<&Selection>,
+    source: Option<&[Vec<f32>]>,
 ) -> Result<(Scene, Vec<LevelReport>)> {
     p.validate()?;
     let _ph = crate::timing::span("patch synthesis");
@@ -434,6 +506,19 @@ pub fn synthesize(
             .into_iter()
             .map(|r| (r.rgb, r.alpha))
             .unzip();
+    let rgb = match source {
+        Some(src)
+            if src.len() == rgb.len() && src.iter().zip(&rgb).all(|(a, b)| a.len() == b.len()) =>
+        {
+            src.to_vec()
+        }
+        Some(_) => {
+            return Err(Error::param(
+                "synthesis: the source views do not match the cameras",
+            ));
+        }
+        None => rgb,
+    };
     let src = Frozen::new(rgb, alpha, &sizes, style, background, p);
     let all: Vec<usize> = (0..cameras.len()).collect();
     let mut reports = Vec::new();
@@ -456,14 +541,16 @@ pub fn synthesize(
                 last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
             }
             (last.distance, last.cells_used) = (stats.distance, stats.cells_used);
+            last.coherence = stats.coherence;
             bar.inc(1);
         }
         tracing::info!(
-            "patch synthesis level {s}: {} style patches, mean distance {:.4}, {} of {} cells used, loss {:.5}",
+            "patch synthesis level {s}: {} style patches, mean distance {:.4}, {} of {} cells used, coherence {:.3}, loss {:.5}",
             level.bank.len(),
             last.distance,
             last.cells_used,
             level.share.len(),
+            last.coherence,
             last.loss
         );
         reports.push(LevelReport {
@@ -472,6 +559,7 @@ pub fn synthesize(
             distance: last.distance,
             cells_used: last.cells_used,
             cells: level.share.len(),
+            coherence: last.coherence,
             loss: last.loss,
         });
     }
@@ -520,6 +608,7 @@ pub fn synthesize_images(
 struct RoundStats {
     distance: f32,
     cells_used: usize,
+    coherence: f32,
     loss: f64,
 }
 
@@ -578,14 +667,18 @@ fn e_step(
     };
     let colour = stack(&|q| Some(q.colour.view())).expect("every view has colours");
     let guides = stack(&|q| q.guide.as_ref().map(|g| g.view()));
-    let m = level.assign(&level.project(&colour, guides.as_ref()), p.balance, BALANCE_EPS);
+    let pixels: Vec<&[[usize; 3]]> = queries.iter().map(|q| &q.pixels[..]).collect();
+    let nbrs = negative::neighbours(&pixels, p.stride.max(1));
+    let m = level.match_all(&level.project(&colour, guides.as_ref()), &nbrs, p);
     let mut used = vec![false; level.share.len()];
     for &(j, _) in &m {
         used[level.cell_of[j as usize] as usize] = true;
     }
+    let chosen: Vec<u32> = m.iter().map(|x| x.0).collect();
     let stats = RoundStats {
         distance: (m.iter().map(|x| x.1 as f64).sum::<f64>() / m.len().max(1) as f64) as f32,
         cells_used: used.iter().filter(|&&u| u).count(),
+        coherence: negative::coherence(&chosen, &nbrs, &level.pos),
         loss: 0.0,
     };
     let mut offset = 0;
