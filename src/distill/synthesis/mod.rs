@@ -162,6 +162,30 @@ struct GuideSpace {
     weight: f32,
 }
 
+impl GuideSpace {
+    /// The search coordinates of guide patches `[P, k k]`, weighted: each patch's mean
+    /// (times k, so that a mean difference counts over the patch's k k pixels) beside
+    /// the PCA coordinates of its detail (the patch minus its mean). The mean is kept
+    /// apart because a style's patches may all share one mean (regular stripes): a PCA
+    /// of the patches would then drop the direction that says where the object is dark.
+    fn coords(&self, g: &Array2<f32>) -> Array2<f32> {
+        let (mean, detail) = split_mean(g);
+        let k = (g.ncols() as f32).sqrt();
+        let mut out = Array2::<f32>::zeros((g.nrows(), 1 + self.pca.basis.ncols()));
+        out.column_mut(0).assign(&(mean * (k * self.weight)));
+        let d = self.pca.project(detail.view(), 1.0) * self.weight;
+        out.slice_mut(ndarray::s![.., 1..]).assign(&d);
+        out
+    }
+}
+
+/// Each row's mean `[P]` and the rows minus their means `[P, D]`.
+fn split_mean(g: &Array2<f32>) -> (ndarray::Array1<f32>, Array2<f32>) {
+    let mean = g.mean_axis(Axis(1)).expect("patches have pixels");
+    let detail = g - &mean.view().insert_axis(Axis(1));
+    (mean, detail)
+}
+
 /// PCA dimensions of the guide's patches.
 const GUIDE_DIMS: usize = 8;
 /// A style patch joins the bank when at least this share of its pixels is motif
@@ -217,12 +241,13 @@ impl StyleLevel {
             let l = Array3::from_shape_vec((1, h, w), guide::luma(&sized.data))
                 .expect("one luma per pixel");
             let gp = select_rows(patches(l.view(), p.patch, stride), &keep);
-            let gpca = Pca::fit(gp.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
+            let (_, detail) = split_mean(&gp);
+            let gpca = Pca::fit(detail.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
             let space = GuideSpace {
                 weight: (3.0 * p.control).sqrt(),
                 pca: gpca,
             };
-            let gc = space.pca.project(gp.view(), 1.0) * space.weight;
+            let gc = space.coords(&gp);
             let coords = ndarray::concatenate(Axis(1), &[r.coords.view(), gc.view()])
                 .expect("one row per patch");
             (Some(space), coords)
@@ -252,7 +277,7 @@ impl StyleLevel {
         let qc = r.pca.project(q.view(), 1.0);
         match (&self.guide, g) {
             (Some(space), Some(g)) => {
-                let gc = space.pca.project(g.view(), 1.0) * space.weight;
+                let gc = space.coords(g);
                 ndarray::concatenate(Axis(1), &[qc.view(), gc.view()]).expect("one row each")
             }
             _ => qc,
