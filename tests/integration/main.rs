@@ -21,5 +21,6 @@ mod scene;
 mod selection;
 mod snakemake_sample;
 mod spz;
+mod structure;
 mod texture;
 mod viewer;
