@@ -13,7 +13,8 @@ Prints a Markdown report:
   relu3_3, relu4_3) as stylized / original (below 1 = closer to the style than the
   original), KID_style (± 1.96 jackknife se), the KID of squares of the object's surface
   against squares of the style (and the original's, in brackets), the luminance-spectrum distance to the style
-  (stylized / original) and the spectrum's peak period, LPIPS to the original, short- and
+  (stylized / original) and the spectrum's peak period, LPIPS to the original, structure
+  kept (the correlation of the band-passed luminance with the original's), short- and
   long-range consistency (LPIPS after warping; the original's own value is the floor),
   clipped object pixels, silhouette-fringe brightening, wall time (and steps);
 * per method: mean and 95% confidence interval (Student t over cases);
@@ -126,6 +127,8 @@ def case(runs, scene, style, method, lock):
         "spec": sp["distance_stylized"], "spec_ratio": sp["distance_ratio"],
         "peak": sp["peak_stylized"], "peak_style": sp["peak_style"],
         "lpips_content": m["lpips_content"],
+        # Structure kept (src/metrics/structure.rs; absent from older metrics.json).
+        "structure": m.get("structure_kept"),
         "short": m["short_range"]["lpips_mean"], "short_orig": m["short_range"]["original_lpips_mean"],
         "long": m["long_range"]["lpips_mean"], "long_orig": m["long_range"]["original_lpips_mean"],
         "clip": ob["clipped_stylized"], "clip_orig": ob["clipped_original"],
@@ -159,7 +162,7 @@ def ci(xs, d=3):
 COLUMNS = [("gram_relu1_2", "Gram relu1_2 (s/o)", 3), ("gram_relu2_2", "Gram relu2_2 (s/o)", 3),
            ("gram_relu3_3", "Gram relu3_3 (s/o)", 3), ("gram_relu4_3", "Gram relu4_3 (s/o)", 3),
            ("kid", "KID_style", 4), ("kid_obj", "KID object squares", 4), ("spec_ratio", "spectrum dist. (s/o)", 3),
-           ("lpips_content", "LPIPS content", 3), ("short", "short-range LPIPS", 4),
+           ("lpips_content", "LPIPS content", 3), ("structure", "structure", 3), ("short", "short-range LPIPS", 4),
            ("long", "long-range LPIPS", 4), ("clip", "clipped obj. px", 3),
            ("fringe", "fringe brightening", 4), ("leak", "content leakage", 3), ("wall", "wall s", 1)]
 
@@ -328,8 +331,8 @@ def speed(runs, lock, plot):
     print("Speed-accuracy (one case; ours by iterations, the VGG baselines by steps; wall s from "
           "the stage start, ours summed over its resumed chunks):")
     print()
-    print("| method | iterations / steps | wall s | Gram relu1_2 (s/o) | Gram relu2_2 (s/o) | KID_style | spectrum dist. (s/o) | LPIPS content | short-range LPIPS |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| method | iterations / steps | wall s | Gram relu1_2 (s/o) | Gram relu2_2 (s/o) | KID_style | spectrum dist. (s/o) | LPIPS content | structure | short-range LPIPS |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for me, n, t, m in pts:
         tx = m["texture"]
@@ -338,7 +341,8 @@ def speed(runs, lock, plot):
                  spec=tx["spectrum"]["distance_ratio"])
         rows.append(r)
         print(f"| {me} | {n} | {fmt(t, 1)} | {fmt(r['g1'])} | {fmt(r['g2'])} | {fmt(r['kid'], 4)} | "
-              f"{fmt(r['spec'])} | {fmt(m['lpips_content'])} | {fmt(m['short_range']['lpips_mean'], 4)} |")
+              f"{fmt(r['spec'])} | {fmt(m['lpips_content'])} | {fmt(m.get('structure_kept'))} | "
+              f"{fmt(m['short_range']['lpips_mean'], 4)} |")
     try:
         import matplotlib
         matplotlib.use("Agg")

@@ -8,8 +8,9 @@
 //! short/long-range consistency (LPIPS and RMSE after depth warping), also on the
 //! original renders as a floor; a VGG16 Gram-matrix distance to the style image; and the
 //! texture measures of [`super::texture`] (among them KID over squares of the object's
-//! surface against squares of the style, which the whole-view KID cannot see); and the
-//! content leakage of [`super::leakage`].
+//! surface against squares of the style, which the whole-view KID cannot see); the
+//! content leakage of [`super::leakage`]; and the structure kept of [`super::structure`]
+//! (the source's edges and shading detail still where they were).
 //!
 //! The half of it that depends only on the original views and the style image is
 //! [`super::reference::Reference`], computed here or read from an `eval-reference`
@@ -27,6 +28,7 @@ use super::leakage::{self, Leakage};
 use super::lpips;
 use super::nets::{LpipsModel, LpipsNet, Nets};
 use super::reference::{EvalParams, GRAM_MAX_SIDE, Reference, style_crops};
+use super::structure;
 use super::texture::{self, TextureMetrics};
 use super::views::ViewSet;
 use crate::imageio::Image;
@@ -82,6 +84,16 @@ pub struct Metrics {
     pub lpips_net: LpipsNet,
     pub lpips_content: Option<f64>,
     pub lpips_content_per_view: Vec<f64>,
+    /// Structure kept ([`super::structure`], issue 47): the mean over views of the Pearson
+    /// correlation, over the object's pixels, of the source's and the stylized view's
+    /// band-passed luminance (difference of Gaussians, sigma 1 px minus 4 px); 1 = every
+    /// edge and shading detail still where it was. `None` when no view has a value.
+    pub structure_kept: Option<f64>,
+    /// Structure kept per view; `None` for a view with fewer than
+    /// [`structure::MIN_PIXELS`] object pixels or a flat band-pass image.
+    pub structure_kept_per_view: Vec<Option<f64>>,
+    /// What structure_kept means ([`structure::NOTE`]).
+    pub structure_kept_note: &'static str,
     pub fid_style: SetDistance,
     pub kid_style: SetDistance,
     pub fid_content: SetDistance,
@@ -418,6 +430,29 @@ pub fn evaluate(
     measure(&mut nets, r, (orig, styl, style), p, scores, warnings, &pb)
 }
 
+/// Structure kept per view and its mean ([`structure::structure_kept`]), with a warning
+/// naming the views that have no value.
+fn structure_scores(
+    orig: &ViewSet,
+    styl: &ViewSet,
+    warnings: &mut Vec<String>,
+) -> (Option<f64>, Vec<Option<f64>>) {
+    let (mean, per_view) =
+        crate::timing::phase("structure", || structure::structure_kept(orig, styl));
+    let none: Vec<String> = (0..per_view.len())
+        .filter(|&i| per_view[i].is_none())
+        .map(|i| i.to_string())
+        .collect();
+    if !none.is_empty() {
+        warnings.push(format!(
+            "structure kept: no value for view(s) {} (fewer than {} object pixels, or a flat band-pass image)",
+            none.join(", "),
+            structure::MIN_PIXELS
+        ));
+    }
+    (mean, per_view)
+}
+
 /// The rest of [`evaluate`] with the networks and the reference: the Gram distances,
 /// FID and KID, the texture measures; the metrics.
 fn measure(
@@ -450,6 +485,7 @@ fn measure(
     let sm = style_measures(nets, (orig, styl, style), p, r, object_gram, &mut warnings)?;
     pb.inc(2);
     let leakage = crate::timing::phase("leakage", || leakage::leakage(orig, styl, style));
+    let (structure_kept, structure_per_view) = structure_scores(orig, styl, &mut warnings);
     if style.width < 64 || style.height < 64 {
         warnings.push(format!(
             "the style image is only {}x{}: its crops are upsampled for FID_style and the Gram distance sees few positions",
@@ -464,6 +500,9 @@ fn measure(
         lpips_net: p.lpips_net,
         lpips_content,
         lpips_content_per_view: lpips_per_view,
+        structure_kept,
+        structure_kept_per_view: structure_per_view,
+        structure_kept_note: structure::NOTE,
         artfid: match (lpips_content, sm.fid_style.value) {
             (Some(l), Some(f)) => Some(fid::artfid(l, f)),
             _ => None,

@@ -13,6 +13,7 @@
 //! | [`spectrum`] | radially averaged luminance power spectrum (the motif scale) |
 //! | [`texture`] | measures that see texture: per-layer object Gram, KID interval, spectrum, object colour |
 //! | [`leakage`] | content leakage: the object's large-scale structure that the scene does not explain |
+//! | [`structure`] | structure kept: correlation of the source's and stylized views' band-passed luminance |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`reference`](mod@reference) | the half of an evaluation that depends only on the original views and the style |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
@@ -31,6 +32,7 @@ pub mod nets;
 pub mod reference;
 pub mod report;
 pub mod spectrum;
+pub mod structure;
 pub mod texture;
 pub mod viewer;
 pub mod views;

@@ -2,14 +2,17 @@
 //! no external resources, so it opens anywhere (and in the headless-Chromium test).
 //!
 //! This module only renders the evaluation's page ([`evaluation_report`]) with the HTML
-//! pieces of [`super::html`]; the numbers come from [`super::evaluate`].
+//! pieces of [`super::html`]; the numbers come from [`super::evaluate`]. The page opens
+//! with pictures (the style, original and stylized views, a preview's), the numbers below
+//! them.
 
 use super::consistency::PairScore;
 use super::evaluate::{ARTFID_NOTE, Evaluation, RangeConsistency, SetDistance};
 use super::html::{
     Page, Series, diff_image, esc, figure, fmt_opt, img_tag, mask_image, svg_plot, table,
 };
-use super::views::ViewSet;
+use super::structure;
+use super::views::{Preview, ViewSet};
 use crate::imageio::Image;
 use crate::maths::warp::Warped;
 use std::path::Path;
@@ -135,36 +138,41 @@ pub struct ReportPaths<'a> {
     pub style: &'a Path,
 }
 
-/// The evaluation's `report.html`: the interactive 3D viewer when given
-/// ([`super::viewer::section_html`]), the metrics table, original / stylized views, the
-/// consistency plots with a warped example, the style crops, an optional section of
-/// extra HTML (e.g. the speed-accuracy sweep's table, [`crate::sweep::Sweep::html`]),
-/// and the caveats.
+/// The optional parts of an evaluation report.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ReportExtras<'a> {
+    /// A section of extra HTML: the speed-accuracy sweep's table
+    /// ([`crate::sweep::Sweep::html`]).
+    pub sweep_html: Option<&'a str>,
+    /// The interactive 3D viewer's section ([`super::viewer::section_html`]).
+    pub viewer_html: Option<&'a str>,
+    /// The prior's agreement curves ([`agreement_html`]).
+    pub agreement_html: Option<&'a str>,
+    /// A preview's views, shown in the opening pictures ([`PREVIEW_LABEL`]).
+    pub preview: Option<&'a Preview>,
+}
+
+/// The evaluation's `report.html`: it opens with pictures ([`opening_pictures`]: the
+/// style image, original and stylized views, a preview's when given), then the
+/// interactive 3D viewer when given ([`super::viewer::section_html`]), the inputs, the
+/// metrics table, the view that keeps the least structure, the texture and leakage
+/// sections, every original / stylized view, the consistency plots with a warped
+/// example, the style crops, the optional sweep and agreement sections, and the caveats.
 pub fn evaluation_report(
     paths: ReportPaths<'_>,
     ev: &Evaluation,
     orig: &ViewSet,
     styl: &ViewSet,
     style: &Image,
-    sweep_html: Option<&str>,
-    viewer_html: Option<&str>,
-    agreement_html: Option<&str>,
+    extras: &ReportExtras<'_>,
 ) -> String {
     let m = &ev.metrics;
-    let (crops, short_warps, long_warps) = (&ev.crops, &ev.short_warps, &ev.long_warps);
     let mut p = Page::new("fantasystyle evaluation");
-    p.raw(&format!(
-        "<p>Original: <code>{}</code><br>Stylized: <code>{}</code><br>Style: <code>{}</code><br>{} views at {}x{}.</p>",
-        esc(&paths.original.display().to_string()),
-        esc(&paths.stylized.display().to_string()),
-        esc(&paths.style.display().to_string()),
-        m.views,
-        m.width,
-        m.height
-    ));
-    if let Some(v) = viewer_html {
+    p.raw(&opening_pictures(orig, styl, style, extras.preview));
+    if let Some(v) = extras.viewer_html {
         p.section("Original / stylized in 3D", v);
     }
+    p.raw(&inputs_html(paths, m, extras.preview));
     if !m.warnings.is_empty() {
         let items: String = m
             .warnings
@@ -176,33 +184,242 @@ pub fn evaluation_report(
         ));
     }
     p.section("Metrics", &metrics_table(m));
+    p.section(
+        "Structure kept: the worst view",
+        &worst_structure_html(m, orig, styl),
+    );
     p.section("Texture", &super::texture::html(&m.texture));
     p.section("Content leakage", &super::leakage::html(&m.leakage));
-
     p.section(
         "Original / stylized / style",
         &views_table(m, orig, styl, style),
     );
-
     p.section(
         "View consistency",
-        &consistency_section(m, orig, styl, short_warps, long_warps),
+        &consistency_section(m, orig, styl, &ev.short_warps, &ev.long_warps),
     );
-
     let mut cr = format!("<p class=\"note\">{}</p>", esc(&m.style_crops));
-    for (i, c) in crops.iter().take(8).enumerate() {
+    for (i, c) in ev.crops.iter().take(8).enumerate() {
         cr.push_str(&figure(c, 128, &format!("crop {i}")));
     }
     p.section("Style crops used by FID_style / KID_style", &cr);
-
-    if let Some(sw) = sweep_html {
+    if let Some(sw) = extras.sweep_html {
         p.section("Speed-accuracy sweep", sw);
     }
-    if let Some(ag) = agreement_html {
+    if let Some(ag) = extras.agreement_html {
         p.section("Agreement of the prior's high-frequency change", ag);
     }
     p.section("Caveats", CAVEATS);
     p.finish()
+}
+
+/// The inputs' paths and the views' count and size.
+fn inputs_html(
+    paths: ReportPaths<'_>,
+    m: &super::evaluate::Metrics,
+    preview: Option<&Preview>,
+) -> String {
+    let preview = preview.map_or(String::new(), |pv| {
+        format!(
+            "<br>Preview: <code>{}</code> (views {})",
+            esc(&pv.views.dir.display().to_string()),
+            list(&pv.indices)
+        )
+    });
+    format!(
+        "<p>Original: <code>{}</code><br>Stylized: <code>{}</code><br>Style: <code>{}</code>{preview}<br>{} views at {}x{}.</p>",
+        esc(&paths.original.display().to_string()),
+        esc(&paths.stylized.display().to_string()),
+        esc(&paths.style.display().to_string()),
+        m.views,
+        m.width,
+        m.height
+    )
+}
+
+/// Comma-separated numbers.
+fn list(v: &[usize]) -> String {
+    v.iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Longest side of the opening pictures, px.
+pub const STRIP_SIDE: usize = 144;
+/// Most views the opening pictures show.
+pub const STRIP_VIEWS: usize = 4;
+/// The label of the preview's row in the opening pictures.
+pub const PREVIEW_LABEL: &str = "preview (the prior's 2D stylization)";
+
+/// The views the opening pictures show: up to [`STRIP_VIEWS`], spread evenly over the
+/// preview's views when there is a preview (so that each has all rows), else over all
+/// `n`.
+pub fn strip_views(n: usize, preview: Option<&Preview>) -> Vec<usize> {
+    let c: Vec<usize> = match preview {
+        Some(p) => {
+            let mut v = p.indices.clone();
+            v.sort_unstable();
+            v.dedup();
+            v
+        }
+        None => (0..n).collect(),
+    };
+    if c.len() <= STRIP_VIEWS {
+        return c;
+    }
+    (0..STRIP_VIEWS)
+        .map(|k| c[k * c.len() / STRIP_VIEWS])
+        .collect()
+}
+
+/// The box `(x0, y0, w, h)` around the object (source alpha > 0.05) in any of views
+/// `views`, padded by 8 px; the whole frame when no pixel is.
+pub fn object_box(orig: &ViewSet, views: &[usize]) -> (usize, usize, usize, usize) {
+    let (w, h) = (orig.width, orig.height);
+    let (mut x0, mut y0, mut x1, mut y1) = (w, h, 0, 0);
+    for &v in views {
+        for (p, a) in orig.geometry(v).1.iter().enumerate() {
+            if *a > 0.05 {
+                let (x, y) = (p % w, p / w);
+                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
+            }
+        }
+    }
+    if x1 == 0 {
+        return (0, 0, w, h);
+    }
+    let (x0, y0) = (x0.saturating_sub(8), y0.saturating_sub(8));
+    let (x1, y1) = ((x1 + 8).min(w), (y1 + 8).min(h));
+    (x0, y0, x1 - x0, y1 - y0)
+}
+
+/// The report's opening: the style image beside the original and stylized views (and
+/// the preview's, labelled [`PREVIEW_LABEL`]) of [`strip_views`], cropped to the object.
+fn opening_pictures(
+    orig: &ViewSet,
+    styl: &ViewSet,
+    style: &Image,
+    preview: Option<&Preview>,
+) -> String {
+    let views = strip_views(orig.n, preview);
+    let (x0, y0, w, h) = object_box(orig, &views);
+    let mut rows: Vec<(&str, Vec<Option<&Image>>)> = vec![
+        (
+            "original",
+            views.iter().map(|&v| Some(&orig.images[v])).collect(),
+        ),
+        (
+            "stylized",
+            views.iter().map(|&v| Some(&styl.images[v])).collect(),
+        ),
+    ];
+    if let Some(p) = preview {
+        rows.push((
+            PREVIEW_LABEL,
+            views.iter().map(|&v| p.image_of(v)).collect(),
+        ));
+    }
+    let mut s = String::from("<div id=\"pictures\"><table><tr><th>style</th><th></th>");
+    for v in &views {
+        s.push_str(&format!("<th>view {v}</th>"));
+    }
+    s.push_str("</tr>");
+    for (r, (label, imgs)) in rows.iter().enumerate() {
+        s.push_str("<tr>");
+        if r == 0 {
+            s.push_str(&format!(
+                "<td rowspan=\"{}\">{}</td>",
+                rows.len(),
+                img_tag(style, STRIP_SIDE, "style")
+            ));
+        }
+        s.push_str(&format!("<th>{}</th>", esc(label)));
+        for (v, img) in views.iter().zip(imgs) {
+            s.push_str(&match img {
+                Some(i) => format!(
+                    "<td>{}</td>",
+                    img_tag(&i.crop(x0, y0, w, h), STRIP_SIDE, &format!("{label} {v}"))
+                ),
+                None => "<td>-</td>".into(),
+            });
+        }
+        s.push_str("</tr>");
+    }
+    s.push_str(&format!(
+        "</table><p class=\"note\">Views {} of {}, cropped to the object ({w}x{h} px at ({x0}, {y0})); \
+         every view, whole, is further below.</p></div>",
+        list(&views),
+        orig.n
+    ));
+    s
+}
+
+/// The band-passed luminance `d` ([`structure::band_pass`]) as a grey image: 0.5 + d / (6
+/// sd), with sd its standard deviation over the object pixels `inside`.
+fn band_pass_image(d: &[f64], inside: &[bool], w: usize, h: usize) -> Image {
+    let v: Vec<f64> = d
+        .iter()
+        .zip(inside)
+        .filter(|p| *p.1)
+        .map(|p| *p.0)
+        .collect();
+    let n = v.len().max(1) as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let sd = (v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n)
+        .sqrt()
+        .max(1e-12);
+    Image::from_fn(w, h, |x, y| {
+        [(0.5 + d[y * w + x] / (6.0 * sd)).clamp(0.0, 1.0) as f32; 3]
+    })
+}
+
+/// The view with the lowest structure kept: original, stylized, and both band-passed
+/// luminances, cropped to the object.
+fn worst_structure_html(m: &super::evaluate::Metrics, orig: &ViewSet, styl: &ViewSet) -> String {
+    let Some(i) = structure::worst_view(&m.structure_kept_per_view) else {
+        return format!(
+            "<p class=\"note\">No view has a value. {}</p>",
+            esc(structure::NOTE)
+        );
+    };
+    let (w, h) = (orig.width, orig.height);
+    let inside = structure::object_pixels(orig.geometry(i).1);
+    let (bo, bs) = (
+        structure::band_pass(&orig.images[i]),
+        structure::band_pass(&styl.images[i]),
+    );
+    let (x0, y0, cw, ch) = object_box(orig, &[i]);
+    let crop = |img: &Image| img.crop(x0, y0, cw, ch);
+    let mut s = format!(
+        "<p>View {i} keeps the least structure: <b>{}</b> (mean over views {}). Below: the \
+         original and stylized view, and their band-passed luminance (difference of Gaussians, \
+         sigma 1 px minus 4 px; each scaled by its own spread over the object, grey = 0), \
+         cropped to the object.</p>",
+        fmt_opt(m.structure_kept_per_view[i], 3),
+        fmt_opt(m.structure_kept, 3)
+    );
+    s.push_str(&figure(
+        &crop(&orig.images[i]),
+        256,
+        &format!("original {i}"),
+    ));
+    s.push_str(&figure(
+        &crop(&styl.images[i]),
+        256,
+        &format!("stylized {i}"),
+    ));
+    s.push_str(&figure(
+        &crop(&band_pass_image(&bo, &inside, w, h)),
+        256,
+        "band-pass, original",
+    ));
+    s.push_str(&figure(
+        &crop(&band_pass_image(&bs, &inside, w, h)),
+        256,
+        "band-pass, stylized",
+    ));
+    s
 }
 
 /// The metrics table of an evaluation.
@@ -222,6 +439,19 @@ fn metrics_table(m: &super::evaluate::Metrics) -> String {
             format!("LPIPS_content ({net}) ↓"),
             fmt_opt(m.lpips_content, 4),
             "mean over views of LPIPS(original, stylized)".into(),
+        ],
+        vec![
+            "structure kept ↑".into(),
+            fmt_opt(m.structure_kept, 3),
+            format!(
+                "mean over views of the correlation of the original's and the stylized view's \
+                 band-passed luminance (difference of Gaussians, sigma 1 px minus 4 px) over the \
+                 object; 1 = every edge and shading detail still where it was; worst: view {}",
+                structure::worst_view(&m.structure_kept_per_view).map_or("-".into(), |i| format!(
+                    "{i} ({})",
+                    fmt_opt(m.structure_kept_per_view[i], 3)
+                ))
+            ),
         ],
         vec![
             "FID_style ↓".into(),
@@ -303,7 +533,8 @@ fn consistency_rows(m: &super::evaluate::Metrics) -> Vec<Vec<String>> {
     ]
 }
 
-/// The style image and every view: original, stylized, LPIPS_content and Gram distance.
+/// The style image and every view: original, stylized, LPIPS_content, structure kept
+/// and Gram distance.
 fn views_table(
     m: &super::evaluate::Metrics,
     orig: &ViewSet,
@@ -312,13 +543,14 @@ fn views_table(
 ) -> String {
     let mut imgs = String::from("<p>Style image:</p>");
     imgs.push_str(&figure(style, 256, "style"));
-    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>Gram</th></tr>");
+    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>structure</th><th>Gram</th></tr>");
     for i in 0..m.views {
         imgs.push_str(&format!(
-            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td></tr>",
             img_tag(&orig.images[i], 256, &format!("original {i}")),
             img_tag(&styl.images[i], 256, &format!("stylized {i}")),
             m.lpips_content_per_view[i],
+            fmt_opt(m.structure_kept_per_view[i], 3),
             m.gram_style_per_view[i]
         ));
     }

@@ -1,6 +1,7 @@
 //! `views` artifacts as the evaluation holds them ([`crate::artifacts::read_view_set`]
 //! reads one), and checking that an original and a stylized set show the same views:
-//! same count, same image size, same cameras.
+//! same count, same image size, same cameras; and a [`Preview`]: a views artifact of
+//! some of the evaluation's views (the `preview` stage's), checked against them.
 
 use crate::imageio::Image;
 use crate::{Camera, Error, Result};
@@ -129,6 +130,87 @@ impl ViewSet {
     }
 }
 
+/// A preview's views (the prior's 2D stylization of some of the evaluation's views, the
+/// `preview` stage's artifact) and which evaluation views they are.
+#[derive(Debug, Clone)]
+pub struct Preview {
+    pub views: ViewSet,
+    /// The evaluation view of each preview view.
+    pub indices: Vec<usize>,
+}
+
+impl Preview {
+    /// `views`, showing the evaluation views `indices` of `orig` (`None`: every view, in
+    /// order), checked: one index per view, each an evaluation view, at the same image
+    /// size and from the same camera.
+    pub fn new(views: ViewSet, indices: Option<Vec<usize>>, orig: &ViewSet) -> Result<Preview> {
+        let dir = views.dir.clone();
+        let indices = match indices {
+            Some(ix) => ix,
+            None if views.n == orig.n => (0..orig.n).collect(),
+            None => {
+                return Err(Error::input(
+                    dir.join("manifest.json"),
+                    format!(
+                        "{} views, but {} has {}, and its producer params name no \"views\"",
+                        views.n,
+                        orig.dir.display(),
+                        orig.n
+                    ),
+                ));
+            }
+        };
+        let bad = |f: &str, why: String| Err(Error::input(dir.join(f), why));
+        if indices.len() != views.n {
+            return bad(
+                "manifest.json",
+                format!(
+                    "params name {} views, rgb.npy holds {}",
+                    indices.len(),
+                    views.n
+                ),
+            );
+        }
+        if let Some(v) = indices.iter().find(|&&v| v >= orig.n) {
+            return bad(
+                "manifest.json",
+                format!("view {v}: {} has {} views", orig.dir.display(), orig.n),
+            );
+        }
+        if (views.width, views.height) != (orig.width, orig.height) {
+            return bad(
+                "rgb.npy",
+                format!(
+                    "images are {}x{}, but those of {} are {}x{}",
+                    views.width,
+                    views.height,
+                    orig.dir.display(),
+                    orig.width,
+                    orig.height
+                ),
+            );
+        }
+        for (k, &v) in indices.iter().enumerate() {
+            if let Some(why) = camera_difference(&orig.cameras[v], &views.cameras[k]) {
+                return bad(
+                    "cameras.json",
+                    format!(
+                        "camera {k} differs from view {v} of {}: {why}",
+                        orig.dir.display()
+                    ),
+                );
+            }
+        }
+        Ok(Preview { views, indices })
+    }
+
+    /// The preview's image of evaluation view `i`, if it has one.
+    pub fn image_of(&self, i: usize) -> Option<&Image> {
+        let k = self.indices.iter().position(|&v| v == i)?;
+        Some(&self.views.images[k])
+    }
+}
+
 /// `None` if two cameras agree (intrinsics to 1e-3 px, rotation to 1e-5, translation to
 /// 1e-4 (1 + |t|)), else what differs.
 pub fn camera_difference(a: &Camera, b: &Camera) -> Option<String> {
@@ -154,4 +236,58 @@ pub fn camera_difference(a: &Camera, b: &Camera) -> Option<String> {
         ));
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::maths::warp::look_at;
+
+    /// `n` views of `w x h` from cameras `eyes[i]`, every pixel `value + i`.
+    fn set(dir: &str, eyes: &[f64], (w, h): (usize, usize), value: f32) -> ViewSet {
+        let n = eyes.len();
+        let cams = eyes
+            .iter()
+            .enumerate()
+            .map(|(i, e)| {
+                look_at(
+                    &format!("v{i}"),
+                    [*e, -3.0, 1.0],
+                    [0.0; 3],
+                    w as u32,
+                    h as u32,
+                    40.0,
+                )
+            })
+            .collect();
+        let rgb = Array4::from_shape_fn((n, h, w, 3), |(i, ..)| (value + i as f32) / 10.0);
+        let zeros = Array3::zeros((n, h, w));
+        ViewSet::new(Path::new(dir), rgb, zeros.clone(), zeros, cams).unwrap()
+    }
+
+    #[test]
+    fn a_preview_of_some_views_is_matched_to_them() {
+        let orig = set("o", &[0.0, 0.5, 1.0, 1.5], (8, 6), 0.0);
+        let p = Preview::new(set("p", &[0.5, 1.5], (8, 6), 5.0), Some(vec![1, 3]), &orig).unwrap();
+        assert_eq!(p.image_of(3).unwrap().data[0], 0.6);
+        assert!(p.image_of(0).is_none());
+        // Without "views", a preview of every view is in order.
+        let all = Preview::new(set("a", &[0.0, 0.5, 1.0, 1.5], (8, 6), 1.0), None, &orig).unwrap();
+        assert_eq!(all.indices, vec![0, 1, 2, 3]);
+    }
+
+    #[test]
+    fn a_preview_that_is_not_of_these_views_is_refused() {
+        let orig = set("o", &[0.0, 0.5, 1.0], (8, 6), 0.0);
+        let err = |eyes: &[f64], size, ix: Option<Vec<usize>>| {
+            Preview::new(set("p", eyes, size, 0.0), ix, &orig)
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(err(&[0.5], (8, 6), None).contains("name no \"views\""));
+        assert!(err(&[0.5], (8, 6), Some(vec![1, 2])).contains("params name 2 views"));
+        assert!(err(&[0.5], (8, 6), Some(vec![3])).contains("view 3"));
+        assert!(err(&[0.5], (4, 3), Some(vec![1])).contains("images are 4x3"));
+        assert!(err(&[0.5], (8, 6), Some(vec![2])).contains("camera 0 differs from view 2"));
+    }
 }

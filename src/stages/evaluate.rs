@@ -16,8 +16,8 @@ use crate::metrics::html::fmt_opt;
 use crate::metrics::nets::{LpipsNet, Nets};
 use crate::metrics::reference::EvalParams;
 use crate::metrics::reference::Reference;
-use crate::metrics::report::{ReportPaths, evaluation_report};
-use crate::metrics::views::ViewSet;
+use crate::metrics::report::{ReportExtras, ReportPaths, evaluation_report};
+use crate::metrics::views::{Preview, ViewSet};
 use crate::sweep::Sweep;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
@@ -44,7 +44,7 @@ pub struct Args {
     /// Write only the part of the evaluation that depends on --original and --style (an
     /// `eval-reference` artifact: their Inception features, the style's Gram matrices,
     /// the original's own scores) to --out, for --reference to reuse.
-    #[arg(long, conflicts_with_all = ["stylized", "reference", "sweep", "original_scene", "history"])]
+    #[arg(long, conflicts_with_all = ["stylized", "reference", "sweep", "original_scene", "history", "preview"])]
     pub reference_only: bool,
     /// An `eval-reference` artifact (`--reference-only`) made from the same --original,
     /// --style and options: its part is read instead of computed (about 120 of the 152
@@ -84,6 +84,11 @@ pub struct Args {
     /// change (across visits, between neighbouring views) the report draws per iteration.
     #[arg(long)]
     pub history: Option<PathBuf>,
+    /// A views artifact of the prior's 2D stylization of some of the --original views
+    /// (the `preview` stage's; its manifest's producer params name them as "views"): the
+    /// report's opening pictures show it beside the original and stylized views.
+    #[arg(long)]
+    pub preview: Option<PathBuf>,
     /// A `stylize-baseline --method refit` artifact: its per-view stylizations' agreement
     /// between neighbouring views is drawn as the ceiling (needs --history).
     #[arg(long, requires = "history")]
@@ -117,6 +122,11 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         .map(crate::artifacts::read_history)
         .transpose()?;
     let ceiling = refit_ceiling(&a)?;
+    let preview = a
+        .preview
+        .as_deref()
+        .map(|d| crate::timing::load(|| read_preview(d, &orig)))
+        .transpose()?;
     let models = metric_models()?;
     // Start the artifact now so an unusable --out fails before the slow part.
     let mut wr = super::create_artifact(
@@ -142,16 +152,13 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     let agreement_html = history
         .as_deref()
         .map(|h| crate::metrics::report::agreement_html(h, ceiling, 20));
-    let html = evaluation_report(
-        paths,
-        &ev,
-        &orig,
-        &styl,
-        &style,
-        sweep_html.as_deref(),
-        viewer.as_deref(),
-        agreement_html.as_deref(),
-    );
+    let extras = ReportExtras {
+        sweep_html: sweep_html.as_deref(),
+        viewer_html: viewer.as_deref(),
+        agreement_html: agreement_html.as_deref(),
+        preview: preview.as_ref(),
+    };
+    let html = evaluation_report(paths, &ev, &orig, &styl, &style, &extras);
     drop(ph);
 
     add_inputs(&mut wr, &a, reference.as_ref().map(|(d, _)| d.as_path()))?;
@@ -227,7 +234,35 @@ fn add_inputs(
     if let Some(r) = &a.refit_baseline {
         wr.add_input("refit-baseline", r)?;
     }
+    if let Some(p) = &a.preview {
+        wr.add_input("preview", p)?;
+    }
     Ok(())
+}
+
+/// `--preview DIR`: its views, matched to the evaluation views its manifest's producer
+/// params name (`"views": [indices]`; without them, every view in order) and checked
+/// against them ([`Preview::new`]).
+fn read_preview(dir: &Path, orig: &ViewSet) -> Result<Preview> {
+    let views = read_view_set(dir)?;
+    let art = fantasystyle_schemas::Artifact::open_unverified(dir)?;
+    let named = &art.manifest.producer.params["views"];
+    let indices = if named.is_null() {
+        None
+    } else {
+        let ix: Option<Vec<usize>> = named.as_array().and_then(|v| {
+            v.iter()
+                .map(|x| x.as_u64().and_then(|x| usize::try_from(x).ok()))
+                .collect()
+        });
+        Some(ix.ok_or_else(|| {
+            Error::input(
+                dir.join("manifest.json"),
+                format!("producer params \"views\" is not a list of view indices: {named}"),
+            )
+        })?)
+    };
+    Preview::new(views, indices, orig)
 }
 
 /// The models directory, with the metric networks in it.

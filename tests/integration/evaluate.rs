@@ -101,6 +101,7 @@ fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         stylized_scene: None,
         history: None,
         refit_baseline: None,
+        preview: None,
     }
 }
 
@@ -212,18 +213,148 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
         "leakage of a colour map: {leak}"
     );
 
+    // Structure kept: a value per view, their mean, the note; a colour remap that is not
+    // monotonic in luminance keeps some of the structure, not all.
+    let sv: Vec<f64> = json["structure_kept_per_view"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().expect("every view has a value"))
+        .collect();
+    assert_eq!(sv.len(), 7);
+    assert!(sv.iter().all(|r| (-1.0..1.0).contains(r)), "{sv:?}");
+    let sm = json["structure_kept"].as_f64().unwrap();
+    assert!((sm - sv.iter().sum::<f64>() / 7.0).abs() < 1e-12, "{sm}");
+    assert!(
+        json["structure_kept_note"]
+            .as_str()
+            .unwrap()
+            .contains("band-passed luminance")
+    );
+    eprintln!("structure kept {sm:.4}, per view {sv:.3?}");
+
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    // It opens with pictures: the style, original and stylized views before the numbers.
+    let at = |s: &str| {
+        html.find(s)
+            .unwrap_or_else(|| panic!("no {s} in the report"))
+    };
+    assert!(at("id=\"pictures\"") < at("<h2>Metrics</h2>"));
+    assert!(html.contains("<th>view 0</th><th>view 1</th><th>view 3</th><th>view 5</th>"));
+    assert!(at("<h2>Metrics</h2>") < at("structure kept ↑"));
+    assert!(at("structure kept ↑") < at("<h2>Structure kept: the worst view</h2>"));
+    assert!(html.contains("band-pass, stylized"));
     assert!(html.contains("<h2>Content leakage</h2>"));
     assert!(html.contains("<h2>Texture</h2>") && html.contains("Radially averaged luminance"));
     assert!(html.contains("KID of object squares vs style squares"));
     assert!(html.contains("ArtFID") && html.contains("standard FID Inception"));
     assert!(html.contains("<svg") && html.contains("short range: LPIPS per view pair"));
-    // style + 7 originals + 7 stylized + 2 x 4 consistency examples + 7 crops
-    assert!(html.matches("data:image/png;base64,").count() >= 1 + 14 + 8 + 7);
+    // opening: style + 4 originals + 4 stylized; worst structure: 4; style + 7 originals +
+    // 7 stylized + 2 x 4 consistency examples + 7 crops
+    assert!(html.matches("data:image/png;base64,").count() >= 9 + 4 + 1 + 14 + 8 + 7);
     if let Ok(keep) = std::env::var("FANTASYSTYLE_KEEP_REPORT") {
         std::fs::copy(out.join("report.html"), keep).unwrap();
     }
     chromium_check(&out.join("report.html"));
+}
+
+/// A `preview` views artifact of `views` of `cams` (a colour remap of their renders) whose
+/// producer params name `named` as the views.
+fn write_preview(dir: &Path, cams: &[Camera], views: &[usize], named: &[usize]) -> PathBuf {
+    use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
+    let (mut rgb, mut depth, mut alpha) = (Vec::new(), Vec::new(), Vec::new());
+    let sub: Vec<Camera> = views.iter().map(|&v| cams[v].clone()).collect();
+    for c in &sub {
+        let (img, d, a) = synthetic::render(c, Some((0.7, 0.35)));
+        rgb.extend(img.data.iter().map(|v| 1.0 - v));
+        depth.extend(d);
+        alpha.extend(a);
+    }
+    let (n, h, w) = (sub.len(), H as usize, W as usize);
+    let params = serde_json::json!({ "views": named });
+    let mut wr = ArtifactWriter::create(
+        dir,
+        ArtifactKind::Views,
+        Producer::new("preview", "0", params),
+    )
+    .unwrap();
+    wr.write_tensor("rgb.npy", &[n, h, w, 3], &rgb).unwrap();
+    wr.write_tensor("depth.npy", &[n, h, w], &depth).unwrap();
+    wr.write_tensor("alpha.npy", &[n, h, w], &alpha).unwrap();
+    wr.write_json("cameras.json", &to_inria(&sub)).unwrap();
+    wr.commit().unwrap();
+    dir.to_path_buf()
+}
+
+/// `--preview`: the report opens with the preview's views beside the original and
+/// stylized ones (the views it has), labelled, before the numbers; it is recorded as an
+/// input. A preview of views the evaluation does not have, or from other cameras, is
+/// refused (exit 2, naming it, nothing written).
+#[test]
+fn a_preview_opens_the_report_beside_the_views() {
+    if !ready() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path();
+    let cams = cameras(5);
+    let orig = write_views(&p.join("orig"), &cams, &|_, i| i);
+    let styl = write_views(&p.join("styl"), &cams, &|_, i| {
+        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
+    });
+    let style = style_png(p);
+    let preview = write_preview(&p.join("preview"), &cams, &[1, 3], &[1, 3]);
+    let out = p.join("eval");
+    run(Args {
+        preview: Some(preview.clone()),
+        object_squares: 0,
+        ..opts(&orig, &styl, &style, &out)
+    })
+    .unwrap()
+    .unwrap();
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let at = |s: &str| {
+        html.find(s)
+            .unwrap_or_else(|| panic!("no {s} in the report"))
+    };
+    let label = fantasystyle::metrics::report::PREVIEW_LABEL;
+    assert!(at("id=\"pictures\"") < at(label) && at(label) < at("<h2>Metrics</h2>"));
+    // The columns are the preview's views; each row has its pictures.
+    assert!(html.contains("<th>view 1</th><th>view 3</th></tr>"));
+    for row in ["original", "stylized", label] {
+        for v in [1, 3] {
+            assert!(html.contains(&format!("alt=\"{row} {v}\"")), "{row} {v}");
+        }
+    }
+    let manifest = std::fs::read_to_string(out.join("manifest.json")).unwrap();
+    assert!(manifest.contains("\"preview\""), "recorded as an input");
+
+    let bad = [
+        (write_preview(&p.join("p7"), &cams, &[1], &[7]), "view 7"),
+        (
+            write_preview(&p.join("p2"), &cams, &[1], &[2]),
+            "camera 0 differs from view 2",
+        ),
+    ];
+    let out2 = p.join("eval2");
+    for (dir, want) in bad {
+        let o = Command::new(env!("CARGO_BIN_EXE_evaluate"))
+            .args(["--original", orig.to_str().unwrap()])
+            .args(["--stylized", styl.to_str().unwrap()])
+            .args(["--style", style.to_str().unwrap()])
+            .args(["--preview", dir.to_str().unwrap()])
+            .args(["--out", out2.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{want}: {err}");
+        assert!(
+            err.contains(want) && err.contains(dir.to_str().unwrap()),
+            "expected `{want}` naming {}: {err}",
+            dir.display()
+        );
+        assert!(!out2.exists(), "nothing written on a bad preview");
+    }
 }
 
 /// Opens the report in headless Chromium with a script that counts decoded images.
@@ -587,6 +718,10 @@ fn too_few_images_for_fid_is_a_documented_warning() {
     assert!(json["fid_content"]["value"].is_null() && json["kid_style"]["value"].is_null());
     assert!(json["artfid"].is_null());
     assert_eq!(json["lpips_content"].as_f64().unwrap(), 0.0);
+    // The same views keep all their structure.
+    let sk = json["structure_kept"].as_f64().unwrap();
+    assert!((sk - 1.0).abs() < 1e-12, "structure kept {sk}");
+    assert_eq!(json["structure_kept_per_view"].as_array().unwrap().len(), 1);
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(
         html.contains("id=\"warnings\"") && html.contains("need at least 2 images per set"),

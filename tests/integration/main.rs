@@ -21,6 +21,7 @@ mod scene;
 mod selection;
 mod snakemake_sample;
 mod spz;
+mod structure;
 mod structure_guide;
 mod texture;
 mod viewer;

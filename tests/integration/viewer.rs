@@ -306,6 +306,7 @@ fn report_viewer_shows_both_splats_in_chromium() {
         stylized_scene: Some(styl_scene.clone()),
         history: None,
         refit_baseline: None,
+        preview: None,
     })
     .unwrap();
     eprintln!("evaluate: {:.1} s", t_eval.elapsed().as_secs_f64());
