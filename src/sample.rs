@@ -16,6 +16,12 @@
 //! [`style_image`] paints a 256x256 style image: a swirling two-colour gradient under a
 //! few hundred soft brush strokes in a bold palette that follow a smooth flow field.
 //!
+//! [`lettering_scene`] (`make-sample --lettering`, the lettering case of the structure
+//! benchmark `benches/quality/keep.toml`) builds, with the same disks, a closed card box
+//! whose four sides carry a word each in dark 5x7 bitmap capitals on light card, letters
+//! about 30 px high in 256 px views of the default orbit: a scene whose structure (printed
+//! words) a stylization can be seen to keep or lose.
+//!
 //! Everything is drawn from [`crate::rng::Rng`] with a fixed seed and plain IEEE
 //! arithmetic, so the generated files are byte-identical from run to run.
 
