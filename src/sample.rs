@@ -16,6 +16,12 @@
 //! [`style_image`] paints a 256x256 style image: a swirling two-colour gradient under a
 //! few hundred soft brush strokes in a bold palette that follow a smooth flow field.
 //!
+//! [`lettering_scene`] (`make-sample --lettering`, the lettering case of the structure
+//! benchmark `benches/quality/keep.toml`) builds, with the same disks, a closed card box
+//! whose four sides carry a word each in dark 5x7 bitmap capitals on light card, letters
+//! about 30 px high in 256 px views of the default orbit: a scene whose structure (printed
+//! words) a stylization can be seen to keep or lose.
+//!
 //! Everything is drawn from [`crate::rng::Rng`] with a fixed seed and plain IEEE
 //! arithmetic, so the generated files are byte-identical from run to run.
 
@@ -46,6 +52,9 @@ fn norm(v: DVec3) -> DVec3 {
 struct Builder {
     s: Scene,
     rng: Rng,
+    /// Toward the light, and the baked shade `ambient + (1 - ambient) max(0, n.L)`.
+    light: DVec3,
+    ambient: f64,
 }
 
 impl Builder {
@@ -59,8 +68,8 @@ impl Builder {
         let q = mat_to_quat(DMat3::from_cols(t1, t2, n));
         let jitter = 1.0 + 0.15 * (self.rng.uniform() - 0.5);
         let s = size * jitter;
-        let l = light();
-        let shade = 0.35 + 0.65 * n.dot(l).max(0.0);
+        let l = self.light;
+        let shade = self.ambient + (1.0 - self.ambient) * n.dot(l).max(0.0);
         let c = albedo.map(|a| a * shade);
         // Mirror direction of the light about the normal.
         let nl = n.dot(l);
@@ -105,6 +114,8 @@ fn build(seed: u64) -> (Scene, Vec<(&'static str, std::ops::Range<usize>)>) {
             ..Scene::default()
         },
         rng: Rng::derive(seed, "sample-scene"),
+        light: light(),
+        ambient: 0.35,
     };
     let mut parts = Vec::with_capacity(4);
     type Add = fn(&mut Builder);
@@ -217,6 +228,253 @@ impl Builder {
             self.disk(p, n, sz, [0.97, 0.80, 0.10], 0.2);
         }
     }
+}
+
+// ---------------------------------------------------------------------------------------
+// The lettering scene.
+
+/// Number of Gaussians in the lettering scene.
+pub const LETTERING_GAUSSIANS: usize = 34_250;
+
+/// The words on the lettering box's four sides, in the order an orbit meets them: the
+/// -z face (orbit view 0), +x (view N/4), +z (view N/2), -x (view 3N/4).
+pub const LETTERING_WORDS: [&str; 4] = ["STYLE", "KEEP", "SPLAT", "READ"];
+
+/// The lettering box's size (x, height along -y, z).
+const BOX: [f64; 3] = [1.0, 0.55, 0.75];
+/// Spacing of the Gaussians on the faces; a font pixel is `INK_CELLS` x `INK_CELLS` of them.
+const GRID: f64 = 0.01;
+const INK_CELLS: usize = 3;
+const CARD: [f64; 3] = [0.94, 0.91, 0.84];
+const INK: [f64; 3] = [0.07, 0.07, 0.10];
+
+/// A 5x7 bitmap font, A-Z: seven rows from the top, bit 4 the leftmost column.
+const FONT: [[u8; 7]; 26] = [
+    [
+        0b01110, 0b10001, 0b10001, 0b11111, 0b10001, 0b10001, 0b10001,
+    ], // A
+    [
+        0b11110, 0b10001, 0b10001, 0b11110, 0b10001, 0b10001, 0b11110,
+    ], // B
+    [
+        0b01110, 0b10001, 0b10000, 0b10000, 0b10000, 0b10001, 0b01110,
+    ], // C
+    [
+        0b11100, 0b10010, 0b10001, 0b10001, 0b10001, 0b10010, 0b11100,
+    ], // D
+    [
+        0b11111, 0b10000, 0b10000, 0b11110, 0b10000, 0b10000, 0b11111,
+    ], // E
+    [
+        0b11111, 0b10000, 0b10000, 0b11110, 0b10000, 0b10000, 0b10000,
+    ], // F
+    [
+        0b01110, 0b10001, 0b10000, 0b10111, 0b10001, 0b10001, 0b01111,
+    ], // G
+    [
+        0b10001, 0b10001, 0b10001, 0b11111, 0b10001, 0b10001, 0b10001,
+    ], // H
+    [
+        0b01110, 0b00100, 0b00100, 0b00100, 0b00100, 0b00100, 0b01110,
+    ], // I
+    [
+        0b00111, 0b00010, 0b00010, 0b00010, 0b00010, 0b10010, 0b01100,
+    ], // J
+    [
+        0b10001, 0b10010, 0b10100, 0b11000, 0b10100, 0b10010, 0b10001,
+    ], // K
+    [
+        0b10000, 0b10000, 0b10000, 0b10000, 0b10000, 0b10000, 0b11111,
+    ], // L
+    [
+        0b10001, 0b11011, 0b10101, 0b10101, 0b10001, 0b10001, 0b10001,
+    ], // M
+    [
+        0b10001, 0b10001, 0b11001, 0b10101, 0b10011, 0b10001, 0b10001,
+    ], // N
+    [
+        0b01110, 0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b01110,
+    ], // O
+    [
+        0b11110, 0b10001, 0b10001, 0b11110, 0b10000, 0b10000, 0b10000,
+    ], // P
+    [
+        0b01110, 0b10001, 0b10001, 0b10001, 0b10101, 0b10010, 0b01101,
+    ], // Q
+    [
+        0b11110, 0b10001, 0b10001, 0b11110, 0b10100, 0b10010, 0b10001,
+    ], // R
+    [
+        0b01111, 0b10000, 0b10000, 0b01110, 0b00001, 0b00001, 0b11110,
+    ], // S
+    [
+        0b11111, 0b00100, 0b00100, 0b00100, 0b00100, 0b00100, 0b00100,
+    ], // T
+    [
+        0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b01110,
+    ], // U
+    [
+        0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b01010, 0b00100,
+    ], // V
+    [
+        0b10001, 0b10001, 0b10001, 0b10101, 0b10101, 0b10101, 0b01010,
+    ], // W
+    [
+        0b10001, 0b10001, 0b01010, 0b00100, 0b01010, 0b10001, 0b10001,
+    ], // X
+    [
+        0b10001, 0b10001, 0b01010, 0b00100, 0b00100, 0b00100, 0b00100,
+    ], // Y
+    [
+        0b11111, 0b00001, 0b00010, 0b00100, 0b01000, 0b10000, 0b11111,
+    ], // Z
+];
+
+/// Whether font pixel (`col`, `row`) of `word` set in the font (letters 6 columns apart,
+/// rows from the top) is ink; anything but A-Z is a blank.
+fn ink(word: &str, col: usize, row: usize) -> bool {
+    let (letter, x) = (col / 6, col % 6);
+    match word.as_bytes().get(letter) {
+        Some(&c) if c.is_ascii_uppercase() && x < 5 && row < 7 => {
+            (FONT[usize::from(c - b'A')][row] >> (4 - x)) & 1 == 1
+        }
+        _ => false,
+    }
+}
+
+/// One face of the lettering box: centre, outward normal, the reading directions (right,
+/// up: `right = up x normal`, so the word reads unmirrored from outside), size and word.
+struct Face {
+    centre: [f64; 3],
+    normal: [f64; 3],
+    right: [f64; 3],
+    up: [f64; 3],
+    size: [f64; 2],
+    word: &'static str,
+}
+
+/// The box's six faces: the four sides carry [`LETTERING_WORDS`], the top and the bottom
+/// are plain card.
+fn box_faces() -> [Face; 6] {
+    let [w, h, d] = BOX;
+    let cy = -0.5 * h;
+    let up = [0.0, -1.0, 0.0];
+    let side = |centre, normal, right, width, word| Face {
+        centre,
+        normal,
+        right,
+        up,
+        size: [width, h],
+        word,
+    };
+    let [front, right, back, left] = LETTERING_WORDS;
+    [
+        side(
+            [0.0, cy, -0.5 * d],
+            [0.0, 0.0, -1.0],
+            [1.0, 0.0, 0.0],
+            w,
+            front,
+        ),
+        side(
+            [0.5 * w, cy, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0],
+            d,
+            right,
+        ),
+        side(
+            [0.0, cy, 0.5 * d],
+            [0.0, 0.0, 1.0],
+            [-1.0, 0.0, 0.0],
+            w,
+            back,
+        ),
+        side(
+            [-0.5 * w, cy, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, 0.0, -1.0],
+            d,
+            left,
+        ),
+        Face {
+            centre: [0.0, -h, 0.0],
+            normal: up,
+            right: [1.0, 0.0, 0.0],
+            up: [0.0, 0.0, 1.0],
+            size: [w, d],
+            word: "",
+        },
+        Face {
+            centre: [0.0, 0.0, 0.0],
+            normal: [0.0, 1.0, 0.0],
+            right: [-1.0, 0.0, 0.0],
+            up: [0.0, 0.0, 1.0],
+            size: [w, d],
+            word: "",
+        },
+    ]
+}
+
+/// The lettering scene (deterministic): a closed card box, 1.0 x 0.55 x 0.75, standing
+/// on the plane y = 0 (-y up), its four sides printed with a word each
+/// ([`LETTERING_WORDS`]) in dark 5x7 bitmap capitals on light card. Every face is a grid of
+/// surface-aligned flat Gaussians 0.01 apart (jittered by up to 0.1 of that), a font pixel
+/// 3 x 3 of them (0.03), so a letter is 0.21 high: about 30 px in a 256 px view of the
+/// default orbit (`orbit:N`, elevation 15 degrees, radius 2.2 x the box's width). Shading:
+/// albedo x baked Lambert light (`0.55 + 0.45 max(0, n.L)`, the sample's light direction),
+/// a faint degree-1 highlight; 34,250 Gaussians at SH degree 1.
+pub fn lettering_scene(seed: u64) -> Scene {
+    let mut b = Builder {
+        s: Scene {
+            sh_degree: 1,
+            ..Scene::default()
+        },
+        rng: Rng::derive(seed, "lettering-scene"),
+        light: light(),
+        ambient: 0.55,
+    };
+    for f in box_faces() {
+        b.lettered_face(&f);
+    }
+    b.s
+}
+
+impl Builder {
+    /// A face of the box: a grid of Gaussians, the word centred on it.
+    fn lettered_face(&mut self, f: &Face) {
+        let (nu, nv) = (
+            (f.size[0] / GRID).round() as usize,
+            (f.size[1] / GRID).round() as usize,
+        );
+        let cols = (6 * f.word.len()).saturating_sub(1) * INK_CELLS;
+        let (u0, v0) = (
+            nu.saturating_sub(cols) / 2,
+            nv.saturating_sub(7 * INK_CELLS) / 2,
+        );
+        for j in 0..nv {
+            for i in 0..nu {
+                let a =
+                    -0.5 * f.size[0] + GRID * (i as f64 + 0.5 + 0.2 * (self.rng.uniform() - 0.5));
+                let c =
+                    0.5 * f.size[1] - GRID * (j as f64 + 0.5 + 0.2 * (self.rng.uniform() - 0.5));
+                let p = [0, 1, 2].map(|k| f.centre[k] + a * f.right[k] + c * f.up[k]);
+                let printed =
+                    i >= u0 && j >= v0 && ink(f.word, (i - u0) / INK_CELLS, (j - v0) / INK_CELLS);
+                let albedo = if printed { INK } else { CARD };
+                self.disk(p, f.normal, 0.75 * GRID, albedo, 0.05);
+            }
+        }
+    }
+}
+
+/// Write the lettering scene ([`lettering_scene`]) to `path` as an INRIA `.ply`
+/// (atomically).
+pub fn write_lettering(path: &std::path::Path, seed: u64) -> crate::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
+    }
+    crate::scene::ply::write_ply(path, &lettering_scene(seed))
 }
 
 /// Ground-truth masks of the Gaussians `part` of `scene` as seen (occlusion included)
@@ -368,5 +626,81 @@ mod tests {
         let (w, h, img) = style_image(0);
         assert_eq!(img.len(), w * h * 3);
         assert!(img.iter().all(|v| (0.0..=1.0).contains(v)));
+    }
+
+    /// The DC colour's mean over the channels, per Gaussian.
+    fn grey(s: &Scene) -> Vec<f32> {
+        s.sh_dc
+            .iter()
+            .map(|c| c.iter().map(|v| SH_C0 * v + 0.5).sum::<f32>() / 3.0)
+            .collect()
+    }
+
+    #[test]
+    fn lettering_is_deterministic_and_carries_its_words() {
+        let s = lettering_scene(0);
+        assert_eq!((s.len(), s.sh_degree), (LETTERING_GAUSSIANS, 1));
+        s.validate(std::path::Path::new("lettering")).unwrap();
+        assert_ne!(s, lettering_scene(1));
+        assert!(s.positions.iter().all(|p| p[1] <= 0.01)); // -y up, on the plane y = 0
+        let d = tempfile::tempdir().unwrap();
+        let (a, b) = (d.path().join("a.ply"), d.path().join("sub/b.ply"));
+        write_lettering(&a, 0).unwrap();
+        write_lettering(&b, 0).unwrap();
+        let bytes = std::fs::read(&a).unwrap();
+        assert!(
+            bytes == std::fs::read(&b).unwrap(),
+            "two calls, two byte strings"
+        );
+        assert_eq!(crate::scene::read_scene_file(&a).unwrap(), s);
+        // Every ink pixel of the four words is 3 x 3 dark Gaussians; all others are card.
+        let ink_pixels: usize = LETTERING_WORDS
+            .iter()
+            .map(|w| {
+                (0..6 * w.len())
+                    .flat_map(|c| (0..7).map(move |r| (c, r)))
+                    .filter(|&(c, r)| ink(w, c, r))
+                    .count()
+            })
+            .sum();
+        let g = grey(&s);
+        let dark = g.iter().filter(|&&v| v < 0.1).count();
+        let light = g.iter().filter(|&&v| v > 0.45).count();
+        assert_eq!(dark, ink_pixels * INK_CELLS * INK_CELLS);
+        assert_eq!(dark + light, s.len());
+        assert!(
+            (0.05..0.2).contains(&(dark as f64 / s.len() as f64)),
+            "{dark}"
+        );
+    }
+
+    #[test]
+    fn lettering_reads_at_256_px_from_the_default_orbit() {
+        // View 0 of `orbit:16` (elevation 15 degrees) faces STYLE: ink covers a good share
+        // of the box, in a band 20-40 px high (the letters' height).
+        let s = lettering_scene(0);
+        let cams = crate::camera::load_cameras("orbit:16", &s.bounds(), 256, 256).unwrap();
+        let cache = crate::render::ViewCache::build(&s, &cams[0]).unwrap();
+        let cover = cache.forward(&vec![[1.0; 3]; cache.gaussians().len()], [0.0; 3]);
+        let g = grey(&s);
+        let colours: Vec<[f32; 3]> = cache
+            .gaussians()
+            .iter()
+            .map(|&i| [g[i as usize]; 3])
+            .collect();
+        let rgb = cache.forward(&colours, [0.0; 3]);
+        let (mut object, mut rows) = (0usize, Vec::new());
+        for p in 0..256 * 256 {
+            if cover[3 * p] > 0.95 {
+                object += 1;
+                if rgb[3 * p] < 0.2 {
+                    rows.push(p / 256);
+                }
+            }
+        }
+        let share = rows.len() as f64 / object as f64;
+        let height = rows.iter().max().unwrap() - rows.iter().min().unwrap() + 1;
+        assert!((0.05..0.4).contains(&share), "ink share {share}");
+        assert!((20..=40).contains(&height), "ink band {height} px");
     }
 }
