@@ -863,7 +863,11 @@ outs = ["b.out"]
             &file,
             &LoadOptions {
                 workdir: None,
-                sets: vec![format!("prompt={prompt}").parse().unwrap()],
+                // The default runs no loop: one chunk, so that a stage takes the prompt.
+                sets: vec![
+                    format!("prompt={prompt}").parse().unwrap(),
+                    "distill.chunks=1".parse().unwrap(),
+                ],
             },
         )
         .unwrap();

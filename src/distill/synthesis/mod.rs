@@ -186,6 +186,9 @@ fn split_mean(g: &Array2<f32>) -> (ndarray::Array1<f32>, Array2<f32>) {
     (mean, detail)
 }
 
+/// Fewest motif patches a level keeps its background out with.
+const MIN_MOTIF_PATCHES: usize = 16;
+
 /// PCA dimensions of the guide's patches.
 const GUIDE_DIMS: usize = 8;
 /// A style patch joins the bank when at least this share of its pixels is motif
@@ -427,7 +430,7 @@ const SINKHORN_ITERS: usize = 30;
 
 /// Which patches of `style` (on the grid of step `stride`, [`patches`]' order) are
 /// mostly `motif`, not a flat background ([`guide::motif_mask`]); empty (every patch)
-/// when the style has no background or fewer than `CELLS` patches would be kept.
+/// when the style has no background or fewer than `MIN_MOTIF_PATCHES` would be kept.
 fn motif_rows(motif: &[bool], style: &Image, k: usize, stride: usize) -> Vec<bool> {
     if motif.iter().all(|&m| m) {
         return Vec::new();
@@ -439,7 +442,7 @@ fn motif_rows(motif: &[bool], style: &Image, k: usize, stride: usize) -> Vec<boo
         .mean_axis(Axis(1))
         .expect("k >= 1");
     let keep: Vec<bool> = share.iter().map(|&s| s >= MOTIF_SHARE).collect();
-    if keep.iter().filter(|&&k| k).count() < CELLS {
+    if keep.iter().filter(|&&k| k).count() < MIN_MOTIF_PATCHES {
         return Vec::new();
     }
     keep
