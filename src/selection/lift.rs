@@ -24,9 +24,9 @@
 //! under the sample's sphere, also the sphere's own underside). Its sums say nothing
 //! about it (any `in_i > 0` with `out_i = 0` would select it), so it does not vote:
 //! it takes the weight of the Gaussians it overlaps in 3D ([`super::hidden`]). A
-//! Gaussian that blends into no masked pixel (`in_i = 0`, seen or not selected by the
-//! rule above, or never blended) keeps weight 0. `occlusion = 0` makes every blending
-//! Gaussian seen: the sums alone, as FlashSplat.
+//! Gaussian that blends into no masked pixel (`in_i = 0`) keeps weight 0, as does a
+//! hidden one linked to nothing labelled. `occlusion = 0` makes every blending Gaussian
+//! seen: the sums alone, as FlashSplat.
 //!
 //! The sums are one composite per view: the tile rasteriser's weights go to a sink that
 //! accumulates `w m`, `w (1 - m)` and the transmittance `1 - sum w` of the weights before
