@@ -15,13 +15,15 @@
 //!
 //! Selections are made from [`SOURCES`] (`KIND:SPEC`, parsed by [`parse_source`]): the
 //! shapes of [`shapes`] (box, ellipsoid, half-space around the Gaussians' centres) and
-//! masks drawn on views lifted in closed form ([`lift`], FlashSplat, ECCV 2024); [`ops`]
+//! masks drawn on views lifted in closed form ([`lift`], FlashSplat, ECCV 2024; the
+//! Gaussians the views show only behind other surfaces labelled by [`hidden`]); [`ops`]
 //! combines them (union, intersection, complement). A new source is one new file here
 //! and one line of [`SOURCES`].
 
 use crate::{Error, Result, Scene};
 use std::path::Path;
 
+pub mod hidden;
 pub mod lift;
 pub mod ops;
 pub mod shapes;

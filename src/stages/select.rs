@@ -39,6 +39,12 @@ pub struct Args {
     /// Masks: weights in [0, 1] (in / (in + (1 + bias) out)) instead of 0 or 1.
     #[arg(long)]
     pub soft: bool,
+    /// Masks: the share of a pixel's light (in [0, 1]) that must reach a Gaussian at some
+    /// masked pixel for it to vote; one the views show only behind other surfaces (the
+    /// ground under an object) takes the weight of the Gaussians it overlaps instead. 0:
+    /// every Gaussian that blends votes (FlashSplat as published).
+    #[arg(long, value_name = "T", default_value_t = crate::selection::lift::DEFAULT_OCCLUSION)]
+    pub occlusion: f32,
     /// Add another selection artifact of the same scene (max of the weights).
     #[arg(long, value_name = "SELECTION")]
     pub union: Vec<PathBuf>,
@@ -60,6 +66,12 @@ pub fn run(a: Args) -> Result<crate::selection::Selection> {
     if !(a.bias.is_finite() && a.bias >= 0.0) {
         return Err(Error::param(format!("--bias {}: must be >= 0", a.bias)));
     }
+    if !(0.0..=1.0).contains(&a.occlusion) {
+        return Err(Error::param(format!(
+            "--occlusion {}: must be in [0, 1]",
+            a.occlusion
+        )));
+    }
     let source = parse_source(&a.from)?;
     let scene = crate::timing::load(|| load_scene(&a.scene))?;
     let ctx = Context {
@@ -67,6 +79,7 @@ pub fn run(a: Args) -> Result<crate::selection::Selection> {
         lift: LiftOptions {
             bias: a.bias,
             soft: a.soft,
+            occlusion: a.occlusion,
         },
     };
     let mut sel = a.threads.install(|| source.make(&scene, &ctx))??;
@@ -102,6 +115,7 @@ pub fn run(a: Args) -> Result<crate::selection::Selection> {
     );
     let params = serde_json::json!({
         "from": a.from, "cameras": a.cameras, "bias": a.bias, "soft": a.soft,
+        "occlusion": a.occlusion,
         "invert": a.invert,
     });
     let mut out = super::create_artifact(

@@ -1,13 +1,14 @@
 //! Selections (`select`, `fantasystyle::selection`): a box against an independent count,
 //! masks lifted to the Gaussians (FlashSplat's closed form) against the sample's own
-//! ground truth on views it was and was not given, `distill --selection` holding every
-//! other Gaussian's bytes, and bad input refused naming the file.
+//! ground truth on views it was and was not given and per Gaussian (the sphere without
+//! the ground under it), `distill --selection` holding every other Gaussian's bytes, and
+//! bad input refused naming the file.
 
 use crate::harness::repo_root;
 use fantasystyle::Scene;
 use fantasystyle::render::ViewCache;
 use fantasystyle::sample::{part_masks, sample_parts, sample_scene};
-use fantasystyle::selection::lift::{LiftOptions, Mask, lift};
+use fantasystyle::selection::lift::{LiftOptions, Mask, lift, lift_with};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -142,6 +143,89 @@ fn lifted_masks_reproduce_the_sphere_on_views_they_were_not_drawn_on() {
         );
         assert!(x >= min, "view {v}: IoU {x}");
     }
+}
+
+/// Counts of a selection against the sample's parts: (selected, of the sphere, IoU with
+/// the sphere's Gaussians, per other part (ground, cube, cone)).
+fn against_the_sphere(w: &[f32]) -> (usize, usize, f64, Vec<(&'static str, usize)>) {
+    let parts = sample_parts(0);
+    let sel = |r: &std::ops::Range<usize>| r.clone().filter(|&i| w[i] > 0.5).count();
+    let total = w.iter().filter(|&&x| x > 0.5).count();
+    let s = sphere();
+    let on = sel(&s);
+    let others = parts
+        .iter()
+        .filter(|p| p.0 != "sphere")
+        .map(|p| (p.0, sel(&p.1)))
+        .collect();
+    (total, on, on as f64 / (total + s.len() - on) as f64, others)
+}
+
+/// Masks alone select the sphere and not the ground under it: the sphere drawn on 4 of
+/// 16 orbit views (lifted in the library) and the example's two masks
+/// (`data-sample/masks`, through `select`). FlashSplat's sums alone (`--occlusion 0`)
+/// also pick ground Gaussians that the views show only behind the sphere.
+#[test]
+fn masks_alone_select_the_sphere_and_not_the_ground_under_it() {
+    let scene = sample_scene(0);
+    let cams = fantasystyle::camera::load_cameras(
+        "orbit:16,elev=30,radius=2.4,fov=50",
+        &scene.bounds(),
+        256,
+        256,
+    )
+    .unwrap();
+    let gt = part_masks(&scene, sphere(), &cams).unwrap();
+    let views: Vec<_> = [0usize, 4, 8, 12]
+        .iter()
+        .map(|&v| {
+            let m = Mask {
+                path: PathBuf::from(format!("{}.png", cams[v].name)),
+                width: 256,
+                height: 256,
+                values: gt[v].clone(),
+            };
+            (cams[v].clone(), m)
+        })
+        .collect();
+    let flash = LiftOptions {
+        occlusion: 0.0,
+        ..LiftOptions::default()
+    };
+    let before = against_the_sphere(&lift(&scene, &views, flash).unwrap().weights);
+    let (sel, fill) = lift_with(&scene, &views, LiftOptions::default()).unwrap();
+    let after = against_the_sphere(&sel.weights);
+    println!("4 of 16 views, --occlusion 0: {before:?}");
+    println!("4 of 16 views, default: {after:?}; {fill:?}");
+    assert!(before.3[0].1 > 10, "the case shows the problem: {before:?}");
+    assert!(after.2 >= 0.98, "{after:?}");
+    assert!(after.3.iter().all(|p| p.1 == 0), "{after:?}");
+    // The example's masks through the command line.
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str], out: &str| {
+        ok(bin("select")
+            .arg("--scene")
+            .arg(sample_ply())
+            .arg("--from")
+            .arg(format!(
+                "masks:{}",
+                repo_root().join("data-sample/masks").display()
+            ))
+            .arg("--cameras")
+            .arg(repo_root().join("data-sample/cameras.json"))
+            .args(extra)
+            .arg("--out")
+            .arg(tmp.path().join(out)));
+        let w = fantasystyle::artifacts::read_selection(&tmp.path().join(out)).unwrap();
+        against_the_sphere(&w.weights)
+    };
+    let before = run(&["--occlusion", "0"], "flash");
+    let after = run(&[], "default");
+    println!("data-sample/masks, --occlusion 0: {before:?}");
+    println!("data-sample/masks, default: {after:?}");
+    assert!(before.3[0].1 > 10, "{before:?}");
+    assert!(after.2 >= 0.98, "{after:?}");
+    assert!(after.3.iter().all(|p| p.1 == 0), "{after:?}");
 }
 
 /// Every field of Gaussian `i` of `s` as bits (position, scales, rotation, DC colour,
@@ -309,6 +393,19 @@ fn select_bad_input_is_a_clear_error() {
         &out,
         "none",
         "no mask",
+    );
+    // An occlusion outside [0, 1].
+    let m = format!("masks:{}", repo_root().join("data-sample/masks").display());
+    refused(
+        &[
+            &scene[..],
+            &["--from", &m, "--cameras", cams, "--occlusion", "1.5"],
+        ]
+        .concat(),
+        &[],
+        &out,
+        "--occlusion 1.5",
+        "[0, 1]",
     );
     // An empty selection.
     refused(
