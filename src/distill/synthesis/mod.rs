@@ -405,7 +405,7 @@ impl StyleLevel {
                     .for_each(|(u, row)| {
                         *u = -logsumexp(row.iter().zip(&log_v).map(|(&d, &v)| v - d / t));
                     });
-                let col = column_logsumexp(&dist, &log_u, cells, t);
+                let col = column_logsumexp(dist, &log_u, cells, t);
                 // The cells' marginal p share_c, relaxed by the exponent rho = balance
                 // (the KL-penalised unbalanced form, Chizat et al. 2018).
                 let log_p = (p as f32).ln();
