@@ -245,8 +245,10 @@ fn list(v: &[usize]) -> String {
         .join(", ")
 }
 
-/// Longest side of the opening pictures, px.
-pub const STRIP_SIDE: usize = 144;
+/// Longest side of the opening pictures, px. Small enough to keep the 3D viewer below
+/// them high on the page: in headless Chromium with SwiftShader (the viewer test), an
+/// orbit of panes whose top lies below about 490 px never finishes drawing.
+pub const STRIP_SIDE: usize = 112;
 /// Most views the opening pictures show.
 pub const STRIP_VIEWS: usize = 4;
 /// The label of the preview's row in the opening pictures.
@@ -320,9 +322,15 @@ fn opening_pictures(
             views.iter().map(|&v| p.image_of(v)).collect(),
         ));
     }
-    let mut s = String::from("<div id=\"pictures\"><table><tr><th>style</th><th></th>");
+    let mut s = format!(
+        "<div id=\"pictures\"><table title=\"views {} of {}, cropped to the object ({w}x{h} px at \
+         ({x0}, {y0})); every view, whole, is further below\"><tr><th>style</th><th class=\"note\">\
+         cropped</th>",
+        list(&views),
+        orig.n
+    );
     for v in &views {
-        s.push_str(&format!("<th>view {v}</th>"));
+        s.push_str(&format!("<th>view {v} of {}</th>", orig.n));
     }
     s.push_str("</tr>");
     for (r, (label, imgs)) in rows.iter().enumerate() {
@@ -346,12 +354,7 @@ fn opening_pictures(
         }
         s.push_str("</tr>");
     }
-    s.push_str(&format!(
-        "</table><p class=\"note\">Views {} of {}, cropped to the object ({w}x{h} px at ({x0}, {y0})); \
-         every view, whole, is further below.</p></div>",
-        list(&views),
-        orig.n
-    ));
+    s.push_str("</table></div>");
     s
 }
 
@@ -735,6 +738,50 @@ pub fn agreement_html(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `n` views of 40x30 whose alpha is 1 inside `boxes[i]` = (x0, y0, x1, y1).
+    fn views_with_objects(boxes: &[(usize, usize, usize, usize)]) -> ViewSet {
+        let (n, w, h) = (boxes.len(), 40, 30);
+        let cams = (0..n)
+            .map(|i| {
+                let e = [i as f64, -3.0, 1.0];
+                crate::maths::warp::look_at(&format!("v{i}"), e, [0.0; 3], w as u32, h as u32, 30.0)
+            })
+            .collect();
+        let alpha = ndarray::Array3::from_shape_fn((n, h, w), |(i, y, x)| {
+            let (x0, y0, x1, y1) = boxes[i];
+            f32::from(u8::from((x0..x1).contains(&x) && (y0..y1).contains(&y)))
+        });
+        let rgb = ndarray::Array4::zeros((n, h, w, 3));
+        let depth = ndarray::Array3::zeros((n, h, w));
+        ViewSet::new(Path::new("v"), rgb, depth, alpha, cams).unwrap()
+    }
+
+    #[test]
+    fn the_opening_pictures_spread_over_the_views_or_the_preview() {
+        assert_eq!(strip_views(3, None), vec![0, 1, 2]);
+        assert_eq!(strip_views(8, None), vec![0, 2, 4, 6]);
+        assert_eq!(strip_views(7, None), vec![0, 1, 3, 5]);
+        let orig = views_with_objects(&[(0, 0, 1, 1); 8]);
+        // The preview's views, sorted, each once: 1, 2, 3, 5, 6, 7.
+        let mut p = Preview {
+            views: orig,
+            indices: vec![7, 1, 5, 3, 1, 6, 2],
+        };
+        assert_eq!(strip_views(8, Some(&p)), vec![1, 2, 5, 6]);
+        p.indices = vec![6, 2];
+        assert_eq!(strip_views(8, Some(&p)), vec![2, 6]);
+    }
+
+    #[test]
+    fn the_object_box_covers_every_shown_view_padded() {
+        let v = views_with_objects(&[(12, 10, 20, 14), (15, 4, 30, 12), (0, 0, 0, 0)]);
+        assert_eq!(object_box(&v, &[0]), (4, 2, 24, 20));
+        // The union of views 0 and 1, padded by 8 px, clamped to the 40x30 frame.
+        assert_eq!(object_box(&v, &[0, 1]), (4, 0, 34, 22));
+        // No object: the whole frame.
+        assert_eq!(object_box(&v, &[2]), (0, 0, 40, 30));
+    }
 
     #[test]
     fn agreement_section_reads_the_history() {

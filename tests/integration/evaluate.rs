@@ -240,7 +240,9 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
             .unwrap_or_else(|| panic!("no {s} in the report"))
     };
     assert!(at("id=\"pictures\"") < at("<h2>Metrics</h2>"));
-    assert!(html.contains("<th>view 0</th><th>view 1</th><th>view 3</th><th>view 5</th>"));
+    assert!(html.contains(
+        "<th>view 0 of 7</th><th>view 1 of 7</th><th>view 3 of 7</th><th>view 5 of 7</th>"
+    ));
     assert!(at("<h2>Metrics</h2>") < at("structure kept ↑"));
     assert!(at("structure kept ↑") < at("<h2>Structure kept: the worst view</h2>"));
     assert!(html.contains("band-pass, stylized"));
@@ -320,7 +322,7 @@ fn a_preview_opens_the_report_beside_the_views() {
     let label = fantasystyle::metrics::report::PREVIEW_LABEL;
     assert!(at("id=\"pictures\"") < at(label) && at(label) < at("<h2>Metrics</h2>"));
     // The columns are the preview's views; each row has its pictures.
-    assert!(html.contains("<th>view 1</th><th>view 3</th></tr>"));
+    assert!(html.contains("<th>view 1 of 5</th><th>view 3 of 5</th></tr>"));
     for row in ["original", "stylized", label] {
         for v in [1, 3] {
             assert!(html.contains(&format!("alt=\"{row} {v}\"")), "{row} {v}");
