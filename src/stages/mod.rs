@@ -149,10 +149,11 @@ pub struct DeviceArg {
 /// their defaults are in `distill --help`.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct ConfigArgs {
-    /// Start from a preset: `paper` (FantasyStyle alone: the CSD term, no start, no
-    /// finish, no split: the defaults) or `arf` (ARF's recipe on the loop: NNFM and a light
-    /// Gram term, the projected start, the colour finish, a 2 px split; the sample DAG's
-    /// configuration). The files are presets/NAME.toml.
+    /// Start from a preset: `default` (the sample DAG's: the patch prior's deterministic
+    /// end guided by the scene's structure, `finish = "patches"`, `synthesis.control = 1`),
+    /// `paper` (FantasyStyle alone: the CSD term, no start, no finish, no split: the
+    /// defaults) or `arf` (ARF's recipe on the loop: NNFM and a light Gram term, the
+    /// projected start, the colour finish, a 2 px split). The files are presets/NAME.toml.
     #[arg(long, value_name = "NAME")]
     pub preset: Option<String>,
     /// A configuration file (TOML, the keys listed below; a file may name its base with
