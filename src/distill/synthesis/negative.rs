@@ -103,11 +103,13 @@ mod tests {
 
     #[test]
     fn a_piece_copied_whole_is_coherent_and_a_shuffle_is_not() {
-        // Four queries on a 2 x 2 grid of step 2; style patches on a 4 x 4 grid of step 1.
+        // Four queries on a 2 x 2 grid of step 2.
         let pixels = [[0, 0, 0], [0, 0, 2], [0, 2, 0], [0, 2, 2]];
         let nbrs = neighbours(&[&pixels], 2);
         assert_eq!(nbrs[0].len(), 2);
-        let pos: Vec<[i32; 2]> = (0..16).map(|i| [i / 4, i % 4]).collect();
+        // Style patches on a 4 x 4 grid, and a 17th far from all of them.
+        let mut pos: Vec<[i32; 2]> = (0..16).map(|i| [i / 4, i % 4]).collect();
+        pos.push([40, 40]);
         // Copied whole: query (y, x) takes the style patch at (y, x).
         let whole = [0u32, 2, 8, 10];
         assert_eq!(coherence(&whole, &nbrs, &pos), 1.0);
@@ -115,7 +117,7 @@ mod tests {
         assert_eq!(coherence(&[5, 5, 5, 5], &nbrs, &pos), 0.0);
         // The penalty lands on the coherent candidates only.
         let mut dist = vec![1.0f32; 4 * 2];
-        let arg = [0u32, 5, 2, 5, 8, 5, 10, 5];
+        let arg = [0u32, 16, 2, 16, 8, 16, 10, 16];
         penalise(&mut dist, &arg, &whole, &nbrs, &pos, 0.5);
         assert_eq!(dist, [1.5, 1.0, 1.5, 1.0, 1.5, 1.0, 1.5, 1.0]);
     }
