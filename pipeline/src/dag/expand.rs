@@ -186,6 +186,9 @@ pub(super) fn expand(text: &str, p: &Parsed, diags: &mut Vec<Diag>) -> Vec<Expan
                 line,
                 item: item.as_ref(),
             };
+            if !at.present(diags) {
+                continue;
+            }
             if let Some(e) = at.expand(diags) {
                 stages.push(e);
             }
@@ -210,6 +213,29 @@ impl Instance<'_> {
         match self.item {
             Some(it) => format!("{}@{}", self.base, it.label),
             None => self.base.to_string(),
+        }
+    }
+
+    /// Whether the stage's `when` holds (no `when`: it does); a bad condition goes
+    /// into `diags` and leaves the stage out.
+    fn present(&self, diags: &mut Vec<Diag>) -> bool {
+        let Some(w) = &self.st.when else {
+            return true;
+        };
+        let line = self.p.lines.line(w.span().start);
+        let mut tracked = BTreeSet::new();
+        let Some(text) = self.sub(w.get_ref(), line, "when", &mut tracked, diags) else {
+            return false;
+        };
+        match super::when::holds(&text) {
+            Ok(b) => b,
+            Err(m) => {
+                diags.push(Diag {
+                    line: Some(line),
+                    msg: format!("stage `{}`: when `{text}`: {m}", self.name()),
+                });
+                false
+            }
         }
     }
 

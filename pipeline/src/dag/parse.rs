@@ -40,6 +40,9 @@ pub(super) struct RawStage {
     pub params: Vec<Spanned<String>>,
     #[serde(default)]
     pub foreach: Option<Spanned<toml::Value>>,
+    /// The stage exists only when this condition holds (`"${distill.chunks} > 0"`).
+    #[serde(default)]
+    pub when: Option<Spanned<String>>,
 }
 
 /// Maps byte offsets to 1-based line numbers.
