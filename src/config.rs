@@ -22,12 +22,13 @@
 //! Tables merge key by key, except `terms`, which a layer gives whole (the terms it
 //! names, every other at 0). Unknown keys are errors, named with their file.
 
-use super::ends::{Finish, Start};
-use super::synthesis::SynthesisParams;
-use super::terms::texture::TextureParams;
-use super::terms::{ColourLoss, Terms};
 use crate::csd::CsdParams;
+use crate::ends::patches::SynthesisParams;
+use crate::ends::{End, Finish, Start};
 use crate::mvfc::MvfcParams;
+use crate::scheduler::TimestepSchedule;
+use crate::terms::texture::TextureParams;
+use crate::terms::{ColourLoss, Terms};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -36,23 +37,27 @@ use std::path::Path;
 #[derive(Debug, Clone, PartialEq, clap::Args, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
-    /// The colour step's loss, a weighted sum of terms `NAME=WEIGHT,...`: the prior's
-    /// distillation term `csd` (the paper), `sds`, `dds` or `csd-no-neg` (at most one),
-    /// and the VGG texture terms `nnfm` (ARF's nearest-neighbour feature matching, relu3)
-    /// and `gram` (Gram matrices, relu1_2/relu2_2), which are not FantasyStyle
-    /// (src/distill/terms/). In a file: a table, `terms = { csd = 1.0, gram = 0.1 }`.
+    /// The colour step's loss, a weighted sum of terms `NAME=WEIGHT,...` of the registry
+    /// (src/terms/, listed below): the prior's distillation term `csd` (the paper),
+    /// `sds`, `dds` or `csd-no-neg` (at most one), and terms that are not FantasyStyle
+    /// (the VGG texture terms `nnfm` and `gram`, `tv`). In a file: a table,
+    /// `terms = { csd = 1.0, gram = 0.1 }`.
     #[arg(long, default_value = "csd=1", value_parser = Terms::parse)]
     pub terms: Terms,
-    /// How a fresh run starts: `scene` (as it is), `colour` (its colours moved onto the
-    /// style's mean and covariance) or `projection` (the style image texture-mapped onto
-    /// the object); the last two are ARF's, not FantasyStyle (src/distill/ends.rs).
-    #[arg(long, value_enum, default_value = "scene")]
+    /// How a fresh run starts, an end of the registry (src/ends/): `scene` (as it is),
+    /// `colour` (its colours moved onto the style's mean and covariance) or `projection`
+    /// (the style image texture-mapped onto the object); the last two are ARF's, not
+    /// FantasyStyle.
+    #[arg(long, default_value = "scene", value_parser = End::start)]
+    #[serde(deserialize_with = "crate::ends::read_start")]
     pub start: Start,
-    /// How a run ends: `none`, `colour` (the result's colours moved onto the style's
-    /// mean and covariance, ARF's colour transfer after the optimisation) or `patches`
-    /// (the patch prior's deterministic t -> 0 end: texture optimisation of the colours
-    /// with the style's patches, coarse to fine, `[synthesis]`).
-    #[arg(long, value_enum, default_value = "none")]
+    /// How a run ends, an end of the registry (src/ends/): `none`, `colour` (the
+    /// result's colours moved onto the style's mean and covariance, ARF's colour transfer
+    /// after the optimisation) or `patches` (the patch prior's deterministic t -> 0 end:
+    /// texture optimisation of the colours with the style's patches, coarse to fine,
+    /// `[synthesis]`).
+    #[arg(long, default_value = "none", value_parser = End::finish)]
+    #[serde(deserialize_with = "crate::ends::read_finish")]
     pub finish: Finish,
     /// Read by the `split` stage, not by distill: split every Gaussian longer than this
     /// many render pixels at the object (2 sigma along its longest axis) in two, up to 8
@@ -125,11 +130,46 @@ impl Default for Config {
     }
 }
 
+/// A section of the configuration (`[NAME]` in a file, `NAME.KEY` for `--set`): the keys
+/// one part of the method reads, declared once in its parameter struct. This list drives
+/// `--help`, `--set` and the range checks; a new section is one field of [`Config`] and
+/// one line here (a test holds the two together).
+#[derive(Debug, Clone, Copy)]
+pub struct Section {
+    pub name: &'static str,
+    /// Its keys with their defaults and docs ([`crate::params::key_help`]).
+    help: fn(&str) -> String,
+    /// One `KEY=VALUE` parsed by the key's declaration ([`crate::params::typed_value`]).
+    value: fn(&str, &str, &str) -> Result<toml::Value>,
+    /// Every key's range checked.
+    check: fn(&Config) -> Result<()>,
+}
+
+macro_rules! section {
+    ($name:ident, $t:ty) => {
+        Section {
+            name: stringify!($name),
+            help: crate::params::key_help::<$t>,
+            value: crate::params::typed_value::<$t>,
+            check: |c| c.$name.validate(),
+        }
+    };
+}
+
+/// The sections: the distillation step's, MVFC's, the VGG texture terms' and the patch
+/// synthesis end's.
+pub const SECTIONS: &[Section] = &[
+    section!(csd, CsdParams),
+    section!(mvfc, MvfcParams),
+    section!(texture, TextureParams),
+    section!(synthesis, SynthesisParams),
+];
+
 /// The presets: `presets/NAME.toml` of the repository, built into the binaries.
 pub const PRESETS: [(&str, &str); 3] = [
-    ("default", include_str!("../../presets/default.toml")),
-    ("paper", include_str!("../../presets/paper.toml")),
-    ("arf", include_str!("../../presets/arf.toml")),
+    ("default", include_str!("../presets/default.toml")),
+    ("paper", include_str!("../presets/paper.toml")),
+    ("arf", include_str!("../presets/arf.toml")),
 ];
 
 /// Where a layer of the configuration comes from.
@@ -165,9 +205,9 @@ impl Config {
     pub fn checked(mut self) -> Result<Config> {
         self.terms.validate()?;
         self.csd.mode = self.terms.prior().map_or(self.csd.mode, |(m, _)| m);
-        self.csd.validate()?;
-        self.mvfc.validate()?;
-        self.synthesis.validate()?;
+        for s in SECTIONS {
+            (s.check)(&self)?;
+        }
         let positive = |x: f32| x.is_finite() && x >= 0.0;
         if !positive(self.lr_dc) {
             return Err(Error::param("lr_dc must be finite and >= 0"));
@@ -184,7 +224,7 @@ impl Config {
         if !(self.split.is_finite() && self.split >= 0.0) {
             return Err(Error::param("split must be finite and >= 0 (0: off)"));
         }
-        if self.preserve_color && (self.start != Start::Scene || self.finish != Finish::None) {
+        if self.preserve_color && !(self.start.keeps() && self.finish.keeps()) {
             return Err(Error::param(
                 "preserve_color keeps the scene's colours; the colour and projection starts \
                  and the colour finish replace them: choose one",
@@ -200,13 +240,13 @@ impl Config {
     }
 
     /// How an iteration's timestep is drawn.
-    pub fn t_schedule(&self) -> super::TimestepSchedule {
+    pub fn t_schedule(&self) -> TimestepSchedule {
         if self.anneal_iters > 0 {
-            super::TimestepSchedule::Anneal {
+            TimestepSchedule::Anneal {
                 total: self.anneal_iters,
             }
         } else {
-            super::TimestepSchedule::Random
+            TimestepSchedule::Random
         }
     }
 
@@ -215,13 +255,19 @@ impl Config {
         toml::to_string(self).expect("a configuration serialises")
     }
 
-    /// Every key with its default and its doc, for `--help`.
+    /// Every key with its default and its doc, for `--help`, then the registries: the
+    /// terms, the ends and the patch synthesis's parts.
     pub fn help() -> String {
         let mut s = crate::params::key_help::<Config>("");
-        s += &crate::params::key_help::<CsdParams>("csd.");
-        s += &crate::params::key_help::<MvfcParams>("mvfc.");
-        s += &crate::params::key_help::<TextureParams>("texture.");
-        s += &crate::params::key_help::<SynthesisParams>("synthesis.");
+        for sec in SECTIONS {
+            s += &(sec.help)(&format!("{}.", sec.name));
+        }
+        s += "\nTerms (`terms`, src/terms/):\n";
+        s += &Terms::help();
+        s += "\nEnds (`start`, `finish`, src/ends/):\n";
+        s += &End::help();
+        s += "\nParts of the patch synthesis (src/ends/patches/):\n";
+        s += &crate::ends::patches::parts_help();
         s
     }
 }
@@ -301,37 +347,30 @@ fn set(table: &mut toml::Table, kv: &str) -> Result<()> {
     };
     let key = key.trim().replace('-', "_");
     let (section, field) = key.split_once('.').unwrap_or(("", &key));
-    let v = match section {
-        "" => typed_value::<Config>("", field, value)?,
-        "csd" => typed_value::<CsdParams>("csd.", field, value)?,
-        "mvfc" => typed_value::<MvfcParams>("mvfc.", field, value)?,
-        "texture" => typed_value::<TextureParams>("texture.", field, value)?,
-        "synthesis" => typed_value::<SynthesisParams>("synthesis.", field, value)?,
-        "terms" => {
+    let v = match (section, SECTIONS.iter().find(|s| s.name == section)) {
+        ("", _) => typed_value::<Config>("", field, value)?,
+        (_, Some(s)) => (s.value)(&format!("{section}."), field, value)?,
+        ("terms", None) => {
             let w: f32 = value
                 .trim()
                 .parse()
                 .map_err(|_| Error::param(format!("--set {kv}: a weight is a number")))?;
-            let mut t = Terms::default();
-            *t.weight_mut(field).map_err(Error::param)? = w;
+            let name = Terms::canonical(field).map_err(Error::param)?;
             let toml::Value::Table(mut terms) = table
                 .remove("terms")
                 .unwrap_or_else(|| toml::Value::try_from(Config::default().terms).expect("terms"))
             else {
                 return Err(Error::param("terms is not a table"));
             };
-            let name = if field == "csd_no_neg" {
-                "csd-no-neg"
-            } else {
-                field
-            };
             terms.insert(name.to_string(), toml::Value::Float(w as f64));
             table.insert("terms".into(), toml::Value::Table(terms));
             return Ok(());
         }
-        _ => {
+        (_, None) => {
+            let names: Vec<&str> = SECTIONS.iter().map(|s| s.name).collect();
             return Err(Error::param(format!(
-                "--set {kv}: unknown section `{section}` (csd, mvfc, texture, synthesis, terms)"
+                "--set {kv}: unknown section `{section}` ({}, terms)",
+                names.join(", ")
             )));
         }
     };
@@ -360,7 +399,7 @@ mod tests {
         assert_eq!(d.terms, Terms::parse("csd=1").unwrap());
         assert_eq!(
             (d.start, d.finish, d.split),
-            (Start::Scene, Finish::None, 0.0)
+            (Start::SCENE, Finish::NONE, 0.0)
         );
         assert!(d.mvfc.enabled && d.mvfc.source);
         assert_eq!(d.csd, CsdParams::default());
@@ -375,10 +414,10 @@ mod tests {
     fn the_default_preset_is_the_paper_ended_by_the_guided_patch_synthesis() {
         let d = Config::layered(&[Source::Preset("default".into())]).unwrap();
         let paper = Config::default().checked().unwrap();
-        assert_eq!(d.finish, Finish::Patches);
+        assert_eq!(d.finish, End::finish("patches").unwrap());
         assert_eq!(d.synthesis.control, 1.0);
         let mut unguided = d.clone();
-        unguided.finish = Finish::None;
+        unguided.finish = Finish::NONE;
         unguided.synthesis.control = paper.synthesis.control;
         assert_eq!(unguided, paper);
         let c = Config::layered(&[
@@ -403,7 +442,11 @@ mod tests {
         assert_eq!(arf.terms.to_string(), "csd=1,nnfm=1,gram=0.1");
         assert_eq!(
             (arf.start, arf.finish, arf.split),
-            (Start::Projection, Finish::Colour, 2.0)
+            (
+                End::start("projection").unwrap(),
+                End::finish("colour").unwrap(),
+                2.0
+            )
         );
         let c = Config::layered(&[
             Source::Preset("arf".into()),
@@ -417,9 +460,9 @@ mod tests {
             (c.csd.mode, c.csd.guidance, c.mvfc.gamma),
             (Mode::Sds, 3.0, 0.5)
         );
-        assert_eq!(c.start, Start::Projection);
+        assert_eq!(c.start.name(), "projection");
         let inline = Config::layered(&[Source::Config("{ preset = \"arf\", views = 2 }".into())]);
-        assert_eq!(inline.unwrap().start, Start::Projection);
+        assert_eq!(inline.unwrap().start.name(), "projection");
     }
 
     #[test]
@@ -457,5 +500,63 @@ mod tests {
             assert!(h.contains(&format!("  {key} ")), "{key}: {h}");
         }
         assert!(h.contains("[default: csd=1]") && h.contains("Adjacent views per iteration"));
+        // The registries, each from its list (test-only entries included).
+        for entry in [
+            "tv: total variation",
+            "patches (finish; [synthesis])",
+            "test-grey",
+        ] {
+            assert!(h.contains(entry), "{entry}: {h}");
+        }
+        for part in crate::ends::patches::PARTS {
+            assert!(
+                h.contains(&format!("          {}", part.name)),
+                "{}",
+                part.name
+            );
+        }
+    }
+
+    /// Every table of the configuration is a section of [`SECTIONS`] (or `terms`), and
+    /// every section a table: adding a section's field without its line fails here.
+    #[test]
+    fn the_sections_list_is_the_configurations_tables() {
+        let t = toml::Table::try_from(Config::default()).unwrap();
+        let mut tables: Vec<&str> = t
+            .iter()
+            .filter(|(k, v)| v.is_table() && *k != "terms")
+            .map(|(k, _)| k.as_str())
+            .collect();
+        tables.sort_unstable();
+        let mut listed: Vec<&str> = SECTIONS.iter().map(|s| s.name).collect();
+        listed.sort_unstable();
+        assert_eq!(tables, listed);
+    }
+
+    /// Each section's ranges are checked from the list: a style of no pixels is refused
+    /// by name, like a guide weight below 0.
+    #[test]
+    fn every_sections_ranges_are_checked() {
+        for bad in [
+            "texture.style_size=0",
+            "synthesis.control=-1",
+            "mvfc.gamma=2",
+        ] {
+            let e = Config::layered(&[Source::Set(bad.into())])
+                .unwrap_err()
+                .to_string();
+            let key = bad.split('=').next().unwrap();
+            assert!(e.contains(key), "{bad}: {e}");
+        }
+    }
+
+    /// A test-only end, added as one file and one line of the registry
+    /// (src/ends/test_grey.rs), is a finish the configuration takes by name.
+    #[test]
+    fn a_new_end_is_one_file_and_one_line() {
+        let c = Config::layered(&[Source::Set("finish=test-grey".into())]).unwrap();
+        assert_eq!(c.finish.name(), "test-grey");
+        let e = Config::layered(&[Source::Set("start=test-grey".into())]).unwrap_err();
+        assert!(e.to_string().contains("scene, colour, projection"), "{e}");
     }
 }

@@ -81,7 +81,7 @@ impl Weighting {
 }
 
 /// Parameters of one distillation step: the `[csd]` section of the method's
-/// configuration ([`crate::distill::config`]; the field docs are its help). The mode is
+/// configuration ([`crate::config`]; the field docs are its help). The mode is
 /// not a key of the section: it is the prior's term of the configuration's `terms`
 /// (`csd`, `sds`, `dds` or `csd-no-neg`), set when the configuration is checked.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, clap::Args)]

@@ -48,7 +48,7 @@ use rustfft::{Fft, FftPlanner};
 use std::sync::Arc;
 
 /// MVFC parameters: the `[mvfc]` section of the method's configuration
-/// ([`crate::distill::config`]; the field docs are its help), read by `distill` and
+/// ([`crate::config`]; the field docs are its help), read by `distill` and
 /// `mvfc-filter`. [`mvfc_path`] uses the filter's three numbers; `enabled` and `source`
 /// say where the loop applies it.
 #[derive(Debug, Clone, Copy, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]

@@ -352,6 +352,34 @@ impl TimestepSet {
     }
 }
 
+/// How an iteration's timestep is drawn from the model's set.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub enum TimestepSchedule {
+    /// Uniformly from the whole set, every iteration (the paper).
+    Random,
+    /// Coarse to fine: at iteration i of `total` the draw is uniform over the smallest
+    /// timesteps of the set up to t_max(i), which falls linearly from the set's largest
+    /// to its smallest (threestudio's annealed maximum step; DreamTime's monotone
+    /// schedule in its stochastic form).
+    Anneal { total: u64 },
+}
+
+impl TimestepSchedule {
+    /// The timestep of iteration `it`.
+    pub fn draw(&self, set: &TimestepSet, it: u64, rng: &mut Rng) -> usize {
+        match *self {
+            TimestepSchedule::Random => set.sample(rng),
+            TimestepSchedule::Anneal { total } => {
+                let steps = set.steps();
+                let f = (it as f64 / total.max(1) as f64).min(1.0);
+                let top = ((1.0 - f) * (steps.len() - 1) as f64).round() as usize;
+                let i = ((rng.uniform() * (top + 1) as f64) as usize).min(top);
+                steps[i]
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -13,11 +13,11 @@
 //! * colour transfer ([`run`]): the object's colour mean and covariance moved onto
 //!   the style image's (linear Monge-Kantorovich map on the SH colours), no texture, no
 //!   optimisation: the method's colour start and finish alone
-//!   ([`crate::distill::colour_transfer`]).
+//!   ([`crate::transfer::colour`]).
 //! * projection ([`run`]): the style image texture-mapped onto the object
 //!   (triplanar projection along each Gaussian's normal, at the texture term's motif
 //!   scale), no optimisation: the method's projected start alone
-//!   ([`crate::distill::projection`]).
+//!   ([`crate::transfer::projection`]).
 //!
 //! A run of any of them, start to end (objective, monitor, fit under a budget,
 //! checkpoints), is [`run`]; the `stylize-baseline` stage reads the inputs and writes

@@ -1,13 +1,11 @@
 //! The NNFM baseline: ARF's nearest-neighbour feature matching (Zhang et al. 2022, Eq. 1;
-//! the matching is the method's, [`crate::distill::terms::nnfm`]) over the relu3 block, plus a
+//! the matching is the method's, [`crate::terms::nnfm`]) over the relu3 block, plus a
 //! content loss: mean squared error at relu3_3 against the original render. ARF's colour
 //! pre-transfer is not done.
 
 use super::{Objective, Terms, content_loss_grad};
-use crate::distill::terms::nnfm::{
-    NNFM_LAYERS, StyleColumns, normalised_style, split_stacked, stacked,
-};
 use crate::imageio::Image;
+use crate::terms::nnfm::{NNFM_LAYERS, StyleColumns, normalised_style, split_stacked, stacked};
 use crate::vgg::{Layer, Tensor3, Vgg16};
 use crate::{Error, Result};
 

@@ -7,9 +7,9 @@
 //!   original renders (content) and the style;
 //! * `refit`: each original view stylized by the 2D stylizer on its own, then the colours
 //!   fitted to those images (L1 + D-SSIM); the stylizations' high-frequency agreement
-//!   between neighbouring views is measured ([`crate::distill::agreement`]);
+//!   between neighbouring views is measured ([`crate::metrics::agreement`]);
 //! * `colour-transfer`, `project`: the method's colour start and projected start alone
-//!   ([`crate::distill::colour_transfer`], [`crate::distill::projection`]).
+//!   ([`crate::transfer::colour`], [`crate::transfer::projection`]).
 
 use super::fit::{FitOptions, StepLog, fit_objective};
 use super::gram::{GramConfig, GramObjective, GramTargets};
@@ -211,8 +211,7 @@ pub fn transfer_colours(
 ) -> Result<Outcome> {
     let renders = crate::render::render_all(&scene, cams, background)?;
     let views: Vec<(&[f32], &[f32])> = renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
-    let (out, tr) =
-        crate::distill::colour_transfer::transfer_scene(&scene, &views, background, style)?;
+    let (out, tr) = crate::transfer::colour::transfer_scene(&scene, &views, background, style)?;
     let (src, dst) = (tr.source, tr.style);
     tracing::info!(
         "colour transfer: object mean {:.3?} -> style mean {:.3?}",
@@ -235,7 +234,7 @@ pub fn transfer_colours(
     ))
 }
 
-/// `project`: the style texture-mapped onto the object ([`crate::distill::projection`]);
+/// `project`: the style texture-mapped onto the object ([`crate::transfer::projection`]);
 /// a placement error is about the cameras, named by `cameras_from`.
 pub fn project(
     scene: Scene,
@@ -244,7 +243,7 @@ pub fn project(
     cameras_from: &str,
     t0: Instant,
 ) -> Result<Outcome> {
-    use crate::distill::projection::{Placement, project_style, rendered_normals};
+    use crate::transfer::projection::{Placement, project_style, rendered_normals};
     let at = Placement::of(&scene, cams).map_err(|e| Error::input(cameras_from, e.to_string()))?;
     tracing::info!(
         "style projection: {:.3e} world units per style px, centre {:.3?}",
@@ -332,8 +331,8 @@ fn refit_targets(
         .collect();
     let alpha: Vec<Vec<f32>> = renders.iter().map(|r| r.alpha.clone()).collect();
     let depth: Vec<Vec<f32>> = renders.iter().map(|r| r.depth.clone()).collect();
-    let closed = crate::distill::path::ViewPath::of(cams).closed;
-    use crate::distill::agreement::adjacent_agreement_of_views as agree;
+    let closed = crate::camera::path::ViewPath::of(cams).closed;
+    use crate::metrics::agreement::adjacent_agreement_of_views as agree;
     let hf_agree = agree(cams, &changes, &alpha, &depth, closed);
     let own: Vec<_> = originals.iter().map(Image::to_chw).collect();
     let hf_agree_orig = agree(cams, &own, &alpha, &depth, closed);

@@ -7,6 +7,7 @@
 //! * [`colmap`]: COLMAP sparse models, text (`cameras.txt`, `images.txt`) and binary
 //!   (`cameras.bin`, `images.bin`);
 //! * [`nerfstudio`]: nerfstudio / instant-ngp `transforms.json` (OpenGL camera-to-world);
+//! * an artifact holding a `cameras.json` (views, targets, latents);
 //! * [`orbit`]: generated orbits `orbit:N[,elev=DEG][,radius=R][,fov=DEG]` around the
 //!   centre of given [`Bounds`] (a scene's, but cameras know nothing of scenes).
 //!
@@ -20,6 +21,7 @@ pub mod colmap;
 pub mod inria;
 pub mod nerfstudio;
 pub mod orbit;
+pub mod path;
 
 use crate::geometry::{Bounds, DMat3, DVec3, mat3, rows};
 use crate::{Error, Result};
@@ -214,8 +216,8 @@ impl Camera {
 /// `cameras.json`, a nerfstudio `transforms.json`, or a COLMAP sparse model directory
 /// (`sparse/0`, or a directory holding one). Cameras read from files keep their poses;
 /// their intrinsics are rescaled from the file's image size to `width` x `height`
-/// ([`fit_cameras`]). Stages read their `--cameras` through
-/// [`crate::artifacts::load_cameras`], which also takes artifact directories.
+/// ([`fit_cameras`]); so are those of an artifact directory holding a `cameras.json`
+/// (a views artifact: the cameras a scene was rendered from).
 pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Result<Vec<Camera>> {
     check_size(width, height)?;
     if let Some(rest) = spec.strip_prefix("orbit:") {
@@ -228,6 +230,23 @@ pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Res
     }
     let (cams, src) = load_camera_file(Path::new(spec))?;
     fit_cameras(cams, &src, width, height)
+}
+
+/// The `cameras.json` of an artifact that has one (views, targets, latents), its
+/// manifest and hashes checked, at the artifact's image size; also returns the file.
+fn read_artifact_cameras(dir: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)> {
+    let a = fantasystyle_schemas::Artifact::open_any(dir)?;
+    let p = a.path("cameras.json");
+    if !p.is_file() {
+        return Err(Error::input(
+            dir,
+            format!(
+                "artifact of kind `{}` holds no cameras.json",
+                a.manifest.kind
+            ),
+        ));
+    }
+    Ok((inria::read_inria(&p)?, p))
 }
 
 /// Error unless `width` and `height` are positive.
@@ -269,9 +288,13 @@ pub fn fit_cameras(cams: Vec<Camera>, src: &Path, width: u32, height: u32) -> Re
     Ok(cams)
 }
 
-/// Read cameras (at their own image sizes) from a file or directory; also returns the
-/// file they came from (for messages).
+/// Read cameras (at their own image sizes) from a file, a directory, or an artifact
+/// holding a `cameras.json` (views, targets, latents); also returns the file they came
+/// from (for messages).
 pub fn load_camera_file(path: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)> {
+    if path.join(fantasystyle_schemas::MANIFEST_FILE).is_file() {
+        return read_artifact_cameras(path);
+    }
     if path.is_dir() {
         for (name, is_colmap) in [
             ("cameras.json", false),

@@ -55,124 +55,26 @@
 //! visits and neighbouring views), which only `distill` keeps (its state travels in
 //! `distill`'s checkpoints as `hf_prev.npy`; the stage chain does not measure it).
 
-pub mod agreement;
-pub mod colour_transfer;
-pub mod config;
-pub mod ends;
-pub mod fill;
+pub mod checkpoint;
 pub mod guard;
-pub mod path;
-pub mod projection;
 pub mod record;
-pub mod split;
 pub mod step;
-pub mod synthesis;
-pub mod terms;
 
+use crate::camera::path::{ViewPath, Window};
+pub use crate::config::Config;
+use crate::metrics::agreement;
 use crate::optim::{ColourFit, OptimizerState};
 use crate::prior::Prior;
 use crate::prior::cost::{CostModel, Plan, about};
-use crate::rng::Rng;
+pub use crate::render::source::SourceViews;
+pub use crate::scheduler::TimestepSchedule;
 use crate::scheduler::{Schedule, TimestepSet};
+pub use crate::terms::ColourLoss;
+use crate::terms::{self, PriorTerm};
 use crate::{Camera, Error, Result, Scene};
-pub use config::Config;
 use ndarray::{Array3, Array4, ArrayView4, Axis};
-use path::{ViewPath, Window};
 pub use record::{IterReport, LastIteration, LastLatents, Progress};
 pub use step::{ColourStep, Draws, TargetParams};
-pub use terms::ColourLoss;
-use terms::PriorTerm;
-
-/// How an iteration's timestep is drawn from the model's set.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub enum TimestepSchedule {
-    /// Uniformly from the whole set, every iteration (the paper).
-    Random,
-    /// Coarse to fine: at iteration i of `total` the draw is uniform over the smallest
-    /// timesteps of the set up to t_max(i), which falls linearly from the set's largest
-    /// to its smallest (threestudio's annealed maximum step; DreamTime's monotone
-    /// schedule in its stochastic form).
-    Anneal { total: u64 },
-}
-
-impl TimestepSchedule {
-    /// The timestep of iteration `it`.
-    pub fn draw(&self, set: &TimestepSet, it: u64, rng: &mut Rng) -> usize {
-        match *self {
-            TimestepSchedule::Random => set.sample(rng),
-            TimestepSchedule::Anneal { total } => {
-                let steps = set.steps();
-                let f = (it as f64 / total.max(1) as f64).min(1.0);
-                let top = ((1.0 - f) * (steps.len() - 1) as f64).round() as usize;
-                let i = ((rng.uniform() * (top + 1) as f64) as usize).min(top);
-                steps[i]
-            }
-        }
-    }
-}
-
-/// The original renders (from the source `views` artifact), one `[H, W, ...]` per view.
-#[derive(Debug, Clone)]
-pub struct SourceViews {
-    pub width: usize,
-    pub height: usize,
-    /// `[H, W, 3]` per view.
-    pub rgb: Vec<Vec<f32>>,
-    /// `[H, W]` per view.
-    pub alpha: Vec<Vec<f32>>,
-    /// `[H, W]` per view (expected depth), for ControlNet priors.
-    pub depth: Vec<Vec<f32>>,
-    /// The colour they are composited over (the loop renders over it too).
-    pub background: [f32; 3],
-}
-
-impl SourceViews {
-    /// The source views of `scene` rendered from `cameras` over `background` (the
-    /// original renders without a `views` artifact); the cameras must share one size.
-    pub fn render(scene: &Scene, cameras: &[Camera], background: [f32; 3]) -> Result<SourceViews> {
-        let Some(first) = cameras.first() else {
-            return Err(Error::param("source views: no camera"));
-        };
-        let (w, h) = (first.width, first.height);
-        if let Some(c) = cameras.iter().find(|c| (c.width, c.height) != (w, h)) {
-            return Err(Error::param(format!(
-                "source views: camera {:?} is {}x{}, the first is {w}x{h}",
-                c.name, c.width, c.height
-            )));
-        }
-        let mut src = SourceViews {
-            width: w as usize,
-            height: h as usize,
-            rgb: Vec::with_capacity(cameras.len()),
-            alpha: Vec::with_capacity(cameras.len()),
-            depth: Vec::with_capacity(cameras.len()),
-            background,
-        };
-        for r in crate::render::render_all(scene, cameras, background)? {
-            src.rgb.push(r.rgb);
-            src.alpha.push(r.alpha);
-            src.depth.push(r.depth);
-        }
-        Ok(src)
-    }
-
-    /// Image `rgb` `[H, W, 3]` of view `v` as the prior sees it, `[3, H, W]`
-    /// ([`step::prior_view`] with this view's coverage).
-    pub fn seen(&self, rgb: &[f32], v: usize, background: [f32; 3], fill: bool) -> Array3<f32> {
-        step::prior_view(
-            rgb,
-            &self.alpha[v],
-            background,
-            fill,
-            (self.height, self.width),
-        )
-    }
-
-    /// The un-premultiplied colour `[H, W, 3]` of view `v` ([`fill::unpremultiply`]).
-    pub fn colour(&self, v: usize, background: [f32; 3]) -> Vec<f32> {
-        fill::unpremultiply(&self.rgb[v], &self.alpha[v], background)
-    }
-}
 
 /// The distillation state: the colour fit (scene + optimizer + caches), the prior, the
 /// source views and their latents.
@@ -195,8 +97,10 @@ pub struct Distiller<'a> {
     path: ViewPath,
     iteration: u64,
     last: Option<LastIteration>,
-    /// The low-layer texture term added to the colour step ([`texture`]), if any.
+    /// The low-layer texture term added to the colour step ([`terms::texture`]), if any.
     texture: Option<terms::texture::TextureTerm>,
+    /// The configuration's view terms, made once ([`terms::ViewTerm`]).
+    view_terms: Vec<(f32, Box<dyn terms::ViewTerm>)>,
     /// Each view's previous high-pass change (measurement only, [`agreement`]).
     agreement: agreement::Tracker,
 }
@@ -246,6 +150,7 @@ impl<'a> Distiller<'a> {
         let source_seen: Vec<Array3<f32>> = (0..n)
             .map(|v| source.seen(&source.rgb[v], v, bg, params.fill))
             .collect();
+        let view_terms = params.terms.view_terms();
         Ok(Distiller {
             fit,
             prior,
@@ -260,6 +165,7 @@ impl<'a> Distiller<'a> {
             iteration,
             last: None,
             texture: None,
+            view_terms,
             agreement: agreement::Tracker::new(cameras, h, w),
         })
     }
@@ -402,6 +308,7 @@ impl<'a> Distiller<'a> {
                 weight,
             }),
             texture: self.texture.as_ref(),
+            views: &self.view_terms,
             background: source.background,
             fill: p.fill,
             iteration: self.iteration,

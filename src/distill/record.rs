@@ -1,60 +1,12 @@
 //! What the loop records, in memory and on disk: the progress of a run (a checkpoint's
-//! contents), every iteration's report, the last iteration's tensors, and the stage
-//! chain's iteration window and target statistics. These are the types that
-//! [`crate::artifacts`] writes into checkpoints and the stage chain's artifacts and reads
-//! back; they hold data only, so the artifact readers depend on them and not on the loop.
+//! contents), every iteration's report and the last iteration's tensors; the checkpoint
+//! I/O beside it ([`super::checkpoint`]) writes and reads them. The stage chain's iteration
+//! window and target statistics are the chain's artifacts' ([`crate::artifacts::chain`]).
 
-use super::path::{ViewPath, Window};
 use crate::Scene;
+pub use crate::artifacts::chain::{IterationWindow, TargetStats};
 use ndarray::Array4;
-use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
-
-/// Which iteration an artifact of the chain belongs to, and its window: recorded by
-/// `render-views --window` and carried along in `meta.iteration` of every artifact of the
-/// iteration, so that later stages replay the same draws.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct IterationWindow {
-    /// Seed of the run.
-    pub seed: u64,
-    /// Iterations done before this one (the iteration's index, from 0).
-    pub iteration: u64,
-    /// The camera path the window lies on.
-    pub path: ViewPath,
-    /// The window's views (camera indices in path order) and whether it is circular.
-    pub window: Window,
-}
-
-impl IterationWindow {
-    /// Iteration `iteration` of `seed` on an open path of `n` views whose window is the
-    /// whole path (what the draws give for it): the iteration of artifacts outside the
-    /// stage chain, which record none.
-    pub fn whole_open_path(n: usize, seed: u64, iteration: u64) -> IterationWindow {
-        IterationWindow {
-            seed,
-            iteration,
-            path: ViewPath {
-                len: n,
-                closed: false,
-            },
-            window: Window {
-                views: (0..n).collect(),
-                circular: false,
-            },
-        }
-    }
-}
-
-/// What the targets asked for, over covered pixels (alpha > 0.5).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TargetStats {
-    /// RMS of the image change Delta.
-    pub delta_rms: f64,
-    /// Fraction of covered target colours clipped (<= 0.02 or >= 0.98 in every channel).
-    pub clipped: f64,
-}
 
 /// What one iteration did, for logs, checkpoints and tests.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -124,8 +76,8 @@ pub struct LastLatents {
 
 /// Where a run of the loop starts: a scene and the progress made on it (iterations done,
 /// the optimizer state, the history and the agreement state of a checkpoint; none for a
-/// plain scene: iteration 0). Read by [`crate::artifacts::read_progress`] and
-/// [`crate::artifacts::load_progress`].
+/// plain scene: iteration 0). Read by [`super::checkpoint::read_progress`] and
+/// [`super::checkpoint::load_progress`].
 #[derive(Debug, Clone)]
 pub struct Progress {
     pub scene: Scene,

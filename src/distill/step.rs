@@ -18,20 +18,23 @@
 //!
 //! What `distill` keeps in memory between steps, the chain passes as artifacts: the
 //! window and the iteration's identity in every artifact's `meta.iteration`, the
-//! optimizer state in the checkpoint (`crate::artifacts::read_checkpoint`).
+//! optimizer state in the checkpoint (`crate::distill::checkpoint::read_checkpoint`).
 
-use super::path::ViewPath;
 pub use super::record::{IterationWindow, TargetStats};
-use super::terms::PriorTerm;
-use super::terms::texture::TextureTerm;
-use super::{Config, SourceViews, TimestepSchedule, fill, keep_chroma};
+use super::{TimestepSchedule, keep_chroma};
+use crate::camera::path::ViewPath;
+use crate::config::Config;
 use crate::csd::{self, CsdParams};
 use crate::mvfc::mvfc_path;
 use crate::optim::{ColourFit, FitParams};
 use crate::prior::{ControlKind, Prior};
 use crate::render::CacheMode;
+pub use crate::render::fill::{prior_image, prior_view};
+use crate::render::source::SourceViews;
 use crate::rng::Rng;
 use crate::scheduler::{Schedule, TimestepSet};
+use crate::terms::PriorTerm;
+use crate::terms::texture::TextureTerm;
 use crate::{Error, Result};
 use ndarray::{Array3, Array4, ArrayView4, Axis, concatenate};
 use std::time::Instant;
@@ -124,35 +127,6 @@ pub fn fit_params(p: &Config, background: [f32; 3]) -> FitParams {
 /// clamped: colours have no upper bound).
 pub fn render_window(fit: &ColourFit<'_>, views: &[usize]) -> Vec<Vec<f32>> {
     views.iter().map(|&v| fit.render_view(v)).collect()
-}
-
-/// The image `[H, W, 3]` the prior sees of a render `rgb` `[H, W, 3]` composited over
-/// `background` with coverage `alpha` `[H, W]`: the render itself, or with `fill` the
-/// object over a push-pull fill of its own colours ([`fill::fill_background`]).
-pub fn prior_image(
-    rgb: &[f32],
-    alpha: &[f32],
-    background: [f32; 3],
-    fill: bool,
-    (h, w): (usize, usize),
-) -> Vec<f32> {
-    if fill {
-        fill::fill_background(rgb, alpha, background, h, w)
-    } else {
-        rgb.to_vec()
-    }
-}
-
-/// [`prior_image`] as the encoder takes it, `[3, H, W]`.
-pub fn prior_view(
-    rgb: &[f32],
-    alpha: &[f32],
-    background: [f32; 3],
-    fill: bool,
-    (h, w): (usize, usize),
-) -> Array3<f32> {
-    let img = prior_image(rgb, alpha, background, fill, (h, w));
-    Array3::from_shape_fn((3, h, w), |(c, y, x)| img[(y * w + x) * 3 + c])
 }
 
 /// Stack `[C, H, W]` images (or latents) into `[N, C, H, W]`.
@@ -453,6 +427,9 @@ pub struct ColourStep<'t> {
     /// The VGG texture terms ([`super::terms::texture`]), if any; they see each render
     /// as the prior does ([`prior_image`] with `background`, `fill`).
     pub texture: Option<&'t TextureTerm>,
+    /// The view terms that are on, with their weights ([`crate::terms::ViewTerm`]); they
+    /// see the render itself and the source coverage.
+    pub views: &'t [(f32, Box<dyn crate::terms::ViewTerm>)],
     pub background: [f32; 3],
     pub fill: bool,
     /// The iteration's index: which of the window's views get the texture term
@@ -464,7 +441,8 @@ pub struct ColourStep<'t> {
 /// `[N, H, W, 3]` (one per view, in the order of `views`; `alpha[i]` `[H, W]` is view
 /// i's source coverage, which the texture terms mask with): per view the gradient at the
 /// render is the prior term's ([`PriorTerm::view`]; zero without one) plus the texture
-/// terms' ([`TextureTerm::view_grad`], on the views [`TextureTerm::applies`] picks); the
+/// terms' ([`TextureTerm::view_grad`], on the views [`TextureTerm::applies`] picks) plus
+/// the view terms' (their losses added to the colour loss); the
 /// optimizer state is the fit's and persists. Returns the mean colour loss and the mean
 /// texture loss over the views before the step.
 pub fn colour_step(
@@ -506,6 +484,14 @@ pub fn colour_step(
             tex_loss += tg.loss * scale as f64 / n as f64;
             for (a, b) in g.iter_mut().zip(&tg.grad) {
                 *a += scale * b;
+            }
+        }
+        let mut l = l;
+        for (weight, term) in cs.views {
+            let (lv, gv) = term.view(rgb, alpha[i], h, w);
+            l += *weight as f64 * lv;
+            for (a, b) in g.iter_mut().zip(&gv) {
+                *a += weight * b;
             }
         }
         Ok((l, g))

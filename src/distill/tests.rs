@@ -4,12 +4,13 @@
 
 use super::*;
 use crate::csd::CsdParams;
-use crate::distill::terms::half_squared_distance;
 use crate::optim::FitParams;
 use crate::optim::{LossParams, loss_and_grad};
 use crate::render::CacheMode;
 use crate::render::tests::{front_camera, random_scene};
 use crate::render::{RenderOptions, render};
+use crate::rng::Rng;
+use crate::terms::half_squared_distance;
 
 fn fit_params() -> FitParams {
     FitParams {

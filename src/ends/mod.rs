@@ -1,170 +1,250 @@
 //! How a run starts and how it ends: the configuration's `start` and `finish`, each one
-//! choice. FantasyStyle starts from the scene as it is and ends with the last iteration
-//! (`start = "scene"`, `finish = "none"`); the other choices are techniques of ARF's
-//! recipe (the `arf` preset), not part of FantasyStyle:
+//! name of the registry [`ENDS`]. FantasyStyle starts from the scene as it is and ends
+//! with the last iteration (`start = "scene"`, `finish = "none"`); the default ends with
+//! the patch prior's deterministic limit; the rest are techniques of ARF's recipe (the
+//! `arf` preset), not part of FantasyStyle:
 //!
-//! | choice | what | technique |
-//! |---|---|---|
-//! | `start = "colour"` | the object's colour mean and covariance (over the source views) moved onto the style image's, each Gaussian then clamped into the style's colour extent (ARF's colour pre-transfer) | [`super::colour_transfer`] |
-//! | `start = "projection"` | the style image texture-mapped onto the object: triplanar projection along each Gaussian's normal, one style pixel per render pixel at the object (the texture terms' motif scale, `texture.style_size`), shaded by each Gaussian's relative brightness | [`super::projection`] |
-//! | `finish = "patches"` | the patch prior's deterministic t -> 0 end: the colours fitted, coarse to fine, to every view's average of its nearest style patches, targets held, patch use balanced (texture optimisation, Kwatra et al. 2005) | [`super::synthesis`] |
-//! | `finish = "colour"` | the result's colour statistics (over its renders from the source cameras) moved onto the style's once more (ARF's colour transfer after the optimisation): the loop's palette drift taken back, the texture's arrangement kept | [`super::colour_transfer`] |
+//! | end | role | what | module |
+//! |---|---|---|---|
+//! | `scene` | start | the scene as it is | here |
+//! | `none` | finish | the last iteration's colours | here |
+//! | `colour` | start, finish | the object's colour mean and covariance moved onto the style image's, each Gaussian then clamped into the style's colour extent: over the source views (ARF's colour pre-transfer), or over the result's renders (ARF's colour transfer after the optimisation: the loop's palette drift taken back) | [`colour`] |
+//! | `projection` | start | the style image texture-mapped onto the object: triplanar projection along each Gaussian's normal, one style pixel per render pixel at the object (`texture.style_size`), shaded by each Gaussian's relative brightness | [`projection`] |
+//! | `patches` | finish | the patch prior's deterministic t -> 0 end: the colours fitted, coarse to fine, to every view's average of its nearest style patches, targets held, patch use balanced (texture optimisation, Kwatra et al. 2005), guided by the scene's structure; settings `[synthesis]`, parts [`patches::PARTS`] | [`patches`] |
+//!
+//! A new end is one new file here and one line of [`ENDS`] (its name, its roles, its
+//! settings section if it has one, its help and its function); the configuration,
+//! `--start`/`--finish`, `--set` and `distill --help` take it from there.
 //!
 //! A start applies to a fresh run (from a scene, iteration 0): a checkpoint has been
-//! through it. A chunked run (the sample DAG) gives the finish to its last stage only.
-//! Splitting long Gaussians is a start of another kind, a change of the geometry: its
-//! own stage (`split`, [`super::split`]).
+//! through it. A chunked run (the sample DAG with a loop) gives the finish to its last
+//! stage only. Splitting long Gaussians is a start of another kind, a change of the
+//! geometry: its own stage (`split`, [`split`]).
 
-use super::SourceViews;
+pub mod colour;
+pub mod patches;
+pub mod projection;
+pub mod split;
+#[cfg(test)]
+mod test_grey;
+
 use crate::imageio::Image;
+use crate::render::source::SourceViews;
 use crate::{Camera, Error, Result, Scene};
 use std::path::Path;
 
-/// How a fresh run starts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum Start {
-    /// From the scene as it is (FantasyStyle).
-    #[default]
-    Scene,
-    /// From the object's colours moved onto the style's mean and covariance (ARF's colour
-    /// pre-transfer).
-    Colour,
-    /// From the style image texture-mapped onto the object (triplanar projection).
-    Projection,
+/// Where an end may stand.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// Before the loop, on a fresh run.
+    Start,
+    /// After the loop.
+    Finish,
 }
 
-/// How a run ends, after its last iteration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum Finish {
-    /// With the last iteration's colours (FantasyStyle).
-    #[default]
-    None,
-    /// With the colours moved onto the style's mean and covariance once more (ARF's
-    /// colour transfer after the optimisation).
-    Colour,
-    /// With the patch prior's deterministic end: texture optimisation of the colours
-    /// with the style's patches, coarse to fine (`[synthesis]`).
-    Patches,
-}
-
-crate::params::serde_by_value_name!(Start, Finish);
-
-/// What a start needs besides the scene: the source views (their cameras; `cameras_from`
-/// names them in errors), the style image as loaded for the prior, the style image sized
-/// for the texture terms (`style_size` on its shorter side; `style_path` in errors), and
-/// the background.
+/// One end: its name in the configuration, where it may stand, the configuration section
+/// it reads (if any), a line of help, and what it does.
 #[derive(Debug, Clone, Copy)]
-pub struct StartInputs<'a> {
+pub struct EndKind {
+    pub name: &'static str,
+    pub roles: &'static [Role],
+    pub section: Option<&'static str>,
+    pub help: &'static str,
+    /// `scene` after this end in `role`.
+    pub run: fn(Role, &Scene, &EndInputs<'_>) -> Result<Scene>,
+}
+
+const START: &[Role] = &[Role::Start];
+const FINISH: &[Role] = &[Role::Finish];
+const BOTH: &[Role] = &[Role::Start, Role::Finish];
+
+/// The ends. A new end is one file of this module and one line here.
+#[rustfmt::skip]
+pub const ENDS: &[EndKind] = &[
+    EndKind { name: "scene", roles: START, section: None, help: "the scene as it is (FantasyStyle)", run: as_it_is },
+    EndKind { name: "none", roles: FINISH, section: None, help: "the last iteration's colours (FantasyStyle)", run: as_it_is },
+    EndKind { name: "colour", roles: BOTH, section: None, help: "the colours moved onto the style's mean and covariance (ARF's colour transfer)", run: colour::run },
+    EndKind { name: "projection", roles: START, section: Some("texture"), help: "the style image texture-mapped onto the object (triplanar)", run: projection::run },
+    EndKind { name: "patches", roles: FINISH, section: Some("synthesis"), help: "the patch prior's deterministic end: the style's patches synthesised onto the colours, coarse to fine", run: patches::run },
+    #[cfg(test)]
+    EndKind { name: "test-grey", roles: FINISH, section: None, help: "every colour grey (a test-only end)", run: test_grey::run },
+];
+
+/// An end chosen for one role (`start` or `finish`): a name of [`ENDS`] that may stand
+/// there. In a file and on the command line: its name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct End {
+    name: &'static str,
+    role: Role,
+}
+
+/// The configuration's `start`.
+pub type Start = End;
+/// The configuration's `finish`.
+pub type Finish = End;
+
+impl End {
+    /// The start that keeps the scene as it is.
+    pub const SCENE: End = End {
+        name: "scene",
+        role: Role::Start,
+    };
+    /// The finish that keeps the last iteration's colours.
+    pub const NONE: End = End {
+        name: "none",
+        role: Role::Finish,
+    };
+
+    /// The end `name` in `role`, or why not (the ends that may stand there).
+    pub fn parse(name: &str, role: Role) -> std::result::Result<End, String> {
+        match ENDS
+            .iter()
+            .find(|k| k.name == name && k.roles.contains(&role))
+        {
+            Some(k) => Ok(End { name: k.name, role }),
+            None => Err(format!(
+                "`{name}` is not one of {}",
+                Self::names(role).join(", ")
+            )),
+        }
+    }
+
+    /// The names of the ends that may stand in `role`.
+    pub fn names(role: Role) -> Vec<&'static str> {
+        ENDS.iter()
+            .filter(|k| k.roles.contains(&role))
+            .map(|k| k.name)
+            .collect()
+    }
+
+    /// A start for clap (`--start`, `--set start=`).
+    pub fn start(s: &str) -> std::result::Result<End, String> {
+        End::parse(s, Role::Start)
+    }
+
+    /// A finish for clap (`--finish`, `--set finish=`).
+    pub fn finish(s: &str) -> std::result::Result<End, String> {
+        End::parse(s, Role::Finish)
+    }
+
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
+    /// Its entry of [`ENDS`].
+    pub fn kind(&self) -> &'static EndKind {
+        ENDS.iter()
+            .find(|k| k.name == self.name)
+            .expect("an End is made from the registry")
+    }
+
+    /// Whether it keeps the scene as it is (`scene`, `none`).
+    pub fn keeps(&self) -> bool {
+        matches!(self.name, "scene" | "none")
+    }
+
+    /// Every end with its roles and help, for `--help`.
+    pub fn help() -> String {
+        ENDS.iter()
+            .map(|k| {
+                let roles: Vec<&str> = k
+                    .roles
+                    .iter()
+                    .map(|r| match r {
+                        Role::Start => "start",
+                        Role::Finish => "finish",
+                    })
+                    .collect();
+                let section = k.section.map(|s| format!("; [{s}]")).unwrap_or_default();
+                format!(
+                    "          {} ({}{section}): {}\n",
+                    k.name,
+                    roles.join(", "),
+                    k.help
+                )
+            })
+            .collect()
+    }
+}
+
+impl std::fmt::Display for End {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name)
+    }
+}
+
+impl serde::Serialize for End {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.name)
+    }
+}
+
+/// Read an end of `role` from a file (serde's `deserialize_with`).
+fn read_end<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    role: Role,
+) -> std::result::Result<End, D::Error> {
+    let s = <String as serde::Deserialize>::deserialize(d)?;
+    End::parse(&s, role).map_err(serde::de::Error::custom)
+}
+
+/// `start` from a file.
+pub fn read_start<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<End, D::Error> {
+    read_end(d, Role::Start)
+}
+
+/// `finish` from a file.
+pub fn read_finish<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<End, D::Error> {
+    read_end(d, Role::Finish)
+}
+
+/// What an end needs besides the scene: the cameras (`cameras_from` names them in
+/// errors) and their source views, the style image as loaded (`style_path` in errors),
+/// the configuration (its sections) and the selection, if any.
+#[derive(Debug, Clone, Copy)]
+pub struct EndInputs<'a> {
     pub cameras: &'a [Camera],
     pub cameras_from: &'a Path,
     pub source: &'a SourceViews,
     pub style: &'a Image,
     pub style_path: &'a Path,
-    pub style_size: usize,
-}
-
-/// `scene` after the start `kind`.
-pub fn start(kind: Start, scene: &Scene, inputs: &StartInputs<'_>) -> Result<Scene> {
-    match kind {
-        Start::Scene => Ok(scene.clone()),
-        Start::Colour => {
-            let s = inputs.source;
-            let views: Vec<(&[f32], &[f32])> = (0..s.rgb.len())
-                .map(|v| (&s.rgb[v][..], &s.alpha[v][..]))
-                .collect();
-            move_palette("colour start", scene, &views, s.background, inputs.style)
-        }
-        Start::Projection => project(scene, inputs),
-    }
-}
-
-/// The style image (at the texture terms' size) texture-mapped onto `scene`.
-fn project(scene: &Scene, inputs: &StartInputs<'_>) -> Result<Scene> {
-    use super::projection::{Placement, depth_views, project_style, surface_normals};
-    use crate::maths::warp::surface_depth;
-    let _ph = crate::timing::span("style projection");
-    // The cameras are the source views': a placement error is about them.
-    let at = Placement::of(scene, inputs.cameras)
-        .map_err(|e| Error::input(inputs.cameras_from, e.to_string()))?;
-    let img = crate::vgg::prepare_style(inputs.style, inputs.style_size, inputs.style_path)?;
-    tracing::info!(
-        "style projection: {}x{} style px, {:.3e} world units per px, centre {:.3?}",
-        img.width,
-        img.height,
-        at.world_per_pixel,
-        at.centre
-    );
-    let source = inputs.source;
-    let surfaces: Vec<Vec<f32>> = (source.depth.iter().zip(&source.alpha))
-        .map(|(depth, alpha)| surface_depth(depth, alpha))
-        .collect();
-    let normals = surface_normals(scene, &depth_views(inputs.cameras, &surfaces));
-    tracing::info!("style projection: {normals}");
-    Ok(project_style(scene, &img, &at, &normals.normals))
-}
-
-/// What a finish needs besides the scene: the cameras, the style image, the background,
-/// the configuration (`texture.style_size`, `[synthesis]`) and the selection, if any.
-#[derive(Debug, Clone, Copy)]
-pub struct FinishInputs<'a> {
-    pub cameras: &'a [Camera],
-    pub style: &'a Image,
-    pub background: [f32; 3],
-    pub config: &'a super::Config,
+    pub config: &'a crate::config::Config,
     pub selection: Option<&'a crate::selection::Selection>,
-    /// The source views' colours (`[H, W, 3]` per camera), if the run has them: the
-    /// patch synthesis takes its structure guide and source branch from them.
-    pub source: Option<&'a [Vec<f32>]>,
 }
 
-/// `scene` after the finish `kind`: for `colour`, the colour statistics of its own renders
-/// from the cameras moved onto those of the style image; for `patches`, the patch
-/// synthesis ([`super::synthesis`]).
-pub fn finish(kind: Finish, scene: &Scene, inputs: &FinishInputs<'_>) -> Result<Scene> {
-    let (cameras, style, background) = (inputs.cameras, inputs.style, inputs.background);
-    match kind {
-        Finish::None => Ok(scene.clone()),
-        Finish::Colour => {
-            let _ph = crate::timing::span("colour finish");
-            let renders = crate::render::render_all(scene, cameras, background)?;
-            let views: Vec<(&[f32], &[f32])> =
-                renders.iter().map(|r| (&r.rgb[..], &r.alpha[..])).collect();
-            move_palette("colour finish", scene, &views, background, style)
-        }
-        Finish::Patches => {
-            let c = inputs.config;
-            let size = c.texture.style_size;
-            let (out, _) = super::synthesis::synthesize(
-                scene,
-                cameras,
-                style,
-                background,
-                size,
-                &c.synthesis,
-                inputs.selection,
-                inputs.source,
-            )?;
-            Ok(out)
-        }
+/// `scene` after `end`.
+pub fn apply(end: End, scene: &Scene, inputs: &EndInputs<'_>) -> Result<Scene> {
+    let k = end.kind();
+    if !k.roles.contains(&end.role) {
+        return Err(Error::param(format!("`{}` cannot stand there", k.name)));
     }
+    (k.run)(end.role, scene, inputs)
 }
 
-/// [`super::colour_transfer::move_palette`], logged as `what`.
-fn move_palette(
-    what: &str,
-    scene: &Scene,
-    views: &[(&[f32], &[f32])],
-    background: [f32; 3],
-    style: &Image,
-) -> Result<Scene> {
-    let (scene, tr, clamped) =
-        super::colour_transfer::move_palette(scene, views, background, style)?;
-    tracing::info!(
-        "{what}: object mean {:.3?} -> style mean {:.3?}; {clamped} of {} Gaussians \
-         clamped into the style's colour extent",
-        tr.source.mean,
-        tr.style.mean,
-        scene.len()
-    );
-    Ok(scene)
+/// `scene` and `none`: the scene as it is.
+fn as_it_is(_: Role, scene: &Scene, _: &EndInputs<'_>) -> Result<Scene> {
+    Ok(scene.clone())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every end parses by name in the roles it has and no other, names the others when
+    /// refused, and reads back from its name; `--help` lists them all from the registry.
+    #[test]
+    fn ends_come_from_the_registry() {
+        for k in ENDS {
+            for role in [Role::Start, Role::Finish] {
+                assert_eq!(End::parse(k.name, role).is_ok(), k.roles.contains(&role));
+            }
+        }
+        let e = End::parse("paint", Role::Start).unwrap_err();
+        assert!(e.contains("scene, colour, projection"), "{e}");
+        assert!(End::parse("patches", Role::Start).is_err());
+        let h = End::help();
+        assert!(h.contains("patches (finish; [synthesis])") && h.contains("test-grey"));
+        assert!(End::SCENE.keeps() && End::NONE.keeps());
+        assert!(!End::finish("patches").unwrap().keeps());
+    }
 }

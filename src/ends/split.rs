@@ -92,7 +92,7 @@ pub const MAX_GROWTH: usize = 16;
 /// `scene` with every Gaussian longer than `px` render pixels at the object split
 /// ([`split_large`], [`ROUNDS`] rounds, at most [`MAX_GROWTH`] times the Gaussians); one
 /// pixel is the style projection's (the object centre's depth over the focal length,
-/// median over `cameras`: [`super::projection::Placement`]). Errors are about the
+/// median over `cameras`: [`crate::transfer::projection::Placement`]). Errors are about the
 /// cameras (the placement needs the object in front of them).
 pub fn split_to_pixels(
     scene: &Scene,
@@ -100,7 +100,7 @@ pub fn split_to_pixels(
     px: f64,
 ) -> crate::Result<(Scene, SplitReport)> {
     let _ph = crate::timing::span("split");
-    let at = super::projection::Placement::of(scene, cameras)?;
+    let at = crate::transfer::projection::Placement::of(scene, cameras)?;
     let max_extent = px * at.world_per_pixel;
     let cap = scene.len().saturating_mul(MAX_GROWTH);
     let (scene, report) = split_large(scene, max_extent, ROUNDS, cap);

@@ -21,6 +21,7 @@
 //! | [`report`] | the self-contained `report.html` of an evaluation |
 //! | [`viewer`] | the report's interactive side-by-side 3D viewer (Spark, embedded `.spz`) |
 
+pub mod agreement;
 pub mod consistency;
 pub mod evaluate;
 pub mod fid;

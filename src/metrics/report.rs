@@ -661,7 +661,7 @@ pub fn mean_present(points: &[(f64, Option<f64>)]) -> Option<f64> {
 }
 
 /// The agreement of the prior's high-frequency change across visits of a view and
-/// between neighbouring views ([`crate::distill::agreement`]) over a distill run's
+/// between neighbouring views ([`crate::metrics::agreement`]) over a distill run's
 /// iterations: every iteration's value, a running mean over `window` iterations, the
 /// first and last `window` iterations' means, and when given the refit baseline's
 /// per-view 2D stylizations as the ceiling of the adjacent measure, with the same measure

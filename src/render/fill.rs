@@ -11,9 +11,14 @@
 //! Filling the void with the object's own colours gives the prior a frame whose
 //! statistics are the object's; the fill carries no new information, and the colour
 //! fit only ever sees the covered part (targets are recomposited with the coverage,
-//! target = render + alpha (c' - c), [`super::step::targets`]).
+//! target = render + alpha (c' - c), [`crate::distill::step::targets`]).
+//!
+//! [`prior_image`] and [`prior_view`] are what the prior is given of a render: the render
+//! itself, or the object over the fill.
 //!
 //! Images are `[H, W, 3]` row-major; weights (coverage, alpha) `[H, W]` in [0, 1].
+
+use ndarray::Array3;
 
 /// Colour per pixel with the background removed: `(rgb - (1 - a) bg) / a`, clamped to
 /// [0, 1]; 0 where `a` < 1e-4 (no colour to recover).
@@ -113,6 +118,35 @@ pub fn push_pull(colour: &[f32], weight: &[f32], h: usize, w: usize) -> Vec<f32>
 pub fn fill_background(rgb: &[f32], alpha: &[f32], bg: [f32; 3], h: usize, w: usize) -> Vec<f32> {
     let c = unpremultiply(rgb, alpha, bg);
     push_pull(&c, alpha, h, w)
+}
+
+/// The image `[H, W, 3]` the prior sees of a render `rgb` `[H, W, 3]` composited over
+/// `background` with coverage `alpha` `[H, W]`: the render itself, or with `fill` the
+/// object over a push-pull fill of its own colours ([`fill_background`]).
+pub fn prior_image(
+    rgb: &[f32],
+    alpha: &[f32],
+    background: [f32; 3],
+    fill: bool,
+    (h, w): (usize, usize),
+) -> Vec<f32> {
+    if fill {
+        fill_background(rgb, alpha, background, h, w)
+    } else {
+        rgb.to_vec()
+    }
+}
+
+/// [`prior_image`] as the encoder takes it, `[3, H, W]`.
+pub fn prior_view(
+    rgb: &[f32],
+    alpha: &[f32],
+    background: [f32; 3],
+    fill: bool,
+    (h, w): (usize, usize),
+) -> Array3<f32> {
+    let img = prior_image(rgb, alpha, background, fill, (h, w));
+    Array3::from_shape_fn((3, h, w), |(c, y, x)| img[(y * w + x) * 3 + c])
 }
 
 #[cfg(test)]

@@ -22,9 +22,11 @@
 pub mod backward;
 pub mod bin;
 pub mod cache;
+pub mod fill;
 pub mod project;
 pub mod raster;
 pub mod sh;
+pub mod source;
 
 pub use cache::{CacheMode, ViewCache};
 pub use project::Frame;

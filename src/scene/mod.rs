@@ -4,7 +4,7 @@
 //! logits, unnormalised quaternions (w, x, y, z) and spherical-harmonic coefficients,
 //! so that reading and writing a `.ply` round-trips every field bit-exactly.
 //! Only colour (`sh_dc`, `sh_rest`) changes during stylization's iterations; geometry is
-//! frozen (the `split` stage may subdivide it once, before the first: [`crate::distill::split`]).
+//! frozen (the `split` stage may subdivide it once, before the first: [`crate::ends::split`]).
 //!
 //! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout),
 //! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3).

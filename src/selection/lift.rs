@@ -120,13 +120,7 @@ fn native_cameras(spec: &str, scene: &Scene, width: usize, height: usize) -> Res
     if spec.starts_with("orbit:") {
         return crate::camera::load_cameras(spec, &scene.bounds(), width as u32, height as u32);
     }
-    let path = Path::new(spec);
-    let (cams, _) = if crate::artifacts::is_artifact(path) {
-        crate::artifacts::read_cameras(path)?
-    } else {
-        crate::camera::load_camera_file(path)?
-    };
-    Ok(cams)
+    Ok(crate::camera::load_camera_file(Path::new(spec))?.0)
 }
 
 /// Each mask with its camera (by name, see the module docs): errors name the mask file

@@ -2,7 +2,7 @@
 //! render N adjacent views, encode, noise, MVFC, CSD, one colour step), from a scene (after
 //! the configuration's start) or from a checkpoint, then the configuration's finish,
 //! writing a checkpoint. What it runs is the method's configuration
-//! ([`crate::distill::config`]: `--preset`, `--config`, `--set`, and the choices
+//! ([`crate::config`]: `--preset`, `--config`, `--set`, and the choices
 //! `--terms`, `--start`, `--finish`); `distill --help` lists every key.
 //!
 //! Why in one process: an iteration of the stylizer prior on four 256x256 views takes
@@ -14,13 +14,13 @@
 //! artifact per step, in `data-sample/stylize-stages.toml` (the same library functions,
 //! [`crate::distill::step`]; the same bytes, tested), to look inside it.
 //!
-//! A checkpoint ([`crate::artifacts::write_checkpoint`]) is a `scene` artifact (anything
+//! A checkpoint ([`crate::distill::checkpoint::write_checkpoint`]) is a `scene` artifact (anything
 //! that reads a scene reads it) holding `scene.ply` (and `scene.splat`, `scene.spz` with
 //! `--format ply,splat,spz`), the optimizer state (`adam_dc.npy`, `adam_rest.npy`: Adam's
 //! moments; `state.json`: iteration and step counts), `history.json` (every iteration's
 //! timestep, views, loss, clipped fraction, and the agreement of the prior's
 //! high-frequency change across visits and neighbouring views,
-//! [`crate::distill::agreement`]: a measurement only `distill` makes, not the stage
+//! [`crate::metrics::agreement`]: a measurement only `distill` makes, not the stage
 //! chain), `hf_prev.npy` `[V, 3, H, W]` (each view's last high-pass change, which the
 //! next chunk's revisit agreement compares with) and the last iteration's tensors for
 //! `pipeline inspect`: `last_targets.npy` `[N, H, W, 3]` and, when the prior was called
@@ -30,15 +30,15 @@
 //! give the same bytes as one uninterrupted run.
 
 use super::{ConfigArgs, PriorArgs, Threads};
-use crate::artifacts::{
-    CHECKPOINT_HF_PREV, CheckpointParts, extend_history, load_scene, read_progress, read_selection,
-    read_views, write_checkpoint,
+use crate::artifacts::{load_scene, read_selection, read_views};
+use crate::distill::checkpoint::{
+    CHECKPOINT_HF_PREV, CheckpointParts, extend_history, read_progress, write_checkpoint,
 };
-use crate::distill::ends::{self, Finish, Start, StartInputs};
-use crate::distill::terms::Terms;
 use crate::distill::{Config, Outcome, Progress, Run, SourceViews, distill};
+use crate::ends::{self, EndInputs, Finish, Start};
 use crate::prior::cost::CostModel;
 use crate::prior::model_timesteps;
+use crate::terms::Terms;
 use crate::{Camera, Error, Result, Scene};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;
@@ -101,12 +101,14 @@ pub struct Args {
     /// `csd=1` (the paper) or `csd=1,nnfm=1,gram=0.1` (the arf preset's).
     #[arg(long, value_name = "TERMS", value_parser = Terms::parse)]
     pub terms: Option<Terms>,
-    /// How a fresh run starts (the key `start`): scene, colour or projection.
-    #[arg(long, value_enum)]
+    /// How a fresh run starts (the key `start`), an end of the registry: scene, colour
+    /// or projection.
+    #[arg(long, value_parser = ends::End::start)]
     pub start: Option<Start>,
-    /// How the run ends (the key `finish`): none or colour. A chunk of a longer run gives
-    /// `--finish none`; its last stage applies the finish.
-    #[arg(long, value_enum)]
+    /// How the run ends (the key `finish`), an end of the registry: none, colour or
+    /// patches. A chunk of a longer run gives `--finish none`; its last stage applies the
+    /// finish.
+    #[arg(long, value_parser = ends::End::finish)]
     pub finish: Option<Finish>,
     /// Scene files written into the checkpoint, comma-separated (scene.ply always).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "ply")]
@@ -177,33 +179,26 @@ pub fn run(a: Args) -> Result<()> {
     };
     // Strength 0 is "unchanged" exactly: no start, no iteration, no finish.
     let styled = config.strength > 0.0;
+    let inputs = EndInputs {
+        cameras: &cameras,
+        cameras_from: &a.source_views,
+        source: &source,
+        style: &style,
+        style_path: &a.prior.style,
+        config: &config,
+        selection: selection.as_ref(),
+    };
     if styled && a.resume.is_none() {
-        let inputs = StartInputs {
-            cameras: &cameras,
-            cameras_from: &a.source_views,
-            source: &source,
-            style: &style,
-            style_path: &a.prior.style,
-            style_size: config.texture.style_size,
-        };
-        let started = ends::start(config.start, &start.scene, &inputs)?;
+        let started = ends::apply(config.start, &start.scene, &inputs)?;
         start.scene = keep(&start.scene, started)?;
     }
     let sel = selection.as_ref();
     let mut outcome = iterate(&a, &config, &start, &cameras, &source, &style, sel)?;
-    if styled && config.finish != Finish::None {
+    if styled && !config.finish.keeps() {
         let scene = &outcome.scene;
-        let inputs = ends::FinishInputs {
-            cameras: &cameras,
-            style: &style,
-            background: source.background,
-            config: &config,
-            selection: selection.as_ref(),
-            source: Some(&source.rgb),
-        };
         let finished = a
             .threads
-            .install(|| ends::finish(config.finish, scene, &inputs))??;
+            .install(|| ends::apply(config.finish, scene, &inputs))??;
         outcome.scene = keep(&outcome.scene, finished)?;
     }
     write(&a, &config, start, &outcome)
@@ -219,7 +214,6 @@ fn iterate(
     style: &crate::imageio::Image,
     selection: Option<&crate::selection::Selection>,
 ) -> Result<Outcome> {
-    let (_, model_set) = model_timesteps(&a.prior.model)?;
     if config.strength == 0.0 || a.iters == 0 {
         // Strength 0 is "unchanged" exactly; 0 iterations only re-packages the input.
         if config.strength == 0.0 && a.iters > 0 {
@@ -227,10 +221,11 @@ fn iterate(
         }
         return Ok(Outcome::unchanged(start));
     }
+    let (_, model_set) = model_timesteps(a.prior.model()?)?;
     let mut prior = a.prior.open(style, config, a.threads)?;
     crate::csd::check_mode(config.csd.mode, prior.info())?;
     let set = super::timestep_set(config, &prior.info().scheduler, model_set)?;
-    let cost = CostModel::for_model(&a.prior.model, a.threads.n, a.prior.device.device)?;
+    let cost = CostModel::for_model(a.prior.model()?, a.threads.n, a.prior.device.device)?;
     let texture = super::texture_term(config, &a.prior.style, Some(style), a.threads)?;
     let run = Run {
         params: config.clone(),
@@ -262,6 +257,13 @@ fn write(a: &Args, config: &Config, start: Progress, outcome: &Outcome) -> Resul
     }
     a.prior.add_inputs(&mut out)?;
     write_scene(&mut out, &outcome.scene, &a.format, &a.out)?;
+    if iteration == 0 {
+        // No iteration has run: a scene artifact, no optimizer state (a later run resumes
+        // it at iteration 0 with a fresh one).
+        crate::timing::io(|| out.commit())?;
+        tracing::info!("wrote {} (no iteration: the scene alone)", a.out.display());
+        return Ok(());
+    }
     let mut history = start.history;
     extend_history(&mut history, &outcome.reports)?;
     let parts = CheckpointParts {

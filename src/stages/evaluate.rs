@@ -82,6 +82,8 @@ pub struct Args {
     pub stylized_scene: Option<PathBuf>,
     /// A distill checkpoint whose history.json's agreement of the prior's high-frequency
     /// change (across visits, between neighbouring views) the report draws per iteration.
+    /// Without it, the --stylized-scene's history when it is a checkpoint (a loop ran);
+    /// none when no loop ran.
     #[arg(long)]
     pub history: Option<PathBuf>,
     /// A views artifact of the prior's 2D stylization of some of the --original views
@@ -116,10 +118,9 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         (Some(o), Some(s)) => Some(crate::timing::load(|| viewer_inputs(o, s, &orig))?),
         _ => None,
     };
-    let history = a
-        .history
+    let history = history_of(&a)
         .as_deref()
-        .map(crate::artifacts::read_history)
+        .map(crate::distill::checkpoint::read_history)
         .transpose()?;
     let ceiling = refit_ceiling(&a)?;
     let preview = a
@@ -354,4 +355,17 @@ fn viewer_inputs(original: &Path, stylized: &Path, orig: &ViewSet) -> Result<Str
         &cam,
         background,
     ))
+}
+
+/// Where the loop's history comes from: `--history`, else the stylized scene when it is a
+/// checkpoint that holds one (no loop ran: none).
+fn history_of(a: &Args) -> Option<PathBuf> {
+    let holds = |d: &&PathBuf| {
+        crate::artifacts::is_artifact(d)
+            && d.join(crate::distill::checkpoint::CHECKPOINT_HISTORY)
+                .is_file()
+    };
+    a.history
+        .clone()
+        .or_else(|| a.stylized_scene.as_ref().filter(holds).cloned())
 }

@@ -12,13 +12,14 @@
 //! [`Threads`] (`--threads`), [`DeviceArg`] (`--device`), [`PriorArgs`] (`--model`,
 //! `--style`, `--prompt` and the device of `distill` and `csd-step`) and [`ConfigArgs`]
 //! (`--preset`, `--config`, `--set`: the method's configuration,
-//! [`crate::distill::config`], which every stage of the method reads: one type, one
+//! [`crate::config`], which every stage of the method reads: one type, one
 //! default per key).
 //! A stage never imports another stage: what two stages need lives in the library
 //! (artifact readers in [`crate::artifacts`], model lookup in [`crate::models`], phase
 //! timing for the DAG runner in [`crate::timing`]).
 
-use crate::artifacts::{load_cameras, load_scene};
+use crate::artifacts::load_scene;
+use crate::camera::load_cameras;
 use crate::{Camera, Error, Result, Scene};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -144,7 +145,7 @@ pub struct DeviceArg {
 }
 
 /// `--preset`, `--config`, `--set`: the method's configuration
-/// ([`crate::distill::config`]), read by every stage of the method (`distill`, `split`,
+/// ([`crate::config`]), read by every stage of the method (`distill`, `split`,
 /// and the stage chain's `mvfc-filter`, `csd-step`, `update-gaussians`); the keys and
 /// their defaults are in `distill --help`.
 #[derive(clap::Args, Debug, Clone, Default)]
@@ -169,8 +170,8 @@ pub struct ConfigArgs {
 
 impl ConfigArgs {
     /// The configuration's layers, in order.
-    pub fn layers(&self) -> Vec<crate::distill::config::Source> {
-        use crate::distill::config::Source;
+    pub fn layers(&self) -> Vec<crate::config::Source> {
+        use crate::config::Source;
         let mut l: Vec<Source> = self.preset.iter().cloned().map(Source::Preset).collect();
         l.extend(self.config.iter().cloned().map(Source::Config));
         l.extend(self.sets.iter().cloned().map(Source::Set));
@@ -178,8 +179,8 @@ impl ConfigArgs {
     }
 
     /// The configuration, checked.
-    pub fn load(&self) -> Result<crate::distill::Config> {
-        crate::distill::Config::layered(&self.layers())
+    pub fn load(&self) -> Result<crate::config::Config> {
+        crate::config::Config::layered(&self.layers())
     }
 }
 
@@ -187,10 +188,11 @@ impl ConfigArgs {
 /// `csd-step`) opens, and where.
 #[derive(clap::Args, Debug, Clone)]
 pub struct PriorArgs {
-    /// Model directory with model.json (e.g. vendor/models/stylizer,
-    /// vendor/models/gaussian-prior, an export of scripts/export_models.py).
+    /// Model directory with model.json (e.g. priors/patch, vendor/models/stylizer,
+    /// vendor/models/gaussian-prior, an export of scripts/export_models.py). Needed by
+    /// the loop (iterations that call the prior); a run of the end alone reads none.
     #[arg(long)]
-    pub model: PathBuf,
+    pub model: Option<PathBuf>,
     /// Style image (PNG or JPEG, shorter side >= 64 px).
     #[arg(long)]
     pub style: PathBuf,
@@ -204,6 +206,13 @@ pub struct PriorArgs {
 }
 
 impl PriorArgs {
+    /// The model directory, which the loop needs (`--model`).
+    pub fn model(&self) -> Result<&std::path::Path> {
+        self.model.as_deref().ok_or_else(|| {
+            Error::param("give --model: iterations of the loop call the prior (priors/patch, or a model directory)")
+        })
+    }
+
     /// Read the style image (before anything slow).
     pub fn load_style(&self) -> Result<crate::imageio::Image> {
         crate::imageio::load_style(&self.style, crate::imageio::MIN_STYLE_SIDE)
@@ -214,7 +223,7 @@ impl PriorArgs {
     pub fn open(
         &self,
         style: &crate::imageio::Image,
-        config: &crate::distill::Config,
+        config: &crate::config::Config,
         threads: Threads,
     ) -> Result<Box<dyn crate::prior::Prior>> {
         let opts = crate::prior::PriorOptions {
@@ -227,18 +236,17 @@ impl PriorArgs {
             unet_batch: config.unet_batch,
             ..Default::default()
         };
-        crate::timing::load(|| crate::prior::open(&self.model, &opts))
+        let model = self.model()?;
+        crate::timing::load(|| crate::prior::open(model, &opts))
     }
 
-    /// The model's `model.json` (the model directory's, or `--model` itself if a file).
-    pub fn manifest_path(&self) -> PathBuf {
-        model_manifest(&self.model)
-    }
-
-    /// Record the style image and the model's manifest as inputs of an artifact.
+    /// Record the style image and the model's manifest (if `--model` was given) as
+    /// inputs of an artifact.
     pub fn add_inputs(&self, w: &mut fantasystyle_schemas::ArtifactWriter) -> Result<()> {
         w.add_input("style", &self.style)?;
-        w.add_input("model", &self.manifest_path())?;
+        if let Some(m) = &self.model {
+            w.add_input("model", &model_manifest(m))?;
+        }
         Ok(())
     }
 
@@ -253,7 +261,7 @@ impl PriorArgs {
 /// The timestep set of a run: the configuration's `timesteps` for the model's noise
 /// schedule `cfg`, else the model's own `model_set`.
 pub fn timestep_set(
-    config: &crate::distill::Config,
+    config: &crate::config::Config,
     cfg: &crate::scheduler::SchedulerConfig,
     model_set: crate::scheduler::TimestepSet,
 ) -> Result<crate::scheduler::TimestepSet> {
@@ -269,11 +277,11 @@ pub fn timestep_set(
 /// the caller has read it already (`distill` reads it for the prior), so it is not read
 /// twice. The VGG runs on onnxruntime with `threads` intra-op threads.
 pub fn texture_term(
-    config: &crate::distill::Config,
+    config: &crate::config::Config,
     style: &Path,
     loaded: Option<&crate::imageio::Image>,
     threads: Threads,
-) -> Result<Option<crate::distill::terms::texture::TextureTerm>> {
+) -> Result<Option<crate::terms::texture::TextureTerm>> {
     use crate::vgg::Vgg16;
     let p = &config.texture;
     let parts = config.terms.statistics(&p.layers)?;
@@ -289,8 +297,7 @@ pub fn texture_term(
         Some(img) => crate::vgg::prepare_style(img, p.style_size, style)?,
         None => crate::vgg::prepare_style(&crate::imageio::read_rgb(style)?, p.style_size, style)?,
     };
-    let mut term =
-        crate::distill::terms::texture::TextureTerm::new(vgg, &img, &parts, p.downsample)?;
+    let mut term = crate::terms::texture::TextureTerm::new(vgg, &img, &parts, p.downsample)?;
     term.views = p.views;
     Ok(Some(term))
 }

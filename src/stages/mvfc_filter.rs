@@ -27,7 +27,7 @@
 
 use super::{ConfigArgs, Threads};
 use crate::artifacts::{Latents, open_latents, read_latents, window_rows, write_array};
-use crate::distill::Config;
+use crate::config::Config;
 use crate::distill::step::{self, Draws, IterLatents, IterationWindow, Noise};
 use crate::prior::model_timesteps;
 use crate::{Error, Result};

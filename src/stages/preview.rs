@@ -1,14 +1,14 @@
 //! `preview`: the patch prior's own 2D stylization of chosen views, in seconds, before a
-//! 3D run: the deterministic end of the default ([`crate::distill::synthesis`]) on the
+//! 3D run: the deterministic end of the default ([`crate::ends::patches`]) on the
 //! views' images themselves instead of the Gaussians' colours
-//! ([`crate::distill::synthesis::synthesize_images`]). Writes a `views` artifact (the
+//! ([`crate::ends::patches::synthesize_images`]). Writes a `views` artifact (the
 //! stylized rgb, the source views' depth and alpha, their cameras, PNG previews), which
 //! `evaluate` and `pipeline inspect` read like any views; fitted by the frozen scene's
 //! colours it is the 2D ceiling of what the Gaussians can hold.
 
 use super::{ConfigArgs, Threads};
 use crate::artifacts::read_views;
-use crate::distill::synthesis::synthesize_images;
+use crate::ends::patches::synthesize_images;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;

@@ -14,10 +14,10 @@
 //! bound), `cameras.json` of those views, and the iteration in `meta.iteration`.
 
 use super::{Background, SceneInput, Threads};
-use crate::artifacts::load_progress;
 use crate::camera::inria;
+use crate::camera::path::ViewPath;
 use crate::distill::Progress;
-use crate::distill::path::ViewPath;
+use crate::distill::checkpoint::load_progress;
 use crate::distill::step::{Draws, render_window};
 use crate::optim::{ColourFit, FitParams};
 use crate::render::{RenderOptions, render};

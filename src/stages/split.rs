@@ -1,4 +1,4 @@
-//! `split`: the configuration's `split` ([`crate::distill::split`]): every Gaussian longer
+//! `split`: the configuration's `split` ([`crate::ends::split`]): every Gaussian longer
 //! than `split` render pixels at the object (2 sigma along its longest axis; one pixel is
 //! the style projection's, from the source views' cameras) split in two, up to 8 rounds,
 //! before a run. Not part of FantasyStyle, and the one step of a run that changes the
@@ -37,14 +37,14 @@ pub struct Args {
 }
 
 /// The stage; returns the split's report (`None`: written as it is).
-pub fn run(a: Args) -> Result<Option<crate::distill::split::SplitReport>> {
+pub fn run(a: Args) -> Result<Option<crate::ends::split::SplitReport>> {
     let config = a.config.load()?;
     let scene = crate::timing::load(|| load_scene(&a.scene))?;
     let cameras = crate::timing::load(|| read_views(&a.source_views))?.cameras_per_view()?;
     let (scene, report) = if config.split > 0.0 && config.strength > 0.0 {
         let (s, r) = a
             .threads
-            .install(|| crate::distill::split::split_to_pixels(&scene, &cameras, config.split))?
+            .install(|| crate::ends::split::split_to_pixels(&scene, &cameras, config.split))?
             .map_err(|e| Error::input(&a.source_views, e.to_string()))?;
         (s, Some(r))
     } else {

@@ -8,10 +8,10 @@
 //!   to those images (`fit_colours`' L1 + D-SSIM), no MVFC, no distillation;
 //! * `colour-transfer`: the object's colour mean and covariance moved onto the style
 //!   image's by the linear Monge-Kantorovich map, written into the SH colours
-//!   ([`crate::distill::colour_transfer`]); no steps;
+//!   ([`crate::transfer::colour`]); no steps;
 //! * `project`: the style image (at `--style-size`) texture-mapped onto the object by
 //!   triplanar projection along each Gaussian's normal, one style pixel per render pixel
-//!   at the object ([`crate::distill::projection`]); no steps.
+//!   at the object ([`crate::transfer::projection`]); no steps.
 //!
 //! Output (schema `scene` v1): `scene.ply` (geometry bit-identical to the input, colours
 //! changed), `loss.json` (`method`, and per step the objective, its style and content
@@ -21,7 +21,7 @@
 //! also `scene_step10.ply`.. (the scene after those steps); for `refit` also
 //! `hf_agree_adjacent` in `loss.json`: how much of the per-view 2D stylizations'
 //! high-frequency change agrees between path neighbours after depth reprojection
-//! ([`crate::distill::agreement::adjacent_agreement_of_views`]), the ceiling of the
+//! ([`crate::metrics::agreement::adjacent_agreement_of_views`]), the ceiling of the
 //! distillation's per-iteration measure (and `hf_agree_adjacent_original`, the same
 //! measure on the original renders' own high pass: what the warp allows). Style image handling:
 //! grayscale expanded to RGB, alpha dropped, shorter side at least 92 px (relu4_3's

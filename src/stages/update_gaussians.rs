@@ -8,7 +8,7 @@
 //!   one Adam step on the window's views, continuing the optimizer state of the `--scene`
 //!   checkpoint (a plain scene: iteration 0, zero state), which must be at the targets'
 //!   iteration. Writes the next checkpoint, as `distill` does
-//!   ([`crate::artifacts::write_checkpoint`]: `scene.ply`, the optimizer state,
+//!   ([`crate::distill::checkpoint::write_checkpoint`]: `scene.ply`, the optimizer state,
 //!   `history.json` with this iteration's report; not `distill`'s agreement measurement,
 //!   which the chain does not make). The step is configured by the method's
 //!   configuration as distill's (`--preset`, `--config`, `--set`: `lr_dc`, `fit_rest`,
@@ -24,17 +24,17 @@
 //!   (the mean loss over views per step, plus cache statistics).
 
 use super::{Background, ConfigArgs, SceneInput, Threads};
-use crate::artifacts::{
-    CheckpointParts, Targets, extend_history, load_progress, read_targets, read_views,
-    write_checkpoint,
+use crate::artifacts::{Targets, read_targets, read_views};
+use crate::distill::checkpoint::{
+    CheckpointParts, extend_history, load_progress, write_checkpoint,
 };
 use crate::distill::step::{ColourStep, IterationWindow, TargetStats, colour_step};
-use crate::distill::terms::PriorTerm;
-use crate::distill::terms::texture::TextureTerm;
 use crate::distill::{Config, IterReport};
 use crate::optim::{ColourFit, FitParams, fit_colours};
 use crate::render::CacheMode;
 use crate::scene::ply;
+use crate::terms::PriorTerm;
+use crate::terms::texture::TextureTerm;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, Producer};
 use std::path::PathBuf;
@@ -154,12 +154,14 @@ fn iteration(
             }
         }
     }
+    let view_terms = config.terms.view_terms();
     let cs = ColourStep {
         prior: config.terms.prior().map(|(_, weight)| PriorTerm {
             loss: config.colour_loss,
             weight,
         }),
         texture: texture.as_ref(),
+        views: &view_terms,
         background: a.background.rgb,
         fill: config.fill,
         iteration: w.iteration,

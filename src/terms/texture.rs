@@ -18,7 +18,7 @@
 //! `F_l` the `[C, HW]` features of the view's object crop and `D_l = diag(m_l)` its
 //! coverage (alpha, 2x2-averaged per pooling), so that the background and the fill
 //! around the object count for nothing. The image the network sees is the object over
-//! the fill of its own colours ([`crate::distill::fill`]), the image the prior sees too; the fill
+//! the fill of its own colours ([`crate::render::fill`]), the image the prior sees too; the fill
 //! is held fixed, so dL/d(render) is dL/d(image) on covered pixels.
 //!
 //! With the term `nnfm` the statistic is instead ARF's nearest-neighbour feature
@@ -59,7 +59,7 @@ use rayon::prelude::*;
 const MARGIN: usize = 8;
 
 /// The settings of the VGG texture terms (`nnfm`, `gram`): the `[texture]` section of the
-/// method's configuration ([`crate::distill::config`]; the field docs are its help).
+/// method's configuration ([`crate::config`]; the field docs are its help).
 #[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TextureParams {
@@ -90,6 +90,30 @@ pub struct TextureParams {
 impl Default for TextureParams {
     fn default() -> Self {
         crate::params::defaults()
+    }
+}
+
+impl TextureParams {
+    /// Shortest accepted style side: a level-8 synthesis pixel then still covers a 4 px
+    /// style patch, and the motif scale means something.
+    pub const MIN_STYLE_SIZE: usize = 32;
+
+    /// Refuse a style size out of [32, 8192] px and a downsampling out of [1, 8].
+    pub fn validate(&self) -> Result<()> {
+        if !(Self::MIN_STYLE_SIZE..=8192).contains(&self.style_size) {
+            return Err(Error::param(format!(
+                "texture.style_size must lie in [{}, 8192] px, got {}",
+                Self::MIN_STYLE_SIZE,
+                self.style_size
+            )));
+        }
+        if !(1..=8).contains(&self.downsample) {
+            return Err(Error::param(format!(
+                "texture.downsample must lie in [1, 8], got {}",
+                self.downsample
+            )));
+        }
+        Ok(())
     }
 }
 

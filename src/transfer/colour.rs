@@ -23,7 +23,7 @@
 //! colours to 0): the views' colour statistics become the style's. View-dependent colour
 //! is kept, transformed like the rest.
 //!
-//! **Clamping into the style's extent (the colour start and finish, [`super::ends`]).** The
+//! **Clamping into the style's extent (the colour start and finish, [`crate::ends`]).** The
 //! linear map reproduces the style's mean and covariance, not its shape: along an axis
 //! where the style is one-sided (an op-art print's red against its neutrals, with no cyan), the
 //! object's colours on the other side of its mean come out in a hue the style lacks (a
@@ -261,7 +261,7 @@ pub fn clamp_to_extent(scene: &Scene, ext: &StyleExtent) -> (Scene, usize) {
     (out, changed)
 }
 
-/// The palette move of the colour start and finish ([`super::ends`]): [`transfer_scene`]
+/// The palette move of the colour start and finish ([`crate::ends`]): [`transfer_scene`]
 /// (the object's statistics over `views`, rendered over `background`, onto `style`'s),
 /// then [`clamp_to_extent`] into the style's extent. Returns the scene, the transfer and
 /// how many Gaussians the clamp moved.

@@ -1,9 +1,9 @@
 //! Style projection (not part of FantasyStyle): the style image texture-mapped onto the
 //! object by triplanar projection, written into the Gaussians' DC colours. No network, no
 //! optimisation: well under a second. A baseline (`stylize-baseline --method project`) and
-//! a start for the distillation (`start = "projection"`, [`super::ends`]).
+//! a start for the distillation (`start = "projection"`, [`crate::ends`]).
 //!
-//! Why: a texture statistic inside the loop (NNFM, Gram; [`crate::distill::terms::texture`]) and
+//! Why: a texture statistic inside the loop (NNFM, Gram; [`crate::terms::texture`]) and
 //! the 2D stylizer both ask each view for motifs where that view's content puts them, and
 //! views 22-45 degrees apart disagree, so bands and rings average into blobs of the style's
 //! colours (docs/style-projection.md). A motif painted once on the surface is the

@@ -1,6 +1,6 @@
 //! VGG16 (Simonyan & Zisserman 2015) feature extractor with its input gradient, for the
 //! VGG-based stylization baselines ([`crate::baselines`]) and `distill`'s texture term
-//! ([`crate::distill::terms::texture`]).
+//! ([`crate::terms::texture`]).
 //!
 //! What it computes: ImageNet normalisation `(x - mean) / std` of an `[H, W, 3]` image in
 //! [0, 1], then the VGG16 conv stack — 3x3 convolutions (stride 1, zero padding 1) each

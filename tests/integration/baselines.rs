@@ -649,8 +649,7 @@ mod stage {
         let after = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
         assert_eq!(before.positions, after.positions);
         assert_eq!(before.opacity_logits, after.opacity_logits);
-        let cams =
-            fantasystyle::artifacts::load_cameras("orbit:6", &before.bounds(), 48, 48).unwrap();
+        let cams = fantasystyle::camera::load_cameras("orbit:6", &before.bounds(), 48, 48).unwrap();
         let style = fantasystyle::imageio::read_rgb(&sample_style()).unwrap();
         let n = (style.width * style.height) as f64;
         let mut smu = [0.0; 3];
@@ -700,15 +699,15 @@ mod stage {
     /// projection takes the surface's.
     #[test]
     fn surface_normals_agree_with_a_mesh_derived_splats_axes() {
-        use fantasystyle::distill::projection::rendered_normals;
+        use fantasystyle::transfer::projection::rendered_normals;
         let mut agreement = Vec::new();
         for name in ["fish_10k.splat", "plant.splat"] {
             let Some(path) = crate::harness::shared_scene(name) else {
                 return;
             };
             let scene = fantasystyle::artifacts::load_scene(&path).unwrap();
-            let cams = fantasystyle::artifacts::load_cameras("orbit:8", &scene.bounds(), 128, 128)
-                .unwrap();
+            let cams =
+                fantasystyle::camera::load_cameras("orbit:8", &scene.bounds(), 128, 128).unwrap();
             let n = rendered_normals(&scene, &cams).unwrap();
             eprintln!("{name}: {n}");
             assert!(n.seen * 2 > scene.len(), "{name}: {n}");
@@ -724,13 +723,12 @@ mod stage {
     /// a different `--style-size` gives different colours.
     #[test]
     fn project_writes_the_projected_style() {
-        use fantasystyle::distill::projection::{Placement, project_style, rendered_normals};
+        use fantasystyle::transfer::projection::{Placement, project_style, rendered_normals};
         let d = tempfile::tempdir().unwrap();
         let before =
             fantasystyle::artifacts::load_scene(&repo_root().join("data-sample/scene.ply"))
                 .unwrap();
-        let cams =
-            fantasystyle::artifacts::load_cameras("orbit:2", &before.bounds(), 48, 48).unwrap();
+        let cams = fantasystyle::camera::load_cameras("orbit:2", &before.bounds(), 48, 48).unwrap();
         let raw = fantasystyle::imageio::read_rgb(&sample_style()).unwrap();
         let mut written = Vec::new();
         for size in [128, 256] {
@@ -772,7 +770,7 @@ mod stage {
 /// Tolerance: loss 1e-5 relative, gradient 1e-4 x its largest magnitude.
 #[test]
 fn nnfm_search_on_onnxruntime_matches_the_rust_search() {
-    use fantasystyle::distill::terms::nnfm::{StyleColumns, nnfm_loss_grad};
+    use fantasystyle::terms::nnfm::{StyleColumns, nnfm_loss_grad};
     use ndarray::Array2;
     if !crate::harness::onnxruntime() {
         return;

@@ -598,7 +598,7 @@ fn csd_step_stage_matches_numpy_targets() {
             // z0_src = z0: numpy's z_src is add_noise(z0, eps).
             source_latents: dp.join("lat"),
             prior: fantasystyle::stages::PriorArgs {
-                model: model.clone(),
+                model: Some(model.clone()),
                 style: sp.clone(),
                 prompt: None,
                 device: Default::default(),

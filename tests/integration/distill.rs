@@ -8,8 +8,9 @@
 
 use crate::harness::repo_root;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::distill::{Config, Distiller, SourceViews, fill};
+use fantasystyle::distill::{Config, Distiller, SourceViews};
 use fantasystyle::prior::{self, PriorOptions};
+use fantasystyle::render::fill;
 use fantasystyle::scheduler::TimestepSet;
 use fantasystyle::{Camera, Scene};
 use ndarray::Array4;
@@ -547,7 +548,7 @@ fn distill_bad_input_is_refused() {
 /// iterations (two, from the scene's own colours), and is refused with `preserve_color`.
 #[test]
 fn colour_init_and_finish_move_the_object_to_the_style_colours() {
-    use fantasystyle::distill::colour_transfer::{image_stats, object_stats};
+    use fantasystyle::transfer::colour::{image_stats, object_stats};
     let Some(stylizer) = stylizer_dir() else {
         return;
     };

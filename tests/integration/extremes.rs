@@ -10,10 +10,10 @@
 
 use crate::harness::{self, repo_root};
 use fantasystyle::csd::CsdParams;
-use fantasystyle::distill::terms::Terms;
 use fantasystyle::distill::{Config, Distiller, SourceViews};
 use fantasystyle::prior::{Cond, Prior, PriorInfo};
 use fantasystyle::scheduler::{Schedule, SchedulerConfig, TimestepSet};
+use fantasystyle::terms::Terms;
 use fantasystyle::{Camera, Scene};
 use ndarray::{Array4, ArrayView4};
 

@@ -203,9 +203,9 @@ fn stylizer_csd_moves_views_toward_the_style() {
 // The stages: mvfc-filter and csd-step, through their library functions.
 
 use fantasystyle::artifacts::{read_latents, read_noised_latents, read_targets};
+use fantasystyle::camera::path::ViewPath;
 use fantasystyle::csd::Mode;
 use fantasystyle::distill::TimestepSchedule;
-use fantasystyle::distill::path::ViewPath;
 use fantasystyle::distill::step::Draws;
 use fantasystyle::mvfc::mvfc_path;
 use fantasystyle::stages::{Background, ConfigArgs, PriorArgs, Threads};
@@ -572,7 +572,7 @@ pub(crate) fn step_args(d: &Path, model: &Path, style: &Path, mode: Mode) -> csd
         source_views: d.join("views"),
         source_latents: d.join("lat"),
         prior: PriorArgs {
-            model: model.to_path_buf(),
+            model: Some(model.to_path_buf()),
             style: style.to_path_buf(),
             prompt: None,
             device: Default::default(),

@@ -341,13 +341,9 @@ fn update_gaussians_default_rate_converges_in_a_hundred_steps() {
         assert_eq!(code, 0, "{err}");
         let fitted = fantasystyle::artifacts::read_scene(&out).unwrap();
         let target = fantasystyle::artifacts::read_views(&views).unwrap();
-        let cams = fantasystyle::artifacts::load_cameras(
-            views.to_str().unwrap(),
-            &fitted.bounds(),
-            48,
-            48,
-        )
-        .unwrap();
+        let cams =
+            fantasystyle::camera::load_cameras(views.to_str().unwrap(), &fitted.bounds(), 48, 48)
+                .unwrap();
         let (mut se, mut n) = (0.0f64, 0usize);
         for (i, c) in cams.iter().enumerate() {
             let r = render(&fitted, c, &RenderOptions::default()).unwrap();

@@ -5,7 +5,8 @@
 
 use crate::harness;
 use fantasystyle::Scene;
-use fantasystyle::artifacts::{load_cameras, load_scene};
+use fantasystyle::artifacts::load_scene;
+use fantasystyle::camera::load_cameras;
 use fantasystyle::camera::{self, Camera};
 use fantasystyle::scene::{ply, sh_coeffs};
 use std::path::{Path, PathBuf};
@@ -1054,7 +1055,7 @@ fn a_split_patch_renders_as_before() {
         rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
         translation: [0.0, 0.0, 2.0],
     };
-    let (split, r) = fantasystyle::distill::split::split_large(&scene, 0.05, 8, usize::MAX);
+    let (split, r) = fantasystyle::ends::split::split_large(&scene, 0.05, 8, usize::MAX);
     assert_eq!((r.rounds, r.left_above), (3, 0), "{r}");
     let opts = Default::default();
     let before = fantasystyle::render::render(&scene, &cam, &opts).unwrap();
@@ -1078,7 +1079,7 @@ fn a_split_patch_renders_as_before() {
     // capped at 0.99. Every Gaussian was split in each of the 3 rounds, so parent i's
     // children are 8i..8i+8. Measured 0.020 and 0.035: several times further.
     assert_eq!(split.len(), 8 * n);
-    let c = fantasystyle::distill::split::CHILD_SCALE;
+    let c = fantasystyle::ends::split::CHILD_SCALE;
     let g = (-(1.0 - c * c) / (2.0 * c * c)).exp();
     let mut centre = split.clone();
     for i in 0..n {

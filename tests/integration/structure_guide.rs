@@ -6,7 +6,7 @@
 
 use fantasystyle::Scene;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::distill::synthesis::{SynthesisParams, synthesize};
+use fantasystyle::ends::patches::{SynthesisParams, synthesize};
 use fantasystyle::imageio::Image;
 
 /// Side of the renders.

@@ -7,12 +7,12 @@
 use fantasystyle::Camera;
 use fantasystyle::Scene;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::distill::terms::texture::{Statistic, TextureLoss, TextureTerm};
 use fantasystyle::distill::{ColourLoss, Config, Distiller, SourceViews};
 use fantasystyle::imageio::Image;
 use fantasystyle::maths::warp::{surface_depth, warp_into};
 use fantasystyle::prior::{self, PriorOptions};
 use fantasystyle::rng::Rng;
+use fantasystyle::terms::texture::{Statistic, TextureLoss, TextureTerm};
 use fantasystyle::vgg::{Layer, Vgg16};
 
 /// Side of the renders; stripes of the style: period in pixels.
@@ -205,7 +205,7 @@ fn stripes_with(model: &std::path::Path, term: Option<TextureTerm>) {
 /// bytes on a second run.
 #[test]
 fn with_the_patch_synthesis_alone() {
-    use fantasystyle::distill::synthesis::{SynthesisParams, synthesize};
+    use fantasystyle::ends::patches::{SynthesisParams, synthesize};
     let scene = plane();
     let cams = cameras(&scene);
     let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();

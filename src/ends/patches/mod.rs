@@ -26,19 +26,35 @@
 //! It is the limit of the patch prior's denoiser as the noise goes to zero (a posterior
 //! mean that concentrates on the nearest patch), run without noise and with the targets
 //! held (docs/patch-prior.md, "The deterministic end").
+//!
+//! The files: [`level`] (a level's style model and the search), [`couple`] (the
+//! balance), [`view`] (a view's queries, votes and target), [`motif`] (a style's
+//! background), [`coherence`] (the pieces copied whole). The parts ([`parts::PARTS`]:
+//! the structure guide [`guide`], the negative branch [`negative`]) are switched on by
+//! their keys; a new part is one file and one line there.
 
+pub mod coherence;
+pub mod couple;
 pub mod guide;
+pub mod level;
+pub mod motif;
 pub mod negative;
+pub mod parts;
+#[cfg(test)]
+mod test_red;
+pub mod view;
 
-use super::fill::fill_background;
+pub use parts::{PARTS, parts_help};
+
 use crate::imageio::Image;
 use crate::optim::{ColourFit, FitParams};
-use crate::prior::patch::bank::{Bank, Pca, patches, patches_at};
-use crate::prior::patch::latent::{pool, upsample};
 use crate::selection::Selection;
 use crate::{Camera, Error, Result, Scene};
-use ndarray::{Array2, Array3, Array4, Axis};
+use level::StyleLevel;
+use ndarray::Axis;
+use parts::{Channel, Rematch};
 use rayon::prelude::*;
+use view::{Query, ViewImage};
 
 /// The settings of the patch synthesis (the `[synthesis]` section of the method's
 /// configuration; `finish = "patches"` runs it).
@@ -135,350 +151,9 @@ impl SynthesisParams {
 }
 
 /// Cells of a level's style bank (the balance's unit).
-const CELLS: usize = 64;
+pub(super) const CELLS: usize = 64;
 /// A synthesis pixel is the object's when its pooled coverage exceeds this.
-const OBJECT: f32 = 0.5;
-
-/// One level's style model: the bank, each patch's cell, and the search space (the
-/// patches' colour PCA coordinates, beside their guide's when the end is guided).
-struct StyleLevel {
-    bank: Bank,
-    cell_of: Vec<u32>,
-    /// Each cell's share of the bank.
-    share: Vec<f32>,
-    /// The guide's part of the search, when the end is guided.
-    guide: Option<GuideSpace>,
-    /// Search coordinates `[M, d]` of the bank's patches and their squared norms.
-    coords: Array2<f32>,
-    norms: Vec<f32>,
-    /// Each bank patch's centre (y, x) in the level's style image.
-    pos: Vec<[i32; 2]>,
-}
-
-/// The guide channel's reduced space: its PCA and its weight in the search (the square
-/// root of `3 control`, module [`guide`]).
-struct GuideSpace {
-    pca: Pca,
-    weight: f32,
-}
-
-impl GuideSpace {
-    /// The search coordinates of guide patches `[P, k k]`, weighted: each patch's mean
-    /// (times k, so that a mean difference counts over the patch's k k pixels) beside
-    /// the PCA coordinates of its detail (the patch minus its mean). The mean is kept
-    /// apart because a style's patches may all share one mean (regular stripes): a PCA
-    /// of the patches would then drop the direction that says where the object is dark.
-    fn coords(&self, g: &Array2<f32>) -> Array2<f32> {
-        let (mean, detail) = split_mean(g);
-        let k = (g.ncols() as f32).sqrt();
-        let mut out = Array2::<f32>::zeros((g.nrows(), 1 + self.pca.basis.ncols()));
-        out.column_mut(0).assign(&(mean * (k * self.weight)));
-        let d = self.pca.project(detail.view(), 1.0) * self.weight;
-        out.slice_mut(ndarray::s![.., 1..]).assign(&d);
-        out
-    }
-}
-
-/// Each row's mean `[P]` and the rows minus their means `[P, D]`.
-fn split_mean(g: &Array2<f32>) -> (ndarray::Array1<f32>, Array2<f32>) {
-    let mean = g.mean_axis(Axis(1)).expect("patches have pixels");
-    let detail = g - &mean.view().insert_axis(Axis(1));
-    (mean, detail)
-}
-
-/// Fewest motif patches a level keeps its background out with.
-const MIN_MOTIF_PATCHES: usize = 16;
-
-/// PCA dimensions of the guide's patches.
-const GUIDE_DIMS: usize = 8;
-/// A style patch joins the bank when at least this share of its pixels is motif
-/// ([`guide::motif_mask`]).
-const MOTIF_SHARE: f32 = 0.5;
-
-impl StyleLevel {
-    /// The level's model of `style` at `side` px on its shorter side, its patches on the
-    /// grid of step `stride`; guided (the style's own luma beside its colours) when
-    /// `guided` and `p.control` > 0.
-    fn new(
-        style: &Image,
-        side: usize,
-        p: &SynthesisParams,
-        stride: usize,
-        guided: bool,
-    ) -> Result<StyleLevel> {
-        let sized = style.with_shorter_side(side.max(p.patch));
-        let motif = guide::motif_mask(&sized);
-        let keep = motif_rows(&motif, &sized, p.patch, stride);
-        let sized = if keep.is_empty() {
-            sized
-        } else {
-            guide::fill_background(&sized, &motif)
-        };
-        let img = sized.to_chw();
-        let (h, w) = (sized.height, sized.width);
-        let xs = w.div_ceil(stride);
-        let pos: Vec<[i32; 2]> = (0..h.div_ceil(stride) * xs)
-            .filter(|&r| keep.is_empty() || keep[r])
-            .map(|r| [((r / xs) * stride) as i32, ((r % xs) * stride) as i32])
-            .collect();
-        let pts = select_rows(patches(img.view(), p.patch, stride), &keep);
-        let pca = Pca::fit(pts.view(), p.pca_dims.min(pts.ncols()), 12)?;
-        let bank = Bank::new(pts, p.patch, 3, Some(pca), CELLS)?;
-        let m = bank.len();
-        let mut cell_of = vec![0u32; m];
-        let mut share = vec![1.0f32; 1];
-        let r = bank.reduced.as_ref().expect("synthesis banks have a PCA");
-        if let Some(ivf) = r.ivf.as_ref() {
-            share = ivf
-                .cells
-                .iter()
-                .map(|c| c.len() as f32 / m as f32)
-                .collect();
-            for (c, rows) in ivf.cells.iter().enumerate() {
-                for &row in rows {
-                    cell_of[row as usize] = c as u32;
-                }
-            }
-        }
-        let (guide, coords) = if guided && p.control > 0.0 {
-            let l = Array3::from_shape_vec((1, h, w), guide::luma(&sized.data))
-                .expect("one luma per pixel");
-            let gp = select_rows(patches(l.view(), p.patch, stride), &keep);
-            let (_, detail) = split_mean(&gp);
-            let gpca = Pca::fit(detail.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
-            let space = GuideSpace {
-                weight: (3.0 * p.control).sqrt(),
-                pca: gpca,
-            };
-            let gc = space.coords(&gp);
-            let coords = ndarray::concatenate(Axis(1), &[r.coords.view(), gc.view()])
-                .expect("one row per patch");
-            (Some(space), coords)
-        } else {
-            (None, r.coords.clone())
-        };
-        let norms = coords.rows().into_iter().map(|row| row.dot(&row)).collect();
-        Ok(StyleLevel {
-            bank,
-            cell_of,
-            share,
-            guide,
-            coords,
-            norms,
-            pos,
-        })
-    }
-
-    /// The search coordinates of queries: colour patches `q` `[P, k k 3]` and, when the
-    /// level is guided, their guide patches `g` `[P, k k]`.
-    fn project(&self, q: &Array2<f32>, g: Option<&Array2<f32>>) -> Array2<f32> {
-        let r = self
-            .bank
-            .reduced
-            .as_ref()
-            .expect("synthesis banks have a PCA");
-        let qc = r.pca.project(q.view(), 1.0);
-        match (&self.guide, g) {
-            (Some(space), Some(g)) => {
-                let gc = space.coords(g);
-                ndarray::concatenate(Axis(1), &[qc.view(), gc.view()]).expect("one row each")
-            }
-            _ => qc,
-        }
-    }
-
-    /// For each query (search coordinates `qc` `[P, d]`) and each cell of the bank, the
-    /// nearest patch of that cell (exact search): `[P x cells]` squared distances and
-    /// patch indices (infinite distance for an empty cell).
-    fn nearest_per_cell(&self, qc: &Array2<f32>) -> (Vec<f32>, Vec<u32>) {
-        let cells = self.share.len();
-        let qn: Vec<f32> = qc.rows().into_iter().map(|row| row.dot(&row)).collect();
-        let rows: Vec<usize> = (0..qc.nrows()).collect();
-        let out: Vec<(Vec<f32>, Vec<u32>)> = rows
-            .par_chunks(256)
-            .map(|chunk| {
-                let block = qc.slice(ndarray::s![chunk[0]..chunk[0] + chunk.len(), ..]);
-                let dots = block.dot(&self.coords.t());
-                let mut dist = vec![f32::INFINITY; chunk.len() * cells];
-                let mut arg = vec![0u32; chunk.len() * cells];
-                for (k, (row, &i)) in dots.rows().into_iter().zip(chunk).enumerate() {
-                    let (d, a) = (&mut dist[k * cells..], &mut arg[k * cells..]);
-                    for (j, (&dot, &n)) in row.iter().zip(self.norms.iter()).enumerate() {
-                        let c = self.cell_of[j] as usize;
-                        let v = (qn[i] + n - 2.0 * dot).max(0.0);
-                        if v < d[c] {
-                            d[c] = v;
-                            a[c] = j as u32;
-                        }
-                    }
-                }
-                (dist, arg)
-            })
-            .collect();
-        let (mut dist, mut arg) = (Vec::new(), Vec::new());
-        for (d, a) in out {
-            dist.extend(d);
-            arg.extend(a);
-        }
-        (dist, arg)
-    }
-
-    /// Each query's style patch (index, squared distance): for search coordinates `qc`
-    /// ([`Self::project`]), the nearest patch of the cell the balanced coupling gives it (module docs, step 2). `balance` is the exponent
-    /// rho of the cells' marginal (0: every query its nearest patch; 1: the cells used in
-    /// proportion to their share of the bank), `eps` the coupling's temperature relative
-    /// to the mean nearest distance.
-    fn assign(&self, qc: &Array2<f32>, balance: f32, eps: f32) -> Vec<(u32, f32)> {
-        let (dist, arg) = self.nearest_per_cell(qc);
-        let cells = self.share.len();
-        self.couple(&dist, balance, eps)
-            .into_iter()
-            .enumerate()
-            .map(|(i, c)| (arg[i * cells + c], dist[i * cells + c]))
-            .collect()
-    }
-
-    /// Each query's style patch (index, squared distance) as [`Self::assign`] gives it,
-    /// with the negative branch ([`negative`]) when `p.negative` > 0: a first pass, then
-    /// every candidate coherent with a neighbour's first match pays the negative cost
-    /// and the coupling is made again. `nbrs`: each query's neighbours.
-    fn match_all(
-        &self,
-        qc: &Array2<f32>,
-        nbrs: &[Vec<negative::Neighbour>],
-        p: &SynthesisParams,
-    ) -> Vec<(u32, f32)> {
-        if p.negative <= 0.0 {
-            return self.assign(qc, p.balance, BALANCE_EPS);
-        }
-        let (raw, arg) = self.nearest_per_cell(qc);
-        let cells = self.share.len();
-        let pick = |d: &[f32]| -> Vec<usize> {
-            self.couple(d, p.balance, BALANCE_EPS)
-                .into_iter()
-                .enumerate()
-                .map(|(i, c)| i * cells + c)
-                .collect()
-        };
-        let first: Vec<u32> = pick(&raw).into_iter().map(|k| arg[k]).collect();
-        let n = first.len().max(1) as f64;
-        let mean_min = raw
-            .chunks(cells)
-            .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min) as f64)
-            .sum::<f64>()
-            / n;
-        let mut dist = raw.clone();
-        let cost = (p.negative as f64 * mean_min) as f32;
-        negative::penalise(&mut dist, &arg, &first, nbrs, &self.pos, cost);
-        pick(&dist).into_iter().map(|k| (arg[k], raw[k])).collect()
-    }
-
-    /// Each query's cell under the balanced coupling of its distances `dist`
-    /// `[P x cells]` to the cells' nearest patches ([`Self::assign`]).
-    fn couple(&self, dist: &[f32], balance: f32, eps: f32) -> Vec<usize> {
-        let cells = self.share.len();
-        let p = dist.len() / cells.max(1);
-        let best = |row: &[f32], lv: &[f32], t: f32| -> usize {
-            let mut b = (0usize, f32::NEG_INFINITY);
-            for (c, (&d, &v)) in row.iter().zip(lv).enumerate() {
-                let s = v - d / t;
-                if s > b.1 {
-                    b = (c, s);
-                }
-            }
-            b.0
-        };
-        let mut log_v = vec![0.0f32; cells];
-        if balance > 0.0 && p > 0 {
-            let mean_min = dist
-                .chunks(cells)
-                .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min) as f64)
-                .sum::<f64>()
-                / p as f64;
-            let t = (eps as f64 * mean_min).max(1e-6) as f32;
-            let log_share: Vec<f32> = self.share.iter().map(|s| s.max(1e-12).ln()).collect();
-            let mut log_u = vec![0.0f32; p];
-            for _ in 0..SINKHORN_ITERS {
-                log_u
-                    .par_iter_mut()
-                    .zip(dist.par_chunks(cells))
-                    .for_each(|(u, row)| {
-                        *u = -logsumexp(row.iter().zip(&log_v).map(|(&d, &v)| v - d / t));
-                    });
-                let col = column_logsumexp(dist, &log_u, cells, t);
-                // The cells' marginal p share_c, relaxed by the exponent rho = balance
-                // (the KL-penalised unbalanced form, Chizat et al. 2018).
-                let log_p = (p as f32).ln();
-                for c in 0..cells {
-                    log_v[c] = if col[c].is_finite() {
-                        balance * (log_share[c] + log_p - col[c])
-                    } else {
-                        0.0
-                    };
-                }
-            }
-            return dist.chunks(cells).map(|row| best(row, &log_v, t)).collect();
-        }
-        dist.chunks(cells)
-            .map(|row| best(row, &log_v, 1.0))
-            .collect()
-    }
-}
-
-/// Sinkhorn iterations of the balance.
-const SINKHORN_ITERS: usize = 30;
-
-/// Which patches of `style` (on the grid of step `stride`, [`patches`]' order) are
-/// mostly `motif`, not a flat background ([`guide::motif_mask`]); empty (every patch)
-/// when the style has no background or fewer than `MIN_MOTIF_PATCHES` would be kept.
-fn motif_rows(motif: &[bool], style: &Image, k: usize, stride: usize) -> Vec<bool> {
-    if motif.iter().all(|&m| m) {
-        return Vec::new();
-    }
-    let m = Array3::from_shape_fn((1, style.height, style.width), |(_, y, x)| {
-        f32::from(u8::from(motif[y * style.width + x]))
-    });
-    let share = patches(m.view(), k, stride)
-        .mean_axis(Axis(1))
-        .expect("k >= 1");
-    let keep: Vec<bool> = share.iter().map(|&s| s >= MOTIF_SHARE).collect();
-    if keep.iter().filter(|&&k| k).count() < MIN_MOTIF_PATCHES {
-        return Vec::new();
-    }
-    keep
-}
-
-/// The rows of `x` whose `keep` holds (all of them when `keep` is empty).
-fn select_rows(x: Array2<f32>, keep: &[bool]) -> Array2<f32> {
-    if keep.is_empty() {
-        return x;
-    }
-    let rows: Vec<usize> = (0..x.nrows()).filter(|&i| keep[i]).collect();
-    x.select(Axis(0), &rows)
-}
-
-/// log sum exp of `xs` (stable).
-fn logsumexp(xs: impl Iterator<Item = f32> + Clone) -> f32 {
-    let m = xs.clone().fold(f32::NEG_INFINITY, f32::max);
-    if !m.is_finite() {
-        return m;
-    }
-    m + xs.map(|x| (x - m).exp()).sum::<f32>().ln()
-}
-
-/// For each cell c, log sum_q exp(log_u_q - dist_qc / t).
-fn column_logsumexp(dist: &[f32], log_u: &[f32], cells: usize, t: f32) -> Vec<f32> {
-    (0..cells)
-        .into_par_iter()
-        .map(|c| {
-            logsumexp(
-                dist.chunks(cells)
-                    .zip(log_u)
-                    .map(|(row, &u)| u - row[c] / t),
-            )
-        })
-        .collect()
-}
+pub(super) const OBJECT: f32 = 0.5;
 
 /// What the synthesis did, per level.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -559,7 +234,7 @@ pub fn synthesize(
     );
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
-        let level = StyleLevel::new(style, style_size / s, p, stride, src.guides.is_some())?;
+        let level = StyleLevel::new(style, style_size / s, p, stride, &src.parts)?;
         let mut last = RoundStats::default();
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
@@ -595,6 +270,25 @@ pub fn synthesize(
     Ok((fit.scene().clone(), reports))
 }
 
+/// The `patches` finish ([`super::ENDS`]): [`synthesize`] with the configuration's
+/// `[synthesis]` and `texture.style_size`, its structure guide and source branch from the
+/// source views.
+pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Result<Scene> {
+    let c = inputs.config;
+    let s = inputs.source;
+    let (out, _) = synthesize(
+        scene,
+        inputs.cameras,
+        inputs.style,
+        s.background,
+        c.texture.style_size,
+        &c.synthesis,
+        inputs.selection,
+        Some(&s.rgb),
+    )?;
+    Ok(out)
+}
+
 /// The same synthesis in 2D, view by view's images with nothing shared: the prior's own
 /// stylization of each view (`images` `[H, W, 3]` composited over `background` with
 /// coverage `alpha`, `sizes` (H, W) per view), each round's target becoming the image.
@@ -623,7 +317,7 @@ pub fn synthesize_images(
     let mut out = images.to_vec();
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
-        let level = StyleLevel::new(style, style_size / s, p, stride, src.guides.is_some())?;
+        let level = StyleLevel::new(style, style_size / s, p, stride, &src.parts)?;
         for _ in 0..p.rounds {
             out = e_step(&out, sizes, &level, s, &src, p).0;
         }
@@ -641,13 +335,16 @@ struct RoundStats {
 }
 
 /// What the synthesis holds fixed: the views as they were at its start (the source
-/// branch's colours, `[H, W, 3]`), their coverage `[H, W]`, the background, and the
-/// structure guides `[H, W]` when `control` > 0 ([`guide::source_guides`]).
+/// branch's colours, `[H, W, 3]`), their coverage `[H, W]`, the background, the parts
+/// the settings switch on ([`parts::active`]), and each channel's image of every view
+/// (`[H, W]`, [`parts::Channel::source`]).
 struct Frozen {
     rgb: Vec<Vec<f32>>,
     alpha: Vec<Vec<f32>>,
     background: [f32; 3],
-    guides: Option<Vec<Vec<f32>>>,
+    parts: Vec<&'static dyn Channel>,
+    rematches: Vec<&'static dyn Rematch>,
+    channels: Vec<Vec<Vec<f32>>>,
 }
 
 impl Frozen {
@@ -659,15 +356,18 @@ impl Frozen {
         background: [f32; 3],
         p: &SynthesisParams,
     ) -> Frozen {
-        let guides = (p.control > 0.0).then(|| {
-            let to = guide::style_moments(style);
-            guide::source_guides(&rgb, &alpha, sizes, background, &to)
-        });
+        let parts = parts::channels(p);
+        let channels = parts
+            .iter()
+            .map(|c| c.source(&rgb, &alpha, sizes, background, style))
+            .collect();
         Frozen {
             rgb,
             alpha,
             background,
-            guides,
+            parts,
+            rematches: parts::rematches(p),
+            channels,
         }
     }
 }
@@ -694,10 +394,13 @@ fn e_step(
         rows.map(|r| ndarray::concatenate(Axis(0), &r).expect("patches of one width"))
     };
     let colour = stack(&|q| Some(q.colour.view())).expect("every view has colours");
-    let guides = stack(&|q| q.guide.as_ref().map(|g| g.view()));
+    let channels: Vec<_> = (0..src.channels.len())
+        .map(|c| stack(&|q| Some(q.channels[c].view())).expect("every view has them"))
+        .collect();
     let pixels: Vec<&[[usize; 3]]> = queries.iter().map(|q| &q.pixels[..]).collect();
-    let nbrs = negative::neighbours(&pixels, p.stride.max(1));
-    let m = level.match_all(&level.project(&colour, guides.as_ref()), &nbrs, p);
+    let nbrs = coherence::neighbours(&pixels, p.stride.max(1));
+    let qc = level.project(&colour, &channels);
+    let m = level.match_all(&qc, &nbrs, p, &src.rematches);
     let mut used = vec![false; level.share.len()];
     for &(j, _) in &m {
         used[level.cell_of[j as usize] as usize] = true;
@@ -706,7 +409,7 @@ fn e_step(
     let stats = RoundStats {
         distance: (m.iter().map(|x| x.1 as f64).sum::<f64>() / m.len().max(1) as f64) as f32,
         cells_used: used.iter().filter(|&&u| u).count(),
-        coherence: negative::coherence(&chosen, &nbrs, &level.pos),
+        coherence: coherence::coherence(&chosen, &nbrs, &level.pos),
         loss: 0.0,
     };
     let mut offset = 0;
@@ -719,21 +422,8 @@ fn e_step(
     (targets, stats)
 }
 
-/// One view's queries at one level: the object's pixels on the grid, their colour
-/// patches `[P, k k 3]` and, when guided, their guide patches `[P, k k]`.
-struct Query {
-    pixels: Vec<[usize; 3]>,
-    colour: Array2<f32>,
-    guide: Option<Array2<f32>>,
-}
-
-/// The votes' Gaussian fall-off from a patch's centre, sigma as a fraction of the patch
-/// side (overlapping patches that disagree average to a blur; weighing each by its
-/// nearness to the centre keeps the strokes sharper).
-const VOTE_SIGMA: f32 = 0.25;
-
 /// The coupling's temperature relative to the mean nearest distance.
-const BALANCE_EPS: f32 = 0.1;
+pub(super) const BALANCE_EPS: f32 = 0.1;
 
 /// The mean squared error of `rgb` against `target` and its gradient.
 fn l2(rgb: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
@@ -752,172 +442,11 @@ fn l2(rgb: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
     (loss, grad)
 }
 
-/// One view at one level: its colour over a fill of itself, pooled, its coverage, and
-/// (when the guidance scale is below 1 or the end is guided) its source colour and
-/// its guide, pooled.
-struct ViewImage {
-    /// `[1, 3, h, w]`.
-    colour: Array4<f32>,
-    /// `[h, w]`.
-    alpha: Array2<f32>,
-    /// The source branch's colour `[1, 3, h, w]`, when `guidance` != 1.
-    source: Option<Array4<f32>>,
-    /// The structure guide `[1, 1, h, w]`, when guided.
-    guide: Option<Array4<f32>>,
-    s: usize,
-    /// The full-resolution size (H, W).
-    full: (usize, usize),
-}
-
-/// `[H, W, C]` values pooled over whole `s` x `s` blocks (the patch prior's pooling):
-/// `[1, C, H / s, W / s]`.
-fn pooled(x: &[f32], c: usize, (h, w): (usize, usize), s: usize) -> Array4<f32> {
-    let (hc, wc) = ((h / s) * s, (w / s) * s);
-    let img = Array4::from_shape_fn((1, c, hc, wc), |(_, ch, y, xx)| x[(y * w + xx) * c + ch]);
-    pool(img.view(), s)
-}
-
-impl ViewImage {
-    fn new(
-        rgb: &[f32],
-        src: &Frozen,
-        v: usize,
-        size: (usize, usize),
-        s: usize,
-        p: &SynthesisParams,
-    ) -> Self {
-        let (alpha, bg) = (&src.alpha[v][..], src.background);
-        let filled = |x: &[f32]| fill_background(x, alpha, bg, size.0, size.1);
-        let colour = pooled(&filled(rgb), 3, size, s);
-        let a = pooled(alpha, 1, size, s)
-            .index_axis_move(Axis(0), 0)
-            .index_axis_move(Axis(0), 0);
-        let source = (p.guidance != 1.0).then(|| pooled(&filled(&src.rgb[v]), 3, size, s));
-        let guide = src.guides.as_ref().map(|g| pooled(&g[v], 1, size, s));
-        ViewImage {
-            colour,
-            alpha: a,
-            source,
-            guide,
-            s,
-            full: size,
-        }
-    }
-
-    /// The object's pixels on the grid of step `stride` and their patches.
-    fn queries(&self, p: &SynthesisParams) -> Query {
-        let (_, _, hl, wl) = self.colour.dim();
-        let step = p.stride.max(1);
-        let pixels: Vec<[usize; 3]> = (0..hl)
-            .step_by(step)
-            .flat_map(|y| (0..wl).step_by(step).map(move |x| [0, y, x]))
-            .filter(|&[_, y, x]| self.alpha[[y, x]] > OBJECT)
-            .collect();
-        let colour = patches_at(self.colour.view(), p.patch, &pixels);
-        let guide = self
-            .guide
-            .as_ref()
-            .map(|g| patches_at(g.view(), p.patch, &pixels));
-        Query {
-            pixels,
-            colour,
-            guide,
-        }
-    }
-
-    /// The view's full-resolution target (`[H, W, 3]`: the render plus its coverage times
-    /// the upsampled change of the vote over the pooled colour) from the matches `m` of
-    /// its `pixels`.
-    fn target(
-        &self,
-        level: &StyleLevel,
-        pixels: &[[usize; 3]],
-        m: &[(u32, f32)],
-        p: &SynthesisParams,
-        rgb: &[f32],
-        alpha: &[f32],
-    ) -> Vec<f32> {
-        if pixels.is_empty() {
-            return rgb.to_vec();
-        }
-        let (_, _, hl, wl) = self.colour.dim();
-        let delta = self.vote(level, pixels, m, p);
-        let (h, w) = (hl * self.s, wl * self.s);
-        let full_w = self.full.1;
-        let up = upsample(delta.view().insert_axis(Axis(0)), self.s);
-        let mut t = rgb.to_vec();
-        for y in 0..h {
-            for x in 0..w {
-                let i = y * full_w + x;
-                let a = alpha[i];
-                for c in 0..3 {
-                    t[i * 3 + c] = rgb[i * 3 + c] + a * up[[0, c, y, x]];
-                }
-            }
-        }
-        t
-    }
-
-    /// The average of the matched patches over each object pixel they cover, minus the
-    /// pooled colour (`[3, h, w]`; 0 where no patch voted or off the object).
-    fn vote(
-        &self,
-        level: &StyleLevel,
-        pixels: &[[usize; 3]],
-        m: &[(u32, f32)],
-        p: &SynthesisParams,
-    ) -> Array3<f32> {
-        let k = p.patch;
-        let (_, _, hl, wl) = self.colour.dim();
-        let mut acc = Array3::<f32>::zeros((3, hl, wl));
-        let mut wt = Array2::<f32>::zeros((hl, wl));
-        let r = (k / 2) as isize;
-        let sigma = VOTE_SIGMA * k as f32;
-        let mean_d = m.iter().map(|x| x.1).sum::<f32>() / m.len().max(1) as f32;
-        for (&[_, y, x], &(j, d)) in pixels.iter().zip(m) {
-            let patch = level.bank.patches.row(j as usize);
-            // Kwatra et al.'s robust weight |d|^(r - 2) with r = 0.8 (d: the match's
-            // distance), relative to the mean distance so that it stays bounded.
-            let robust = ((d + 0.01 * mean_d + 1e-12) / (mean_d + 1e-12)).powf(-0.6);
-            let mut q = 0;
-            for dy in -r..=r {
-                for dx in -r..=r {
-                    let (yy, xx) = (y as isize + dy, x as isize + dx);
-                    if yy >= 0 && xx >= 0 && (yy as usize) < hl && (xx as usize) < wl {
-                        let (yy, xx) = (yy as usize, xx as usize);
-                        let g =
-                            robust * (-((dy * dy + dx * dx) as f32) / (2.0 * sigma * sigma)).exp();
-                        for c in 0..3 {
-                            acc[[c, yy, xx]] += g * patch[q + c];
-                        }
-                        wt[[yy, xx]] += g;
-                    }
-                    q += 3;
-                }
-            }
-        }
-        let colour = self.colour.index_axis(Axis(0), 0);
-        // The guidance scale: from the source's colour toward the style's vote (at 1 the
-        // vote itself, bit for bit).
-        let g = p.guidance;
-        Array3::from_shape_fn((3, hl, wl), |(c, y, x)| {
-            if wt[[y, x]] > 0.0 && self.alpha[[y, x]] > 0.0 {
-                let vote = (acc[[c, y, x]] / wt[[y, x]]).clamp(0.0, 1.0);
-                let to = match &self.source {
-                    Some(src) => src[[0, c, y, x]] + g * (vote - src[[0, c, y, x]]),
-                    None => vote,
-                };
-                to - colour[[c, y, x]]
-            } else {
-                0.0
-            }
-        })
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::prior::patch::latent::upsample;
+    use ndarray::Array2;
 
     #[test]
     fn upsampling_is_exact_at_level_one_and_constant_on_a_constant() {
@@ -958,12 +487,57 @@ mod tests {
             pca_dims: 4,
             ..SynthesisParams::default()
         };
-        let level = StyleLevel::new(&style, 32, &p, 1, false).unwrap();
+        let level = StyleLevel::new(&style, 32, &p, 1, &[]).unwrap();
         let red = Array2::from_shape_fn((1, 27), |(_, i)| [0.85, 0.15, 0.1][i % 3]);
         let blue = Array2::from_shape_fn((1, 27), |(_, i)| [0.1, 0.15, 0.85][i % 3]);
         for (q, want) in [(red, 0.9f32), (blue, 0.1)] {
-            let (j, _) = level.assign(&level.project(&q, None), 0.0, BALANCE_EPS)[0];
+            let (j, _) = level.assign(&level.project(&q, &[]), 0.0, BALANCE_EPS)[0];
             assert_eq!(level.bank.centres[[j as usize, 0]], want);
         }
+    }
+
+    /// A part added as one file and one line of [`PARTS`] (the test-only `test-red`,
+    /// src/ends/patches/test_red.rs) joins the search when it is on, and `--help` lists
+    /// it: on a style of red and blue halves, the synthesis with the part on is not the
+    /// synthesis without it.
+    #[test]
+    fn a_new_part_is_one_file_and_one_line() {
+        assert!(parts_help().contains("test-red"));
+        let style = motif::tests::image(32, 32, |_, x| {
+            if x < 16 {
+                [0.9, 0.1, 0.1]
+            } else {
+                [0.1, 0.1, 0.9]
+            }
+        });
+        let (h, w) = (16, 16);
+        let src: Vec<f32> = (0..h * w)
+            .flat_map(|i| {
+                if i % w < 8 {
+                    [0.8, 0.4, 0.4]
+                } else {
+                    [0.2, 0.4, 0.4]
+                }
+            })
+            .collect();
+        let alpha = vec![vec![1.0f32; h * w]];
+        let p = SynthesisParams {
+            levels: vec![1],
+            patch: 3,
+            pca_dims: 4,
+            rounds: 1,
+            ..SynthesisParams::default()
+        };
+        let run = |images: &[Vec<f32>]| {
+            synthesize_images(images, &alpha, &[(h, w)], &style, [0.0; 3], 32, &p).unwrap()
+        };
+        assert!(parts::channels(&p).is_empty());
+        let images = std::slice::from_ref(&src);
+        let on = test_red::switched_on(|| {
+            assert_eq!(parts::channels(&p).len(), 1);
+            run(images)
+        });
+        assert!(!test_red::on());
+        assert_ne!(on, run(images), "the part changed nothing");
     }
 }

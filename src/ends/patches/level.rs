@@ -1,0 +1,291 @@
+//! One level of the synthesis: the style's model at that scale (its patches on a grid,
+//! their bank of k-means cells, each patch's search coordinates: the colours' PCA beside
+//! each channel's, [`super::parts::Channel`]) and the search of the object's patches in
+//! it: the nearest patch of every cell, exact, then the balanced coupling
+//! ([`super::couple`]) and the parts' rematches.
+
+use super::coherence::Neighbour;
+use super::couple::couple;
+use super::motif::{fill_background, motif_mask};
+use super::parts::{Channel, Rematch};
+use super::{BALANCE_EPS, CELLS, SynthesisParams};
+use crate::Result;
+use crate::imageio::Image;
+use crate::prior::patch::bank::{Bank, Pca, patches};
+use ndarray::{Array2, Array3, Axis};
+use rayon::prelude::*;
+
+/// One level's style model: the bank, each patch's cell, and the search space (the
+/// patches' colour PCA coordinates, beside their guide's when the end is guided).
+pub(super) struct StyleLevel {
+    pub(super) bank: Bank,
+    pub(super) cell_of: Vec<u32>,
+    /// Each cell's share of the bank.
+    pub(super) share: Vec<f32>,
+    /// The channels' parts of the search ([`super::parts::Channel`]), in order.
+    channels: Vec<ChannelSpace>,
+    /// Search coordinates `[M, d]` of the bank's patches and their squared norms.
+    coords: Array2<f32>,
+    norms: Vec<f32>,
+    /// Each bank patch's centre (y, x) in the level's style image.
+    pub(super) pos: Vec<[i32; 2]>,
+}
+
+/// A channel's reduced space: its PCA and its weight in the search (the structure
+/// guide's: the square root of `3 control`, [`super::guide`]).
+struct ChannelSpace {
+    pca: Pca,
+    weight: f32,
+}
+
+impl ChannelSpace {
+    /// The search coordinates of channel patches `[P, k k]`, weighted: each patch's mean
+    /// (times k, so that a mean difference counts over the patch's k k pixels) beside
+    /// the PCA coordinates of its detail (the patch minus its mean). The mean is kept
+    /// apart because a style's patches may all share one mean (regular stripes): a PCA
+    /// of the patches would then drop the direction that says where the object is dark.
+    fn coords(&self, g: &Array2<f32>) -> Array2<f32> {
+        let (mean, detail) = split_mean(g);
+        let k = (g.ncols() as f32).sqrt();
+        let mut out = Array2::<f32>::zeros((g.nrows(), 1 + self.pca.basis.ncols()));
+        out.column_mut(0).assign(&(mean * (k * self.weight)));
+        let d = self.pca.project(detail.view(), 1.0) * self.weight;
+        out.slice_mut(ndarray::s![.., 1..]).assign(&d);
+        out
+    }
+}
+
+/// Each row's mean `[P]` and the rows minus their means `[P, D]`.
+fn split_mean(g: &Array2<f32>) -> (ndarray::Array1<f32>, Array2<f32>) {
+    let mean = g.mean_axis(Axis(1)).expect("patches have pixels");
+    let detail = g - &mean.view().insert_axis(Axis(1));
+    (mean, detail)
+}
+
+/// Fewest motif patches a level keeps its background out with.
+const MIN_MOTIF_PATCHES: usize = 16;
+
+/// PCA dimensions of a channel's patches.
+const GUIDE_DIMS: usize = 8;
+/// A style patch joins the bank when at least this share of its pixels is motif
+/// ([`super::motif::motif_mask`]).
+const MOTIF_SHARE: f32 = 0.5;
+
+impl StyleLevel {
+    /// The level's model of `style` at `side` px on its shorter side, its patches on the
+    /// grid of step `stride`, with the style's own image of each of `channels` beside its
+    /// colours.
+    pub(super) fn new(
+        style: &Image,
+        side: usize,
+        p: &SynthesisParams,
+        stride: usize,
+        channels: &[&dyn Channel],
+    ) -> Result<StyleLevel> {
+        let sized = style.with_shorter_side(side.max(p.patch));
+        let motif = motif_mask(&sized);
+        let keep = motif_rows(&motif, &sized, p.patch, stride);
+        let sized = if keep.is_empty() {
+            sized
+        } else {
+            fill_background(&sized, &motif)
+        };
+        let img = sized.to_chw();
+        let (h, w) = (sized.height, sized.width);
+        let xs = w.div_ceil(stride);
+        let pos: Vec<[i32; 2]> = (0..h.div_ceil(stride) * xs)
+            .filter(|&r| keep.is_empty() || keep[r])
+            .map(|r| [((r / xs) * stride) as i32, ((r % xs) * stride) as i32])
+            .collect();
+        let pts = select_rows(patches(img.view(), p.patch, stride), &keep);
+        let pca = Pca::fit(pts.view(), p.pca_dims.min(pts.ncols()), 12)?;
+        let bank = Bank::new(pts, p.patch, 3, Some(pca), CELLS)?;
+        let m = bank.len();
+        let mut cell_of = vec![0u32; m];
+        let mut share = vec![1.0f32; 1];
+        let r = bank.reduced.as_ref().expect("synthesis banks have a PCA");
+        if let Some(ivf) = r.ivf.as_ref() {
+            share = ivf
+                .cells
+                .iter()
+                .map(|c| c.len() as f32 / m as f32)
+                .collect();
+            for (c, rows) in ivf.cells.iter().enumerate() {
+                for &row in rows {
+                    cell_of[row as usize] = c as u32;
+                }
+            }
+        }
+        let mut spaces = Vec::with_capacity(channels.len());
+        let mut parts = vec![r.coords.clone()];
+        for ch in channels {
+            let l =
+                Array3::from_shape_vec((1, h, w), ch.style(&sized)).expect("one value per pixel");
+            let gp = select_rows(patches(l.view(), p.patch, stride), &keep);
+            let (_, detail) = split_mean(&gp);
+            let gpca = Pca::fit(detail.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
+            let space = ChannelSpace {
+                weight: ch.weight(p),
+                pca: gpca,
+            };
+            parts.push(space.coords(&gp));
+            spaces.push(space);
+        }
+        let coords = if parts.len() == 1 {
+            parts.pop().expect("the colours")
+        } else {
+            let views: Vec<_> = parts.iter().map(|c| c.view()).collect();
+            ndarray::concatenate(Axis(1), &views).expect("one row per patch")
+        };
+        let norms = coords.rows().into_iter().map(|row| row.dot(&row)).collect();
+        Ok(StyleLevel {
+            bank,
+            cell_of,
+            share,
+            channels: spaces,
+            coords,
+            norms,
+            pos,
+        })
+    }
+
+    /// The search coordinates of queries: colour patches `q` `[P, k k 3]` and their
+    /// patches of each of the level's channels `g` `[P, k k]`.
+    pub(super) fn project(&self, q: &Array2<f32>, g: &[Array2<f32>]) -> Array2<f32> {
+        let r = self
+            .bank
+            .reduced
+            .as_ref()
+            .expect("synthesis banks have a PCA");
+        let qc = r.pca.project(q.view(), 1.0);
+        if self.channels.is_empty() || g.len() != self.channels.len() {
+            return qc;
+        }
+        let mut parts = vec![qc];
+        parts.extend(
+            self.channels
+                .iter()
+                .zip(g)
+                .map(|(space, g)| space.coords(g)),
+        );
+        let views: Vec<_> = parts.iter().map(|c| c.view()).collect();
+        ndarray::concatenate(Axis(1), &views).expect("one row each")
+    }
+
+    /// For each query (search coordinates `qc` `[P, d]`) and each cell of the bank, the
+    /// nearest patch of that cell (exact search): `[P x cells]` squared distances and
+    /// patch indices (infinite distance for an empty cell).
+    pub(super) fn nearest_per_cell(&self, qc: &Array2<f32>) -> (Vec<f32>, Vec<u32>) {
+        let cells = self.share.len();
+        let qn: Vec<f32> = qc.rows().into_iter().map(|row| row.dot(&row)).collect();
+        let rows: Vec<usize> = (0..qc.nrows()).collect();
+        let out: Vec<(Vec<f32>, Vec<u32>)> = rows
+            .par_chunks(256)
+            .map(|chunk| {
+                let block = qc.slice(ndarray::s![chunk[0]..chunk[0] + chunk.len(), ..]);
+                let dots = block.dot(&self.coords.t());
+                let mut dist = vec![f32::INFINITY; chunk.len() * cells];
+                let mut arg = vec![0u32; chunk.len() * cells];
+                for (k, (row, &i)) in dots.rows().into_iter().zip(chunk).enumerate() {
+                    let (d, a) = (&mut dist[k * cells..], &mut arg[k * cells..]);
+                    for (j, (&dot, &n)) in row.iter().zip(self.norms.iter()).enumerate() {
+                        let c = self.cell_of[j] as usize;
+                        let v = (qn[i] + n - 2.0 * dot).max(0.0);
+                        if v < d[c] {
+                            d[c] = v;
+                            a[c] = j as u32;
+                        }
+                    }
+                }
+                (dist, arg)
+            })
+            .collect();
+        let (mut dist, mut arg) = (Vec::new(), Vec::new());
+        for (d, a) in out {
+            dist.extend(d);
+            arg.extend(a);
+        }
+        (dist, arg)
+    }
+
+    /// Each query's style patch (index, squared distance): for search coordinates `qc`
+    /// ([`Self::project`]), the nearest patch of the cell the balanced coupling gives it (module docs, step 2). `balance` is the exponent
+    /// rho of the cells' marginal (0: every query its nearest patch; 1: the cells used in
+    /// proportion to their share of the bank), `eps` the coupling's temperature relative
+    /// to the mean nearest distance.
+    pub(super) fn assign(&self, qc: &Array2<f32>, balance: f32, eps: f32) -> Vec<(u32, f32)> {
+        let (dist, arg) = self.nearest_per_cell(qc);
+        let cells = self.share.len();
+        couple(&self.share, &dist, balance, eps)
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| (arg[i * cells + c], dist[i * cells + c]))
+            .collect()
+    }
+
+    /// Each query's style patch (index, squared distance) as [`Self::assign`] gives it,
+    /// with the `rematches` of the parts that are on ([`super::parts::Rematch`]; the
+    /// negative branch, [`super::negative`]): a first pass, then each changes the
+    /// distances and the coupling is made again. `nbrs`: each query's neighbours.
+    pub(super) fn match_all(
+        &self,
+        qc: &Array2<f32>,
+        nbrs: &[Vec<Neighbour>],
+        p: &SynthesisParams,
+        rematches: &[&dyn Rematch],
+    ) -> Vec<(u32, f32)> {
+        if rematches.is_empty() {
+            return self.assign(qc, p.balance, BALANCE_EPS);
+        }
+        let (raw, arg) = self.nearest_per_cell(qc);
+        let cells = self.share.len();
+        let pick = |d: &[f32]| -> Vec<usize> {
+            couple(&self.share, d, p.balance, BALANCE_EPS)
+                .into_iter()
+                .enumerate()
+                .map(|(i, c)| i * cells + c)
+                .collect()
+        };
+        let first: Vec<u32> = pick(&raw).into_iter().map(|k| arg[k]).collect();
+        let n = first.len().max(1) as f64;
+        let mean_min = raw
+            .chunks(cells)
+            .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min) as f64)
+            .sum::<f64>()
+            / n;
+        let mut dist = raw.clone();
+        for r in rematches {
+            r.penalise(&mut dist, &arg, &first, nbrs, &self.pos, mean_min, p);
+        }
+        pick(&dist).into_iter().map(|k| (arg[k], raw[k])).collect()
+    }
+}
+
+/// Which patches of `style` (on the grid of step `stride`, [`patches`]' order) are
+/// mostly `motif`, not a flat background ([`guide::motif_mask`]); empty (every patch)
+/// when the style has no background or fewer than `MIN_MOTIF_PATCHES` would be kept.
+fn motif_rows(motif: &[bool], style: &Image, k: usize, stride: usize) -> Vec<bool> {
+    if motif.iter().all(|&m| m) {
+        return Vec::new();
+    }
+    let m = Array3::from_shape_fn((1, style.height, style.width), |(_, y, x)| {
+        f32::from(u8::from(motif[y * style.width + x]))
+    });
+    let share = patches(m.view(), k, stride)
+        .mean_axis(Axis(1))
+        .expect("k >= 1");
+    let keep: Vec<bool> = share.iter().map(|&s| s >= MOTIF_SHARE).collect();
+    if keep.iter().filter(|&&k| k).count() < MIN_MOTIF_PATCHES {
+        return Vec::new();
+    }
+    keep
+}
+
+/// The rows of `x` whose `keep` holds (all of them when `keep` is empty).
+fn select_rows(x: Array2<f32>, keep: &[bool]) -> Array2<f32> {
+    if keep.is_empty() {
+        return x;
+    }
+    let rows: Vec<usize> = (0..x.nrows()).filter(|&i| keep[i]).collect();
+    x.select(Axis(0), &rows)
+}

@@ -1,0 +1,181 @@
+//! A style's motif and its background: a style photographed on a plain background (an
+//! object on black) has a flat region of one colour touching its border, which is not a
+//! motif. [`motif_mask`] finds it (a flood fill from the border through pixels near the
+//! border's dominant colour with no local texture); its patches leave the bank and its
+//! pixels the style's moments ([`super::guide`]), so its share of the style is not forced
+//! onto the object. Every level of the synthesis uses it, guided or not.
+
+use super::guide::luma;
+use crate::imageio::Image;
+use crate::render::fill::push_pull;
+
+/// A pixel is the background's colour when within this RGB distance of it.
+const BACKGROUND_TOLERANCE: f32 = 0.1;
+/// ... and flat when its 5x5 neighbourhood's luma spread is below this.
+const BACKGROUND_FLAT: f32 = 0.03;
+/// The border must be this much of one flat colour for the style to have a background.
+const BACKGROUND_BORDER_SHARE: f32 = 0.75;
+/// Pixels of the background's colour it grows by beside the motif.
+const BACKGROUND_RING: usize = 3;
+
+/// The style's motif pixels (`[h w]`, row-major): every pixel except a flat background,
+/// the connected region of pixels near the border's dominant colour with no local
+/// texture that touches the border (module docs). Every pixel when the border is not
+/// dominated by one colour (textures, paintings, patterns).
+pub fn motif_mask(img: &Image) -> Vec<bool> {
+    let (h, w) = (img.height, img.width);
+    let px = |y: usize, x: usize| -> [f32; 3] {
+        let i = (y * w + x) * 3;
+        [img.data[i], img.data[i + 1], img.data[i + 2]]
+    };
+    let border: Vec<(usize, usize)> = (0..w)
+        .flat_map(|x| [(0, x), (h - 1, x)])
+        .chain((0..h).flat_map(|y| [(y, 0), (y, w - 1)]))
+        .collect();
+    // The border's dominant colour: the channel-wise median.
+    let mut bg = [0.0f32; 3];
+    for (c, b) in bg.iter_mut().enumerate() {
+        let mut v: Vec<f32> = border.iter().map(|&(y, x)| px(y, x)[c]).collect();
+        v.sort_by(f32::total_cmp);
+        *b = v[v.len() / 2];
+    }
+    let near = |p: [f32; 3]| {
+        let d: f32 = (0..3).map(|c| (p[c] - bg[c]).powi(2)).sum();
+        d.sqrt() < BACKGROUND_TOLERANCE
+    };
+    let l = luma(&img.data);
+    let flat = local_spread(&l, h, w, 2);
+    let candidate = |i: usize| near(px(i / w, i % w)) && flat[i] < BACKGROUND_FLAT;
+    let share = border
+        .iter()
+        .filter(|&&(y, x)| candidate(y * w + x))
+        .count() as f32
+        / border.len() as f32;
+    let mut motif = vec![true; h * w];
+    if share < BACKGROUND_BORDER_SHARE {
+        return motif;
+    }
+    let mut stack: Vec<usize> = border
+        .iter()
+        .map(|&(y, x)| y * w + x)
+        .filter(|&i| candidate(i))
+        .collect();
+    while let Some(i) = stack.pop() {
+        if !motif[i] {
+            continue;
+        }
+        motif[i] = false;
+        let (y, x) = (i / w, i % w);
+        let mut push = |yy: usize, xx: usize| {
+            let j = yy * w + xx;
+            if motif[j] && candidate(j) {
+                stack.push(j);
+            }
+        };
+        if y > 0 {
+            push(y - 1, x);
+        }
+        if y + 1 < h {
+            push(y + 1, x);
+        }
+        if x > 0 {
+            push(y, x - 1);
+        }
+        if x + 1 < w {
+            push(y, x + 1);
+        }
+    }
+    // The flatness test misses the background's last pixels beside the motif (their
+    // neighbourhood reaches it): the background grows into pixels of its colour there.
+    for _ in 0..BACKGROUND_RING {
+        let grown: Vec<usize> = (0..h * w)
+            .filter(|&i| motif[i] && near(px(i / w, i % w)))
+            .filter(|&i| {
+                let (y, x) = (i / w, i % w);
+                (y > 0 && !motif[i - w])
+                    || (y + 1 < h && !motif[i + w])
+                    || (x > 0 && !motif[i - 1])
+                    || (x + 1 < w && !motif[i + 1])
+            })
+            .collect();
+        for i in grown {
+            motif[i] = false;
+        }
+    }
+    motif
+}
+
+/// `img` with its background (`motif` false) replaced by its motif's colours extended
+/// by push-pull ([`crate::render::fill`]): a patch on the motif's edge then holds no
+/// background colour.
+pub fn fill_background(img: &Image, motif: &[bool]) -> Image {
+    let weight: Vec<f32> = motif.iter().map(|&m| f32::from(u8::from(m))).collect();
+    Image {
+        width: img.width,
+        height: img.height,
+        data: push_pull(&img.data, &weight, img.height, img.width),
+    }
+}
+
+/// The range (max - min) of `v` `[h, w]` over each pixel's (2r+1)^2 neighbourhood.
+fn local_spread(v: &[f32], h: usize, w: usize, r: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; h * w];
+    for y in 0..h {
+        for x in 0..w {
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                    lo = lo.min(v[yy * w + xx]);
+                    hi = hi.max(v[yy * w + xx]);
+                }
+            }
+            out[y * w + x] = hi - lo;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+pub(super) mod tests {
+    use super::*;
+
+    /// An image of `w` x `h` pixels, `f(y, x)` each.
+    pub(in crate::ends::patches) fn image(
+        w: usize,
+        h: usize,
+        f: impl Fn(usize, usize) -> [f32; 3],
+    ) -> Image {
+        let data = (0..h * w).flat_map(|i| f(i / w, i % w)).collect();
+        Image {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    #[test]
+    fn an_object_on_black_has_a_background_and_a_texture_has_none() {
+        // A textured disc on black: the black outside is background, the disc motif.
+        let disc = image(64, 64, |y, x| {
+            let (dy, dx) = (y as f32 - 32.0, x as f32 - 32.0);
+            if dy * dy + dx * dx < 400.0 {
+                let v = if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.2 };
+                [v, 0.5, 0.3]
+            } else {
+                [0.02, 0.02, 0.02]
+            }
+        });
+        let m = motif_mask(&disc);
+        assert!(!m[0] && !m[64 * 64 - 1], "the corners are background");
+        assert!(m[32 * 64 + 32], "the centre is motif");
+        let kept = m.iter().filter(|&&v| v).count() as f32 / m.len() as f32;
+        assert!((0.25..0.45).contains(&kept), "kept {kept}");
+        // Black and white stripes touching the border: no background.
+        let stripes = image(
+            64,
+            64,
+            |_, x| if (x / 8) % 2 == 0 { [0.0; 3] } else { [1.0; 3] },
+        );
+        assert!(motif_mask(&stripes).iter().all(|&v| v));
+    }
+}

@@ -1,0 +1,122 @@
+//! The parts of the patch synthesis: what it matches and how beyond the colours, each
+//! switched on by its own key of `[synthesis]`. A part is one of two kinds:
+//!
+//! - a [`Channel`]: one more image channel of every patch, matched beside the colours
+//!   (the structure guide: StyLit's and EbSynth's guide channels, Fiser et al. 2016,
+//!   Jamriska et al. 2019): the frozen source views give the object's, the style image
+//!   its own, and the channel's weight says how much a pixel of it counts;
+//! - a [`Rematch`]: the coupling made a second time with its distances changed after
+//!   the first (the negative branch of CSD at t -> 0).
+//!
+//! A new part is one new file of this module and one line of [`PARTS`].
+
+use super::SynthesisParams;
+use super::coherence::Neighbour;
+use crate::imageio::Image;
+
+/// One more channel of every patch (module docs).
+pub trait Channel: Sync {
+    /// The channel of every source view (`[H W]` each) from the frozen source views
+    /// (`rgb` `[H, W, 3]`, `alpha` `[H, W]`, `sizes` (H, W) per view, composited over
+    /// `background`) and the style image.
+    fn source(
+        &self,
+        rgb: &[Vec<f32>],
+        alpha: &[Vec<f32>],
+        sizes: &[(usize, usize)],
+        background: [f32; 3],
+        style: &Image,
+    ) -> Vec<Vec<f32>>;
+    /// The channel of the style image at one level (`[h w]`).
+    fn style(&self, sized: &Image) -> Vec<f32>;
+    /// Its weight in the search: a patch's channel distance counts `weight^2` times.
+    fn weight(&self, p: &SynthesisParams) -> f32;
+}
+
+/// A second coupling with changed distances (module docs).
+pub trait Rematch: Sync {
+    /// Change the distances `dist` `[P x cells]` (`arg`: each entry's style patch) given
+    /// each query's first-pass match `first`, its neighbours `nbrs` and the style patches'
+    /// positions `pos`; `mean_min` is the mean of the queries' nearest distances.
+    #[allow(clippy::too_many_arguments)]
+    fn penalise(
+        &self,
+        dist: &mut [f32],
+        arg: &[u32],
+        first: &[u32],
+        nbrs: &[Vec<Neighbour>],
+        pos: &[[i32; 2]],
+        mean_min: f64,
+        p: &SynthesisParams,
+    );
+}
+
+/// What a part does.
+#[derive(Clone, Copy)]
+pub enum Hook {
+    Channel(&'static dyn Channel),
+    Rematch(&'static dyn Rematch),
+}
+
+/// One part: its name, the key that switches it on, a line of help, whether the
+/// settings switch it on, and what it does.
+#[derive(Clone, Copy)]
+pub struct PartKind {
+    pub name: &'static str,
+    pub key: &'static str,
+    pub help: &'static str,
+    pub on: fn(&SynthesisParams) -> bool,
+    pub hook: Hook,
+}
+
+impl std::fmt::Debug for PartKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PartKind")
+            .field("name", &self.name)
+            .finish()
+    }
+}
+
+/// The parts, in the order their channels join the search and their rematches apply.
+#[rustfmt::skip]
+pub const PARTS: &[PartKind] = &[
+    PartKind { name: "guide", key: "synthesis.control", help: "the structure guide: the source render's luma, remapped to the style's, matched beside the colours (ControlNet's role)", on: |p| p.control > 0.0, hook: Hook::Channel(&super::guide::StructureGuide) },
+    PartKind { name: "negative", key: "synthesis.negative", help: "CSD's negative branch at t -> 0: a style patch continuing a neighbour's piece pays a cost", on: |p| p.negative > 0.0, hook: Hook::Rematch(&super::negative::Negative) },
+    #[cfg(test)]
+    PartKind { name: "test-red", key: "(tests only)", help: "the source's red channel as a guide (a test-only part)", on: |_| super::test_red::on(), hook: Hook::Channel(&super::test_red::Red) },
+];
+
+/// The parts `p` switches on.
+pub fn active(p: &SynthesisParams) -> Vec<&'static PartKind> {
+    PARTS.iter().filter(|k| (k.on)(p)).collect()
+}
+
+/// The channels of the parts `p` switches on.
+pub fn channels(p: &SynthesisParams) -> Vec<&'static dyn Channel> {
+    active(p)
+        .into_iter()
+        .filter_map(|k| match k.hook {
+            Hook::Channel(c) => Some(c),
+            Hook::Rematch(_) => None,
+        })
+        .collect()
+}
+
+/// The rematches of the parts `p` switches on.
+pub fn rematches(p: &SynthesisParams) -> Vec<&'static dyn Rematch> {
+    active(p)
+        .into_iter()
+        .filter_map(|k| match k.hook {
+            Hook::Rematch(r) => Some(r),
+            Hook::Channel(_) => None,
+        })
+        .collect()
+}
+
+/// Every part with its key and help, for `--help`.
+pub fn parts_help() -> String {
+    PARTS
+        .iter()
+        .map(|k| format!("          {} ({} > 0): {}\n", k.name, k.key, k.help))
+        .collect()
+}

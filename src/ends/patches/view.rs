@@ -1,0 +1,193 @@
+//! One view at one level of the synthesis: its current colour over a fill of itself and
+//! its coverage, pooled to the level; its queries (the object's patches on the grid);
+//! the vote of the matched style patches (Kwatra et al. 2005's E-step with his robust
+//! weights and a Gaussian fall-off, moved from the source branch toward the style branch
+//! by the guidance scale), and the full-resolution target it gives.
+
+use super::level::StyleLevel;
+use super::{Frozen, OBJECT, SynthesisParams};
+use crate::prior::patch::bank::patches_at;
+use crate::prior::patch::latent::{pool, upsample};
+use crate::render::fill::fill_background;
+use ndarray::{Array2, Array3, Array4, Axis};
+
+/// One view's queries at one level: the object's pixels on the grid, their colour
+/// patches `[P, k k 3]` and their patches of each channel `[P, k k]`.
+pub(super) struct Query {
+    pub(super) pixels: Vec<[usize; 3]>,
+    pub(super) colour: Array2<f32>,
+    pub(super) channels: Vec<Array2<f32>>,
+}
+
+/// The votes' Gaussian fall-off from a patch's centre, sigma as a fraction of the patch
+/// side (overlapping patches that disagree average to a blur; weighing each by its
+/// nearness to the centre keeps the strokes sharper).
+const VOTE_SIGMA: f32 = 0.25;
+
+/// One view at one level: its colour over a fill of itself, pooled, its coverage, and
+/// (when the guidance scale is not 1) its source colour and its channels' images,
+/// pooled.
+pub(super) struct ViewImage {
+    /// `[1, 3, h, w]`.
+    colour: Array4<f32>,
+    /// `[h, w]`.
+    alpha: Array2<f32>,
+    /// The source branch's colour `[1, 3, h, w]`, when `guidance` != 1.
+    source: Option<Array4<f32>>,
+    /// Each channel's image `[1, 1, h, w]` ([`super::parts::Channel`]).
+    channels: Vec<Array4<f32>>,
+    s: usize,
+    /// The full-resolution size (H, W).
+    full: (usize, usize),
+}
+
+/// `[H, W, C]` values pooled over whole `s` x `s` blocks (the patch prior's pooling):
+/// `[1, C, H / s, W / s]`.
+fn pooled(x: &[f32], c: usize, (h, w): (usize, usize), s: usize) -> Array4<f32> {
+    let (hc, wc) = ((h / s) * s, (w / s) * s);
+    let img = Array4::from_shape_fn((1, c, hc, wc), |(_, ch, y, xx)| x[(y * w + xx) * c + ch]);
+    pool(img.view(), s)
+}
+
+impl ViewImage {
+    pub(super) fn new(
+        rgb: &[f32],
+        src: &Frozen,
+        v: usize,
+        size: (usize, usize),
+        s: usize,
+        p: &SynthesisParams,
+    ) -> Self {
+        let (alpha, bg) = (&src.alpha[v][..], src.background);
+        let filled = |x: &[f32]| fill_background(x, alpha, bg, size.0, size.1);
+        let colour = pooled(&filled(rgb), 3, size, s);
+        let a = pooled(alpha, 1, size, s)
+            .index_axis_move(Axis(0), 0)
+            .index_axis_move(Axis(0), 0);
+        let source = (p.guidance != 1.0).then(|| pooled(&filled(&src.rgb[v]), 3, size, s));
+        let channels = src
+            .channels
+            .iter()
+            .map(|g| pooled(&g[v], 1, size, s))
+            .collect();
+        ViewImage {
+            colour,
+            alpha: a,
+            source,
+            channels,
+            s,
+            full: size,
+        }
+    }
+
+    /// The object's pixels on the grid of step `stride` and their patches.
+    pub(super) fn queries(&self, p: &SynthesisParams) -> Query {
+        let (_, _, hl, wl) = self.colour.dim();
+        let step = p.stride.max(1);
+        let pixels: Vec<[usize; 3]> = (0..hl)
+            .step_by(step)
+            .flat_map(|y| (0..wl).step_by(step).map(move |x| [0, y, x]))
+            .filter(|&[_, y, x]| self.alpha[[y, x]] > OBJECT)
+            .collect();
+        let colour = patches_at(self.colour.view(), p.patch, &pixels);
+        let channels = self
+            .channels
+            .iter()
+            .map(|g| patches_at(g.view(), p.patch, &pixels))
+            .collect();
+        Query {
+            pixels,
+            colour,
+            channels,
+        }
+    }
+
+    /// The view's full-resolution target (`[H, W, 3]`: the render plus its coverage times
+    /// the upsampled change of the vote over the pooled colour) from the matches `m` of
+    /// its `pixels`.
+    pub(super) fn target(
+        &self,
+        level: &StyleLevel,
+        pixels: &[[usize; 3]],
+        m: &[(u32, f32)],
+        p: &SynthesisParams,
+        rgb: &[f32],
+        alpha: &[f32],
+    ) -> Vec<f32> {
+        if pixels.is_empty() {
+            return rgb.to_vec();
+        }
+        let (_, _, hl, wl) = self.colour.dim();
+        let delta = self.vote(level, pixels, m, p);
+        let (h, w) = (hl * self.s, wl * self.s);
+        let full_w = self.full.1;
+        let up = upsample(delta.view().insert_axis(Axis(0)), self.s);
+        let mut t = rgb.to_vec();
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * full_w + x;
+                let a = alpha[i];
+                for c in 0..3 {
+                    t[i * 3 + c] = rgb[i * 3 + c] + a * up[[0, c, y, x]];
+                }
+            }
+        }
+        t
+    }
+
+    /// The average of the matched patches over each object pixel they cover, minus the
+    /// pooled colour (`[3, h, w]`; 0 where no patch voted or off the object).
+    fn vote(
+        &self,
+        level: &StyleLevel,
+        pixels: &[[usize; 3]],
+        m: &[(u32, f32)],
+        p: &SynthesisParams,
+    ) -> Array3<f32> {
+        let k = p.patch;
+        let (_, _, hl, wl) = self.colour.dim();
+        let mut acc = Array3::<f32>::zeros((3, hl, wl));
+        let mut wt = Array2::<f32>::zeros((hl, wl));
+        let r = (k / 2) as isize;
+        let sigma = VOTE_SIGMA * k as f32;
+        let mean_d = m.iter().map(|x| x.1).sum::<f32>() / m.len().max(1) as f32;
+        for (&[_, y, x], &(j, d)) in pixels.iter().zip(m) {
+            let patch = level.bank.patches.row(j as usize);
+            // Kwatra et al.'s robust weight |d|^(r - 2) with r = 0.8 (d: the match's
+            // distance), relative to the mean distance so that it stays bounded.
+            let robust = ((d + 0.01 * mean_d + 1e-12) / (mean_d + 1e-12)).powf(-0.6);
+            let mut q = 0;
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    let (yy, xx) = (y as isize + dy, x as isize + dx);
+                    if yy >= 0 && xx >= 0 && (yy as usize) < hl && (xx as usize) < wl {
+                        let (yy, xx) = (yy as usize, xx as usize);
+                        let g =
+                            robust * (-((dy * dy + dx * dx) as f32) / (2.0 * sigma * sigma)).exp();
+                        for c in 0..3 {
+                            acc[[c, yy, xx]] += g * patch[q + c];
+                        }
+                        wt[[yy, xx]] += g;
+                    }
+                    q += 3;
+                }
+            }
+        }
+        let colour = self.colour.index_axis(Axis(0), 0);
+        // The guidance scale: from the source's colour toward the style's vote (at 1 the
+        // vote itself, bit for bit).
+        let g = p.guidance;
+        Array3::from_shape_fn((3, hl, wl), |(c, y, x)| {
+            if wt[[y, x]] > 0.0 && self.alpha[[y, x]] > 0.0 {
+                let vote = (acc[[c, y, x]] / wt[[y, x]]).clamp(0.0, 1.0);
+                let to = match &self.source {
+                    Some(src) => src[[0, c, y, x]] + g * (vote - src[[0, c, y, x]]),
+                    None => vote,
+                };
+                to - colour[[c, y, x]]
+            } else {
+                0.0
+            }
+        })
+    }
+}
