@@ -32,8 +32,8 @@
 //! would not feed. Errors name the file, the graph and the input.
 
 use super::manifest::{
-    ControlNetGraph, Family, ImageConditioning, ImageEncoderGraph, ModelDir, ModelManifest,
-    SimpleGraph, TextConfig, UnetGraph,
+    ControlNetGraph, ImageConditioning, ImageEncoderGraph, ModelDir, ModelManifest, SimpleGraph,
+    TextConfig, UnetGraph,
 };
 use super::preprocess::{check_finite, check_images, fit_square};
 use super::session::{Graph, Kind, f32_value, input};
@@ -206,7 +206,8 @@ fn load_npy2(md: &ModelDir, what: &str, file: &str) -> Result<Array2<f32>> {
 }
 
 impl OnnxPrior {
-    /// Open the model in `dir` (must be an ONNX family, not `stylizer`).
+    /// Open the model in `dir` (must be an ONNX diffusion family, see
+    /// [`super::families::diffusion`]).
     pub fn open(dir: &Path, opts: &PriorOptions) -> Result<Self> {
         Self::from_model_dir(ModelManifest::load(dir)?, opts)
     }
@@ -215,9 +216,15 @@ impl OnnxPrior {
     /// embeddings, run the image-prompt encoder on the style image.
     pub fn from_model_dir(md: ModelDir, opts: &PriorOptions) -> Result<Self> {
         let m = md.manifest.clone();
-        if matches!(m.family, Family::Stylizer | Family::Patch) {
+        // The diffusion contract (any VAE scaling factor): what a diffusion family's
+        // manifest was validated for, refused for the others.
+        if let Err(e) = super::families::diffusion::validate(&md, None) {
+            let why = match e {
+                Error::Input { reason, .. } => reason,
+                e => e.to_string(),
+            };
             return Err(md.err(format!(
-                "family `{:?}` is not an ONNX diffusion model",
+                "family `{}` is not an ONNX diffusion model: {why}",
                 m.family
             )));
         }
