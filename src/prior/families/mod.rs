@@ -19,6 +19,8 @@ pub mod diffusion;
 pub mod gaussian;
 pub mod patch;
 pub mod stylizer;
+#[cfg(test)]
+mod test_only;
 
 /// One family of priors: its name (the `family` of `model.json`) and its functions.
 pub struct FamilyKind {
@@ -52,6 +54,8 @@ pub const FAMILIES: &[FamilyKind] = &[
     FamilyKind { name: "gaussian", validate: gaussian::validate, timesteps: gaussian::timesteps, open: gaussian::open },
     FamilyKind { name: "stylizer", validate: stylizer::validate, timesteps: stylizer::timesteps, open: stylizer::open },
     FamilyKind { name: "patch", validate: patch::validate, timesteps: patch::timesteps, open: patch::open },
+    #[cfg(test)]
+    FamilyKind { name: "test-only", validate: test_only::validate, timesteps: test_only::timesteps, open: test_only::open },
 ];
 
 /// The names of [`FAMILIES`], in its order (for serde's "expected one of" errors).
