@@ -26,6 +26,10 @@
 //!   style patch is used about equally and no single flat patch wins everywhere.
 
 use super::bank::{Bank, row_norms};
+use crate::maths::sinkhorn::{
+    Columns, Costs, Sinkhorn, Units, epsilon_scaling, logsumexp, shifted_exp, shifted_exp_f64,
+    softmax_into,
+};
 use ndarray::{Array2, ArrayView2, ArrayView3, ArrayView4, Axis, s};
 use rayon::prelude::*;
 
@@ -89,9 +93,7 @@ pub fn denoise_exact(
                 -d / var2 - guide.map_or(0.0, |g| guide_distance(g, i, j))
             })
             .collect();
-        let top = logits.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let w: Vec<f64> = logits.iter().map(|l| (l - top).exp()).collect();
-        let z: f64 = w.iter().sum();
+        let (w, z) = shifted_exp_f64(&logits);
         for ch in 0..c {
             let v: f64 = (0..bank.len())
                 .map(|j| w[j] * bank.centres[[j, ch]] as f64)
@@ -179,7 +181,7 @@ pub fn denoise_with_evidence(
     let mut evidence = Vec::with_capacity(x.nrows());
     for (i, mut o) in out.rows_mut().into_iter().enumerate() {
         let l = &cand.logit[i * cand.per..(i + 1) * cand.per];
-        evidence.push(logsumexp32(l.iter().copied()));
+        evidence.push(logsumexp(l.iter().copied()));
         for k in 0..cand.per {
             let (j, w) = (
                 cand.index[i * cand.per + k] as usize,
@@ -284,15 +286,6 @@ fn approximate_logits(
     dots
 }
 
-/// log sum exp of `xs` (f32, stable).
-fn logsumexp32(xs: impl Iterator<Item = f32> + Clone) -> f32 {
-    let top = xs.clone().fold(f32::NEG_INFINITY, f32::max);
-    if !top.is_finite() {
-        return top;
-    }
-    top + xs.map(|v| (v - top).exp()).sum::<f32>().ln()
-}
-
 /// The exact logit of bank patch `j` for query row `x` (query `r` of the guide's block).
 fn exact_logit(
     bank: &Bank,
@@ -356,15 +349,7 @@ fn softmax_rows(c: &Candidates, g: Option<&[f32]>) -> Vec<f32> {
         .zip(c.logit.par_chunks(c.per))
         .zip(c.index.par_chunks(c.per))
         .for_each(|((w, l), idx)| {
-            let shifted = |k: usize| l[k] + g.map_or(0.0, |g| g[idx[k] as usize]);
-            let top = (0..l.len()).map(shifted).fold(f32::NEG_INFINITY, f32::max);
-            let mut z = 0.0f64;
-            for k in 0..l.len() {
-                w[k] = (shifted(k) - top).exp();
-                z += w[k] as f64;
-            }
-            let inv = (1.0 / z) as f32;
-            w.iter_mut().for_each(|v| *v *= inv);
+            softmax_into(w, |k| l[k] + g.map_or(0.0, |g| g[idx[k] as usize]));
         });
     w
 }

@@ -1,9 +1,10 @@
 //! The inverted-file search of the fast patch denoiser: each query's shortlist among the
 //! members of its `probe` nearest cells, and the balanced estimate, which couples the
 //! queries to the cells by entropic optimal transport (Sinkhorn iterations in the log
-//! domain with epsilon scaling, Schmitzer 2019) so that over the batch the style's
-//! patches are used in their own proportions (bidirectional similarity, Simakov et al.
-//! 2008; patch-distribution optimal transport, Houdard et al. 2021), then mixes the exact posterior means (Kamb & Ganguli, ICML 2025) within each
+//! domain with epsilon scaling, Schmitzer 2019; [`crate::maths::sinkhorn`]) so that over
+//! the batch the style's patches are used in their own proportions (bidirectional
+//! similarity, Simakov et al. 2008; patch-distribution optimal transport, Houdard et al.
+//! 2021), then mixes the exact posterior means (Kamb & Ganguli, ICML 2025) within each
 //! query's heaviest cells.
 
 use super::*;
@@ -128,9 +129,8 @@ impl CellSearch<'_> {
                         (j, exact_logit(bank, x.row(i), j as usize, level, guide, i))
                     })
                     .collect();
-                let lmax = logits.iter().map(|l| l.1).fold(f32::NEG_INFINITY, f32::max);
-                let w: Vec<f32> = logits.iter().map(|l| (l.1 - lmax).exp()).collect();
-                let z: f32 = w.iter().sum();
+                let l: Vec<f32> = logits.iter().map(|l| l.1).collect();
+                let (w, z) = shifted_exp(&l);
                 let share = row[cc] / total / z;
                 for ((j, _), wj) in logits.iter().zip(&w) {
                     for ch in 0..c {
@@ -185,45 +185,25 @@ impl CellSearch<'_> {
         let cold = var2;
         let hot = (mean as f32).max(cold);
         let (mut f, mut g) = (vec![0.0f32; q], vec![0.0f32; k]);
-        let rows = |g: &[f32], f: &mut [f32], tau: f32| {
-            f.par_iter_mut().enumerate().for_each(|(i, fi)| {
-                let (ci, cc) = (
-                    &idx[i * near..(i + 1) * near],
-                    &cost[i * near..(i + 1) * near],
-                );
-                *fi = -tau * logsumexp32((0..near).map(|l| (g[ci[l] as usize] - cc[l]) / tau));
-            });
+        let costs = Costs {
+            cost: &cost,
+            index: Some(&idx),
+            per: near,
+            cols: k,
         };
-        for r in 0..iters {
-            let frac = if iters > 1 {
-                r as f32 / (iters - 1) as f32
-            } else {
-                1.0
-            };
-            let tau = hot * (cold / hot).powf(frac);
-            rows(&g, &mut f, tau);
-            // Column sums through the sparse rows.
-            let mut col_max = vec![f32::NEG_INFINITY; k];
-            for i in 0..q {
-                for l in 0..near {
-                    let c = idx[i * near + l] as usize;
-                    col_max[c] = col_max[c].max((f[i] - cost[i * near + l]) / tau);
-                }
-            }
-            let mut col = vec![0.0f64; k];
-            for i in 0..q {
-                for l in 0..near {
-                    let c = idx[i * near + l] as usize;
-                    col[c] += (((f[i] - cost[i * near + l]) / tau) - col_max[c]).exp() as f64;
-                }
-            }
-            for c in 0..k {
-                if col[c] > 0.0 {
-                    g[c] = tau * (share[c] - (col_max[c] + (col[c] as f32).ln()));
-                }
-            }
-        }
-        rows(&g, &mut f, cold);
+        let scheme = Sinkhorn {
+            units: Units::Cost,
+            columns: Columns::F64Keep,
+            rho: 1.0,
+        };
+        scheme.run(
+            costs,
+            &share,
+            epsilon_scaling(hot, cold, iters),
+            &mut f,
+            &mut g,
+        );
+        scheme.rows(costs, &g, &mut f, cold);
         let mut out = vec![0.0f32; q * k];
         out.par_chunks_mut(k).enumerate().for_each(|(i, o)| {
             for l in 0..near {

@@ -68,11 +68,9 @@ pub fn denoise_local(
                     inside(off).map(|(yy, xx)| (-dist[b][oi][y * w + x] / var2, yy, xx))
                 })
                 .collect();
-            let top = cand.iter().map(|c| c.0).fold(f32::NEG_INFINITY, f32::max);
-            let mut zsum = 0.0f32;
-            for &(l, yy, xx) in &cand {
-                let wgt = (l - top).exp();
-                zsum += wgt;
+            let logits: Vec<f32> = cand.iter().map(|c| c.0).collect();
+            let (wgts, zsum) = shifted_exp(&logits);
+            for (&(_, yy, xx), &wgt) in cand.iter().zip(&wgts) {
                 for ch in 0..channels {
                     o[ch] += wgt * source[[b, ch, yy, xx]];
                 }
