@@ -1,9 +1,11 @@
 //! The model manifest: `model.json` in a model directory, describing the ONNX graphs of
 //! a 2D prior and how to feed them.
 //!
-//! Parsing is strict (serde `deny_unknown_fields`); [`ModelManifest::load`] then checks
-//! the values (known family, positive sizes, scaling factor, scheduler) and that every
-//! referenced file exists. Checking the graphs' inputs and outputs against the manifest
+//! Parsing is strict (serde `deny_unknown_fields`; the `family` must be one of
+//! [`super::families::FAMILIES`]); [`ModelManifest::load`] then checks the format and the
+//! scheduler, and hands the rest to the family's own validation (for the ONNX diffusion
+//! families, [`super::families::diffusion`]: positive sizes, scaling factor, and that
+//! every referenced file exists). Checking the graphs' inputs and outputs against the manifest
 //! happens when sessions are created (`prior::onnx`), so that a wrong name or shape is
 //! reported with the graph and the input it concerns.
 //!
@@ -25,7 +27,8 @@
 //!
 //! The `stylizer` family is the 2D style-transfer prior of the MVFC/CSD stages: its
 //! manifest fields live in [`ModelManifest::stylizer`] (free-form JSON, parsed by that
-//! prior), and [`crate::prior::open`] dispatches it.
+//! prior), as the `patch` family's live in [`ModelManifest::patch`];
+//! [`crate::prior::open`] dispatches on the family through [`super::families`].
 
 use crate::scheduler::{Schedule, SchedulerConfig, TimestepSet};
 use crate::{Error, Result};
@@ -33,25 +36,12 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 use super::ControlKind;
+pub use super::families::Family;
 
 /// The manifest file's name inside a model directory.
 pub const MODEL_FILE: &str = "model.json";
 /// The manifest format this build reads.
 pub const MODEL_FORMAT: &str = "fantasystyle-model/1";
-
-/// Which model a directory holds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Family {
-    Sd15,
-    Sd21,
-    Sdxl,
-    Custom,
-    Gaussian,
-    Stylizer,
-    /// The weight-free patch prior ([`crate::prior::patch`]).
-    Patch,
-}
 
 /// Precision of the weights inside the graphs (their I/O is float32 either way).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -356,192 +346,13 @@ impl ModelManifest {
         self.scheduler
             .validate()
             .map_err(|e| md.err(format!("scheduler: {e}")))?;
-        if matches!(self.family, Family::Stylizer | Family::Patch) {
-            // The stylizer and patch priors validate their own fields.
-            return Ok(());
-        }
-        self.validate_vae(md)?;
-        self.validate_graphs(md)?;
-        self.validate_image(md)?;
-        self.validate_text(md)
-    }
-
-    /// The latent shape and the VAE's scaling factor (checked against the family).
-    fn validate_vae(&self, md: &ModelDir) -> Result<()> {
-        if self.latent_channels == 0 || self.downsample == 0 {
-            return Err(md.err("latent_channels and downsample must be positive"));
-        }
-        if !(self.vae_scaling_factor.is_finite() && self.vae_scaling_factor > 0.0) {
-            return Err(md.err(format!(
-                "vae_scaling_factor is {}, must be positive (0.18215 for SD 1.x/2.x, 0.13025 \
-                 for SDXL)",
-                self.vae_scaling_factor
-            )));
-        }
-        let expect = match self.family {
-            Family::Sd15 | Family::Sd21 => Some(0.18215f32),
-            Family::Sdxl => Some(0.13025),
-            _ => None,
-        };
-        if let Some(x) = expect
-            && (self.vae_scaling_factor - x).abs() > 1e-6
-        {
-            return Err(md.err(format!(
-                "vae_scaling_factor {} does not match family {:?} (expected {x}); use family \
-                 `custom` for other VAEs",
-                self.vae_scaling_factor, self.family
-            )));
-        }
-        Ok(())
-    }
-
-    /// The required graphs (VAE encoder and decoder, UNet) and the ControlNet's agreement with the UNet.
-    fn validate_graphs(&self, md: &ModelDir) -> Result<()> {
-        let required = [
-            ("vae_encoder", self.vae_encoder.as_ref().map(|g| &g.file)),
-            ("vae_decoder", self.vae_decoder.as_ref().map(|g| &g.file)),
-            ("unet", self.unet.as_ref().map(|g| &g.file)),
-        ];
-        for (name, file) in required {
-            let file = file.ok_or_else(|| md.err(format!("graph `{name}` is missing")))?;
-            check_file(md, name, file)?;
-        }
-        if let Some(c) = &self.controlnet {
-            check_file(md, "controlnet", &c.file)?;
-            let unet = self.unet.as_ref().expect("checked");
-            if unet.down_residuals.len() != c.down_outputs.len() || unet.mid_residual.is_none() {
-                return Err(md.err(format!(
-                    "graph `controlnet` has {} down outputs and a mid output; graph `unet` \
-                     names {} down_residuals and {} mid_residual",
-                    c.down_outputs.len(),
-                    unet.down_residuals.len(),
-                    if unet.mid_residual.is_some() {
-                        "a"
-                    } else {
-                        "no"
-                    }
-                )));
-            }
-            if !(c.scale.is_finite()) {
-                return Err(md.err("controlnet.scale must be finite"));
-            }
-        }
-        Ok(())
-    }
-
-    /// The image encoder and the image conditioning's scales, with the UNet inputs they need.
-    fn validate_image(&self, md: &ModelDir) -> Result<()> {
-        if let Some(ie) = &self.image_encoder {
-            check_file(md, "image_encoder", &ie.file)?;
-            if ie.size == 0 || ie.std.iter().any(|s| *s <= 0.0) {
-                return Err(md.err("image_encoder: size and std must be positive"));
-            }
-            if let Some(u) = &ie.uncond_tokens {
-                check_file(md, "image_encoder.uncond_tokens", u)?;
-            }
-            if self
-                .unet
-                .as_ref()
-                .and_then(|u| u.image_tokens.as_ref())
-                .is_none()
-            {
-                return Err(md.err(
-                    "graph `image_encoder` is given but graph `unet` names no image_tokens input",
-                ));
-            }
-        }
-        let scale_input = self.unet.as_ref().and_then(|u| u.image_scale.as_ref());
-        match (&self.image_conditioning, scale_input) {
-            (None, None) => {}
-            (Some(_), None) | (None, Some(_)) => {
-                return Err(md.err(
-                    "`image_conditioning` and graph `unet`'s image_scale input go together: \
-                     give both or neither",
-                ));
-            }
-            (Some(ic), Some(_)) => {
-                if self.image_encoder.is_none() {
-                    return Err(md.err("`image_conditioning` needs graph `image_encoder`"));
-                }
-                let k = ic.layers.len();
-                if k == 0 || ic.style.len() != k || ic.content.len() != k {
-                    return Err(md.err(format!(
-                        "image_conditioning: {k} layers, {} style and {} content scales; \
-                         they must agree and be at least one",
-                        ic.style.len(),
-                        ic.content.len()
-                    )));
-                }
-                if ic.style.iter().chain(&ic.content).any(|x| !x.is_finite()) {
-                    return Err(md.err("image_conditioning: scales must be finite"));
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// The text encoder and the text embeddings (null and prompts, pooled where the UNet takes them).
-    fn validate_text(&self, md: &ModelDir) -> Result<()> {
-        if let Some(enc) = self.text.as_ref().and_then(|t| t.encoder.as_ref()) {
-            check_file(md, "text.encoder", &enc.file)?;
-            if enc.tokenizers.is_empty() {
-                return Err(md.err("text.encoder.tokenizers is empty"));
-            }
-            for t in &enc.tokenizers {
-                check_file(md, "text.encoder.tokenizers", &t.tokenizer)?;
-                if t.max_length < 2 {
-                    return Err(md.err(format!(
-                        "text.encoder.tokenizers: max_length {} leaves no room for the start \
-                         and end marks",
-                        t.max_length
-                    )));
-                }
-            }
-            let unet_pooled = self.unet.as_ref().is_some_and(|u| u.text_embeds.is_some());
-            if unet_pooled != enc.pooled_output.is_some() {
-                return Err(md.err(format!(
-                    "graph `unet` {} text_embeds, graph `text_encoder` {} pooled_output",
-                    if unet_pooled { "takes" } else { "takes no" },
-                    if enc.pooled_output.is_some() {
-                        "names a"
-                    } else {
-                        "names no"
-                    }
-                )));
-            }
-        }
-        let text = self
-            .text
-            .as_ref()
-            .ok_or_else(|| md.err("`text` (null and prompt embeddings) is missing"))?;
-        check_file(md, "text.null", &text.null.file)?;
-        if text.prompts.is_empty() {
-            return Err(md.err("text.prompts is empty: export at least one prompt embedding"));
-        }
-        for p in &text.prompts {
-            check_file(md, "text.prompts", &p.file)?;
-        }
-        let unet = self.unet.as_ref().expect("checked");
-        let pooled_needed = unet.text_embeds.is_some();
-        let all_pooled = std::iter::once(&text.null.pooled)
-            .chain(text.prompts.iter().map(|p| &p.pooled))
-            .all(|p| p.is_some());
-        if pooled_needed && !all_pooled {
-            return Err(md.err(
-                "graph `unet` takes text_embeds: every text embedding needs a `pooled` file",
-            ));
-        }
-        let pooled_files = std::iter::once(&text.null.pooled)
-            .chain(text.prompts.iter().map(|p| &p.pooled))
-            .flatten();
-        for f in pooled_files {
-            check_file(md, "text pooled embedding", f)?;
-        }
-        Ok(())
+        // The family's own checks ([`super::families`]).
+        (self.family.kind().validate)(md)
     }
 }
 
-fn check_file(md: &ModelDir, what: &str, file: &str) -> Result<()> {
+/// An error naming `what` unless `file` (relative to the model directory) exists.
+pub(crate) fn check_file(md: &ModelDir, what: &str, file: &str) -> Result<()> {
     let p = md.file(file);
     if !p.is_file() {
         return Err(md.err(format!("{what}: file {} does not exist", p.display())));
@@ -550,7 +361,7 @@ fn check_file(md: &ModelDir, what: &str, file: &str) -> Result<()> {
 }
 
 /// `count` timesteps spaced evenly over `[t_min, t_max]` (a stylizer manifest's
-/// `stylizer.timesteps`).
+/// `stylizer.timesteps`, a patch manifest's `patch.timesteps`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TimestepRange {
@@ -560,7 +371,8 @@ pub struct TimestepRange {
 }
 
 /// The model's noise schedule and the fixed DDIM timestep set the method draws t from:
-/// the manifest's `stylizer.timesteps` range if present, else
+/// the family's own range if its manifest gives one (`stylizer.timesteps`,
+/// `patch.timesteps`; [`super::families::FamilyKind::timesteps`]), else
 /// [`TimestepSet::default_for`] its scheduler (50 steps over [0.02 T, 0.98 T]). `model`
 /// is a model directory or its `model.json`; the manifest is read and validated by
 /// [`ModelManifest::load`].
@@ -569,16 +381,7 @@ pub fn model_timesteps(model: &Path) -> Result<(Schedule, TimestepSet)> {
     let m = &md.manifest;
     let bad = |e: Error| md.err(e.to_string());
     let schedule = Schedule::new(m.scheduler.clone()).map_err(bad)?;
-    let own = [("stylizer", &m.stylizer), ("patch", &m.patch)]
-        .into_iter()
-        .find_map(|(name, v)| v.as_ref()?.get("timesteps").map(|t| (name, t)));
-    let range = match own {
-        Some((name, v)) => Some(
-            serde_json::from_value::<TimestepRange>(v.clone())
-                .map_err(|e| md.err(format!("{name}.timesteps: {e}")))?,
-        ),
-        None => None,
-    };
+    let range = (m.family.kind().timesteps)(&md)?;
     let set = match range {
         Some(r) => TimestepSet::new(&m.scheduler, r.t_min, r.t_max, r.count),
         None => TimestepSet::default_for(&m.scheduler),
@@ -617,7 +420,7 @@ mod tests {
         let v = minimal(d.path());
         write(d.path(), &v);
         let md = ModelManifest::load(d.path()).unwrap();
-        assert_eq!(md.manifest.family, Family::Sd15);
+        assert_eq!(md.manifest.family, Family::named("sd15").unwrap());
 
         let check = |v: serde_json::Value, needle: &str| {
             write(d.path(), &v);

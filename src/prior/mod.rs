@@ -3,22 +3,30 @@
 //! FantasyStyle (Sec. 4, CSD) needs, from a diffusion model: a VAE (encode renders to
 //! latents z0, decode back), and noise predictions eps(z_t, t, c) under several
 //! conditionings c, batched so that classifier-free guidance costs one call.
-//! Three kinds implement [`Prior`]:
+//! The families of [`families::FAMILIES`] (the `family` of a model directory's
+//! `model.json`) implement [`Prior`]:
 //!
-//! * `onnx`: real diffusion graphs (SD 1.5 / SDXL UNet, optional ControlNet and
-//!   IP-Adapter image encoder) described by a model manifest;
-//! * `gaussian`: the closed-form optimal denoiser for Gaussian-distributed latents
-//!   (exact; shipped as tiny ONNX graphs with the real I/O contract, for tests);
-//! * `stylizer`: a feed-forward 2D style-transfer network used as an x0-predictor in
-//!   pixel space (real weights, the CPU demo).
+//! * `sd15`, `sd21`, `sdxl`, `custom` ([`families::diffusion`]): real diffusion graphs
+//!   (SD 1.5 / SDXL UNet, optional ControlNet and IP-Adapter image encoder) described by
+//!   a model manifest, run by [`onnx`];
+//! * `gaussian` ([`families::gaussian`]): the closed-form optimal denoiser for
+//!   Gaussian-distributed latents (exact; shipped as tiny ONNX graphs with the real I/O
+//!   contract, for tests);
+//! * `stylizer` ([`families::stylizer`]): a feed-forward 2D style-transfer network used
+//!   as an x0-predictor in pixel space (real weights, the CPU demo);
+//! * `patch` ([`families::patch`]): the weight-free patch prior, whose clean-image model
+//!   is the style image's patches ([`patch`]).
 //!
-//! [`open`] opens the prior of a model directory, dispatching on its manifest's family.
-//! Submodules: [`gaussian`] (closed form in Rust), [`manifest`] (the model directory's
-//! `model.json`), [`onnx`] (the ONNX-backed diffusion prior), [`stylizer`] (the 2D
-//! stylizer), [`session`] (ONNX sessions and their I/O checks, shared by both),
-//! [`preprocess`] (image-encoder crops, ControlNet control images, shape checks).
+//! [`open`] opens the prior of a model directory through its manifest's family.
+//! Submodules: [`families`] (the registry), [`gaussian`] (closed form in Rust),
+//! [`manifest`] (the model directory's `model.json`), [`onnx`] (the ONNX-backed
+//! diffusion prior), [`stylizer`] (the 2D stylizer), [`patch`] (the patch prior),
+//! [`session`] (ONNX sessions and their I/O checks, shared by both), [`preprocess`]
+//! (image-encoder crops, ControlNet control images, shape checks), [`text`] (prompt
+//! embeddings), [`cost`] (what a prior's calls cost).
 
 pub mod cost;
+pub mod families;
 pub mod gaussian;
 pub mod manifest;
 pub mod onnx;
@@ -35,7 +43,7 @@ pub use preprocess::control_image;
 use crate::Result;
 use crate::runtime::{Device, Optimization, SessionConfig};
 use crate::scheduler::SchedulerConfig;
-use manifest::{Family, ModelManifest};
+use manifest::ModelManifest;
 use ndarray::{Array4, ArrayView4};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -84,26 +92,11 @@ impl PriorOptions {
     }
 }
 
-/// Open the prior in `model_dir` (a directory with `model.json`), dispatching on the
-/// manifest's family.
+/// Open the prior in `model_dir` (a directory with `model.json`) through its manifest's
+/// family ([`families::FamilyKind::open`]).
 pub fn open(model_dir: &Path, opts: &PriorOptions) -> Result<Box<dyn Prior>> {
     let md = ModelManifest::load(model_dir)?;
-    match md.manifest.family {
-        Family::Sd15 | Family::Sd21 | Family::Sdxl | Family::Custom | Family::Gaussian => {
-            Ok(Box::new(OnnxPrior::from_model_dir(md, opts)?))
-        }
-        // The MVFC/CSD stages' 2D-stylizer prior plugs in here.
-        Family::Stylizer => Ok(Box::new(
-            stylizer::StylizerPrior::open_with(
-                &md.dir,
-                opts.style_image.as_ref().map(|a| a.view()),
-                opts.session_config(),
-            )?
-            .with_strength(opts.strength.unwrap_or(1.0))?
-            .with_motif_scale(opts.motif_scale.unwrap_or(1.0))?,
-        )),
-        Family::Patch => Ok(Box::new(patch::PatchPrior::open(&md, opts)?)),
-    }
+    (md.manifest.family.kind().open)(md, opts)
 }
 
 /// Which control image a ControlNet wants; both can be made from our renders.

@@ -26,8 +26,18 @@
 //!   style patch is used about equally and no single flat patch wins everywhere.
 
 use super::bank::{Bank, row_norms};
+use crate::maths::sinkhorn::{
+    Columns, Costs, Sinkhorn, Units, epsilon_scaling, logsumexp, shifted_exp, shifted_exp_f64,
+    softmax_into,
+};
 use ndarray::{Array2, ArrayView2, ArrayView3, ArrayView4, Axis, s};
 use rayon::prelude::*;
+
+mod cells;
+mod local;
+
+use cells::CellSearch;
+pub use local::denoise_local;
 
 /// The noise level of z_t = `sa` x0 + `sb` eps (`sa` = sqrt(ab), `sb` = sqrt(1 - ab)).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -83,9 +93,7 @@ pub fn denoise_exact(
                 -d / var2 - guide.map_or(0.0, |g| guide_distance(g, i, j))
             })
             .collect();
-        let top = logits.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let w: Vec<f64> = logits.iter().map(|l| (l - top).exp()).collect();
-        let z: f64 = w.iter().sum();
+        let (w, z) = shifted_exp_f64(&logits);
         for ch in 0..c {
             let v: f64 = (0..bank.len())
                 .map(|j| w[j] * bank.centres[[j, ch]] as f64)
@@ -173,7 +181,7 @@ pub fn denoise_with_evidence(
     let mut evidence = Vec::with_capacity(x.nrows());
     for (i, mut o) in out.rows_mut().into_iter().enumerate() {
         let l = &cand.logit[i * cand.per..(i + 1) * cand.per];
-        evidence.push(logsumexp32(l.iter().copied()));
+        evidence.push(logsumexp(l.iter().copied()));
         for k in 0..cand.per {
             let (j, w) = (
                 cand.index[i * cand.per + k] as usize,
@@ -278,390 +286,6 @@ fn approximate_logits(
     dots
 }
 
-/// The shortlist search through an inverted file.
-struct CellSearch<'a> {
-    red: &'a super::bank::Reduced,
-    ivf: &'a super::bank::Ivf,
-    probe: usize,
-}
-
-impl CellSearch<'_> {
-    /// The `per` best candidates of every query of `x` `[q, D]` by approximate logit
-    /// among the members of its `probe` nearest cells (by the distance to sa times the
-    /// cell's centroid in PCA coordinates).
-    fn shortlists(
-        &self,
-        x: ArrayView2<'_, f32>,
-        level: Level,
-        guide: Option<Guide<'_>>,
-        per: usize,
-    ) -> Vec<Vec<u32>> {
-        let Level { sa, sb } = level;
-        let var2 = 2.0 * sb * sb;
-        let xp = self.red.pca.project(x, sa);
-        let xn = row_norms(xp.view());
-        let cd = xp.dot(&self.ivf.centroids.t());
-        let (mut members, mut vals, mut top, mut tmp) = (vec![], vec![], vec![], vec![]);
-        (0..x.nrows())
-            .map(|r| {
-                let cells = cell_order(cd.row(r), &self.ivf.norms, sa, self.probe);
-                members.clear();
-                for c in cells {
-                    members.extend_from_slice(&self.ivf.cells[c]);
-                }
-                if members.is_empty() {
-                    // Every probed cell empty (k-means leaves some on a small bank): the
-                    // nearest cell that has members.
-                    let all = cell_order(cd.row(r), &self.ivf.norms, sa, self.ivf.cells.len());
-                    if let Some(c) = all.into_iter().find(|&c| !self.ivf.cells[c].is_empty()) {
-                        members.extend_from_slice(&self.ivf.cells[c]);
-                    }
-                }
-                vals.clear();
-                let xr = xp.row(r);
-                for &j in &members {
-                    let y = self.red.coords.row(j as usize);
-                    let d = (xn[r] - 2.0 * sa * xr.dot(&y) + sa * sa * self.red.norms[j as usize])
-                        .max(0.0);
-                    let g = guide.map_or(0.0, |g| {
-                        let (a, b) = (g.query.row(r), g.bank.row(j as usize));
-                        g.weight * a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum::<f32>()
-                    });
-                    vals.push(-d / var2 - g);
-                }
-                top_indices(&vals, per.min(vals.len()), &mut top, &mut tmp);
-                let mut chosen: Vec<u32> = top.iter().map(|&i| members[i as usize]).collect();
-                // Too few members: pad with the first candidate (weight split evenly).
-                while chosen.len() < per {
-                    chosen.push(chosen[0]);
-                }
-                chosen
-            })
-            .collect()
-    }
-}
-
-/// A cell's share of the coupling below which it is not searched.
-const CELL_FLOOR: f32 = 0.01;
-
-impl CellSearch<'_> {
-    /// The balanced estimate `[Q, C]`: the queries are coupled to the index's cells by
-    /// entropic optimal transport (`iters` Sinkhorn rounds in the log domain) at the
-    /// posterior's temperature 2 sb^2, with every cell's column mass its share of the bank
-    /// (so that over the batch the style's patches are used in their own proportions, and
-    /// no single flat patch wins everywhere); then each query's estimate is the coupling-
-    /// weighted mix of the exact posterior means within its `probe` heaviest cells.
-    fn balanced(
-        &self,
-        bank: &Bank,
-        x: ArrayView2<'_, f32>,
-        level: Level,
-        (iters, per): (usize, usize),
-        guide: Option<Guide<'_>>,
-    ) -> Array2<f32> {
-        let Level { sa, sb } = level;
-        let var2 = 2.0 * sb * sb;
-        let xp = self.red.pca.project(x, sa);
-        let xn = row_norms(xp.view());
-        let coupling = self.coupling(xp.view(), &xn, level, iters);
-        let (c, k) = (bank.channels, self.ivf.cells.len());
-        let mut out = vec![0.0f32; x.nrows() * c];
-        out.par_chunks_mut(c).enumerate().for_each(|(i, o)| {
-            let row = &coupling[i * k..(i + 1) * k];
-            let mut cells: Vec<usize> = (0..k).collect();
-            cells.sort_unstable_by(|a, b| row[*b].total_cmp(&row[*a]));
-            cells.truncate(self.probe);
-            let best = row[cells[0]];
-            cells.retain(|&cc| row[cc] >= CELL_FLOOR * best);
-            let total: f32 = cells.iter().map(|&cc| row[cc]).sum();
-            let (mut approx, mut top, mut tmp) = (Vec::new(), Vec::new(), Vec::new());
-            for &cc in &cells {
-                // Candidates of the cell by approximate logit, then exact logits.
-                let members = &self.ivf.cells[cc];
-                approx.clear();
-                let xr = xp.row(i);
-                for &j in members {
-                    let y = self.red.coords.row(j as usize);
-                    let d = xn[i] - 2.0 * sa * xr.dot(&y) + sa * sa * self.red.norms[j as usize];
-                    approx.push(-d.max(0.0) / var2);
-                }
-                let n = if per == 0 {
-                    members.len()
-                } else {
-                    per.min(members.len())
-                };
-                top_indices(&approx, n, &mut top, &mut tmp);
-                let logits: Vec<(u32, f32)> = top
-                    .iter()
-                    .map(|&m| {
-                        let j = members[m as usize];
-                        (j, exact_logit(bank, x.row(i), j as usize, level, guide, i))
-                    })
-                    .collect();
-                let lmax = logits.iter().map(|l| l.1).fold(f32::NEG_INFINITY, f32::max);
-                let w: Vec<f32> = logits.iter().map(|l| (l.1 - lmax).exp()).collect();
-                let z: f32 = w.iter().sum();
-                let share = row[cc] / total / z;
-                for ((j, _), wj) in logits.iter().zip(&w) {
-                    for ch in 0..c {
-                        o[ch] += share * wj * bank.centres[[*j as usize, ch]];
-                    }
-                }
-            }
-        });
-        Array2::from_shape_vec((x.nrows(), c), out).expect("length matches")
-    }
-
-    /// The entropic coupling `[Q, K]` of queries to cells (rows sum to 1, columns to the
-    /// cells' shares of Q), costs ||x - sa centroid||^2 in PCA coordinates.
-    fn coupling(
-        &self,
-        xp: ArrayView2<'_, f32>,
-        xn: &ndarray::Array1<f32>,
-        level: Level,
-        iters: usize,
-    ) -> Vec<f32> {
-        let Level { sa, sb } = level;
-        let var2 = 2.0 * sb * sb;
-        let dots = xp.dot(&self.ivf.centroids.t());
-        let (q, k) = dots.dim();
-        // Each query's NEAR nearest cells and their costs (squared-distance units).
-        let near = NEAR.min(k);
-        let mut idx = vec![0u32; q * near];
-        let mut cost = vec![0.0f32; q * near];
-        let mut all = vec![0.0f32; k];
-        let (mut top, mut tmp) = (Vec::new(), Vec::new());
-        for i in 0..q {
-            for c in 0..k {
-                all[c] = -(xn[i] - 2.0 * sa * dots[[i, c]] + sa * sa * self.ivf.norms[c]).max(0.0);
-            }
-            top_indices(&all, near, &mut top, &mut tmp);
-            for (l, &c) in top.iter().enumerate() {
-                idx[i * near + l] = c;
-                cost[i * near + l] = -all[c as usize];
-            }
-        }
-        let m: usize = self.ivf.cells.iter().map(Vec::len).sum();
-        let share: Vec<f32> = self
-            .ivf
-            .cells
-            .iter()
-            .map(|c| (c.len().max(1) as f32 / m as f32 * q as f32).ln())
-            .collect();
-        // epsilon-scaling (Schmitzer 2019): the temperature falls geometrically from the
-        // costs' mean to the posterior's 2 sb^2 over the rounds, the potentials (in cost
-        // units) carried from round to round, so that a cold coupling still converges.
-        let mean = cost.iter().map(|v| *v as f64).sum::<f64>() / cost.len().max(1) as f64;
-        let cold = var2;
-        let hot = (mean as f32).max(cold);
-        let (mut f, mut g) = (vec![0.0f32; q], vec![0.0f32; k]);
-        let rows = |g: &[f32], f: &mut [f32], tau: f32| {
-            f.par_iter_mut().enumerate().for_each(|(i, fi)| {
-                let (ci, cc) = (
-                    &idx[i * near..(i + 1) * near],
-                    &cost[i * near..(i + 1) * near],
-                );
-                *fi = -tau * logsumexp32((0..near).map(|l| (g[ci[l] as usize] - cc[l]) / tau));
-            });
-        };
-        for r in 0..iters {
-            let frac = if iters > 1 {
-                r as f32 / (iters - 1) as f32
-            } else {
-                1.0
-            };
-            let tau = hot * (cold / hot).powf(frac);
-            rows(&g, &mut f, tau);
-            // Column sums through the sparse rows.
-            let mut col_max = vec![f32::NEG_INFINITY; k];
-            for i in 0..q {
-                for l in 0..near {
-                    let c = idx[i * near + l] as usize;
-                    col_max[c] = col_max[c].max((f[i] - cost[i * near + l]) / tau);
-                }
-            }
-            let mut col = vec![0.0f64; k];
-            for i in 0..q {
-                for l in 0..near {
-                    let c = idx[i * near + l] as usize;
-                    col[c] += (((f[i] - cost[i * near + l]) / tau) - col_max[c]).exp() as f64;
-                }
-            }
-            for c in 0..k {
-                if col[c] > 0.0 {
-                    g[c] = tau * (share[c] - (col_max[c] + (col[c] as f32).ln()));
-                }
-            }
-        }
-        rows(&g, &mut f, cold);
-        let mut out = vec![0.0f32; q * k];
-        out.par_chunks_mut(k).enumerate().for_each(|(i, o)| {
-            for l in 0..near {
-                let c = idx[i * near + l] as usize;
-                o[c] = ((f[i] + g[c] - cost[i * near + l]) / cold).exp();
-            }
-        });
-        out
-    }
-}
-
-/// Cells a query may be coupled to (its nearest by centroid distance).
-const NEAR: usize = 24;
-
-/// log sum exp of `xs` (f32, stable).
-fn logsumexp32(xs: impl Iterator<Item = f32> + Clone) -> f32 {
-    let top = xs.clone().fold(f32::NEG_INFINITY, f32::max);
-    if !top.is_finite() {
-        return top;
-    }
-    top + xs.map(|v| (v - top).exp()).sum::<f32>().ln()
-}
-
-/// The `probe` cells whose centroid, times `sa`, is nearest to the query (its centroid
-/// dot products `dots` `[K]`).
-fn cell_order(
-    dots: ndarray::ArrayView1<'_, f32>,
-    norms: &ndarray::Array1<f32>,
-    sa: f32,
-    probe: usize,
-) -> Vec<usize> {
-    let d: Vec<f32> = dots
-        .iter()
-        .zip(norms)
-        .map(|(p, n)| sa * sa * n - 2.0 * sa * p)
-        .collect();
-    let mut order: Vec<usize> = (0..d.len()).collect();
-    let p = probe.min(d.len());
-    if p < d.len() {
-        order.select_nth_unstable_by(p - 1, |a, b| d[*a].total_cmp(&d[*b]));
-        order.truncate(p);
-    }
-    order
-}
-
-/// The exact posterior mean `[P, C]` at `pixels` (b, y, x) of the noisy images `z`
-/// `[B, C, h, w]` under a *local* model of the clean images `source` `[B, C, h, w]`:
-/// the candidates of pixel (b, y, x) are the k x k patches of image b centred within
-/// `radius` of (y, x) and inside the image (Kamb & Ganguli's local score machine on one
-/// image per view; patches read with reflection at the borders, as [`super::bank::patches`]).
-///
-/// Written per offset o rather than per patch: the squared distance of the patch at i to
-/// the one at i + o is a k x k box sum of e_o(p) = |z(p) - sa y(p + o)|^2, so one image of
-/// e_o and its summed-area table give every pixel's distance for that offset in O(1)
-/// (k^2 times fewer operations than comparing patches).
-pub fn denoise_local(
-    source: ArrayView4<'_, f32>,
-    z: ArrayView4<'_, f32>,
-    pixels: &[[usize; 3]],
-    k: usize,
-    radius: usize,
-    level: Level,
-) -> Array2<f32> {
-    let (nb, channels, h, w) = source.dim();
-    let side = 2 * radius + 1;
-    let offsets: Vec<(isize, isize)> = (0..side * side)
-        .map(|i| {
-            (
-                (i / side) as isize - radius as isize,
-                (i % side) as isize - radius as isize,
-            )
-        })
-        .collect();
-    // dist[b][o][y * w + x]: the squared patch distance of pixel (y, x) to offset o.
-    let dist: Vec<Vec<Vec<f32>>> = (0..nb)
-        .into_par_iter()
-        .map(|b| {
-            offsets
-                .par_iter()
-                .map(|&o| {
-                    offset_distances(
-                        source.index_axis(Axis(0), b),
-                        z.index_axis(Axis(0), b),
-                        o,
-                        k,
-                        level.sa,
-                    )
-                })
-                .collect()
-        })
-        .collect();
-    let var2 = 2.0 * level.sb * level.sb;
-    let mut out = vec![0.0f32; pixels.len() * channels];
-    out.par_chunks_mut(channels)
-        .zip(pixels.par_iter())
-        .for_each(|(o, &[b, y, x])| {
-            let inside = |(dy, dx): (isize, isize)| {
-                let (yy, xx) = (y as isize + dy, x as isize + dx);
-                (yy >= 0 && yy < h as isize && xx >= 0 && xx < w as isize)
-                    .then_some((yy as usize, xx as usize))
-            };
-            let cand: Vec<(f32, usize, usize)> = offsets
-                .iter()
-                .enumerate()
-                .filter_map(|(oi, &off)| {
-                    inside(off).map(|(yy, xx)| (-dist[b][oi][y * w + x] / var2, yy, xx))
-                })
-                .collect();
-            let top = cand.iter().map(|c| c.0).fold(f32::NEG_INFINITY, f32::max);
-            let mut zsum = 0.0f32;
-            for &(l, yy, xx) in &cand {
-                let wgt = (l - top).exp();
-                zsum += wgt;
-                for ch in 0..channels {
-                    o[ch] += wgt * source[[b, ch, yy, xx]];
-                }
-            }
-            o.iter_mut().for_each(|v| *v /= zsum);
-        });
-    Array2::from_shape_vec((pixels.len(), channels), out).expect("length matches")
-}
-
-/// For one image pair and offset o = (dy, dx): every pixel's squared distance between
-/// the k x k patch of `z` at it and `sa` times the patch of `y` at it + o (reflected
-/// reads), as a box sum of the per-pixel squared difference (a summed-area table in f64).
-fn offset_distances(
-    y: ArrayView3<'_, f32>,
-    z: ArrayView3<'_, f32>,
-    (dy, dx): (isize, isize),
-    k: usize,
-    sa: f32,
-) -> Vec<f32> {
-    use super::bank::reflect;
-    let (channels, h, w) = y.dim();
-    let m = (k / 2) as isize;
-    let (eh, ew) = (h + 2 * m as usize, w + 2 * m as usize);
-    // Summed-area table of e over the extended domain [-m, h + m) x [-m, w + m).
-    let mut sat = vec![0.0f64; (eh + 1) * (ew + 1)];
-    for ey in 0..eh {
-        let py = ey as isize - m;
-        let (zy, yy) = (reflect(py, h), reflect(py + dy, h));
-        let mut row = 0.0f64;
-        for ex in 0..ew {
-            let px = ex as isize - m;
-            let (zx, yx) = (reflect(px, w), reflect(px + dx, w));
-            let mut e = 0.0f32;
-            for c in 0..channels {
-                let d = z[[c, zy, zx]] - sa * y[[c, yy, yx]];
-                e += d * d;
-            }
-            row += e as f64;
-            sat[(ey + 1) * (ew + 1) + ex + 1] = sat[ey * (ew + 1) + ex + 1] + row;
-        }
-    }
-    let ks = k;
-    let mut out = vec![0.0f32; h * w];
-    for yi in 0..h {
-        for xi in 0..w {
-            // Pixel (yi, xi)'s patch covers extended rows yi..yi + k, columns xi..xi + k.
-            let (y0, x0, y1, x1) = (yi, xi, yi + ks, xi + ks);
-            let s = sat[y1 * (ew + 1) + x1] - sat[y0 * (ew + 1) + x1] - sat[y1 * (ew + 1) + x0]
-                + sat[y0 * (ew + 1) + x0];
-            out[yi * w + xi] = s.max(0.0) as f32;
-        }
-    }
-    out
-}
-
 /// The exact logit of bank patch `j` for query row `x` (query `r` of the guide's block).
 fn exact_logit(
     bank: &Bank,
@@ -725,15 +349,7 @@ fn softmax_rows(c: &Candidates, g: Option<&[f32]>) -> Vec<f32> {
         .zip(c.logit.par_chunks(c.per))
         .zip(c.index.par_chunks(c.per))
         .for_each(|((w, l), idx)| {
-            let shifted = |k: usize| l[k] + g.map_or(0.0, |g| g[idx[k] as usize]);
-            let top = (0..l.len()).map(shifted).fold(f32::NEG_INFINITY, f32::max);
-            let mut z = 0.0f64;
-            for k in 0..l.len() {
-                w[k] = (shifted(k) - top).exp();
-                z += w[k] as f64;
-            }
-            let inv = (1.0 / z) as f32;
-            w.iter_mut().for_each(|v| *v *= inv);
+            softmax_into(w, |k| l[k] + g.map_or(0.0, |g| g[idx[k] as usize]));
         });
     w
 }
