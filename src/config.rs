@@ -250,6 +250,12 @@ impl Config {
         }
     }
 
+    /// The configuration as a table (what the ends read their sections from,
+    /// [`crate::ends::EndInputs::section`]).
+    pub fn table(&self) -> toml::Table {
+        toml::Table::try_from(self).expect("a configuration serialises")
+    }
+
     /// The configuration as TOML (what a file would hold to reproduce it).
     pub fn to_toml(&self) -> String {
         toml::to_string(self).expect("a configuration serialises")
@@ -268,6 +274,9 @@ impl Config {
         s += &End::help();
         s += "\nParts of the patch synthesis (src/ends/patches/):\n";
         s += &crate::ends::patches::parts_help();
+        s += "\nPrior families (the `family` of --model's model.json, src/prior/families/):\n";
+        let families: Vec<&str> = crate::prior::families::FAMILIES.iter().map(|f| f.name).collect();
+        s += &format!("          {}\n", families.join(", "));
         s
     }
 }
@@ -545,8 +554,8 @@ mod tests {
             let e = Config::layered(&[Source::Set(bad.into())])
                 .unwrap_err()
                 .to_string();
-            let key = bad.split('=').next().unwrap();
-            assert!(e.contains(key), "{bad}: {e}");
+            let field = bad.split(['.', '=']).nth(1).unwrap();
+            assert!(e.contains(field), "{bad}: {e}");
         }
     }
 

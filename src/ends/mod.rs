@@ -200,7 +200,8 @@ pub fn read_finish<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Resul
 
 /// What an end needs besides the scene: the cameras (`cameras_from` names them in
 /// errors) and their source views, the style image as loaded (`style_path` in errors),
-/// the configuration (its sections) and the selection, if any.
+/// the configuration as a table (each end reads its own section by name,
+/// [`EndInputs::section`]) and the selection, if any.
 #[derive(Debug, Clone, Copy)]
 pub struct EndInputs<'a> {
     pub cameras: &'a [Camera],
@@ -208,8 +209,22 @@ pub struct EndInputs<'a> {
     pub source: &'a SourceViews,
     pub style: &'a Image,
     pub style_path: &'a Path,
-    pub config: &'a crate::config::Config,
+    pub settings: &'a toml::Table,
     pub selection: Option<&'a crate::selection::Selection>,
+}
+
+impl EndInputs<'_> {
+    /// Section `name` of the configuration (`[synthesis]`, `[texture]`), read as `T`
+    /// (its defaults where the table has none).
+    pub fn section<T: serde::de::DeserializeOwned + Default>(&self, name: &str) -> Result<T> {
+        match self.settings.get(name) {
+            Some(v) => v
+                .clone()
+                .try_into()
+                .map_err(|e| Error::param(format!("[{name}]: {e}"))),
+            None => Ok(T::default()),
+        }
+    }
 }
 
 /// `scene` after `end`.

@@ -15,7 +15,8 @@ pub fn run(_: Role, scene: &Scene, inputs: &EndInputs<'_>) -> Result<Scene> {
     // The cameras are the source views': a placement error is about them.
     let at = Placement::of(scene, inputs.cameras)
         .map_err(|e| Error::input(inputs.cameras_from, e.to_string()))?;
-    let size = inputs.config.texture.style_size;
+    let texture: crate::terms::texture::TextureParams = inputs.section("texture")?;
+    let size = texture.style_size;
     let img = crate::vgg::prepare_style(inputs.style, size, inputs.style_path)?;
     tracing::info!(
         "style projection: {}x{} style px, {:.3e} world units per px, centre {:.3?}",

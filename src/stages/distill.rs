@@ -179,13 +179,14 @@ pub fn run(a: Args) -> Result<()> {
     };
     // Strength 0 is "unchanged" exactly: no start, no iteration, no finish.
     let styled = config.strength > 0.0;
+    let settings = config.table();
     let inputs = EndInputs {
         cameras: &cameras,
         cameras_from: &a.source_views,
         source: &source,
         style: &style,
         style_path: &a.prior.style,
-        config: &config,
+        settings: &settings,
         selection: selection.as_ref(),
     };
     if styled && a.resume.is_none() {

@@ -2,9 +2,10 @@
 //! style bank's k-means cells, made in the log domain by Sinkhorn's iterations, the
 //! cells' marginal their share of the bank relaxed by the exponent `balance` (the
 //! KL-penalised unbalanced form of Chizat et al. 2018); each patch then takes the cell
-//! its row of the coupling favours most.
+//! its row of the coupling favours most. The iterations are [`crate::maths::sinkhorn`]'s
+//! (log units, f32 column sums), which the patch prior's denoiser shares.
 
-use rayon::prelude::*;
+use crate::maths::sinkhorn::{Columns, Costs, Sinkhorn, Units};
 
 /// Each query's cell under the balanced coupling of its distances `dist`
 /// `[P x cells]` to the cells' nearest patches, the cells' shares of the bank `share`
@@ -30,27 +31,24 @@ pub fn couple(share: &[f32], dist: &[f32], balance: f32, eps: f32) -> Vec<usize>
             .sum::<f64>()
             / p as f64;
         let t = (eps as f64 * mean_min).max(1e-6) as f32;
-        let log_share: Vec<f32> = share.iter().map(|s| s.max(1e-12).ln()).collect();
+        // The cells' marginal p share_c, relaxed by the exponent rho = balance (the
+        // KL-penalised unbalanced form, Chizat et al. 2018), potentials in log units.
+        let log_p = (p as f32).ln();
+        let target: Vec<f32> = share.iter().map(|s| s.max(1e-12).ln() + log_p).collect();
         let mut log_u = vec![0.0f32; p];
-        for _ in 0..SINKHORN_ITERS {
-            log_u
-                .par_iter_mut()
-                .zip(dist.par_chunks(cells))
-                .for_each(|(u, row)| {
-                    *u = -logsumexp(row.iter().zip(&log_v).map(|(&d, &v)| v - d / t));
-                });
-            let col = column_logsumexp(dist, &log_u, cells, t);
-            // The cells' marginal p share_c, relaxed by the exponent rho = balance
-            // (the KL-penalised unbalanced form, Chizat et al. 2018).
-            let log_p = (p as f32).ln();
-            for c in 0..cells {
-                log_v[c] = if col[c].is_finite() {
-                    balance * (log_share[c] + log_p - col[c])
-                } else {
-                    0.0
-                };
-            }
-        }
+        let scheme = Sinkhorn {
+            units: Units::Log,
+            columns: Columns::F32Zero,
+            rho: balance,
+        };
+        let costs = Costs {
+            cost: dist,
+            index: None,
+            per: cells,
+            cols: cells,
+        };
+        let taus = std::iter::repeat_n(t, SINKHORN_ITERS);
+        scheme.run(costs, &target, taus, &mut log_u, &mut log_v);
         return dist.chunks(cells).map(|row| best(row, &log_v, t)).collect();
     }
     dist.chunks(cells)
@@ -60,26 +58,3 @@ pub fn couple(share: &[f32], dist: &[f32], balance: f32, eps: f32) -> Vec<usize>
 
 /// Sinkhorn iterations of the balance.
 pub const SINKHORN_ITERS: usize = 30;
-
-/// log sum exp of `xs` (stable).
-fn logsumexp(xs: impl Iterator<Item = f32> + Clone) -> f32 {
-    let m = xs.clone().fold(f32::NEG_INFINITY, f32::max);
-    if !m.is_finite() {
-        return m;
-    }
-    m + xs.map(|x| (x - m).exp()).sum::<f32>().ln()
-}
-
-/// For each cell c, log sum_q exp(log_u_q - dist_qc / t).
-fn column_logsumexp(dist: &[f32], log_u: &[f32], cells: usize, t: f32) -> Vec<f32> {
-    (0..cells)
-        .into_par_iter()
-        .map(|c| {
-            logsumexp(
-                dist.chunks(cells)
-                    .zip(log_u)
-                    .map(|(row, &u)| u - row[c] / t),
-            )
-        })
-        .collect()
-}

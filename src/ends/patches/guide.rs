@@ -17,25 +17,15 @@
 //! The style's moments are its *motifs'* ([`super::motif`]): a style photographed on a
 //! plain background is not remapped to black.
 //!
-//! It is a part of the synthesis of the [`Channel`] kind ([`super::parts::PARTS`]'
+//! It is a part of the synthesis of the [`Channel`] kind ([`super::PARTS`]'
 //! `guide`, on when `synthesis.control` > 0): one more channel of every patch, weighted
 //! by sqrt(3 control).
 
 use super::SynthesisParams;
-use super::motif::motif_mask;
+use super::motif::{luma, motif_mask};
 use super::parts::Channel;
 use crate::imageio::Image;
 use crate::render::fill::{push_pull, unpremultiply};
-
-/// Rec. 601 luma weights.
-pub const LUMA: [f32; 3] = [0.299, 0.587, 0.114];
-
-/// The luma of `[N, 3]` pixels.
-pub fn luma(rgb: &[f32]) -> Vec<f32> {
-    rgb.chunks_exact(3)
-        .map(|p| LUMA[0] * p[0] + LUMA[1] * p[1] + LUMA[2] * p[2])
-        .collect()
-}
 
 /// Mean and standard deviation of a set of values.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -119,7 +109,7 @@ pub fn source_guides(
         .collect()
 }
 
-/// The structure guide as a part of the synthesis ([`super::parts::PARTS`]).
+/// The structure guide as a part of the synthesis ([`super::PARTS`]).
 #[derive(Debug, Clone, Copy)]
 pub struct StructureGuide;
 

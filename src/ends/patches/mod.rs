@@ -29,9 +29,9 @@
 //!
 //! The files: [`level`] (a level's style model and the search), [`couple`] (the
 //! balance), [`view`] (a view's queries, votes and target), [`motif`] (a style's
-//! background), [`coherence`] (the pieces copied whole). The parts ([`parts::PARTS`]:
-//! the structure guide [`guide`], the negative branch [`negative`]) are switched on by
-//! their keys; a new part is one file and one line there.
+//! background), [`coherence`] (the pieces copied whole). The parts ([`PARTS`], their
+//! kinds in [`parts`]: the structure guide [`guide`], the negative branch [`negative`])
+//! are switched on by their keys; a new part is one file and one line of [`PARTS`].
 
 pub mod coherence;
 pub mod couple;
@@ -44,7 +44,6 @@ pub mod parts;
 mod test_red;
 pub mod view;
 
-pub use parts::{PARTS, parts_help};
 
 use crate::imageio::Image;
 use crate::optim::{ColourFit, FitParams};
@@ -52,9 +51,53 @@ use crate::selection::Selection;
 use crate::{Camera, Error, Result, Scene};
 use level::StyleLevel;
 use ndarray::Axis;
-use parts::{Channel, Rematch};
+use parts::{Channel, Hook, PartKind, Rematch};
 use rayon::prelude::*;
 use view::{Query, ViewImage};
+
+/// The parts, in the order their channels join the search and their rematches apply.
+#[rustfmt::skip]
+pub const PARTS: &[PartKind] = &[
+    PartKind { name: "guide", key: "synthesis.control", help: "the structure guide: the source render's luma, remapped to the style's, matched beside the colours (ControlNet's role)", on: |p| p.control > 0.0, hook: Hook::Channel(&guide::StructureGuide) },
+    PartKind { name: "negative", key: "synthesis.negative", help: "CSD's negative branch at t -> 0: a style patch continuing a neighbour's piece pays a cost", on: |p| p.negative > 0.0, hook: Hook::Rematch(&negative::Negative) },
+    #[cfg(test)]
+    PartKind { name: "test-red", key: "(tests only)", help: "the source's red channel as a guide (a test-only part)", on: |_| test_red::on(), hook: Hook::Channel(&test_red::Red) },
+];
+
+/// The parts `p` switches on.
+pub fn active_parts(p: &SynthesisParams) -> Vec<&'static PartKind> {
+    PARTS.iter().filter(|k| (k.on)(p)).collect()
+}
+
+/// The channels of the parts `p` switches on.
+pub fn channels(p: &SynthesisParams) -> Vec<&'static dyn Channel> {
+    active_parts(p)
+        .into_iter()
+        .filter_map(|k| match k.hook {
+            Hook::Channel(c) => Some(c),
+            Hook::Rematch(_) => None,
+        })
+        .collect()
+}
+
+/// The rematches of the parts `p` switches on.
+pub fn rematches(p: &SynthesisParams) -> Vec<&'static dyn Rematch> {
+    active_parts(p)
+        .into_iter()
+        .filter_map(|k| match k.hook {
+            Hook::Rematch(r) => Some(r),
+            Hook::Channel(_) => None,
+        })
+        .collect()
+}
+
+/// Every part with its key and help, for `--help`.
+pub fn parts_help() -> String {
+    PARTS
+        .iter()
+        .map(|k| format!("          {} ({} > 0): {}\n", k.name, k.key, k.help))
+        .collect()
+}
 
 /// The settings of the patch synthesis (the `[synthesis]` section of the method's
 /// configuration; `finish = "patches"` runs it).
@@ -274,15 +317,16 @@ pub fn synthesize(
 /// `[synthesis]` and `texture.style_size`, its structure guide and source branch from the
 /// source views.
 pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Result<Scene> {
-    let c = inputs.config;
+    let p: SynthesisParams = inputs.section("synthesis")?;
+    let texture: crate::terms::texture::TextureParams = inputs.section("texture")?;
     let s = inputs.source;
     let (out, _) = synthesize(
         scene,
         inputs.cameras,
         inputs.style,
         s.background,
-        c.texture.style_size,
-        &c.synthesis,
+        texture.style_size,
+        &p,
         inputs.selection,
         Some(&s.rgb),
     )?;
@@ -336,7 +380,7 @@ struct RoundStats {
 
 /// What the synthesis holds fixed: the views as they were at its start (the source
 /// branch's colours, `[H, W, 3]`), their coverage `[H, W]`, the background, the parts
-/// the settings switch on ([`parts::active`]), and each channel's image of every view
+/// the settings switch on ([`active_parts`]), and each channel's image of every view
 /// (`[H, W]`, [`parts::Channel::source`]).
 struct Frozen {
     rgb: Vec<Vec<f32>>,
@@ -356,7 +400,7 @@ impl Frozen {
         background: [f32; 3],
         p: &SynthesisParams,
     ) -> Frozen {
-        let parts = parts::channels(p);
+        let parts = channels(p);
         let channels = parts
             .iter()
             .map(|c| c.source(&rgb, &alpha, sizes, background, style))
@@ -366,7 +410,7 @@ impl Frozen {
             alpha,
             background,
             parts,
-            rematches: parts::rematches(p),
+            rematches: rematches(p),
             channels,
         }
     }
@@ -531,10 +575,10 @@ mod tests {
         let run = |images: &[Vec<f32>]| {
             synthesize_images(images, &alpha, &[(h, w)], &style, [0.0; 3], 32, &p).unwrap()
         };
-        assert!(parts::channels(&p).is_empty());
+        assert!(channels(&p).is_empty());
         let images = std::slice::from_ref(&src);
         let on = test_red::switched_on(|| {
-            assert_eq!(parts::channels(&p).len(), 1);
+            assert_eq!(channels(&p).len(), 1);
             run(images)
         });
         assert!(!test_red::on());

@@ -5,9 +5,18 @@
 //! pixels the style's moments ([`super::guide`]), so its share of the style is not forced
 //! onto the object. Every level of the synthesis uses it, guided or not.
 
-use super::guide::luma;
 use crate::imageio::Image;
 use crate::render::fill::push_pull;
+
+/// Rec. 601 luma weights.
+pub const LUMA: [f32; 3] = [0.299, 0.587, 0.114];
+
+/// The luma of `[N, 3]` pixels.
+pub fn luma(rgb: &[f32]) -> Vec<f32> {
+    rgb.chunks_exact(3)
+        .map(|p| LUMA[0] * p[0] + LUMA[1] * p[1] + LUMA[2] * p[2])
+        .collect()
+}
 
 /// A pixel is the background's colour when within this RGB distance of it.
 const BACKGROUND_TOLERANCE: f32 = 0.1;

@@ -13,7 +13,7 @@
 //! take the style's patches one by one. 0 is no negative guidance (the default).
 //!
 //! [`super::coherence`] measures what it acts on. It is a part of the synthesis of the
-//! [`Rematch`] kind ([`super::parts::PARTS`]' `negative`, on when `synthesis.negative`
+//! [`Rematch`] kind ([`super::PARTS`]' `negative`, on when `synthesis.negative`
 //! > 0).
 
 use super::SynthesisParams;
@@ -46,7 +46,7 @@ pub fn penalise(
     }
 }
 
-/// The negative branch as a part of the synthesis ([`super::parts::PARTS`]).
+/// The negative branch as a part of the synthesis ([`super::PARTS`]).
 #[derive(Debug, Clone, Copy)]
 pub struct Negative;
 

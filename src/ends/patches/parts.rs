@@ -8,7 +8,7 @@
 //! - a [`Rematch`]: the coupling made a second time with its distances changed after
 //!   the first (the negative branch of CSD at t -> 0).
 //!
-//! A new part is one new file of this module and one line of [`PARTS`].
+//! A new part is one new file of this module and one line of [`super::PARTS`].
 
 use super::SynthesisParams;
 use super::coherence::Neighbour;
@@ -75,48 +75,4 @@ impl std::fmt::Debug for PartKind {
             .field("name", &self.name)
             .finish()
     }
-}
-
-/// The parts, in the order their channels join the search and their rematches apply.
-#[rustfmt::skip]
-pub const PARTS: &[PartKind] = &[
-    PartKind { name: "guide", key: "synthesis.control", help: "the structure guide: the source render's luma, remapped to the style's, matched beside the colours (ControlNet's role)", on: |p| p.control > 0.0, hook: Hook::Channel(&super::guide::StructureGuide) },
-    PartKind { name: "negative", key: "synthesis.negative", help: "CSD's negative branch at t -> 0: a style patch continuing a neighbour's piece pays a cost", on: |p| p.negative > 0.0, hook: Hook::Rematch(&super::negative::Negative) },
-    #[cfg(test)]
-    PartKind { name: "test-red", key: "(tests only)", help: "the source's red channel as a guide (a test-only part)", on: |_| super::test_red::on(), hook: Hook::Channel(&super::test_red::Red) },
-];
-
-/// The parts `p` switches on.
-pub fn active(p: &SynthesisParams) -> Vec<&'static PartKind> {
-    PARTS.iter().filter(|k| (k.on)(p)).collect()
-}
-
-/// The channels of the parts `p` switches on.
-pub fn channels(p: &SynthesisParams) -> Vec<&'static dyn Channel> {
-    active(p)
-        .into_iter()
-        .filter_map(|k| match k.hook {
-            Hook::Channel(c) => Some(c),
-            Hook::Rematch(_) => None,
-        })
-        .collect()
-}
-
-/// The rematches of the parts `p` switches on.
-pub fn rematches(p: &SynthesisParams) -> Vec<&'static dyn Rematch> {
-    active(p)
-        .into_iter()
-        .filter_map(|k| match k.hook {
-            Hook::Rematch(r) => Some(r),
-            Hook::Channel(_) => None,
-        })
-        .collect()
-}
-
-/// Every part with its key and help, for `--help`.
-pub fn parts_help() -> String {
-    PARTS
-        .iter()
-        .map(|k| format!("          {} ({} > 0): {}\n", k.name, k.key, k.help))
-        .collect()
 }

@@ -1,6 +1,6 @@
 //! `test-red`, a part for the tests only: the source views' red channel matched beside
 //! the colours, switched on per thread by [`switched_on`]. It is here to show that a new
-//! part of the synthesis is one file and one line of [`super::parts::PARTS`].
+//! part of the synthesis is one file and one line of [`super::PARTS`].
 
 use super::SynthesisParams;
 use super::parts::Channel;
