@@ -5,8 +5,10 @@
 //! |---|---|
 //! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64), PSD square roots, small dense products |
 //! | [`gram`] | the Gram matrix of a feature map (Gatys et al. 2016, Eq. 3) |
+//! | [`kid`] | KID's polynomial kernel and unbiased MMD² estimate (Bińkowski et al. 2018) |
 //! | [`warp`] | depth reprojection of one rendered view into another, with an occlusion test |
 
 pub mod gram;
+pub mod kid;
 pub mod linalg;
 pub mod warp;

@@ -55,6 +55,7 @@ use super::spectrum;
 use super::views::ViewSet;
 use crate::imageio::Image;
 use crate::maths::gram::gram;
+use crate::maths::kid::{kernel_matrix, mmd2};
 use crate::vgg::Tensor3;
 use serde::Serialize;
 
@@ -292,58 +293,15 @@ impl ObjectGram {
     }
 }
 
-/// The kernel matrix `k(x_i, y_j) = (x_i . y_j / d + 1)^3`.
-fn kernel(a: &FeatureSet, b: &FeatureSet) -> Vec<f64> {
-    let d = a.d as f64;
-    let mut k = vec![0.0; a.n * b.n];
-    for (i, x) in a.data.chunks(a.d).enumerate() {
-        for (j, y) in b.data.chunks(b.d).enumerate() {
-            let dot: f64 = x.iter().zip(y).map(|(p, q)| p * q).sum();
-            k[i * b.n + j] = (dot / d + 1.0).powi(3);
-        }
-    }
-    k
-}
-
-/// Unbiased MMD² from kernel matrices, over the kept rows/columns.
-fn mmd2(
-    kaa: &[f64],
-    kbb: &[f64],
-    kab: &[f64],
-    na: usize,
-    nb: usize,
-    ka: &[bool],
-    kb: &[bool],
-) -> f64 {
-    let within = |k: &[f64], n: usize, keep: &[bool]| {
-        let (mut s, m) = (0.0, keep.iter().filter(|&&x| x).count());
-        for i in (0..n).filter(|&i| keep[i]) {
-            for j in (0..n).filter(|&j| keep[j] && j != i) {
-                s += k[i * n + j];
-            }
-        }
-        s / (m * (m - 1)) as f64
-    };
-    let (ma, mb) = (
-        ka.iter().filter(|&&x| x).count(),
-        kb.iter().filter(|&&x| x).count(),
-    );
-    let mut cross = 0.0;
-    for i in (0..na).filter(|&i| ka[i]) {
-        for j in (0..nb).filter(|&j| kb[j]) {
-            cross += kab[i * nb + j];
-        }
-    }
-    within(kaa, na, ka) + within(kbb, nb, kb) - 2.0 * cross / (ma * mb) as f64
-}
-
 /// KID (the value of [`super::fid::kid`]) and its two-sample jackknife standard error;
 /// `None` for the error when a set has fewer than 3 images.
 pub fn kid_jackknife(a: &FeatureSet, b: &FeatureSet) -> Option<(f64, Option<f64>)> {
     if a.n < 2 || b.n < 2 || a.d != b.d {
         return None;
     }
-    let (kaa, kbb, kab) = (kernel(a, a), kernel(b, b), kernel(a, b));
+    let kaa = kernel_matrix(&a.data, a.n, &a.data, a.n, a.d);
+    let kbb = kernel_matrix(&b.data, b.n, &b.data, b.n, b.d);
+    let kab = kernel_matrix(&a.data, a.n, &b.data, b.n, a.d);
     let (mut ka, mut kb) = (vec![true; a.n], vec![true; b.n]);
     let full = mmd2(&kaa, &kbb, &kab, a.n, b.n, &ka, &kb);
     if a.n < 3 || b.n < 3 {
