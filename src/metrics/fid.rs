@@ -22,6 +22,7 @@
 //! FID on few images is strongly biased (the covariance of `n < d` samples has rank
 //! `n - 1`): values are comparable only at equal sample counts, which the report states.
 
+use crate::maths::kid::{cross_sum, kernel_matrix, within_mean};
 use crate::maths::linalg::{matmul, sqrtm_psd, sym_eig, trace};
 use crate::{Error, Result};
 
@@ -161,33 +162,13 @@ pub fn frechet_gaussians(mu1: &[f64], s1: &[f64], mu2: &[f64], s2: &[f64]) -> f6
 /// KID: unbiased MMD² with the cubic polynomial kernel `(x·y/d + 1)^3`.
 pub fn kid(a: &FeatureSet, b: &FeatureSet) -> Result<f64> {
     check_sets(a, b, "KID")?;
-    let d = a.d as f64;
-    let k = |x: &[f64], y: &[f64]| {
-        let dot: f64 = x.iter().zip(y).map(|(p, q)| p * q).sum();
-        (dot / d + 1.0).powi(3)
-    };
-    let ra: Vec<&[f64]> = a.data.chunks(a.d).collect();
-    let rb: Vec<&[f64]> = b.data.chunks(b.d).collect();
-    let within = |r: &[&[f64]]| {
-        let n = r.len();
-        let mut s = 0.0;
-        for i in 0..n {
-            for j in 0..n {
-                if i != j {
-                    s += k(r[i], r[j]);
-                }
-            }
-        }
-        s / (n * (n - 1)) as f64
-    };
-    let mut cross = 0.0;
-    for x in &ra {
-        for y in &rb {
-            cross += k(x, y);
-        }
-    }
-    cross /= (ra.len() * rb.len()) as f64;
-    Ok(within(&ra) + within(&rb) - 2.0 * cross)
+    let kaa = kernel_matrix(&a.data, a.n, &a.data, a.n, a.d);
+    let kbb = kernel_matrix(&b.data, b.n, &b.data, b.n, b.d);
+    let kab = kernel_matrix(&a.data, a.n, &b.data, b.n, a.d);
+    let (all_a, all_b) = (vec![true; a.n], vec![true; b.n]);
+    // The cross mean divided before it is doubled, as this function always did.
+    let cross = cross_sum(&kab, a.n, b.n, &all_a, &all_b) / (a.n * b.n) as f64;
+    Ok(within_mean(&kaa, a.n, &all_a) + within_mean(&kbb, b.n, &all_b) - 2.0 * cross)
 }
 
 /// ArtFID = (1 + LPIPS_content)(1 + FID_style) (computed with the standard FID Inception).

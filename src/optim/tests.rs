@@ -1,7 +1,8 @@
 use super::*;
 use crate::render::tests::{front_camera, random_scene};
-use crate::render::{RenderOptions, render};
+use crate::render::{CacheMode, RenderOptions, render};
 use crate::rng::Rng;
+use crate::{Camera, Result, Scene};
 
 fn image(rng: &mut Rng, n: usize) -> Vec<f32> {
     (0..n).map(|_| rng.uniform() as f32).collect()

@@ -1,0 +1,139 @@
+//! The report's tables: the metrics of an evaluation (with its consistency rows) and
+//! every view with its per-view measures.
+
+use crate::imageio::Image;
+use crate::metrics::evaluate::{ARTFID_NOTE, Metrics, SetDistance};
+use crate::metrics::html::{esc, figure, fmt_opt, img_tag, table};
+use crate::metrics::structure;
+use crate::metrics::views::ViewSet;
+
+/// The metrics table of an evaluation.
+pub(super) fn metrics_table(m: &Metrics) -> String {
+    let d = |x: &SetDistance, digits, flag: &str| {
+        let mark = if x.reliable || x.value.is_none() {
+            String::new()
+        } else {
+            format!(" ({flag})")
+        };
+        format!("{}{mark}", fmt_opt(x.value, digits))
+    };
+    let net = m.lpips_net.name();
+    let mut rows = vec![
+        vec!["ArtFID ↓".into(), fmt_opt(m.artfid, 3), esc(ARTFID_NOTE)],
+        vec![
+            format!("LPIPS_content ({net}) ↓"),
+            fmt_opt(m.lpips_content, 4),
+            "mean over views of LPIPS(original, stylized)".into(),
+        ],
+        vec![
+            "structure kept ↑".into(),
+            fmt_opt(m.structure_kept, 3),
+            format!(
+                "mean over views of the correlation of the original's and the stylized view's \
+                 band-passed luminance (difference of Gaussians, sigma 1 px minus 4 px) over the \
+                 object; 1 = every edge and shading detail still where it was; worst: view {}",
+                structure::worst_view(&m.structure_kept_per_view).map_or("-".into(), |i| format!(
+                    "{i} ({})",
+                    fmt_opt(m.structure_kept_per_view[i], 3)
+                ))
+            ),
+        ],
+        vec![
+            "FID_style ↓".into(),
+            d(&m.fid_style, 2, "biased"),
+            esc(&format!(
+                "stylized views vs style crops; {}",
+                m.fid_style.note
+            )),
+        ],
+        vec![
+            "KID_style ↓".into(),
+            d(&m.kid_style, 5, "few images"),
+            esc(&m.kid_style.note),
+        ],
+        vec![
+            "FID_content ↓".into(),
+            d(&m.fid_content, 2, "biased"),
+            esc(&format!(
+                "stylized vs original views; {}",
+                m.fid_content.note
+            )),
+        ],
+        vec![
+            "KID_content ↓".into(),
+            d(&m.kid_content, 5, "few images"),
+            esc(&m.kid_content.note),
+        ],
+    ];
+    rows.extend(consistency_rows(m));
+    rows.push(vec![
+        "Gram distance to style (VGG16) ↓".into(),
+        fmt_opt(m.gram_style, 4),
+        format!(
+            "original renders: {} (extra measure)",
+            fmt_opt(m.gram_style_original, 4)
+        ),
+    ]);
+    table(&["metric", "value", "notes"], &rows)
+}
+
+/// The metrics table's consistency rows: short and long range, LPIPS and RMSE.
+fn consistency_rows(m: &Metrics) -> Vec<Vec<String>> {
+    let net = m.lpips_net.name();
+    vec![
+        vec![
+            format!("short-range LPIPS ({net}) ↓"),
+            fmt_opt(m.short_range.lpips_mean, 4),
+            format!(
+                "pairs (i, i+{}); original renders: {}",
+                m.short_range.offset,
+                fmt_opt(m.short_range.original_lpips_mean, 4)
+            ),
+        ],
+        vec![
+            "short-range RMSE ↓".into(),
+            fmt_opt(m.short_range.rmse_mean, 4),
+            format!(
+                "original renders: {}",
+                fmt_opt(m.short_range.original_rmse_mean, 4)
+            ),
+        ],
+        vec![
+            format!("long-range LPIPS ({net}) ↓"),
+            fmt_opt(m.long_range.lpips_mean, 4),
+            format!(
+                "pairs (i, i+{}); original renders: {}",
+                m.long_range.offset,
+                fmt_opt(m.long_range.original_lpips_mean, 4)
+            ),
+        ],
+        vec![
+            "long-range RMSE ↓".into(),
+            fmt_opt(m.long_range.rmse_mean, 4),
+            format!(
+                "original renders: {}",
+                fmt_opt(m.long_range.original_rmse_mean, 4)
+            ),
+        ],
+    ]
+}
+
+/// The style image and every view: original, stylized, LPIPS_content, structure kept
+/// and Gram distance.
+pub(super) fn views_table(m: &Metrics, orig: &ViewSet, styl: &ViewSet, style: &Image) -> String {
+    let mut imgs = String::from("<p>Style image:</p>");
+    imgs.push_str(&figure(style, 256, "style"));
+    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>structure</th><th>Gram</th></tr>");
+    for i in 0..m.views {
+        imgs.push_str(&format!(
+            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td></tr>",
+            img_tag(&orig.images[i], 256, &format!("original {i}")),
+            img_tag(&styl.images[i], 256, &format!("stylized {i}")),
+            m.lpips_content_per_view[i],
+            fmt_opt(m.structure_kept_per_view[i], 3),
+            m.gram_style_per_view[i]
+        ));
+    }
+    imgs.push_str("</table>");
+    imgs
+}
