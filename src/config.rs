@@ -275,7 +275,10 @@ impl Config {
         s += "\nParts of the patch synthesis (src/ends/patches/):\n";
         s += &crate::ends::patches::parts_help();
         s += "\nPrior families (the `family` of --model's model.json, src/prior/families/):\n";
-        let families: Vec<&str> = crate::prior::families::FAMILIES.iter().map(|f| f.name).collect();
+        let families: Vec<&str> = crate::prior::families::FAMILIES
+            .iter()
+            .map(|f| f.name)
+            .collect();
         s += &format!("          {}\n", families.join(", "));
         s
     }

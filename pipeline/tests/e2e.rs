@@ -468,7 +468,13 @@ fn sample_dag_is_valid() {
     end_only.sort();
     assert_eq!(
         end_only,
-        ["eval-reference", "evaluate", "final-scene", "final-views", "source-views"],
+        [
+            "eval-reference",
+            "evaluate",
+            "final-scene",
+            "final-views",
+            "source-views"
+        ],
         "the default DAG"
     );
     let mut with_loop = stages(&["distill.chunks=2"]);

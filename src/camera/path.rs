@@ -88,15 +88,8 @@ mod tests {
     use crate::camera::load_cameras;
 
     fn orbit(n: usize) -> Vec<Camera> {
-        let s = crate::Scene {
-            positions: vec![[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]],
-            log_scales: vec![[0.0; 3]; 2],
-            rotations: vec![[1.0, 0.0, 0.0, 0.0]; 2],
-            opacity_logits: vec![0.0; 2],
-            sh_dc: vec![[0.0; 3]; 2],
-            ..Default::default()
-        };
-        load_cameras(&format!("orbit:{n}"), &s.bounds(), 32, 32).unwrap()
+        let b = crate::geometry::Bounds::of_points(&[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]);
+        load_cameras(&format!("orbit:{n}"), &b, 32, 32).unwrap()
     }
 
     #[test]

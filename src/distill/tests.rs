@@ -283,6 +283,57 @@ fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
     assert!(fast_last.latents.is_none() && full_last.latents.is_some());
 }
 
+/// A view term of the registry (`tv`, total variation) reaches the colour step through
+/// the configuration alone: with `terms = { tv = 1 }` (no prior term) the loop asks the
+/// prior nothing, and the colours move so that the renders' total variation falls.
+#[test]
+fn a_view_term_from_the_registry_moves_the_colours() {
+    use crate::scheduler::SchedulerConfig;
+    use crate::terms::ViewTerm;
+    use crate::terms::tv::TotalVariation;
+
+    let scene = random_scene(300, 0, 5);
+    let cams: Vec<Camera> = [-0.2f32, 0.2]
+        .iter()
+        .map(|&x| {
+            let mut c = front_camera(32, 32, 40.0, 3.0);
+            c.translation[0] = x;
+            c
+        })
+        .collect();
+    let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
+    let params = Config {
+        views: 2,
+        lr_dc: 0.05,
+        terms: crate::terms::Terms::parse("tv=1").unwrap(),
+        ..Config::default()
+    };
+    assert!(!params.asks_the_prior());
+    let mut prior = Counting {
+        inner: crate::prior::gaussian::GaussianPrior::with_default_text(None).unwrap(),
+        predictions: 0,
+    };
+    let set = TimestepSet::new(&SchedulerConfig::stable_diffusion(), 20, 980, 50).unwrap();
+    let tv = |d: &Distiller<'_>| -> f64 {
+        (0..cams.len())
+            .map(|v| {
+                TotalVariation
+                    .view(&d.render_view(v), &src.alpha[v], 32, 32)
+                    .0
+            })
+            .sum()
+    };
+    let mut d = Distiller::new(&scene, &cams, &src, &mut prior, set, params, 0).unwrap();
+    let before = tv(&d);
+    for _ in 0..5 {
+        d.iterate_without_prior().unwrap();
+    }
+    let after = tv(&d);
+    assert!(after < 0.9 * before, "total variation {before} -> {after}");
+    drop(d);
+    assert_eq!(prior.predictions, 0);
+}
+
 /// Source views rendered from cameras: one per camera at the cameras' size; no camera,
 /// or cameras of two sizes, are refused with a message naming the problem.
 #[test]

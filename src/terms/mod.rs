@@ -389,6 +389,19 @@ mod tests {
         assert!(Terms::help().contains("tv: total variation"));
     }
 
+    /// A view term is made from the registry with its weight, printed in registry
+    /// order, and absent when its weight is 0.
+    #[test]
+    fn view_terms_come_from_the_registry() {
+        let t = Terms::parse("tv=0.5,csd").unwrap();
+        assert_eq!(t.to_string(), "csd=1,tv=0.5");
+        let v = t.view_terms();
+        assert_eq!((v.len(), v[0].0), (1, 0.5));
+        assert!(Terms::parse("csd").unwrap().view_terms().is_empty());
+        let back: Terms = toml::from_str(&toml::to_string(&t).unwrap()).unwrap();
+        assert_eq!(back, t);
+    }
+
     #[test]
     fn a_prior_term_of_weight_one_is_the_loss_itself() {
         let (r, t) = (vec![0.5f32, 0.25, 1.0], vec![0.0f32, 0.5, 1.0]);

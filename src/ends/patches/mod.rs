@@ -44,7 +44,6 @@ pub mod parts;
 mod test_red;
 pub mod view;
 
-
 use crate::imageio::Image;
 use crate::optim::{ColourFit, FitParams};
 use crate::selection::Selection;
