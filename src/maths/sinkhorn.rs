@@ -175,6 +175,32 @@ impl Sinkhorn {
                     }
                 }
             }
+            Columns::F32Zero if costs.index.is_none() => {
+                // Dense costs: each column on its own thread, its rows in order (the
+                // same max and the same sums as the row-major pass below).
+                let dense = |c: usize| (0..n / per.max(1)).map(move |i| term(i * per + c));
+                let lse: Vec<f32> = (0..k)
+                    .into_par_iter()
+                    .map(|c| {
+                        let top = col_max[c];
+                        if top.is_finite() {
+                            top + dense(c)
+                                .map(|v| (v - top).exp())
+                                .fold(0.0f32, |a, b| a + b)
+                                .ln()
+                        } else {
+                            top
+                        }
+                    })
+                    .collect();
+                for c in 0..k {
+                    g[c] = if lse[c].is_finite() {
+                        scale * (target[c] - lse[c])
+                    } else {
+                        0.0
+                    };
+                }
+            }
             Columns::F32Zero => {
                 let mut col = vec![0.0f32; k];
                 for e in 0..n {
