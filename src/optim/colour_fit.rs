@@ -499,3 +499,37 @@ impl<'a> ColourFit<'a> {
         )
     }
 }
+
+/// Fit the SH colours (`f_dc`, `f_rest`) of `scene` so that its renders from `cameras`
+/// match `targets` (`[H, W, 3]` per camera), for `steps` Adam steps. Every other field
+/// of the returned scene is the input's, bit for bit.
+///
+/// A view in which no Gaussian blends is kept (its loss counts, it gives no gradient)
+/// with a warning; if no view sees any Gaussian, this is an error (nothing to fit).
+pub fn fit_colours(
+    scene: &Scene,
+    cameras: &[Camera],
+    targets: &[Vec<f32>],
+    steps: usize,
+    p: &FitParams,
+) -> Result<(Scene, FitReport)> {
+    check_params(scene, cameras, targets, steps, p)?;
+    let mut fit = ColourFit::new(scene, cameras, targets, p)?;
+    let bar = if p.progress {
+        indicatif::ProgressBar::new(steps as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message("fit colours");
+    for _ in 0..steps {
+        let loss = fit.step();
+        bar.set_message(format!("fit colours, loss {loss:.5}"));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(fit.finish())
+}
