@@ -173,6 +173,17 @@ fn keep_chroma_takes_luma_from_one_and_chroma_from_the_other() {
     assert_eq!(keep_chroma(src, src), src);
 }
 
+/// 32x32 front cameras 3 units away, shifted along x by each of `xs`.
+fn cameras_along_x(xs: &[f32]) -> Vec<Camera> {
+    xs.iter()
+        .map(|&x| {
+            let mut c = front_camera(32, 32, 40.0, 3.0);
+            c.translation[0] = x;
+            c
+        })
+        .collect()
+}
+
 /// A prior that counts its noise predictions (the closed-form Gaussian prior inside).
 struct Counting {
     inner: crate::prior::gaussian::GaussianPrior,
@@ -213,14 +224,7 @@ fn guidance_zero_skips_the_prior_and_gives_the_same_bits() {
     use terms::texture::{Statistic, TextureLoss, TextureTerm};
 
     let scene = random_scene(300, 0, 21);
-    let cams: Vec<Camera> = [-0.3f32, -0.1, 0.1, 0.3]
-        .iter()
-        .map(|&x| {
-            let mut c = front_camera(32, 32, 40.0, 3.0);
-            c.translation[0] = x;
-            c
-        })
-        .collect();
+    let cams = cameras_along_x(&[-0.3, -0.1, 0.1, 0.3]);
     let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
     let mut rng = Rng::new(8);
     let style = Image {
@@ -293,14 +297,7 @@ fn a_view_term_from_the_registry_moves_the_colours() {
     use crate::terms::tv::TotalVariation;
 
     let scene = random_scene(300, 0, 5);
-    let cams: Vec<Camera> = [-0.2f32, 0.2]
-        .iter()
-        .map(|&x| {
-            let mut c = front_camera(32, 32, 40.0, 3.0);
-            c.translation[0] = x;
-            c
-        })
-        .collect();
+    let cams = cameras_along_x(&[-0.2, 0.2]);
     let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
     let params = Config {
         views: 2,

@@ -142,15 +142,7 @@ mod tests {
     #[test]
     fn the_styles_moments_are_its_motifs() {
         // A textured disc on black: the moments are the disc's, not the black's.
-        let disc = super::super::motif::tests::image(64, 64, |y, x| {
-            let (dy, dx) = (y as f32 - 32.0, x as f32 - 32.0);
-            if dy * dy + dx * dx < 400.0 {
-                let v = if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.2 };
-                [v, 0.5, 0.3]
-            } else {
-                [0.02, 0.02, 0.02]
-            }
-        });
+        let disc = super::super::motif::tests::disc();
         let mo = style_moments(&disc);
         assert!(mo.mean > 0.3, "{mo:?}");
     }

@@ -162,10 +162,9 @@ pub(super) mod tests {
         }
     }
 
-    #[test]
-    fn an_object_on_black_has_a_background_and_a_texture_has_none() {
-        // A textured disc on black: the black outside is background, the disc motif.
-        let disc = image(64, 64, |y, x| {
+    /// A textured disc of radius 20 on black, 64 x 64.
+    pub(in crate::ends::patches) fn disc() -> Image {
+        image(64, 64, |y, x| {
             let (dy, dx) = (y as f32 - 32.0, x as f32 - 32.0);
             if dy * dy + dx * dx < 400.0 {
                 let v = if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.2 };
@@ -173,7 +172,13 @@ pub(super) mod tests {
             } else {
                 [0.02, 0.02, 0.02]
             }
-        });
+        })
+    }
+
+    #[test]
+    fn an_object_on_black_has_a_background_and_a_texture_has_none() {
+        // A textured disc on black: the black outside is background, the disc motif.
+        let disc = disc();
         let m = motif_mask(&disc);
         assert!(!m[0] && !m[64 * 64 - 1], "the corners are background");
         assert!(m[32 * 64 + 32], "the centre is motif");
