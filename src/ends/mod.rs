@@ -229,11 +229,7 @@ impl EndInputs<'_> {
 
 /// `scene` after `end`.
 pub fn apply(end: End, scene: &Scene, inputs: &EndInputs<'_>) -> Result<Scene> {
-    let k = end.kind();
-    if !k.roles.contains(&end.role) {
-        return Err(Error::param(format!("`{}` cannot stand there", k.name)));
-    }
-    (k.run)(end.role, scene, inputs)
+    (end.kind().run)(end.role, scene, inputs)
 }
 
 /// `scene` and `none`: the scene as it is.

@@ -158,7 +158,8 @@ impl StyleLevel {
             .as_ref()
             .expect("synthesis banks have a PCA");
         let qc = r.pca.project(q.view(), 1.0);
-        if self.channels.is_empty() || g.len() != self.channels.len() {
+        debug_assert_eq!(g.len(), self.channels.len(), "one patch set per channel");
+        if self.channels.is_empty() {
             return qc;
         }
         let mut parts = vec![qc];
