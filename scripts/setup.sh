@@ -10,6 +10,8 @@
 #                                libonnxruntime.1.31.1.dylib (macOS arm64)
 #   vendor/models/...            ONNX graphs and weights made by scripts/setup/*
 #   vendor/venv/bin/snakemake    pinned Snakemake for `pipeline export --snakemake` (40_snakemake.sh)
+#   vendor/viewer/               the report's 3D viewer bundle (50_viewer.sh, npm)
+#   vendor/splat-transform/      an independent reader of the written scenes (55_splat_transform.sh, npm)
 #
 # Steps under scripts/setup/ run in name order; each is an executable shell or Python
 # script that receives the repo root as $1 and uses vendor/venv/bin/python.

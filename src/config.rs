@@ -26,6 +26,7 @@ use crate::csd::CsdParams;
 use crate::ends::patches::SynthesisParams;
 use crate::ends::{End, Finish, Start};
 use crate::mvfc::MvfcParams;
+use crate::scene::colour::Bands;
 use crate::scheduler::TimestepSchedule;
 use crate::terms::texture::TextureParams;
 use crate::terms::{ColourLoss, Terms};
@@ -75,9 +76,13 @@ pub struct Config {
     /// Keep the scene's own colours (chroma); change luminance (texture, contrast) only.
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
     pub preserve_color: bool,
-    /// Let view-dependent colour (f_rest) change too, at lr_dc / 20 (default: f_dc only).
-    #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
-    pub fit_rest: bool,
+    /// The input's view-dependent colour bands (SH degree >= 1): `drop` (the stylized
+    /// Gaussians lose them, degree 0 without a selection: every output format holds the
+    /// result exactly), `keep` (as they were; the base colour is fitted around them) or
+    /// `fit` (fitted with the base at lr_dc / 20). Applied on a fresh run
+    /// (src/scene/colour.rs).
+    #[arg(long, value_enum, default_value = "drop")]
+    pub sh: Bands,
     /// Adam learning rate of the SH DC colours (3DGS trains from scratch at 0.0025 over
     /// 30k steps; a few hundred distillation steps need more: docs/method.md "Colour-fit
     /// learning rate").

@@ -48,7 +48,8 @@
 //!
 //! Strength is the prior's business (`PriorOptions::strength`; for the stylizer an
 //! interpolation of style vectors), except strength 0, which the stage short-circuits to
-//! "unchanged". Whether f_rest (view-dependent colour) may change is `fit_rest`.
+//! "unchanged". Whether f_rest (view-dependent colour) may change is `sh` (`fit`; `drop` removes the
+//! bands of a fresh run after its start, [`crate::scene::colour::Bands`]).
 //!
 //! Not part of the iteration's arithmetic: the agreement measurement ([`agreement`],
 //! between steps 4 and 5: how much the prior's high-frequency change agrees across

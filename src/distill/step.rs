@@ -114,7 +114,7 @@ impl Draws {
 pub fn fit_params(p: &Config, background: [f32; 3]) -> FitParams {
     FitParams {
         lr_dc: p.lr_dc,
-        lr_rest: if p.fit_rest { p.lr_dc / 20.0 } else { 0.0 },
+        lr_rest: if p.sh.fitted() { p.lr_dc / 20.0 } else { 0.0 },
         ssim_weight: 0.0,
         mask_alpha: false,
         cache: CacheMode::On,

@@ -214,6 +214,17 @@ pub struct EndInputs<'a> {
 }
 
 impl EndInputs<'_> {
+    /// The configuration's `sh`: whether an end's colour fit moves the bands too.
+    pub fn bands(&self) -> Result<crate::scene::colour::Bands> {
+        match self.settings.get("sh") {
+            Some(v) => v
+                .clone()
+                .try_into()
+                .map_err(|e| Error::param(format!("sh: {e}"))),
+            None => Ok(Default::default()),
+        }
+    }
+
     /// Section `name` of the configuration (`[synthesis]`, `[texture]`), read as `T`
     /// (its defaults where the table has none).
     pub fn section<T: serde::de::DeserializeOwned + Default>(&self, name: &str) -> Result<T> {
@@ -227,9 +238,22 @@ impl EndInputs<'_> {
     }
 }
 
-/// `scene` after `end`.
+/// `scene` after `end`. An end that changes the scene leaves every base colour it may
+/// change (weight above 0) inside [0, 1], the range every output format holds
+/// ([`crate::scene::colour`]): a projection here, whatever the end did.
 pub fn apply(end: End, scene: &Scene, inputs: &EndInputs<'_>) -> Result<Scene> {
-    (end.kind().run)(end.role, scene, inputs)
+    let mut out = (end.kind().run)(end.role, scene, inputs)?;
+    if !end.keeps() {
+        let weights = inputs.selection.map(|s| &s.weights[..]);
+        let moved = crate::scene::colour::bound_base(&mut out, weights);
+        if moved > 0 {
+            tracing::info!(
+                "{}: {moved} base colours moved into [0, 1]",
+                end.kind().name
+            );
+        }
+    }
+    Ok(out)
 }
 
 /// `scene` and `none`: the scene as it is.

@@ -1,7 +1,8 @@
 //! [`ColourFit`], the state of a colour fit: per-view caches (or not), Adam moments,
 //! the current scene. One step renders every view, sums the per-view losses' gradients
 //! (divided by the number of views) and updates once; the loss recorded per step is the
-//! mean over views before the update.
+//! mean over views before the update. The update is projected: every base colour it may
+//! move ends inside [0, 1] ([`crate::scene::colour`]).
 
 use super::adam::{Adam, OptimizerState};
 use super::fit::{FitParams, FitReport, check_options, check_params};
@@ -11,6 +12,7 @@ use crate::render::{
     CacheMode, ViewCache, clamp_colours, composite, project, raw_colours, validate_camera,
     validate_scene,
 };
+use crate::scene::colour::bound_dc;
 use crate::{Camera, Error, Result, Scene};
 use rayon::prelude::*;
 
@@ -393,12 +395,19 @@ impl<'a> ColourFit<'a> {
         self.adam_dc.step_weighted(&mut self.dc, &gdc, w);
         self.adam_rest
             .step_weighted(&mut self.scene.sh_rest, &grad_rest, w);
-        let dc = &self.dc;
+        // Projected: every base colour a step may move stays in [0, 1] (scene::colour).
         self.scene
             .sh_dc
             .par_iter_mut()
-            .zip(dc.par_chunks(3))
-            .for_each(|(c, d)| *c = [d[0], d[1], d[2]]);
+            .zip(self.dc.par_chunks_mut(3))
+            .enumerate()
+            .for_each(|(i, (c, d))| {
+                if w.is_none_or(|w| w[i] > 0.0) {
+                    let b = bound_dc([d[0], d[1], d[2]]);
+                    d.copy_from_slice(&b);
+                }
+                *c = [d[0], d[1], d[2]];
+            });
         self.grad_dc = grad_dc;
         self.grad_rest = grad_rest;
         let loss = loss_sum / nv as f64;

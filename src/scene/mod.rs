@@ -7,13 +7,15 @@
 //! frozen (the `split` stage may subdivide it once, before the first: [`crate::ends::split`]).
 //!
 //! Submodules: [`ply`] (INRIA binary/ascii PLY), [`splat`] (the 32-byte `.splat` layout),
-//! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3).
+//! [`spz`] (Niantic's compressed `.spz`, versions 2 and 3); [`colour`] (the base colour's
+//! range every format holds, and the choice of the view-dependent bands).
 //! [`read_scene_file`] picks the reader from the path (stages read their `--scene`
 //! through [`crate::artifacts::load_scene`], which also takes scene artifacts); every reader ends with
 //! [`Scene::validate`]. Scenes know nothing of cameras: [`Scene::bounds`] is what a
 //! generated orbit needs ([`crate::camera::orbit`]). [`encode_files`] gives the files a
 //! scene is written as (`scene.ply`, and on request `scene.splat` and `scene.spz`).
 
+pub mod colour;
 pub mod ply;
 pub mod splat;
 pub mod spz;

@@ -26,8 +26,11 @@
 //!
 //! **What writing loses** (version 3, per Gaussian; reading is the exact inverse of each
 //! map, opacity clamped half a step inside (0, 1) as for `.splat`):
-//! - position: at most `2^-(fb+1)` per coordinate, fb = 12 (1/8192 scene units) unless
-//!   the largest coordinate needs fewer bits to fit 24 bits (fb = 11 above 2048 units...);
+//! - position: at most `2^-(fb+1)` per coordinate, fb the most fractional bits the
+//!   largest coordinate leaves room for in 24 signed bits (23 below 1 unit, 22 below 2,
+//!   ..., 12 below 2048: finer than the reference's fixed 12, which moved two nearly
+//!   coincident Gaussians past each other in depth and a pixel of a stylized capture by
+//!   0.17; the file grows by about a quarter);
 //! - opacity: at most 0.5/255;
 //! - base colour `0.5 + 0.2821 f_dc`: at most 0.2821 x 0.5 / (255 x 0.15) = 0.0037
 //!   (f_dc is clamped to [-3.33, 3.33], base colours to [-0.44, 1.44]);
@@ -52,9 +55,10 @@ pub const MAGIC: u32 = 0x5053_474e;
 pub const HEADER: usize = 16;
 /// The version written.
 pub const VERSION: u32 = 3;
-/// Fractional bits of the fixed-point positions written (1/4096 scene units), unless the
-/// scene's largest coordinate needs fewer.
-pub const FRACTIONAL_BITS: u8 = 12;
+/// The most fractional bits of the fixed-point positions written (2^-23 units: all the
+/// 24-bit field holds below 1 unit); a scene's largest coordinate takes fewer
+/// ([`fractional_bits`]).
+pub const FRACTIONAL_BITS: u8 = 23;
 /// Scale of the stored base colour (`0.15 f_dc + 0.5`).
 pub const COLOR_SCALE: f32 = 0.15;
 /// Bits kept of SH degree-1 coefficients (as the reference writer's default).
@@ -75,8 +79,10 @@ pub const MAX_EXTENSION_BYTES: usize = 1 << 20;
 /// and opacities move silhouette edges by a fraction of a pixel, which can change an
 /// edge pixel by more, and so can a colour the format's range clamps (writing warns).
 /// Measured (orbit:4 at 128x128): max 0.055, mean 7.6e-4 on the sample scene (SH degree
-/// 1, nothing clamped; the round-trip test); max 0.101, mean 7.1e-4 on the sample's
-/// stylized `runs/final/scene.spz` (486 of its 54,000 base-colour values clamped).
+/// 1, nothing clamped; the round-trip test). On stylized scenes (high contrast between
+/// neighbours) the reference's 12 fractional position bits swapped nearly coincident
+/// Gaussians in depth: one pixel of a 48 px `bob_10k` capture moved 0.167; with the
+/// finest positions the field holds ([`fractional_bits`]) 0.0065 (the own-scene test).
 pub const SPZ_RENDER_MAX: f32 = 0.15;
 /// The largest change of a Gaussian's colour (degree <= 1) from writing: 0.0037 (base
 /// colour) + 0.035 x 0.4886 x sqrt 3 = 0.030 (degree-1 SH: three coefficients within
@@ -611,11 +617,13 @@ mod tests {
         assert_eq!(&raw[..4], b"NGSP");
         assert_eq!(u32::from_le_bytes(raw[4..8].try_into().unwrap()), 3);
         assert_eq!(u32::from_le_bytes(raw[8..12].try_into().unwrap()), 5);
-        assert_eq!(&raw[12..16], &[1, 12, 0, 0]);
+        let fb = fractional_bits(&s).unwrap();
+        assert_eq!(&raw[12..16], &[1, fb, 0, 0]);
         assert_eq!(raw.len(), 16 + 5 * (9 + 1 + 3 + 3 + 4 + 9));
-        // Position x of Gaussian 0: 24-bit little-endian fixed point with 12 bits.
+        // Position x of Gaussian 0: 24-bit little-endian fixed point with fb bits.
         let x = i32::from_le_bytes([raw[16], raw[17], raw[18], 0]) << 8 >> 8;
-        assert_eq!(x, (s.positions[0][0] as f64 * 4096.0).round() as i32);
+        let step = f64::from(1u32 << fb);
+        assert_eq!(x, (s.positions[0][0] as f64 * step).round() as i32);
         // Opacity of Gaussian 0 follows the 45 position bytes.
         let a = 255.0 / (1.0 + (-s.opacity_logits[0] as f64).exp());
         assert_eq!(raw[16 + 45], a.round() as u8);
@@ -693,6 +701,12 @@ mod tests {
     #[test]
     fn large_coordinates_take_fewer_fractional_bits() {
         let mut s = random_scene(4, 0, 1);
+        for p in s.positions.iter_mut() {
+            *p = p.map(|v| v / 32.0);
+        }
+        assert_eq!(fractional_bits(&s), Some(23), "below 1 unit: every bit");
+        s.positions[0][0] = 1.5;
+        assert_eq!(fractional_bits(&s), Some(22));
         s.positions[2] = [3000.0, -5000.5, 1.0];
         assert_eq!(fractional_bits(&s), Some(10));
         let (b, _) = encode_spz_version(Path::new("t"), &s, 3).unwrap();

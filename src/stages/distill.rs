@@ -38,6 +38,7 @@ use crate::distill::{Config, Outcome, Progress, Run, SourceViews, distill};
 use crate::ends::{self, EndInputs, Finish, Start};
 use crate::prior::cost::CostModel;
 use crate::prior::model_timesteps;
+use crate::scene::colour::{Bands, drop_bands};
 use crate::terms::Terms;
 use crate::{Camera, Error, Result, Scene};
 use fantasystyle_schemas::{ArtifactKind, Producer};
@@ -192,6 +193,10 @@ pub fn run(a: Args) -> Result<()> {
     if styled && a.resume.is_none() {
         let started = ends::apply(config.start, &start.scene, &inputs)?;
         start.scene = keep(&start.scene, started)?;
+        if config.sh == Bands::Drop && start.scene.sh_degree > 0 {
+            start.scene = drop_bands(&start.scene, selection.as_ref());
+            tracing::info!("sh = drop: the stylized Gaussians' view-dependent bands removed");
+        }
     }
     let sel = selection.as_ref();
     let mut outcome = iterate(&a, &config, &start, &cameras, &source, &style, sel)?;

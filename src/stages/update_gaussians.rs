@@ -11,7 +11,7 @@
 //!   ([`crate::distill::checkpoint::write_checkpoint`]: `scene.ply`, the optimizer state,
 //!   `history.json` with this iteration's report; not `distill`'s agreement measurement,
 //!   which the chain does not make). The step is configured by the method's
-//!   configuration as distill's (`--preset`, `--config`, `--set`: `lr_dc`, `fit_rest`,
+//!   configuration as distill's (`--preset`, `--config`, `--set`: `lr_dc`, `sh`,
 //!   `colour_loss`, the `terms` and their `[texture]`, `fill`); the fit's own flags
 //!   (`--lr-dc`, `--lr-rest`, `--ssim-weight`, `--mask-alpha`, `--cache`) do not apply.
 //!   Texture terms need `--style` and `--source-views` (whose alpha masks them); `--steps`
@@ -66,6 +66,10 @@ pub struct Args {
     /// Adam learning rate of the higher SH coefficients f_rest (default: lr-dc / 20).
     #[arg(long)]
     pub lr_rest: Option<f32>,
+    /// SH degree of the fitted scene (a colour fit only): the input's bands kept, new
+    /// ones starting at zero, bands above it removed (default: the input's degree).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=3))]
+    pub sh_degree: Option<u8>,
     /// Weight lambda of the D-SSIM term: loss = (1 - lambda) L1 + lambda (1 - SSIM).
     #[arg(long, default_value_t = 0.2)]
     pub ssim_weight: f32,
@@ -118,7 +122,7 @@ pub fn run(a: Args) -> Result<()> {
         None => {
             let fit_flags = serde_json::json!({
                 "lr_dc": params.lr_dc, "lr_rest": params.lr_rest, "ssim_weight": a.ssim_weight,
-                "mask_alpha": a.mask_alpha, "cache": a.cache,
+                "mask_alpha": a.mask_alpha, "cache": a.cache, "sh_degree": a.sh_degree,
             });
             let own = super::merge_params(&[own, fit_flags]);
             let producer = Producer::new("update-gaussians", crate::VERSION, own);
@@ -138,6 +142,11 @@ fn iteration(
     if a.steps.is_some_and(|s| s != 1) {
         return Err(Error::param(
             "--steps: the targets are one iteration's (csd-step), which is one step",
+        ));
+    }
+    if a.sh_degree.is_some() {
+        return Err(Error::param(
+            "--sh-degree: the targets are one iteration's (csd-step); the checkpoint's degree stays (the configuration's `sh` chose it)",
         ));
     }
     let (start, cams) = checkpoint_and_cameras(a, targets, &w)?;
@@ -295,7 +304,10 @@ fn fit(a: &Args, targets: &Targets, params: &FitParams, producer: Producer) -> R
     let Some(steps) = a.steps.filter(|s| *s > 0) else {
         return Err(Error::param("--steps must be at least 1"));
     };
-    let scene = a.input.load_scene()?;
+    let mut scene = a.input.load_scene()?;
+    if let Some(d) = a.sh_degree {
+        scene = crate::scene::colour::with_degree(&scene, d as usize);
+    }
     let rgb_path = targets.art.path("rgb.npy");
     let (n, h, w, _) = targets.rgb.dim();
     let cams = a.input.load_cameras(&scene, w as u32, h as u32)?;

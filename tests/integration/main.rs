@@ -10,6 +10,7 @@ mod diffusion;
 mod distill;
 mod evaluate;
 mod extremes;
+mod formats;
 mod fuzz;
 mod harness;
 mod mvfc;

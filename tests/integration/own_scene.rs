@@ -92,12 +92,6 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
         "distill.chunks=1",
         "--set",
         "distill.chunk=2",
-        // The unguided end: with the structure guide (the default's control 1) one pixel
-        // of this 48 px capture moved 0.18 through the .spz codec, past its 0.15 bound
-        // (its colours leave the codec's range; issue 47's note): this test is of the
-        // own-scene flow, the codec's bound stays as it is.
-        "--set",
-        "distill.finish.synthesis.control=0",
     ]
     .iter()
     .map(|s| s.to_string())

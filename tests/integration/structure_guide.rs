@@ -8,6 +8,7 @@ use fantasystyle::Scene;
 use fantasystyle::camera::load_cameras;
 use fantasystyle::ends::patches::{SynthesisParams, synthesize};
 use fantasystyle::imageio::Image;
+use fantasystyle::scene::colour::Bands;
 
 /// Side of the renders.
 const SIZE: usize = 64;
@@ -132,9 +133,19 @@ fn a_guided_sphere_takes_the_dark_stripes_where_it_is_dark() {
             guidance,
             ..SynthesisParams::default()
         };
-        synthesize(&scene, &cams, &stripes(), [0.0; 3], 96, &p, None, None)
-            .unwrap()
-            .0
+        synthesize(
+            &scene,
+            &cams,
+            &stripes(),
+            [0.0; 3],
+            96,
+            &p,
+            None,
+            None,
+            Bands::Keep,
+        )
+        .unwrap()
+        .0
     };
     let guided = run(1.0, 1.0);
     let unguided = run(0.0, 1.0);
@@ -218,6 +229,7 @@ fn its_own_render_as_the_style_moves_a_scene_little() {
             &p,
             None,
             Some(&src.rgb),
+            Bands::Keep,
         )
         .unwrap()
         .0;

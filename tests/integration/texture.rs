@@ -12,6 +12,7 @@ use fantasystyle::imageio::Image;
 use fantasystyle::maths::warp::{surface_depth, warp_into};
 use fantasystyle::prior::{self, PriorOptions};
 use fantasystyle::rng::Rng;
+use fantasystyle::scene::colour::Bands;
 use fantasystyle::terms::texture::{Statistic, TextureLoss, TextureTerm};
 use fantasystyle::vgg::{Layer, Vgg16};
 
@@ -214,7 +215,20 @@ fn with_the_patch_synthesis_alone() {
         rounds: 3,
         ..SynthesisParams::default()
     };
-    let run = || synthesize(&scene, &cams, &stripes(), [0.0; 3], 128, &p, None, None).unwrap();
+    let run = || {
+        synthesize(
+            &scene,
+            &cams,
+            &stripes(),
+            [0.0; 3],
+            128,
+            &p,
+            None,
+            None,
+            Bands::Keep,
+        )
+        .unwrap()
+    };
     let (out, reports) = run();
     eprintln!("{}", serde_json::to_string(&reports).unwrap());
     assert_eq!(out.positions, scene.positions);

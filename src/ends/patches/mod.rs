@@ -46,6 +46,7 @@ pub mod view;
 
 use crate::imageio::Image;
 use crate::optim::{ColourFit, FitParams};
+use crate::scene::colour::Bands;
 use crate::selection::Selection;
 use crate::{Camera, Error, Result, Scene};
 use level::StyleLevel;
@@ -220,7 +221,8 @@ pub struct LevelReport {
 /// `selection` scales each Gaussian's updates by its weight. The structure guide and
 /// the source branch come from `source` (`[H, W, 3]` per view of `cameras`: the input
 /// scene's renders, before any loop changed its colours) when given, else from
-/// `scene`'s own renders.
+/// `scene`'s own renders. `bands` says whether the fit moves the view-dependent bands
+/// (`fit`, at `lr / 20`) or leaves them as `scene` has them.
 #[allow(clippy::too_many_arguments)]
 pub fn synthesize(
     scene: &Scene,
@@ -231,12 +233,13 @@ pub fn synthesize(
     p: &SynthesisParams,
     selection: Option<&Selection>,
     source: Option<&[Vec<f32>]>,
+    bands: Bands,
 ) -> Result<(Scene, Vec<LevelReport>)> {
     p.validate()?;
     let _ph = crate::timing::span("patch synthesis");
     let fp = FitParams {
         lr_dc: p.lr,
-        lr_rest: 0.0,
+        lr_rest: if bands.fitted() { p.lr / 20.0 } else { 0.0 },
         background,
         ..FitParams::default()
     };
@@ -328,6 +331,7 @@ pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Resu
         &p,
         inputs.selection,
         Some(&s.rgb),
+        inputs.bands()?,
     )?;
     Ok(out)
 }
