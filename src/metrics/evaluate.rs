@@ -10,7 +10,9 @@
 //! texture measures of [`super::texture`] (among them KID over squares of the object's
 //! surface against squares of the style, which the whole-view KID cannot see); the
 //! content leakage of [`super::leakage`]; and the structure kept of [`super::structure`]
-//! (the source's edges and shading detail still where they were).
+//! (the source's edges and shading detail still where they were), with the interior
+//! structure, edge recall and motif contrast of [`super::interior`] (the same band pass
+//! inside the object only, away from its silhouette).
 //!
 //! The half of it that depends only on the original views and the style image is
 //! [`super::reference::Reference`], computed here or read from an `eval-reference`
@@ -24,6 +26,7 @@
 use super::consistency::{self, PairScore};
 use super::fid::{self, FeatureSet};
 use super::gram;
+use super::interior::{self, Interior};
 use super::leakage::{self, Leakage};
 use super::lpips;
 use super::nets::{LpipsModel, LpipsNet, Nets};
@@ -94,6 +97,11 @@ pub struct Metrics {
     pub structure_kept_per_view: Vec<Option<f64>>,
     /// What structure_kept means ([`structure::NOTE`]).
     pub structure_kept_note: &'static str,
+    /// Interior structure, edge recall and motif contrast ([`super::interior`], issue 53):
+    /// their means, per-view values with why any is missing, and notes, as top-level keys
+    /// beside structure kept.
+    #[serde(flatten)]
+    pub interior: Interior,
     pub fid_style: SetDistance,
     pub kid_style: SetDistance,
     pub fid_content: SetDistance,
@@ -486,6 +494,8 @@ fn measure(
     pb.inc(2);
     let leakage = crate::timing::phase("leakage", || leakage::leakage(orig, styl, style));
     let (structure_kept, structure_per_view) = structure_scores(orig, styl, &mut warnings);
+    let interior = crate::timing::phase("interior", || interior::interior(orig, styl, style));
+    warnings.extend(interior.warnings());
     if style.width < 64 || style.height < 64 {
         warnings.push(format!(
             "the style image is only {}x{}: its crops are upsampled for FID_style and the Gram distance sees few positions",
@@ -503,6 +513,7 @@ fn measure(
         structure_kept,
         structure_kept_per_view: structure_per_view,
         structure_kept_note: structure::NOTE,
+        interior,
         artfid: match (lpips_content, sm.fid_style.value) {
             (Some(l), Some(f)) => Some(fid::artfid(l, f)),
             _ => None,

@@ -14,6 +14,7 @@
 //! | [`texture`] | measures that see texture: per-layer object Gram, KID interval, spectrum, object colour |
 //! | [`leakage`] | content leakage: the object's large-scale structure that the scene does not explain |
 //! | [`structure`] | structure kept: correlation of the source's and stylized views' band-passed luminance |
+//! | [`interior`] | inside the object (mask eroded 8 px): interior structure, edge recall, motif contrast |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`reference`](mod@reference) | the half of an evaluation that depends only on the original views and the style |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
@@ -27,6 +28,7 @@ pub mod evaluate;
 pub mod fid;
 pub mod gram;
 pub mod html;
+pub mod interior;
 pub mod leakage;
 pub mod lpips;
 pub mod nets;

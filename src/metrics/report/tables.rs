@@ -4,6 +4,7 @@
 use crate::imageio::Image;
 use crate::metrics::evaluate::{ARTFID_NOTE, Metrics, SetDistance};
 use crate::metrics::html::{esc, figure, fmt_opt, img_tag, table};
+use crate::metrics::interior;
 use crate::metrics::structure;
 use crate::metrics::views::ViewSet;
 
@@ -25,19 +26,9 @@ pub(super) fn metrics_table(m: &Metrics) -> String {
             fmt_opt(m.lpips_content, 4),
             "mean over views of LPIPS(original, stylized)".into(),
         ],
-        vec![
-            "structure kept ↑".into(),
-            fmt_opt(m.structure_kept, 3),
-            format!(
-                "mean over views of the correlation of the original's and the stylized view's \
-                 band-passed luminance (difference of Gaussians, sigma 1 px minus 4 px) over the \
-                 object; 1 = every edge and shading detail still where it was; worst: view {}",
-                structure::worst_view(&m.structure_kept_per_view).map_or("-".into(), |i| format!(
-                    "{i} ({})",
-                    fmt_opt(m.structure_kept_per_view[i], 3)
-                ))
-            ),
-        ],
+    ];
+    rows.extend(structure_rows(m));
+    rows.extend([
         vec![
             "FID_style ↓".into(),
             d(&m.fid_style, 2, "biased"),
@@ -64,7 +55,7 @@ pub(super) fn metrics_table(m: &Metrics) -> String {
             d(&m.kid_content, 5, "few images"),
             esc(&m.kid_content.note),
         ],
-    ];
+    ]);
     rows.extend(consistency_rows(m));
     rows.push(vec![
         "Gram distance to style (VGG16) ↓".into(),
@@ -75,6 +66,55 @@ pub(super) fn metrics_table(m: &Metrics) -> String {
         ),
     ]);
     table(&["metric", "value", "notes"], &rows)
+}
+
+/// The metrics table's structure rows: structure kept, and inside the object
+/// ([`interior`]) interior structure, edge recall and motif contrast.
+fn structure_rows(m: &Metrics) -> Vec<Vec<String>> {
+    vec![
+        vec![
+            "structure kept ↑".into(),
+            fmt_opt(m.structure_kept, 3),
+            format!(
+                "mean over views of the correlation of the original's and the stylized view's \
+                 band-passed luminance (difference of Gaussians, sigma 1 px minus 4 px) over the \
+                 object; 1 = every edge and shading detail still where it was; worst: view {}",
+                structure::worst_view(&m.structure_kept_per_view).map_or("-".into(), |i| format!(
+                    "{i} ({})",
+                    fmt_opt(m.structure_kept_per_view[i], 3)
+                ))
+            ),
+        ],
+        vec![
+            "interior structure ↑".into(),
+            fmt_opt(m.interior.interior_structure, 3),
+            format!(
+                "the same correlation over the object's interior only (mask eroded by {} px, square): \
+                 the inner edges and shading without the silhouette",
+                interior::EROSION_PX
+            ),
+        ],
+        vec![
+            "edge recall ↑".into(),
+            fmt_opt(m.interior.edge_recall, 3),
+            format!(
+                "inside the interior, the share of the original's strongest band-pass pixels (top 10%) \
+                 that are among the stylized view's own strongest (top 25%) with the same sign; \
+                 chance about {}, extra style edges not punished",
+                interior::CHANCE_RECALL
+            ),
+        ],
+        vec![
+            "motif contrast (→ 1)".into(),
+            fmt_opt(m.interior.motif_contrast, 3),
+            format!(
+                "band-pass standard deviation of the stylized interior over the style image's own \
+                 (shorter side {} px: {}); about 1 = the style's contrast, 0 = a flat wash",
+                interior::STYLE_SHORTER_SIDE,
+                fmt_opt(m.interior.style_band_spread, 4)
+            ),
+        ],
+    ]
 }
 
 /// The metrics table's consistency rows: short and long range, LPIPS and RMSE.
@@ -118,19 +158,23 @@ fn consistency_rows(m: &Metrics) -> Vec<Vec<String>> {
     ]
 }
 
-/// The style image and every view: original, stylized, LPIPS_content, structure kept
-/// and Gram distance.
+/// The style image and every view: original, stylized, LPIPS_content, structure kept,
+/// interior structure, edge recall, motif contrast and Gram distance.
 pub(super) fn views_table(m: &Metrics, orig: &ViewSet, styl: &ViewSet, style: &Image) -> String {
     let mut imgs = String::from("<p>Style image:</p>");
     imgs.push_str(&figure(style, 256, "style"));
-    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>structure</th><th>Gram</th></tr>");
+    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>structure</th><th>interior</th><th>edge recall</th><th>motif contrast</th><th>Gram</th></tr>");
     for i in 0..m.views {
+        let v = &m.interior.interior_per_view[i];
         imgs.push_str(&format!(
-            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.4}</td></tr>",
+            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td></tr>",
             img_tag(&orig.images[i], 256, &format!("original {i}")),
             img_tag(&styl.images[i], 256, &format!("stylized {i}")),
             m.lpips_content_per_view[i],
             fmt_opt(m.structure_kept_per_view[i], 3),
+            fmt_opt(v.interior_structure, 3),
+            fmt_opt(v.edge_recall, 3),
+            fmt_opt(v.motif_contrast, 3),
             m.gram_style_per_view[i]
         ));
     }
