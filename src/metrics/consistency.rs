@@ -11,6 +11,7 @@
 //! The same is computed on the original renders as a floor: the warp itself is not
 //! perfect (view-dependent colour, splat blending at edges), so stylized consistency is
 //! read relative to it. Pairs with less than [`MIN_OVERLAP`] valid pixels are skipped.
+//! [`score_pairs`] times its parts as the phases `warp` and `lpips` ([`crate::timing`]).
 
 use super::lpips;
 use super::nets::LpipsModel;
@@ -96,11 +97,12 @@ pub fn score_pairs(
     let mut scores = Vec::with_capacity(pairs.len());
     let mut warps = Vec::with_capacity(pairs.len());
     for &(i, j) in pairs {
-        let wp = warp_pair(geom, images, i, j);
+        let wp = crate::timing::phase("warp", || warp_pair(geom, images, i, j));
         let frac = wp.valid_fraction();
         let (lp, rm) = if frac < MIN_OVERLAP {
             (None, None)
         } else {
+            let _ph = crate::timing::span("lpips");
             let a = masked(&images[i], &wp.mask);
             let b = masked(&wp.image, &wp.mask);
             let f = model.features(&[&a, &b])?;

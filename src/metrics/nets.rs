@@ -214,10 +214,19 @@ impl Nets {
         self.vgg.as_mut().unwrap_or(&mut self.lpips)
     }
 
-    /// Load the networks for `net` from the models directory.
+    /// Load the networks for `net` from the models directory, each timed as a phase
+    /// named after it ([`crate::timing`]).
     pub fn load(models: &Path, net: LpipsNet, threads: usize) -> Result<Nets> {
-        let lpips = LpipsModel::load(models, net, threads)?;
-        let (vgg, inception) = Self::load_rest(models, net, threads)?;
+        let load = |n: LpipsNet| {
+            crate::timing::phase(&format!("lpips {}", n.name()), || {
+                LpipsModel::load(models, n, threads)
+            })
+        };
+        let lpips = load(net)?;
+        let vgg = (net != LpipsNet::Vgg16)
+            .then(|| load(LpipsNet::Vgg16))
+            .transpose()?;
+        let inception = crate::timing::phase("inception", || Inception::load(models, threads))?;
         Ok(Nets {
             lpips,
             vgg,

@@ -16,6 +16,11 @@
 //! (whole view, and per layer over the object); the original views' own short- and
 //! long-range consistency (the floor the report shows). [`Settings`] records what it was
 //! made with; a reference made with other settings is refused.
+//!
+//! Timing ([`crate::timing`]): [`Reference::compute`] is the phase `reference`, in parts
+//! `consistency` (its `warp` and `lpips`), `vgg`, `gram matrices`, `object gram` and
+//! `inception` (per image set: `views`, `style crops`, `object squares`, `style
+//! squares`, each with the making of its images).
 
 use super::consistency::{self, PairScore};
 use super::fid;
@@ -168,10 +173,12 @@ impl Reference {
         let (n, w, h) = (orig.n, orig.width, orig.height);
         let ph = crate::timing::span("reference");
         let pairs = |offset| consistency::pairs(n, offset);
+        let cons = crate::timing::span("consistency");
         let (short_original, _) =
             consistency::score_pairs(&mut nets.lpips, orig, &orig.images, &pairs(p.short_range))?;
         let (long_original, _) =
             consistency::score_pairs(&mut nets.lpips, orig, &orig.images, &pairs(p.long_range))?;
+        drop(cons);
 
         let vgg = nets.vgg();
         let f = crate::timing::phase("vgg", || vgg.features(&[&style.fit_within(GRAM_MAX_SIDE)]))?;
@@ -180,22 +187,32 @@ impl Reference {
         let (mut gram_original_per_view, mut object_gram_original) = (Vec::new(), Vec::new());
         for i in 0..n {
             let f = crate::timing::phase("vgg", || vgg.features(&[&orig.images[i]]))?;
-            object_gram_original.push(object_gram.view_distances(&f[0], orig.geometry(i).1, w, h));
+            object_gram_original.push(crate::timing::phase("object gram", || {
+                object_gram.view_distances(&f[0], orig.geometry(i).1, w, h)
+            }));
             let g = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
             gram_original_per_view.push(gram::gram_distance(&g, &style_grams));
         }
 
         let inc = &mut nets.inception;
         let mut pool3 = |v: &[Image]| inc.pool3(&v.iter().collect::<Vec<_>>());
-        let views_pool3 = pool3(&orig.images)?;
-        let crops_pool3 = pool3(&style_crops(style, n.max(fid::MIN_IMAGES), w, h, p.seed))?;
+        let inception = crate::timing::span("inception");
+        let views_pool3 = crate::timing::phase("views", || pool3(&orig.images))?;
+        let crops_pool3 = crate::timing::phase("style crops", || {
+            pool3(&style_crops(style, n.max(fid::MIN_IMAGES), w, h, p.seed))
+        })?;
+        let sq = crate::timing::span("object squares");
         let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
         let object_squares_pool3 = pool3(&texture::object_patches(orig, &at))?;
+        drop(sq);
         let style_squares_pool3 = if at.is_empty() {
             Vec::new()
         } else {
-            pool3(&texture::style_patches(style, p.seed))?
+            crate::timing::phase("style squares", || {
+                pool3(&texture::style_patches(style, p.seed))
+            })?
         };
+        drop(inception);
         drop(ph);
         Ok(Reference {
             scores: Scores {
@@ -245,5 +262,70 @@ impl Reference {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::maths::warp::look_at;
+    use ndarray::{Array3, Array4};
+
+    /// The reference times its parts for `pipeline report` ([`crate::timing`]): each
+    /// network's loading, the consistency's warps and LPIPS, VGG, the Grams, Inception
+    /// per image set (calls counted process-wide: each must have grown).
+    #[test]
+    fn the_reference_times_its_parts() {
+        let Some(models) = super::super::nets::tests::setup() else {
+            return;
+        };
+        let (n, s) = (2, 64);
+        let cams = (0..n)
+            .map(|i| {
+                let eye = [0.05 * i as f64, -3.0, 1.0];
+                look_at(&format!("v{i}"), eye, [0.0; 3], s as u32, s as u32, 60.0)
+            })
+            .collect();
+        // A square of 30 px covered: no 32 px object square fits (no Inception of the
+        // style's squares, the slow part).
+        let inside = |y: usize, x: usize| (17..47).contains(&y) && (17..47).contains(&x);
+        let rgb = Array4::from_shape_fn((n, s, s, 3), |(i, y, x, c)| {
+            ((x / 3 + y / 5 + c + i) % 7) as f32 / 7.0
+        });
+        let alpha = Array3::from_shape_fn((n, s, s), |(_, y, x)| f32::from(u8::from(inside(y, x))));
+        let depth = alpha.mapv(|a| 3.16 * a);
+        let orig = ViewSet::new(std::path::Path::new("o"), rgb, depth, alpha, cams).unwrap();
+        let style = Image::from_fn(32, 32, |x, y| [x as f32 / 32.0, y as f32 / 32.0, 0.5]);
+        let p = EvalParams {
+            lpips_net: LpipsNet::Alex,
+            short_range: 1,
+            long_range: 1,
+            seed: 1,
+            object_squares: 4,
+            threads: 1,
+        };
+        let names = [
+            "lpips alex",
+            "lpips vgg16",
+            "inception",
+            "reference/consistency/warp",
+            "reference/consistency/lpips",
+            "reference/vgg",
+            "reference/gram matrices",
+            "reference/object gram",
+            "reference/inception/views",
+            "reference/inception/style crops",
+            "reference/inception/object squares",
+        ];
+        let calls = || {
+            let ph = crate::timing::phases();
+            names.map(|n| ph.iter().find(|e| e.name == n).map_or(0, |e| e.calls))
+        };
+        let before = calls();
+        let mut nets = Nets::load(&models, p.lpips_net, p.threads).unwrap();
+        Reference::compute(&mut nets, &orig, &style, &p).unwrap();
+        for ((name, after), b) in names.iter().zip(calls()).zip(before) {
+            assert!(after > b, "phase `{name}` not timed");
+        }
     }
 }

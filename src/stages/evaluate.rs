@@ -293,16 +293,19 @@ fn params_json(p: &EvalParams) -> serde_json::Value {
     })
 }
 
-/// `--reference-only`: the reference of `orig` and `--style`, written to `--out`.
+/// `--reference-only`: the reference of `orig` and `--style`, written to `--out`. Its
+/// networks load as the phase `models` (one child per network), counted as load time.
 fn run_reference(a: &Args, orig: &ViewSet, p: &EvalParams) -> Result<()> {
-    let style = Image::load(&a.style)?;
+    let style = crate::timing::load(|| Image::load(&a.style))?;
     let models = metric_models()?;
     let mut wr = super::create_artifact(
         &a.out,
         ArtifactKind::EvalReference,
         Producer::new("evaluate", crate::VERSION, params_json(p)),
     )?;
-    let mut nets = crate::timing::load(|| Nets::load(&models, p.lpips_net, p.threads))?;
+    let mut nets = crate::timing::load(|| {
+        crate::timing::phase("models", || Nets::load(&models, p.lpips_net, p.threads))
+    })?;
     let r = Reference::compute(&mut nets, orig, &style, p)?;
     wr.add_input("original", &a.original)?;
     wr.add_input("style", &a.style)?;

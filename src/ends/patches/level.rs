@@ -3,12 +3,16 @@
 //! each channel's, [`super::parts::Channel`]) and the search of the object's patches in
 //! it: the nearest patch of every cell, exact, then the balanced coupling
 //! ([`super::couple`]) and the parts' rematches.
+//!
+//! Timing phases ([`crate::timing`]): the search is `search`, the coupling `balance`; a
+//! channel's work (its style image and PCA, its query coordinates) and a rematch (its
+//! penalty and the coupling made again) are each under the part's name.
 
 use super::coherence::Neighbour;
 use super::couple::couple;
 use super::motif::{fill_background, motif_mask};
 use super::parts::{Channel, Rematch};
-use super::{BALANCE_EPS, CELLS, SynthesisParams};
+use super::{BALANCE_EPS, CELLS, Named, SynthesisParams};
 use crate::Result;
 use crate::imageio::Image;
 use crate::prior::patch::bank::{Bank, Pca, patches};
@@ -31,9 +35,10 @@ pub(super) struct StyleLevel {
     pub(super) pos: Vec<[i32; 2]>,
 }
 
-/// A channel's reduced space: its PCA and its weight in the search (the structure
-/// guide's: the square root of `3 control`, [`super::guide`]).
+/// A channel's reduced space: its part's name, its PCA and its weight in the search
+/// (the structure guide's: the square root of `3 control`, [`super::guide`]).
 struct ChannelSpace {
+    name: &'static str,
     pca: Pca,
     weight: f32,
 }
@@ -80,7 +85,7 @@ impl StyleLevel {
         side: usize,
         p: &SynthesisParams,
         stride: usize,
-        channels: &[&dyn Channel],
+        channels: &[Named<dyn Channel>],
     ) -> Result<StyleLevel> {
         let sized = style.with_shorter_side(side.max(p.patch));
         let motif = motif_mask(&sized);
@@ -118,13 +123,15 @@ impl StyleLevel {
         }
         let mut spaces = Vec::with_capacity(channels.len());
         let mut parts = vec![r.coords.clone()];
-        for ch in channels {
+        for &(name, ch) in channels {
+            let _ph = crate::timing::span(name);
             let l =
                 Array3::from_shape_vec((1, h, w), ch.style(&sized)).expect("one value per pixel");
             let gp = select_rows(patches(l.view(), p.patch, stride), &keep);
             let (_, detail) = split_mean(&gp);
             let gpca = Pca::fit(detail.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
             let space = ChannelSpace {
+                name,
                 weight: ch.weight(p),
                 pca: gpca,
             };
@@ -167,7 +174,7 @@ impl StyleLevel {
             self.channels
                 .iter()
                 .zip(g)
-                .map(|(space, g)| space.coords(g)),
+                .map(|(space, g)| crate::timing::phase(space.name, || space.coords(g))),
         );
         let views: Vec<_> = parts.iter().map(|c| c.view()).collect();
         ndarray::concatenate(Axis(1), &views).expect("one row each")
@@ -215,9 +222,9 @@ impl StyleLevel {
     /// proportion to their share of the bank), `eps` the coupling's temperature relative
     /// to the mean nearest distance.
     pub(super) fn assign(&self, qc: &Array2<f32>, balance: f32, eps: f32) -> Vec<(u32, f32)> {
-        let (dist, arg) = self.nearest_per_cell(qc);
+        let (dist, arg) = crate::timing::phase("search", || self.nearest_per_cell(qc));
         let cells = self.share.len();
-        couple(&self.share, &dist, balance, eps)
+        crate::timing::phase("balance", || couple(&self.share, &dist, balance, eps))
             .into_iter()
             .enumerate()
             .map(|(i, c)| (arg[i * cells + c], dist[i * cells + c]))
@@ -233,15 +240,15 @@ impl StyleLevel {
         qc: &Array2<f32>,
         nbrs: &[Vec<Neighbour>],
         p: &SynthesisParams,
-        rematches: &[&dyn Rematch],
+        rematches: &[Named<dyn Rematch>],
     ) -> Vec<(u32, f32)> {
         if rematches.is_empty() {
             return self.assign(qc, p.balance, BALANCE_EPS);
         }
-        let (raw, arg) = self.nearest_per_cell(qc);
+        let (raw, arg) = crate::timing::phase("search", || self.nearest_per_cell(qc));
         let cells = self.share.len();
         let pick = |d: &[f32]| -> Vec<usize> {
-            couple(&self.share, d, p.balance, BALANCE_EPS)
+            crate::timing::phase("balance", || couple(&self.share, d, p.balance, BALANCE_EPS))
                 .into_iter()
                 .enumerate()
                 .map(|(i, c)| i * cells + c)
@@ -254,8 +261,11 @@ impl StyleLevel {
             .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min) as f64)
             .sum::<f64>()
             / n;
+        // The second pass is the rematches' cost: its coupling is timed under their name.
+        let names: Vec<&str> = rematches.iter().map(|r| r.0).collect();
+        let _ph = crate::timing::span(&names.join(" + "));
         let mut dist = raw.clone();
-        for r in rematches {
+        for (_, r) in rematches {
             r.penalise(&mut dist, &arg, &first, nbrs, &self.pos, mean_min, p);
         }
         pick(&dist).into_iter().map(|k| (arg[k], raw[k])).collect()

@@ -32,6 +32,13 @@
 //! background), [`coherence`] (the pieces copied whole). The parts ([`PARTS`], their
 //! kinds in [`parts`]: the structure guide [`guide`], the negative branch [`negative`])
 //! are switched on by their keys; a new part is one file and one line of [`PARTS`].
+//!
+//! Timing ([`crate::timing`], `pipeline report`): [`synthesize`] is the phase `patch
+//! synthesis`, its parts summed over the levels and rounds: `setup` (the colour fit's
+//! views, the source renders, the channels' source images), `style bank` (each level's
+//! [`level::StyleLevel`]), `render`, `queries`, `search`, `balance`, `stats`, `votes`
+//! and `colour fit` (the Adam steps); a part's own work is under its name (`guide`,
+//! `negative`). Each level's wall time is in its log line.
 
 pub mod coherence;
 pub mod couple;
@@ -69,23 +76,27 @@ pub fn active_parts(p: &SynthesisParams) -> Vec<&'static PartKind> {
     PARTS.iter().filter(|k| (k.on)(p)).collect()
 }
 
+/// A part that is on: its name (also the timing phase of its own work,
+/// [`crate::timing`]) and what it does.
+pub type Named<T> = (&'static str, &'static T);
+
 /// The channels of the parts `p` switches on.
-pub fn channels(p: &SynthesisParams) -> Vec<&'static dyn Channel> {
+pub fn channels(p: &SynthesisParams) -> Vec<Named<dyn Channel>> {
     active_parts(p)
         .into_iter()
         .filter_map(|k| match k.hook {
-            Hook::Channel(c) => Some(c),
+            Hook::Channel(c) => Some((k.name, c)),
             Hook::Rematch(_) => None,
         })
         .collect()
 }
 
 /// The rematches of the parts `p` switches on.
-pub fn rematches(p: &SynthesisParams) -> Vec<&'static dyn Rematch> {
+pub fn rematches(p: &SynthesisParams) -> Vec<Named<dyn Rematch>> {
     active_parts(p)
         .into_iter()
         .filter_map(|k| match k.hook {
-            Hook::Rematch(r) => Some(r),
+            Hook::Rematch(r) => Some((k.name, r)),
             Hook::Channel(_) => None,
         })
         .collect()
@@ -243,31 +254,13 @@ pub fn synthesize(
         background,
         ..FitParams::default()
     };
-    let mut fit = ColourFit::without_targets(scene, cameras, &fp)?;
-    fit.set_weights(selection)?;
     let sizes: Vec<(usize, usize)> = cameras
         .iter()
         .map(|c| (c.height as usize, c.width as usize))
         .collect();
-    let (rgb, alpha): (Vec<Vec<f32>>, Vec<Vec<f32>>) =
-        crate::render::render_all(scene, cameras, background)?
-            .into_iter()
-            .map(|r| (r.rgb, r.alpha))
-            .unzip();
-    let rgb = match source {
-        Some(src)
-            if src.len() == rgb.len() && src.iter().zip(&rgb).all(|(a, b)| a.len() == b.len()) =>
-        {
-            src.to_vec()
-        }
-        Some(_) => {
-            return Err(Error::param(
-                "synthesis: the source views do not match the cameras",
-            ));
-        }
-        None => rgb,
-    };
-    let src = Frozen::new(rgb, alpha, &sizes, style, background, p);
+    let (mut fit, src) = crate::timing::phase("setup", || {
+        set_up(scene, (cameras, &sizes), style, &fp, p, selection, source)
+    })?;
     let all: Vec<usize> = (0..cameras.len()).collect();
     let mut reports = Vec::new();
     let bar = indicatif::ProgressBar::new((p.levels.len() * p.rounds) as u64);
@@ -278,28 +271,36 @@ pub fn synthesize(
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     for &s in &p.levels {
+        let started = std::time::Instant::now();
         let stride = if s == 1 { p.style_stride } else { 1 };
-        let level = StyleLevel::new(style, style_size / s, p, stride, &src.parts)?;
+        let level = crate::timing::phase("style bank", || {
+            StyleLevel::new(style, style_size / s, p, stride, &src.parts)
+        })?;
         let mut last = RoundStats::default();
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
-            let renders: Vec<Vec<f32>> = all.iter().map(|&v| fit.render_view(v)).collect();
+            let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
+                all.iter().map(|&v| fit.render_view(v)).collect()
+            });
             let (targets, stats) = e_step(&renders, &sizes, &level, s, &src, p);
+            let fit_phase = crate::timing::span("colour fit");
             for _ in 0..p.steps {
                 last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
             }
+            drop(fit_phase);
             (last.distance, last.cells_used) = (stats.distance, stats.cells_used);
             last.coherence = stats.coherence;
             bar.inc(1);
         }
         tracing::info!(
-            "patch synthesis level {s}: {} style patches, mean distance {:.4}, {} of {} cells used, coherence {:.3}, loss {:.5}",
+            "patch synthesis level {s}: {} style patches, mean distance {:.4}, {} of {} cells used, coherence {:.3}, loss {:.5} ({:.2} s)",
             level.bank.len(),
             last.distance,
             last.cells_used,
             level.share.len(),
             last.coherence,
-            last.loss
+            last.loss,
+            started.elapsed().as_secs_f64()
         );
         reports.push(LevelReport {
             level: s,
@@ -313,6 +314,45 @@ pub fn synthesize(
     }
     bar.finish_and_clear();
     Ok((fit.scene().clone(), reports))
+}
+
+/// The synthesis's set-up ([`synthesize`]'s arguments; `sizes` (H, W) per camera): the
+/// colour fit of the views and the frozen views (`source` or `scene`'s renders).
+fn set_up<'a>(
+    scene: &Scene,
+    (cameras, sizes): (&'a [Camera], &[(usize, usize)]),
+    style: &Image,
+    fp: &FitParams,
+    p: &SynthesisParams,
+    selection: Option<&Selection>,
+    source: Option<&[Vec<f32>]>,
+) -> Result<(ColourFit<'a>, Frozen)> {
+    let background = fp.background;
+    let mut fit = crate::timing::phase("colour fit", || {
+        ColourFit::without_targets(scene, cameras, fp)
+    })?;
+    fit.set_weights(selection)?;
+    let (rgb, alpha): (Vec<Vec<f32>>, Vec<Vec<f32>>) = crate::timing::phase("render", || {
+        crate::render::render_all(scene, cameras, background)
+    })?
+    .into_iter()
+    .map(|r| (r.rgb, r.alpha))
+    .unzip();
+    let rgb = match source {
+        Some(src)
+            if src.len() == rgb.len() && src.iter().zip(&rgb).all(|(a, b)| a.len() == b.len()) =>
+        {
+            src.to_vec()
+        }
+        Some(_) => {
+            return Err(Error::param(
+                "synthesis: the source views do not match the cameras",
+            ));
+        }
+        None => rgb,
+    };
+    let src = Frozen::new(rgb, alpha, sizes, style, background, p);
+    Ok((fit, src))
 }
 
 /// The `patches` finish ([`super::ENDS`]): [`synthesize`] with the configuration's
@@ -364,7 +404,9 @@ pub fn synthesize_images(
     let mut out = images.to_vec();
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
-        let level = StyleLevel::new(style, style_size / s, p, stride, &src.parts)?;
+        let level = crate::timing::phase("style bank", || {
+            StyleLevel::new(style, style_size / s, p, stride, &src.parts)
+        })?;
         for _ in 0..p.rounds {
             out = e_step(&out, sizes, &level, s, &src, p).0;
         }
@@ -384,13 +426,13 @@ struct RoundStats {
 /// What the synthesis holds fixed: the views as they were at its start (the source
 /// branch's colours, `[H, W, 3]`), their coverage `[H, W]`, the background, the parts
 /// the settings switch on ([`active_parts`]), and each channel's image of every view
-/// (`[H, W]`, [`parts::Channel::source`]).
+/// (`[H, W]`, [`parts::Channel::source`]; timed as the part's phase).
 struct Frozen {
     rgb: Vec<Vec<f32>>,
     alpha: Vec<Vec<f32>>,
     background: [f32; 3],
-    parts: Vec<&'static dyn Channel>,
-    rematches: Vec<&'static dyn Rematch>,
+    parts: Vec<Named<dyn Channel>>,
+    rematches: Vec<Named<dyn Rematch>>,
     channels: Vec<Vec<Vec<f32>>>,
 }
 
@@ -406,7 +448,9 @@ impl Frozen {
         let parts = channels(p);
         let channels = parts
             .iter()
-            .map(|c| c.source(&rgb, &alpha, sizes, background, style))
+            .map(|&(name, c)| {
+                crate::timing::phase(name, || c.source(&rgb, &alpha, sizes, background, style))
+            })
             .collect();
         Frozen {
             rgb,
@@ -421,7 +465,9 @@ impl Frozen {
 
 /// The E-step of one round at level `s`: every view's object patches matched together
 /// (one balanced coupling over all views), each view's target `[H, W, 3]`.
-/// `renders` `[H, W, 3]` per view, `sizes` (H, W) per view.
+/// `renders` `[H, W, 3]` per view, `sizes` (H, W) per view. Timed as the phases
+/// `queries` (the views pooled, their patches in search coordinates), `search`,
+/// `balance` and the rematches' ([`StyleLevel::match_all`]), `stats` and `votes`.
 fn e_step(
     renders: &[Vec<f32>],
     sizes: &[(usize, usize)],
@@ -431,6 +477,7 @@ fn e_step(
     p: &SynthesisParams,
 ) -> (Vec<Vec<f32>>, RoundStats) {
     let n = src.alpha.len();
+    let ph = crate::timing::span("queries");
     let views: Vec<ViewImage> = (0..n)
         .into_par_iter()
         .map(|v| ViewImage::new(&renders[v], src, v, sizes[v], s, p))
@@ -447,7 +494,9 @@ fn e_step(
     let pixels: Vec<&[[usize; 3]]> = queries.iter().map(|q| &q.pixels[..]).collect();
     let nbrs = coherence::neighbours(&pixels, p.stride.max(1));
     let qc = level.project(&colour, &channels);
+    drop(ph);
     let m = level.match_all(&qc, &nbrs, p, &src.rematches);
+    let ph = crate::timing::span("stats");
     let mut used = vec![false; level.share.len()];
     for &(j, _) in &m {
         used[level.cell_of[j as usize] as usize] = true;
@@ -459,6 +508,8 @@ fn e_step(
         coherence: coherence::coherence(&chosen, &nbrs, &level.pos),
         loss: 0.0,
     };
+    drop(ph);
+    let _ph = crate::timing::span("votes");
     let mut offset = 0;
     let mut targets = Vec::with_capacity(n);
     for (v, q) in queries.iter().enumerate() {
@@ -540,6 +591,53 @@ mod tests {
         for (q, want) in [(red, 0.9f32), (blue, 0.1)] {
             let (j, _) = level.assign(&level.project(&q, &[]), 0.0, BALANCE_EPS)[0];
             assert_eq!(level.bank.centres[[j as usize, 0]], want);
+        }
+    }
+
+    /// The synthesis times its parts for `pipeline report` ([`crate::timing`]): under
+    /// `patch synthesis`, its set-up, each level's bank, each round's steps, and the
+    /// parts' own work (the guide's images and coordinates, the negative branch's
+    /// penalty and second coupling) apart.
+    #[test]
+    fn the_synthesis_times_its_parts() {
+        let scene = crate::sample::sample_scene(1);
+        let cams = crate::camera::load_cameras("orbit:2", &scene.bounds(), 32, 32).unwrap();
+        let p = SynthesisParams {
+            levels: vec![2, 1],
+            rounds: 2,
+            steps: 1,
+            control: 1.0,
+            negative: 1.0,
+            ..SynthesisParams::default()
+        };
+        let calls = |name: &str| {
+            let full = format!("patch synthesis/{name}");
+            let p = crate::timing::phases();
+            p.iter().find(|e| e.name == full).map_or(0, |e| e.calls)
+        };
+        let want = [
+            ("setup", 1),
+            ("setup/colour fit", 1),
+            ("setup/render", 1),
+            ("setup/guide", 1),
+            ("style bank", 2),
+            ("style bank/guide", 2),
+            ("render", 4),
+            ("queries", 4),
+            ("queries/guide", 4),
+            ("search", 4),
+            ("balance", 4),
+            ("negative", 4),
+            ("negative/balance", 4),
+            ("stats", 4),
+            ("votes", 4),
+            ("colour fit", 4),
+        ];
+        let before: Vec<u64> = want.iter().map(|(n, _)| calls(n)).collect();
+        let style = motif::tests::disc();
+        synthesize(&scene, &cams, &style, [0.0; 3], 32, &p, None, None).unwrap();
+        for ((name, n), b) in want.into_iter().zip(before) {
+            assert_eq!(calls(name) - b, n, "phase `patch synthesis/{name}`");
         }
     }
 
