@@ -635,7 +635,18 @@ mod tests {
         ];
         let before: Vec<u64> = want.iter().map(|(n, _)| calls(n)).collect();
         let style = motif::tests::disc();
-        synthesize(&scene, &cams, &style, [0.0; 3], 32, &p, None, None).unwrap();
+        synthesize(
+            &scene,
+            &cams,
+            &style,
+            [0.0; 3],
+            32,
+            &p,
+            None,
+            None,
+            Bands::Keep,
+        )
+        .unwrap();
         for ((name, n), b) in want.into_iter().zip(before) {
             assert_eq!(calls(name) - b, n, "phase `patch synthesis/{name}`");
         }
