@@ -41,41 +41,24 @@ null when no source pixel qualifies as strong; motif contrast is null when the s
 spread squared is below 1e-12. Means are over the non-null values.
 
 Written from the definitions above; shares no code with the Rust implementation
-(src/metrics/interior.rs, src/metrics/structure.rs) or with structure_ref.py.
+(src/metrics/interior.rs, src/metrics/structure.rs). The band pass D and the Pearson
+correlation are structure_ref.py's (the same definitions, referenced there).
 """
 import json
 import math
+import os
 import sys
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from structure_ref import band_pass as dog, correlation as pearson  # noqa: E402
 
 EROSION = 8
 MIN_PIXELS = 64
 MIN_VARIANCE = 1e-12
 MIN_BAND = 1e-6
 STYLE_SIDE = 256
-
-
-def gaussian_taps(sigma):
-    r = int(math.ceil(3 * sigma))
-    i = np.arange(-r, r + 1, dtype=np.float64)
-    k = np.exp(-(i ** 2) / (2.0 * sigma ** 2))
-    return k / k.sum()
-
-
-def blur(img, sigma):
-    """Separable blur with np.convolve on each row, then each column, of an edge-padded copy."""
-    k = gaussian_taps(sigma)
-    r = len(k) // 2
-    rows = np.pad(img, ((0, 0), (r, r)), mode="edge")
-    h = np.stack([np.convolve(row, k, mode="valid") for row in rows])
-    cols = np.pad(h, ((r, r), (0, 0)), mode="edge")
-    return np.stack([np.convolve(c, k, mode="valid") for c in cols.T]).T
-
-
-def dog(rgb):
-    y = 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
-    return blur(y, 1.0) - blur(y, 4.0)
 
 
 def erode(mask, r):
@@ -109,14 +92,6 @@ def resize_shorter_side(img, side):
     top = img[y0][:, x0] * (1 - fx) + img[y0][:, x1] * fx
     bot = img[y1][:, x0] * (1 - fx) + img[y1][:, x1] * fx
     return top * (1 - fy) + bot * fy
-
-
-def pearson(a, b):
-    da, db = a - a.mean(), b - b.mean()
-    va, vb = np.mean(da * da), np.mean(db * db)
-    if va < MIN_VARIANCE or vb < MIN_VARIANCE:
-        return None
-    return float(np.mean(da * db) / math.sqrt(va * vb))
 
 
 def one_view(src, sty, alpha, style_spread):
