@@ -305,42 +305,19 @@ impl Interior {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::metrics::structure::fixtures::{map, textured_disc};
 
     const W: usize = 96;
     const H: usize = 80;
 
-    /// A textured object: seeded noise detail on smooth shading inside a disc of radius
-    /// `radius` (alpha 1) on black (alpha 0).
+    /// The textured disc of `radius` at (48, 40).
     fn object(radius: f32) -> (Image, Vec<f32>) {
-        let noise = crate::rng::Rng::new(7).normals_f32(W * H);
-        let inside = |x: usize, y: usize| {
-            let (dx, dy) = (x as f32 - 48.0, y as f32 - 40.0);
-            dx * dx + dy * dy < radius * radius
-        };
-        let img = Image::from_fn(W, H, |x, y| {
-            if !inside(x, y) {
-                return [0.0; 3];
-            }
-            let shade = 0.15 * ((x as f32) / 7.0).sin() * ((y as f32) / 11.0).cos();
-            let n = 0.08 * noise[y * W + x];
-            [0.5 + shade + n, 0.45 + shade + 0.5 * n, 0.4 + shade]
-        });
-        let alpha = (0..W * H)
-            .map(|p| f32::from(u8::from(inside(p % W, p / W))))
-            .collect();
-        (img, alpha)
+        textured_disc(W, H, (48.0, 40.0), radius)
     }
 
     fn noise_image(w: usize, h: usize, seed: u64) -> Image {
         let n = crate::rng::Rng::new(seed).normals_f32(w * h);
         Image::from_fn(w, h, |x, y| [0.5 + 0.1 * n[y * w + x]; 3])
-    }
-
-    fn map(img: &Image, f: impl Fn(f32) -> f32) -> Image {
-        Image {
-            data: img.data.iter().map(|v| f(*v)).collect(),
-            ..img.clone()
-        }
     }
 
     #[test]

@@ -176,39 +176,15 @@ pub fn worst_view(per_view: &[Option<f64>]) -> Option<usize> {
 
 #[cfg(test)]
 mod tests {
+    use super::fixtures::{map, textured_disc};
     use super::*;
 
     const W: usize = 64;
     const H: usize = 40;
 
-    /// A textured object: seeded noise detail on smooth shading, inside a disc (alpha 1)
-    /// on a black background (alpha 0).
+    /// The textured disc of radius 17 at (24, 20).
     fn object() -> (Image, Vec<f32>) {
-        let mut rng = crate::rng::Rng::new(7);
-        let noise = rng.normals_f32(W * H);
-        let inside = |x: usize, y: usize| {
-            let (dx, dy) = (x as f32 - 24.0, y as f32 - 20.0);
-            dx * dx + dy * dy < 17.0 * 17.0
-        };
-        let img = Image::from_fn(W, H, |x, y| {
-            if !inside(x, y) {
-                return [0.0; 3];
-            }
-            let shade = 0.15 * ((x as f32) / 7.0).sin() * ((y as f32) / 11.0).cos();
-            let n = 0.08 * noise[y * W + x];
-            [0.5 + shade + n, 0.45 + shade + 0.5 * n, 0.4 + shade]
-        });
-        let alpha = (0..W * H)
-            .map(|p| f32::from(u8::from(inside(p % W, p / W))))
-            .collect();
-        (img, alpha)
-    }
-
-    fn map(img: &Image, f: impl Fn(f32) -> f32) -> Image {
-        Image {
-            data: img.data.iter().map(|v| f(*v)).collect(),
-            ..img.clone()
-        }
+        textured_disc(W, H, (24.0, 20.0), 17.0)
     }
 
     #[test]
@@ -306,5 +282,42 @@ mod tests {
         assert_eq!(worst_view(&v), Some(2));
         assert_eq!(mean_present(&[None, None]), None);
         assert_eq!(worst_view(&[None]), None);
+    }
+}
+
+/// Test images shared by the structure measures' tests (here and in
+/// [`super::interior`]).
+#[cfg(test)]
+pub(crate) mod fixtures {
+    use crate::imageio::Image;
+
+    /// A textured object: seeded noise detail on smooth shading inside a disc of
+    /// `radius` at `centre` (alpha 1) on black (alpha 0), `w` x `h`.
+    pub fn textured_disc(w: usize, h: usize, centre: (f32, f32), radius: f32) -> (Image, Vec<f32>) {
+        let noise = crate::rng::Rng::new(7).normals_f32(w * h);
+        let inside = |x: usize, y: usize| {
+            let (dx, dy) = (x as f32 - centre.0, y as f32 - centre.1);
+            dx * dx + dy * dy < radius * radius
+        };
+        let img = Image::from_fn(w, h, |x, y| {
+            if !inside(x, y) {
+                return [0.0; 3];
+            }
+            let shade = 0.15 * ((x as f32) / 7.0).sin() * ((y as f32) / 11.0).cos();
+            let n = 0.08 * noise[y * w + x];
+            [0.5 + shade + n, 0.45 + shade + 0.5 * n, 0.4 + shade]
+        });
+        let alpha = (0..w * h)
+            .map(|p| f32::from(u8::from(inside(p % w, p / w))))
+            .collect();
+        (img, alpha)
+    }
+
+    /// `img` with `f` applied to every value.
+    pub fn map(img: &Image, f: impl Fn(f32) -> f32) -> Image {
+        Image {
+            data: img.data.iter().map(|v| f(*v)).collect(),
+            ..img.clone()
+        }
     }
 }
