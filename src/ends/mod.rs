@@ -216,13 +216,7 @@ pub struct EndInputs<'a> {
 impl EndInputs<'_> {
     /// The configuration's `sh`: whether an end's colour fit moves the bands too.
     pub fn bands(&self) -> Result<crate::scene::colour::Bands> {
-        match self.settings.get("sh") {
-            Some(v) => v
-                .clone()
-                .try_into()
-                .map_err(|e| Error::param(format!("sh: {e}"))),
-            None => Ok(Default::default()),
-        }
+        self.section("sh")
     }
 
     /// Section `name` of the configuration (`[synthesis]`, `[texture]`), read as `T`

@@ -50,7 +50,8 @@
 //! the edges near the outline and has a small motif contrast (docs/evaluation.md).
 //!
 //! Reference: `scripts/reference/interior_ref.py` (numpy, written from this definition:
-//! its own erosion, band pass, percentiles and resize) computes the same;
+//! its own erosion, percentiles and resize; the band pass and correlation of
+//! `structure_ref.py`, structure kept's reference) computes the same;
 //! `tests/integration/interior.rs` compares the two on renders of the sample scene.
 
 use super::structure::{self, band_pass, correlation, mean_present, object_pixels};
