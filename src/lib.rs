@@ -14,6 +14,7 @@
 //! | [`maths`] | general maths shared by the method, the baselines and the metrics: eigendecomposition, Gram matrices, depth reprojection |
 //! | [`optim`] | L1 + D-SSIM loss, Adam over SH colours |
 //! | [`selection`] | which Gaussians may change: shapes, masks lifted from views, their combinations |
+//! | [`regions`] | several styles in one run: regions of (selection, style or blend, strength), read and checked |
 //! | [`runtime`] | the one onnxruntime environment per process |
 //! | [`models`] | where installed models are found (`$FANTASYSTYLE_MODELS`, `vendor/models`) |
 //! | [`prior`] | the prior interface and its families: ONNX diffusion, Gaussian closed form, 2D stylizer, the patch prior |
@@ -54,6 +55,7 @@ pub mod optim;
 pub mod parallel;
 pub mod params;
 pub mod prior;
+pub mod regions;
 pub mod render;
 pub mod rng;
 pub mod runtime;

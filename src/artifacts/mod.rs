@@ -12,6 +12,7 @@
 //! | `noised-latents` | mvfc-filter | [`chain::read_noised_latents`]: z_src, z_tgt, eps `[N,C,h,w]`, eps' `[C,h,w]`, t |
 //! | `targets` (or `views`) | csd-step | [`chain::read_targets`]: rgb `[N,H,W,3]` |
 //! | `scene` | distill, update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] (a checkpoint's state: [`crate::distill::checkpoint`]) |
+//! | `scene` with regions | distill --region | [`regions::read_regions`]: each region's weights `[R, N]`, name, selection, styles, strength (`meta.regions`); written by [`regions::write_regions`] |
 //! | `selection` | select | [`selection::read_selection`]: a weight per Gaussian `[N]` in [0, 1]; written by [`selection::write_selection`] |
 //! | `eval-reference` | evaluate --reference-only | [`eval::read_eval_reference_for`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`eval::write_eval_reference`] |
 //!
@@ -25,6 +26,7 @@
 
 pub mod chain;
 pub mod eval;
+pub mod regions;
 pub mod selection;
 
 pub use chain::{
@@ -32,6 +34,7 @@ pub use chain::{
     read_noised_latents, read_targets, window_rows,
 };
 pub use eval::{read_eval_reference_for, write_eval_reference};
+pub use regions::{read_regions, write_regions};
 pub use selection::{SELECTION_WEIGHTS, read_selection, write_selection};
 
 use crate::camera::{self, Camera};

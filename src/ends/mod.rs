@@ -201,7 +201,7 @@ pub fn read_finish<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Resul
 /// What an end needs besides the scene: the cameras (`cameras_from` names them in
 /// errors) and their source views, the style image as loaded (`style_path` in errors),
 /// the configuration as a table (each end reads its own section by name,
-/// [`EndInputs::section`]) and the selection, if any.
+/// [`EndInputs::section`]), the selection, if any, and the regions, if any.
 #[derive(Debug, Clone, Copy)]
 pub struct EndInputs<'a> {
     pub cameras: &'a [Camera],
@@ -211,6 +211,9 @@ pub struct EndInputs<'a> {
     pub style_path: &'a Path,
     pub settings: &'a toml::Table,
     pub selection: Option<&'a crate::selection::Selection>,
+    /// Several regions, each its own style (the `patches` finish alone takes them;
+    /// `selection` is then their combined weights).
+    pub regions: Option<&'a crate::regions::Regions>,
 }
 
 impl EndInputs<'_> {

@@ -38,6 +38,7 @@ use crate::distill::{Config, Outcome, Progress, Run, SourceViews, distill};
 use crate::ends::{self, EndInputs, Finish, Start};
 use crate::prior::cost::CostModel;
 use crate::prior::model_timesteps;
+use crate::regions::{RegionSpec, Regions};
 use crate::scene::colour::{Bands, drop_bands};
 use crate::terms::Terms;
 use crate::{Camera, Error, Result, Scene};
@@ -92,6 +93,18 @@ pub struct Args {
     /// Gaussian of weight 0 keeps its bytes through the start, the loop and the finish.
     #[arg(long)]
     pub selection: Option<PathBuf>,
+    /// A region with its own style, repeatable: `SELECTION[=STYLE][@STRENGTH]`
+    /// (docs/selection.md, "Regions"). SELECTION is a selection artifact, a source
+    /// (`box:...`, `masks:DIR`, ...) or `rest` (what the other regions leave); STYLE an
+    /// image or a blend `a.png:0.7,b.png:0.3` (default: --style); STRENGTH in [0, 1]
+    /// (default 1). All regions are styled in one pass of the `patches` finish
+    /// (`--iters 0`); a Gaussian in no region keeps its bytes.
+    #[arg(long, value_parser = RegionSpec::parse, conflicts_with_all = ["selection", "regions"])]
+    pub region: Vec<RegionSpec>,
+    /// The regions from a TOML file of `[[regions]]` entries (`name`, `selection`,
+    /// `style`, `strength`, as --region; paths relative to the file).
+    #[arg(long, conflicts_with = "selection")]
+    pub regions: Option<PathBuf>,
     /// Iterations to run in this process (0: only the start, from a scene, and the
     /// finish).
     #[arg(long)]
@@ -165,7 +178,9 @@ pub fn run(a: Args) -> Result<()> {
             format!("shape {shape:?}, but the source views need [{n}, 3, {h}, {w}]"),
         ));
     }
+    let regions = load_regions(&a, &config, &start.scene)?;
     let selection = match &a.selection {
+        _ if regions.is_some() => regions.as_ref().map(|r| r.combined.clone()),
         Some(dir) => {
             let sel = crate::timing::load(|| read_selection(dir))?;
             sel.check_for(start.scene.len(), dir)?;
@@ -189,6 +204,7 @@ pub fn run(a: Args) -> Result<()> {
         style_path: &a.prior.style,
         settings: &settings,
         selection: selection.as_ref(),
+        regions: regions.as_ref(),
     };
     if styled && a.resume.is_none() {
         let started = ends::apply(config.start, &start.scene, &inputs)?;
@@ -207,7 +223,50 @@ pub fn run(a: Args) -> Result<()> {
             .install(|| ends::apply(config.finish, scene, &inputs))??;
         outcome.scene = keep(&outcome.scene, finished)?;
     }
-    write(&a, &config, start, &outcome)
+    write(&a, &config, start, &outcome, regions.as_ref())
+}
+
+/// The run's regions (`--region`, `--regions`), loaded and checked against the scene
+/// (none without either): only a fresh run of the `patches` finish with `--iters 0`
+/// and the `scene` start takes them.
+fn load_regions(a: &Args, config: &Config, scene: &Scene) -> Result<Option<Regions>> {
+    let specs = match &a.regions {
+        Some(file) => RegionSpec::read_file(file)?,
+        None if a.region.is_empty() => return Ok(None),
+        None => a.region.clone(),
+    };
+    if a.resume.is_some() || a.iters > 0 || !config.start.keeps() {
+        return Err(Error::param(
+            "regions are styled by the end alone: give --scene, --iters 0 and the `scene` start",
+        ));
+    }
+    if config.finish.name() != "patches" {
+        return Err(Error::param(format!(
+            "regions need the `patches` finish (the configuration's finish is `{}`)",
+            config.finish
+        )));
+    }
+    let ctx = crate::selection::Context {
+        cameras: Some(a.source_views.display().to_string()),
+        ..Default::default()
+    };
+    let r = crate::timing::load(|| crate::regions::load(&specs, scene, &a.prior.style, &ctx))?;
+    for reg in &r.list {
+        let styles: Vec<String> = reg
+            .styles
+            .iter()
+            .map(|(p, _, w)| format!("{} x {w:.2}", p.display()))
+            .collect();
+        tracing::info!(
+            "region `{}`: {} Gaussians ({}), style {}, strength {}",
+            reg.name,
+            reg.weights.iter().filter(|&&w| w > 0.0).count(),
+            reg.selection,
+            styles.join(" + "),
+            reg.strength
+        );
+    }
+    Ok(Some(r))
 }
 
 /// The iterations of this process from `start` (none at strength 0 or `--iters 0`).
@@ -246,7 +305,13 @@ fn iterate(
 }
 
 /// Write the checkpoint: the scene files, the optimizer state, the history.
-fn write(a: &Args, config: &Config, start: Progress, outcome: &Outcome) -> Result<()> {
+fn write(
+    a: &Args,
+    config: &Config,
+    start: Progress,
+    outcome: &Outcome,
+    regions: Option<&Regions>,
+) -> Result<()> {
     crate::distill::guard::checkpoint(&outcome.scene, &outcome.state)?;
     let _ph = crate::timing::span("checkpoint write");
     let iteration = start.iteration + a.iters;
@@ -263,6 +328,9 @@ fn write(a: &Args, config: &Config, start: Progress, outcome: &Outcome) -> Resul
     }
     a.prior.add_inputs(&mut out)?;
     write_scene(&mut out, &outcome.scene, &a.format, &a.out)?;
+    if let Some(r) = regions {
+        crate::artifacts::write_regions(&mut out, r)?;
+    }
     if iteration == 0 {
         // No iteration has run: a scene artifact, no optimizer state (a later run resumes
         // it at iteration 0 with a fresh one).

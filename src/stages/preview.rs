@@ -61,7 +61,7 @@ pub fn run(a: Args) -> Result<()> {
     let (bg, size, p) = (src.background, config.texture.style_size, &config.synthesis);
     let out = a
         .threads
-        .install(|| synthesize_images(&rgb, &alpha, &sizes, &style, bg, size, p))??;
+        .install(|| synthesize_images(&rgb, &alpha, &sizes, &[(&style, 1.0)], bg, size, p))??;
     let params = serde_json::json!({"views": chosen, "synthesis": p, "style_size": size});
     let producer = Producer::new("preview", crate::VERSION, params);
     let mut art = super::create_artifact(&a.out, ArtifactKind::Views, producer)?;

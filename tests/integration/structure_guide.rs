@@ -6,7 +6,7 @@
 
 use fantasystyle::Scene;
 use fantasystyle::camera::load_cameras;
-use fantasystyle::ends::patches::{SynthesisParams, synthesize};
+use fantasystyle::ends::patches::{SynthesisParams, regions::RegionStyle, synthesize};
 use fantasystyle::imageio::Image;
 use fantasystyle::scene::colour::Bands;
 
@@ -136,7 +136,7 @@ fn a_guided_sphere_takes_the_dark_stripes_where_it_is_dark() {
         synthesize(
             &scene,
             &cams,
-            &stripes(),
+            &[RegionStyle::one(&stripes())],
             [0.0; 3],
             96,
             &p,
@@ -223,7 +223,7 @@ fn its_own_render_as_the_style_moves_a_scene_little() {
         let out = synthesize(
             &scene,
             &cams,
-            style,
+            &[RegionStyle::one(style)],
             [0.0; 3],
             size as usize,
             &p,

@@ -206,7 +206,7 @@ fn stripes_with(model: &std::path::Path, term: Option<TextureTerm>) {
 /// bytes on a second run.
 #[test]
 fn with_the_patch_synthesis_alone() {
-    use fantasystyle::ends::patches::{SynthesisParams, synthesize};
+    use fantasystyle::ends::patches::{SynthesisParams, regions::RegionStyle, synthesize};
     let scene = plane();
     let cams = cameras(&scene);
     let src = SourceViews::render(&scene, &cams, [0.0; 3]).unwrap();
@@ -219,7 +219,7 @@ fn with_the_patch_synthesis_alone() {
         synthesize(
             &scene,
             &cams,
-            &stripes(),
+            &[RegionStyle::one(&stripes())],
             [0.0; 3],
             128,
             &p,

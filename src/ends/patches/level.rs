@@ -77,32 +77,27 @@ const GUIDE_DIMS: usize = 8;
 const MOTIF_SHARE: f32 = 0.5;
 
 impl StyleLevel {
-    /// The level's model of `style` at `side` px on its shorter side, its patches on the
-    /// grid of step `stride`, with the style's own image of each of `channels` beside its
-    /// colours.
+    /// The level's model of `styles` (one image, or a blend: images with weights summing
+    /// to 1) at `side` px on their shorter side, their patches on the grid of step
+    /// `stride`, with each style's own image of each of `channels` beside its colours. A
+    /// blend's bank holds every style's patches, one PCA over them all; a cell's share is
+    /// the weighted mixture of the styles' shares (each patch of style i counts w_i / M_i,
+    /// M_i its patches), so the balance uses each style in proportion to its weight.
     pub(super) fn new(
-        style: &Image,
+        styles: &[(&Image, f32)],
         side: usize,
         p: &SynthesisParams,
         stride: usize,
         channels: &[Named<dyn Channel>],
     ) -> Result<StyleLevel> {
-        let sized = style.with_shorter_side(side.max(p.patch));
-        let motif = motif_mask(&sized);
-        let keep = motif_rows(&motif, &sized, p.patch, stride);
-        let sized = if keep.is_empty() {
-            sized
-        } else {
-            fill_background(&sized, &motif)
-        };
-        let img = sized.to_chw();
-        let (h, w) = (sized.height, sized.width);
-        let xs = w.div_ceil(stride);
-        let pos: Vec<[i32; 2]> = (0..h.div_ceil(stride) * xs)
-            .filter(|&r| keep.is_empty() || keep[r])
-            .map(|r| [((r / xs) * stride) as i32, ((r % xs) * stride) as i32])
+        let each: Vec<Sized> = styles
+            .iter()
+            .enumerate()
+            .map(|(i, &(style, _))| Sized::new(style, side.max(p.patch), p, stride, i))
             .collect();
-        let pts = select_rows(patches(img.view(), p.patch, stride), &keep);
+        let pos: Vec<[i32; 2]> = each.iter().flat_map(|e| e.pos.iter().copied()).collect();
+        let counts: Vec<usize> = each.iter().map(|e| e.pts.nrows()).collect();
+        let pts = stack(each.iter().map(|e| e.pts.view()).collect());
         let pca = Pca::fit(pts.view(), p.pca_dims.min(pts.ncols()), 12)?;
         let bank = Bank::new(pts, p.patch, 3, Some(pca), CELLS)?;
         let m = bank.len();
@@ -110,10 +105,27 @@ impl StyleLevel {
         let mut share = vec![1.0f32; 1];
         let r = bank.reduced.as_ref().expect("synthesis banks have a PCA");
         if let Some(ivf) = r.ivf.as_ref() {
+            // Which style each bank row came from (rows are the styles' in order).
+            let style_of: Vec<usize> = counts
+                .iter()
+                .enumerate()
+                .flat_map(|(i, &n)| std::iter::repeat_n(i, n))
+                .collect();
             share = ivf
                 .cells
                 .iter()
-                .map(|c| c.len() as f32 / m as f32)
+                .map(|c| {
+                    let mut per = vec![0usize; styles.len()];
+                    for &row in c {
+                        per[style_of[row as usize]] += 1;
+                    }
+                    per.iter()
+                        .zip(styles)
+                        .zip(&counts)
+                        .fold(0.0f32, |acc, ((&n, &(_, w)), &total)| {
+                            acc + w * (n as f32 / total as f32)
+                        })
+                })
                 .collect();
             for (c, rows) in ivf.cells.iter().enumerate() {
                 for &row in rows {
@@ -125,9 +137,14 @@ impl StyleLevel {
         let mut parts = vec![r.coords.clone()];
         for &(name, ch) in channels {
             let _ph = crate::timing::span(name);
-            let l =
-                Array3::from_shape_vec((1, h, w), ch.style(&sized)).expect("one value per pixel");
-            let gp = select_rows(patches(l.view(), p.patch, stride), &keep);
+            let gp = stack(
+                each.iter()
+                    .map(|e| e.channel(ch, p.patch, stride))
+                    .collect::<Vec<_>>()
+                    .iter()
+                    .map(|g| g.view())
+                    .collect(),
+            );
             let (_, detail) = split_mean(&gp);
             let gpca = Pca::fit(detail.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
             let space = ChannelSpace {
@@ -270,6 +287,65 @@ impl StyleLevel {
         }
         pick(&dist).into_iter().map(|k| (arg[k], raw[k])).collect()
     }
+}
+
+/// One style of a level, sized: its image (its background filled when it has one), the
+/// rows of its patch grid the bank keeps, those patches `[M_i, k k 3]` and their centres
+/// (the `i`-th style's shifted by `i` << 20 columns: no patch continues another style's).
+struct Sized {
+    image: Image,
+    keep: Vec<bool>,
+    pts: Array2<f32>,
+    pos: Vec<[i32; 2]>,
+}
+
+impl Sized {
+    fn new(style: &Image, side: usize, p: &SynthesisParams, stride: usize, i: usize) -> Sized {
+        let sized = style.with_shorter_side(side);
+        let motif = motif_mask(&sized);
+        let keep = motif_rows(&motif, &sized, p.patch, stride);
+        let image = if keep.is_empty() {
+            sized
+        } else {
+            fill_background(&sized, &motif)
+        };
+        let (h, w) = (image.height, image.width);
+        let xs = w.div_ceil(stride);
+        let shift = (i as i32) << 20;
+        let pos: Vec<[i32; 2]> = (0..h.div_ceil(stride) * xs)
+            .filter(|&r| keep.is_empty() || keep[r])
+            .map(|r| {
+                [
+                    ((r / xs) * stride) as i32,
+                    ((r % xs) * stride) as i32 + shift,
+                ]
+            })
+            .collect();
+        let pts = select_rows(patches(image.to_chw().view(), p.patch, stride), &keep);
+        Sized {
+            image,
+            keep,
+            pts,
+            pos,
+        }
+    }
+
+    /// Its patches of `ch`'s image of it `[M_i, k k]`.
+    fn channel(&self, ch: &dyn Channel, k: usize, stride: usize) -> Array2<f32> {
+        let (h, w) = (self.image.height, self.image.width);
+        let l =
+            Array3::from_shape_vec((1, h, w), ch.style(&self.image)).expect("one value per pixel");
+        select_rows(patches(l.view(), k, stride), &self.keep)
+    }
+}
+
+/// Row blocks stacked (the one block itself, not copied through a concatenation, when
+/// there is one).
+fn stack(blocks: Vec<ndarray::ArrayView2<'_, f32>>) -> Array2<f32> {
+    if blocks.len() == 1 {
+        return blocks[0].to_owned();
+    }
+    ndarray::concatenate(Axis(0), &blocks).expect("patches of one width")
 }
 
 /// Which patches of `style` (on the grid of step `stride`, [`patches`]' order) are

@@ -47,6 +47,7 @@ pub mod level;
 pub mod motif;
 pub mod negative;
 pub mod parts;
+pub mod regions;
 #[cfg(test)]
 mod test_red;
 pub mod view;
@@ -57,9 +58,9 @@ use crate::scene::colour::Bands;
 use crate::selection::Selection;
 use crate::{Camera, Error, Result, Scene};
 use level::StyleLevel;
-use ndarray::Axis;
 use parts::{Channel, Hook, PartKind, Rematch};
 use rayon::prelude::*;
+use regions::RegionStyle;
 use view::{Query, ViewImage};
 
 /// The parts, in the order their channels join the search and their rematches apply.
@@ -227,9 +228,10 @@ pub struct LevelReport {
     pub loss: f64,
 }
 
-/// `scene`'s colours synthesised from `style` on the views of `cameras` (module docs);
-/// `style_size` is the style's shorter side in render pixels (the motif scale), and a
-/// `selection` scales each Gaussian's updates by its weight. The structure guide and
+/// `scene`'s colours synthesised from the `regions`' styles on the views of `cameras`
+/// (module docs; one region: the whole scene in one style, [`RegionStyle::one`];
+/// several: [`regions`]); `style_size` is the styles' shorter side in render pixels
+/// (the motif scale), and a `selection` scales each Gaussian's updates by its weight. The structure guide and
 /// the source branch come from `source` (`[H, W, 3]` per view of `cameras`: the input
 /// scene's renders, before any loop changed its colours) when given, else from
 /// `scene`'s own renders. `bands` says whether the fit moves the view-dependent bands
@@ -238,7 +240,7 @@ pub struct LevelReport {
 pub fn synthesize(
     scene: &Scene,
     cameras: &[Camera],
-    style: &Image,
+    regions: &[RegionStyle<'_>],
     background: [f32; 3],
     style_size: usize,
     p: &SynthesisParams,
@@ -247,6 +249,7 @@ pub fn synthesize(
     bands: Bands,
 ) -> Result<(Scene, Vec<LevelReport>)> {
     p.validate()?;
+    regions::check(regions)?;
     let _ph = crate::timing::span("patch synthesis");
     let fp = FitParams {
         lr_dc: p.lr,
@@ -259,7 +262,7 @@ pub fn synthesize(
         .map(|c| (c.height as usize, c.width as usize))
         .collect();
     let (mut fit, src) = crate::timing::phase("setup", || {
-        set_up(scene, (cameras, &sizes), style, &fp, p, selection, source)
+        set_up(scene, (cameras, &sizes), regions, &fp, p, selection, source)
     })?;
     let all: Vec<usize> = (0..cameras.len()).collect();
     let mut reports = Vec::new();
@@ -273,8 +276,11 @@ pub fn synthesize(
     for &s in &p.levels {
         let started = std::time::Instant::now();
         let stride = if s == 1 { p.style_stride } else { 1 };
-        let level = crate::timing::phase("style bank", || {
-            StyleLevel::new(style, style_size / s, p, stride, &src.parts)
+        let levels = crate::timing::phase("style bank", || {
+            regions
+                .iter()
+                .map(|r| StyleLevel::new(&r.styles, style_size / s, p, stride, &src.parts))
+                .collect::<Result<Vec<_>>>()
         })?;
         let mut last = RoundStats::default();
         for _ in 0..p.rounds {
@@ -282,7 +288,7 @@ pub fn synthesize(
             let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
                 all.iter().map(|&v| fit.render_view(v)).collect()
             });
-            let (targets, stats) = e_step(&renders, &sizes, &level, s, &src, p);
+            let (targets, stats) = e_step(&renders, &sizes, &levels, s, &src, p);
             let fit_phase = crate::timing::span("colour fit");
             for _ in 0..p.steps {
                 last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
@@ -292,22 +298,22 @@ pub fn synthesize(
             last.coherence = stats.coherence;
             bar.inc(1);
         }
+        let bank: usize = levels.iter().map(|l| l.bank.len()).sum();
+        let cells: usize = levels.iter().map(|l| l.share.len()).sum();
         tracing::info!(
-            "patch synthesis level {s}: {} style patches, mean distance {:.4}, {} of {} cells used, coherence {:.3}, loss {:.5} ({:.2} s)",
-            level.bank.len(),
+            "patch synthesis level {s}: {bank} style patches, mean distance {:.4}, {} of {cells} cells used, coherence {:.3}, loss {:.5} ({:.2} s)",
             last.distance,
             last.cells_used,
-            level.share.len(),
             last.coherence,
             last.loss,
             started.elapsed().as_secs_f64()
         );
         reports.push(LevelReport {
             level: s,
-            bank: level.bank.len(),
+            bank,
             distance: last.distance,
             cells_used: last.cells_used,
-            cells: level.share.len(),
+            cells,
             coherence: last.coherence,
             loss: last.loss,
         });
@@ -321,7 +327,7 @@ pub fn synthesize(
 fn set_up<'a>(
     scene: &Scene,
     (cameras, sizes): (&'a [Camera], &[(usize, usize)]),
-    style: &Image,
+    regions: &[RegionStyle<'_>],
     fp: &FitParams,
     p: &SynthesisParams,
     selection: Option<&Selection>,
@@ -351,21 +357,34 @@ fn set_up<'a>(
         }
         None => rgb,
     };
-    let src = Frozen::new(rgb, alpha, sizes, style, background, p);
+    let cover = crate::timing::phase("regions", || regions::cover(scene, cameras, regions))?;
+    let src = Frozen::new(rgb, alpha, sizes, regions, cover, background, p);
     Ok((fit, src))
 }
 
 /// The `patches` finish ([`super::ENDS`]): [`synthesize`] with the configuration's
 /// `[synthesis]` and `texture.style_size`, its structure guide and source branch from the
-/// source views.
+/// source views, in the style of the inputs or in each of their regions' styles.
 pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Result<Scene> {
     let p: SynthesisParams = inputs.section("synthesis")?;
     let texture: crate::terms::texture::TextureParams = inputs.section("texture")?;
     let s = inputs.source;
+    let regions: Vec<RegionStyle<'_>> = match inputs.regions {
+        Some(r) => r
+            .list
+            .iter()
+            .map(|reg| RegionStyle {
+                styles: reg.styles.iter().map(|(_, img, w)| (img, *w)).collect(),
+                weights: Some(&reg.weights),
+                strength: reg.strength,
+            })
+            .collect(),
+        None => vec![RegionStyle::one(inputs.style)],
+    };
     let (out, _) = synthesize(
         scene,
         inputs.cameras,
-        inputs.style,
+        &regions,
         s.background,
         texture.style_size,
         &p,
@@ -378,7 +397,8 @@ pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Resu
 
 /// The same synthesis in 2D, view by view's images with nothing shared: the prior's own
 /// stylization of each view (`images` `[H, W, 3]` composited over `background` with
-/// coverage `alpha`, `sizes` (H, W) per view), each round's target becoming the image.
+/// coverage `alpha`, `sizes` (H, W) per view) in `styles` (one image of weight 1, or a
+/// blend), each round's target becoming the image.
 /// A quick look at what a style does before a 3D run, and the 2D ceiling that the colour
 /// fit of [`synthesize`] approaches on the frozen Gaussians. The views are matched
 /// together (one balanced coupling), as in 3D.
@@ -386,7 +406,7 @@ pub fn synthesize_images(
     images: &[Vec<f32>],
     alpha: &[Vec<f32>],
     sizes: &[(usize, usize)],
-    style: &Image,
+    styles: &[(&Image, f32)],
     background: [f32; 3],
     style_size: usize,
     p: &SynthesisParams,
@@ -400,15 +420,29 @@ pub fn synthesize_images(
             sizes.len()
         )));
     }
-    let src = Frozen::new(images.to_vec(), alpha.to_vec(), sizes, style, background, p);
+    let region = [RegionStyle {
+        styles: styles.to_vec(),
+        ..RegionStyle::one(styles[0].0)
+    }];
+    regions::check(&region)?;
+    let src = Frozen::new(
+        images.to_vec(),
+        alpha.to_vec(),
+        sizes,
+        &region,
+        Vec::new(),
+        background,
+        p,
+    );
     let mut out = images.to_vec();
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
         let level = crate::timing::phase("style bank", || {
-            StyleLevel::new(style, style_size / s, p, stride, &src.parts)
+            StyleLevel::new(styles, style_size / s, p, stride, &src.parts)
         })?;
+        let levels = std::slice::from_ref(&level);
         for _ in 0..p.rounds {
-            out = e_step(&out, sizes, &level, s, &src, p).0;
+            out = e_step(&out, sizes, levels, s, &src, p).0;
         }
     }
     Ok(out)
@@ -425,15 +459,24 @@ struct RoundStats {
 
 /// What the synthesis holds fixed: the views as they were at its start (the source
 /// branch's colours, `[H, W, 3]`), their coverage `[H, W]`, the background, the parts
-/// the settings switch on ([`active_parts`]), and each channel's image of every view
-/// (`[H, W]`, [`parts::Channel::source`]; timed as the part's phase).
+/// the settings switch on ([`active_parts`]), and per region: each channel's image of
+/// every view (`[H, W]`, [`parts::Channel::source`] with the region's style; timed as the
+/// part's phase), its share of every view's pixels ([`regions::cover`]; none with one
+/// region) and its guidance scale.
 struct Frozen {
     rgb: Vec<Vec<f32>>,
     alpha: Vec<Vec<f32>>,
     background: [f32; 3],
     parts: Vec<Named<dyn Channel>>,
     rematches: Vec<Named<dyn Rematch>>,
+    regions: Vec<FrozenRegion>,
+}
+
+/// A region's frozen images: `channels[c][view]`, `cover[view]` (empty with one region).
+struct FrozenRegion {
     channels: Vec<Vec<Vec<f32>>>,
+    cover: Vec<Vec<f32>>,
+    guidance: f32,
 }
 
 impl Frozen {
@@ -441,15 +484,26 @@ impl Frozen {
         rgb: Vec<Vec<f32>>,
         alpha: Vec<Vec<f32>>,
         sizes: &[(usize, usize)],
-        style: &Image,
+        regions: &[RegionStyle<'_>],
+        cover: Vec<Vec<Vec<f32>>>,
         background: [f32; 3],
         p: &SynthesisParams,
     ) -> Frozen {
         let parts = channels(p);
-        let channels = parts
+        let mut cover = cover.into_iter();
+        let regions = regions
             .iter()
-            .map(|&(name, c)| {
-                crate::timing::phase(name, || c.source(&rgb, &alpha, sizes, background, style))
+            .map(|r| FrozenRegion {
+                channels: parts
+                    .iter()
+                    .map(|&(name, c)| {
+                        crate::timing::phase(name, || {
+                            c.source(&rgb, &alpha, sizes, background, r.lead())
+                        })
+                    })
+                    .collect(),
+                cover: cover.next().unwrap_or_default(),
+                guidance: p.guidance * r.strength,
             })
             .collect();
         Frozen {
@@ -458,7 +512,7 @@ impl Frozen {
             background,
             parts,
             rematches: rematches(p),
-            channels,
+            regions,
         }
     }
 }
@@ -471,7 +525,7 @@ impl Frozen {
 fn e_step(
     renders: &[Vec<f32>],
     sizes: &[(usize, usize)],
-    level: &StyleLevel,
+    levels: &[StyleLevel],
     s: usize,
     src: &Frozen,
     p: &SynthesisParams,
@@ -483,39 +537,48 @@ fn e_step(
         .map(|v| ViewImage::new(&renders[v], src, v, sizes[v], s, p))
         .collect();
     let queries: Vec<Query> = views.iter().map(|v| v.queries(p)).collect();
-    let stack = |f: &dyn Fn(&Query) -> Option<ndarray::ArrayView2<'_, f32>>| {
-        let rows: Option<Vec<_>> = queries.iter().map(f).collect();
-        rows.map(|r| ndarray::concatenate(Axis(0), &r).expect("patches of one width"))
-    };
-    let colour = stack(&|q| Some(q.colour.view())).expect("every view has colours");
-    let channels: Vec<_> = (0..src.channels.len())
-        .map(|c| stack(&|q| Some(q.channels[c].view())).expect("every view has them"))
-        .collect();
-    let pixels: Vec<&[[usize; 3]]> = queries.iter().map(|q| &q.pixels[..]).collect();
-    let nbrs = coherence::neighbours(&pixels, p.stride.max(1));
-    let qc = level.project(&colour, &channels);
     drop(ph);
-    let m = level.match_all(&qc, &nbrs, p, &src.rematches);
-    let ph = crate::timing::span("stats");
-    let mut used = vec![false; level.share.len()];
-    for &(j, _) in &m {
-        used[level.cell_of[j as usize] as usize] = true;
+    let total: usize = queries.iter().map(|q| q.pixels.len()).sum();
+    let mut m = vec![(0u32, 0.0f32); total];
+    let (mut used, mut coherent) = (0, 0.0f64);
+    for (r, level) in levels.iter().enumerate() {
+        let ph = crate::timing::span("queries");
+        let own = regions::Owned::new(&queries, r, levels.len() == 1);
+        let colour = own.stack(&queries, |q| q.colour.view());
+        let channels: Vec<_> = (0..src.parts.len())
+            .map(|c| own.stack(&queries, |q| q.channels[r][c].view()))
+            .collect();
+        let pixels: Vec<&[[usize; 3]]> = own.pixels.iter().map(|p| &p[..]).collect();
+        let nbrs = coherence::neighbours(&pixels, p.stride.max(1));
+        let qc = level.project(&colour, &channels);
+        drop(ph);
+        let mr = level.match_all(&qc, &nbrs, p, &src.rematches);
+        let _ph = crate::timing::span("stats");
+        let mut hit = vec![false; level.share.len()];
+        for &(j, _) in &mr {
+            hit[level.cell_of[j as usize] as usize] = true;
+        }
+        used += hit.iter().filter(|&&u| u).count();
+        let chosen: Vec<u32> = mr.iter().map(|x| x.0).collect();
+        let c = coherence::coherence(&chosen, &nbrs, &level.pos) as f64;
+        coherent += c * mr.len() as f64 / total.max(1) as f64;
+        for (&i, x) in own.index.iter().zip(mr) {
+            m[i] = x;
+        }
     }
-    let chosen: Vec<u32> = m.iter().map(|x| x.0).collect();
     let stats = RoundStats {
         distance: (m.iter().map(|x| x.1 as f64).sum::<f64>() / m.len().max(1) as f64) as f32,
-        cells_used: used.iter().filter(|&&u| u).count(),
-        coherence: coherence::coherence(&chosen, &nbrs, &level.pos),
+        cells_used: used,
+        coherence: coherent as f32,
         loss: 0.0,
     };
-    drop(ph);
     let _ph = crate::timing::span("votes");
     let mut offset = 0;
     let mut targets = Vec::with_capacity(n);
     for (v, q) in queries.iter().enumerate() {
         let mv = &m[offset..offset + q.pixels.len()];
         offset += q.pixels.len();
-        targets.push(views[v].target(level, &q.pixels, mv, p, &renders[v], &src.alpha[v]));
+        targets.push(views[v].target(levels, q, mv, p, &renders[v], &src.alpha[v]));
     }
     (targets, stats)
 }
@@ -585,7 +648,7 @@ mod tests {
             pca_dims: 4,
             ..SynthesisParams::default()
         };
-        let level = StyleLevel::new(&style, 32, &p, 1, &[]).unwrap();
+        let level = StyleLevel::new(&[(&style, 1.0)], 32, &p, 1, &[]).unwrap();
         let red = Array2::from_shape_fn((1, 27), |(_, i)| [0.85, 0.15, 0.1][i % 3]);
         let blue = Array2::from_shape_fn((1, 27), |(_, i)| [0.1, 0.15, 0.85][i % 3]);
         for (q, want) in [(red, 0.9f32), (blue, 0.1)] {
@@ -638,7 +701,7 @@ mod tests {
         synthesize(
             &scene,
             &cams,
-            &style,
+            &[RegionStyle::one(&style)],
             [0.0; 3],
             32,
             &p,
@@ -685,7 +748,16 @@ mod tests {
             ..SynthesisParams::default()
         };
         let run = |images: &[Vec<f32>]| {
-            synthesize_images(images, &alpha, &[(h, w)], &style, [0.0; 3], 32, &p).unwrap()
+            synthesize_images(
+                images,
+                &alpha,
+                &[(h, w)],
+                &[(&style, 1.0)],
+                [0.0; 3],
+                32,
+                &p,
+            )
+            .unwrap()
         };
         assert!(channels(&p).is_empty());
         let images = std::slice::from_ref(&src);

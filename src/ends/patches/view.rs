@@ -11,12 +11,14 @@ use crate::prior::patch::latent::{pool, upsample};
 use crate::render::fill::fill_background;
 use ndarray::{Array2, Array3, Array4, Axis};
 
-/// One view's queries at one level: the object's pixels on the grid, their colour
-/// patches `[P, k k 3]` and their patches of each channel `[P, k k]`.
+/// One view's queries at one level: the object's pixels on the grid, the region owning
+/// each ([`super::regions`]), their colour patches `[P, k k 3]` and their patches of each
+/// region's channels `[P, k k]` (`channels[region][channel]`).
 pub(super) struct Query {
     pub(super) pixels: Vec<[usize; 3]>,
+    pub(super) region: Vec<u8>,
     pub(super) colour: Array2<f32>,
-    pub(super) channels: Vec<Array2<f32>>,
+    pub(super) channels: Vec<Vec<Array2<f32>>>,
 }
 
 /// The votes' Gaussian fall-off from a patch's centre, sigma as a fraction of the patch
@@ -24,18 +26,22 @@ pub(super) struct Query {
 /// nearness to the centre keeps the strokes sharper).
 const VOTE_SIGMA: f32 = 0.25;
 
-/// One view at one level: its colour over a fill of itself, pooled, its coverage, and
-/// (when the guidance scale is not 1) its source colour and its channels' images,
-/// pooled.
+/// One view at one level: its colour over a fill of itself, pooled, its coverage, (when
+/// a guidance scale is not 1) its source colour, each region's channels' images, and
+/// which region owns each pixel (several regions), pooled.
 pub(super) struct ViewImage {
     /// `[1, 3, h, w]`.
     colour: Array4<f32>,
     /// `[h, w]`.
     alpha: Array2<f32>,
-    /// The source branch's colour `[1, 3, h, w]`, when `guidance` != 1.
+    /// The source branch's colour `[1, 3, h, w]`, when a region's guidance != 1.
     source: Option<Array4<f32>>,
-    /// Each channel's image `[1, 1, h, w]` ([`super::parts::Channel`]).
-    channels: Vec<Array4<f32>>,
+    /// Each region's channels' images `[1, 1, h, w]` ([`super::parts::Channel`]).
+    channels: Vec<Vec<Array4<f32>>>,
+    /// The region owning each pixel `[h, w]` (none: one region owns all).
+    owner: Option<Array2<u8>>,
+    /// Each region's guidance scale.
+    guidance: Vec<f32>,
     s: usize,
     /// The full-resolution size (H, W).
     full: (usize, usize),
@@ -56,7 +62,7 @@ impl ViewImage {
         v: usize,
         size: (usize, usize),
         s: usize,
-        p: &SynthesisParams,
+        _p: &SynthesisParams,
     ) -> Self {
         let (alpha, bg) = (&src.alpha[v][..], src.background);
         let filled = |x: &[f32]| fill_background(x, alpha, bg, size.0, size.1);
@@ -64,17 +70,39 @@ impl ViewImage {
         let a = pooled(alpha, 1, size, s)
             .index_axis_move(Axis(0), 0)
             .index_axis_move(Axis(0), 0);
-        let source = (p.guidance != 1.0).then(|| pooled(&filled(&src.rgb[v]), 3, size, s));
-        let channels = src
-            .channels
+        let guidance: Vec<f32> = src.regions.iter().map(|r| r.guidance).collect();
+        let source = guidance
             .iter()
-            .map(|g| pooled(&g[v], 1, size, s))
+            .any(|&g| g != 1.0)
+            .then(|| pooled(&filled(&src.rgb[v]), 3, size, s));
+        let channels = src
+            .regions
+            .iter()
+            .map(|r| {
+                r.channels
+                    .iter()
+                    .map(|g| pooled(&g[v], 1, size, s))
+                    .collect()
+            })
             .collect();
+        let owner = (src.regions.len() > 1).then(|| {
+            let shares: Vec<Array4<f32>> = src
+                .regions
+                .iter()
+                .map(|r| pooled(&r.cover[v], 1, size, s))
+                .collect();
+            let (_, _, hl, wl) = shares[0].dim();
+            Array2::from_shape_fn((hl, wl), |(y, x)| {
+                super::regions::owner(shares.iter().map(|c| c[[0, 0, y, x]]))
+            })
+        });
         ViewImage {
             colour,
             alpha: a,
             source,
             channels,
+            owner,
+            guidance,
             s,
             full: size,
         }
@@ -93,32 +121,43 @@ impl ViewImage {
         let channels = self
             .channels
             .iter()
-            .map(|g| patches_at(g.view(), p.patch, &pixels))
+            .map(|r| {
+                r.iter()
+                    .map(|g| patches_at(g.view(), p.patch, &pixels))
+                    .collect()
+            })
             .collect();
+        let region = pixels.iter().map(|&[_, y, x]| self.owns(y, x)).collect();
         Query {
             pixels,
+            region,
             colour,
             channels,
         }
     }
 
+    /// The region owning pooled pixel (y, x).
+    fn owns(&self, y: usize, x: usize) -> u8 {
+        self.owner.as_ref().map_or(0, |o| o[[y, x]])
+    }
+
     /// The view's full-resolution target (`[H, W, 3]`: the render plus its coverage times
     /// the upsampled change of the vote over the pooled colour) from the matches `m` of
-    /// its `pixels`.
+    /// its queries `q` (each in its region's level of `levels`).
     pub(super) fn target(
         &self,
-        level: &StyleLevel,
-        pixels: &[[usize; 3]],
+        levels: &[StyleLevel],
+        q: &Query,
         m: &[(u32, f32)],
         p: &SynthesisParams,
         rgb: &[f32],
         alpha: &[f32],
     ) -> Vec<f32> {
-        if pixels.is_empty() {
+        if q.pixels.is_empty() {
             return rgb.to_vec();
         }
         let (_, _, hl, wl) = self.colour.dim();
-        let delta = self.vote(level, pixels, m, p);
+        let delta = self.vote(levels, q, m, p);
         let (h, w) = (hl * self.s, wl * self.s);
         let full_w = self.full.1;
         let up = upsample(delta.view().insert_axis(Axis(0)), self.s);
@@ -139,8 +178,8 @@ impl ViewImage {
     /// pooled colour (`[3, h, w]`; 0 where no patch voted or off the object).
     fn vote(
         &self,
-        level: &StyleLevel,
-        pixels: &[[usize; 3]],
+        levels: &[StyleLevel],
+        q: &Query,
         m: &[(u32, f32)],
         p: &SynthesisParams,
     ) -> Array3<f32> {
@@ -150,9 +189,16 @@ impl ViewImage {
         let mut wt = Array2::<f32>::zeros((hl, wl));
         let r = (k / 2) as isize;
         let sigma = VOTE_SIGMA * k as f32;
-        let mean_d = m.iter().map(|x| x.1).sum::<f32>() / m.len().max(1) as f32;
-        for (&[_, y, x], &(j, d)) in pixels.iter().zip(m) {
-            let patch = level.bank.patches.row(j as usize);
+        // Each region's mean match distance (its own style's scale).
+        let mean_d: Vec<f32> = (0..levels.len())
+            .map(|r| {
+                let mine = || m.iter().zip(&q.region).filter(|x| usize::from(*x.1) == r);
+                mine().map(|x| x.0.1).sum::<f32>() / mine().count().max(1) as f32
+            })
+            .collect();
+        for ((&[_, y, x], &(j, d)), &reg) in q.pixels.iter().zip(m).zip(&q.region) {
+            let patch = levels[usize::from(reg)].bank.patches.row(j as usize);
+            let mean_d = mean_d[usize::from(reg)];
             // Kwatra et al.'s robust weight |d|^(r - 2) with r = 0.8 (d: the match's
             // distance), relative to the mean distance so that it stays bounded.
             let robust = ((d + 0.01 * mean_d + 1e-12) / (mean_d + 1e-12)).powf(-0.6);
@@ -174,10 +220,10 @@ impl ViewImage {
             }
         }
         let colour = self.colour.index_axis(Axis(0), 0);
-        // The guidance scale: from the source's colour toward the style's vote (at 1 the
-        // vote itself, bit for bit).
-        let g = p.guidance;
+        // The guidance scale (the owning region's): from the source's colour toward the
+        // style's vote (at 1 the vote itself, bit for bit).
         Array3::from_shape_fn((3, hl, wl), |(c, y, x)| {
+            let g = self.guidance[usize::from(self.owns(y, x))];
             if wt[[y, x]] > 0.0 && self.alpha[[y, x]] > 0.0 {
                 let vote = (acc[[c, y, x]] / wt[[y, x]]).clamp(0.0, 1.0);
                 let to = match &self.source {
