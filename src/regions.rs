@@ -223,7 +223,13 @@ pub fn load(
     let n = scene.len();
     let mut list = Vec::with_capacity(specs.len());
     for (spec, name) in specs.iter().zip(names) {
-        let err = |e: Error| Error::param(format!("region `{name}`: {e}"));
+        let err = |e: Error| match e {
+            Error::Param(m) => Error::param(format!("region `{name}`: {m}")),
+            Error::Input { path, reason } => {
+                Error::input(path, format!("region `{name}`: {reason}"))
+            }
+            other => Error::param(format!("region `{name}`: {other}")),
+        };
         if !(spec.strength.is_finite() && (0.0..=1.0).contains(&spec.strength)) {
             return Err(err(Error::param(format!(
                 "strength {} is outside [0, 1]",

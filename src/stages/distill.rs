@@ -180,7 +180,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     let regions = load_regions(&a, &config, &start.scene)?;
     let selection = match &a.selection {
-        _ if regions.is_some() => regions.as_ref().map(|r| r.combined.clone()),
+        // Regions covering every Gaussian whole select nothing apart (a run without a
+        // selection: `sh = drop` leaves degree 0).
+        _ if regions.is_some() => regions
+            .as_ref()
+            .filter(|r| r.combined.weights.iter().any(|&w| w < 1.0))
+            .map(|r| r.combined.clone()),
         Some(dir) => {
             let sel = crate::timing::load(|| read_selection(dir))?;
             sel.check_for(start.scene.len(), dir)?;

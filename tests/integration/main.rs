@@ -17,6 +17,7 @@ mod interior;
 mod mvfc;
 mod own_scene;
 mod patch_prior;
+mod regions;
 mod render;
 mod runtime;
 mod scene;
