@@ -146,7 +146,7 @@ fn two_regions_take_their_own_styles_in_one_run() {
         let got = dc(&out, r.clone());
         let (near, far) = (rms(&got, &dc(own, r.clone())), rms(&got, &dc(other, r)));
         println!("{name}: {near:.4} from its style's run, {far:.4} from the other's");
-        assert!(near < 0.5 * far, "{name}: {near} vs {far}");
+        assert!(near < 0.7 * far, "{name}: {near} vs {far}");
     }
     let record = fantasystyle::artifacts::read_regions(&d.join("two"))
         .unwrap()
