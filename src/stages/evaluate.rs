@@ -134,32 +134,22 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     if let Some(part) = a.reference_only {
         return super::evaluate_reference::run(&a, part, &p).map(|()| None);
     }
-    let (Some(original), Some(stylized), Some(style_path)) = (&a.original, &a.stylized, &a.style)
-    else {
-        return Err(Error::param(
-            "an evaluation needs --original, --stylized and --style",
-        ));
-    };
-    if a.cameras.is_some() {
-        return Err(Error::param(
-            "--cameras, --width and --height are only for `--reference-only style`",
-        ));
-    }
+    let (original, stylized, style_path) = evaluation_inputs(&a)?;
     let orig = crate::timing::load(|| read_view_set(original))?;
     let styl = crate::timing::load(|| read_view_set(stylized))?;
     orig.check_same_views(&styl)?;
     let style = Image::load(style_path)?;
-    let reference = if a.reference.is_empty() {
-        None
-    } else {
-        let dirs = ReferenceFor {
-            dirs: &a.reference,
-            original,
-            style: style_path,
-            lpips_net: p.lpips_net.name(),
-        };
-        Some(crate::timing::load(|| reference_for(dirs, &orig, &p))?)
-    };
+    let reference = (!a.reference.is_empty())
+        .then(|| {
+            let dirs = ReferenceFor {
+                dirs: &a.reference,
+                original,
+                style: style_path,
+                lpips_net: p.lpips_net.name(),
+            };
+            crate::timing::load(|| reference_for(dirs, &orig, &p))
+        })
+        .transpose()?;
     let sweep = a.sweep.as_deref().map(Sweep::load).transpose()?;
     let viewer = match (&a.original_scene, &a.stylized_scene) {
         (Some(o), Some(s)) => Some(crate::timing::load(|| viewer_inputs(o, s, &orig))?),
@@ -215,6 +205,22 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     crate::timing::io(|| wr.commit())?;
     log_metrics(&ev.metrics, &a.out);
     Ok(Some(ev.metrics))
+}
+
+/// An evaluation's `--original`, `--stylized` and `--style` (clap requires them without
+/// `--reference-only`; `--cameras` is only for the style part).
+fn evaluation_inputs(a: &Args) -> Result<(&Path, &Path, &Path)> {
+    if a.cameras.is_some() {
+        return Err(Error::param(
+            "--cameras, --width and --height are only for `--reference-only style`",
+        ));
+    }
+    match (&a.original, &a.stylized, &a.style) {
+        (Some(o), Some(s), Some(st)) => Ok((o, s, st)),
+        _ => Err(Error::param(
+            "an evaluation needs --original, --stylized and --style",
+        )),
+    }
 }
 
 /// The evaluation's parameters from the command line.
