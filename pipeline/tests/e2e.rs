@@ -469,7 +469,8 @@ fn sample_dag_is_valid() {
     assert_eq!(
         end_only,
         [
-            "eval-reference",
+            "eval-source",
+            "eval-style",
             "evaluate",
             "final-scene",
             "final-views",
@@ -484,7 +485,8 @@ fn sample_dag_is_valid() {
         [
             "distill@c1",
             "distill@c2",
-            "eval-reference",
+            "eval-source",
+            "eval-style",
             "evaluate",
             "final-scene-after-loop",
             "final-views",

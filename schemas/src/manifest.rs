@@ -41,6 +41,14 @@ pub enum ArtifactKind {
     /// (Inception features, the style's Gram matrices, the original's scores):
     /// `reference.json` and `.npy` features; `meta` holds the settings it was made with.
     EvalReference,
+    /// The part of an evaluation reference that depends only on the original views
+    /// (their Inception features and Gram matrices, their own consistency):
+    /// `source.json` and `.npy` tensors.
+    EvalSource,
+    /// The part of an evaluation reference that depends only on the style image (and the
+    /// views' count and size): the style's Inception features and Gram matrices;
+    /// `style.json` and `.npy` tensors.
+    EvalStyle,
     /// A weight in [0, 1] per Gaussian of one scene (which Gaussians a stylization may
     /// change, and how much): `weights.npy` `[N]` f32; `meta` holds the count selected,
     /// their bounds and what the selection was made from.
@@ -48,7 +56,7 @@ pub enum ArtifactKind {
 }
 
 impl ArtifactKind {
-    pub const ALL: [ArtifactKind; 8] = [
+    pub const ALL: [ArtifactKind; 10] = [
         ArtifactKind::Views,
         ArtifactKind::Latents,
         ArtifactKind::NoisedLatents,
@@ -56,6 +64,8 @@ impl ArtifactKind {
         ArtifactKind::Scene,
         ArtifactKind::Evaluation,
         ArtifactKind::EvalReference,
+        ArtifactKind::EvalSource,
+        ArtifactKind::EvalStyle,
         ArtifactKind::Selection,
     ];
 
@@ -68,6 +78,8 @@ impl ArtifactKind {
             ArtifactKind::Scene => "scene",
             ArtifactKind::Evaluation => "evaluation",
             ArtifactKind::EvalReference => "eval-reference",
+            ArtifactKind::EvalSource => "eval-source",
+            ArtifactKind::EvalStyle => "eval-style",
             ArtifactKind::Selection => "selection",
         }
     }
@@ -92,6 +104,8 @@ impl ArtifactKind {
             ArtifactKind::Scene => &["scene.ply"],
             ArtifactKind::Evaluation => &["metrics.json"],
             ArtifactKind::EvalReference => &["reference.json"],
+            ArtifactKind::EvalSource => &["source.json"],
+            ArtifactKind::EvalStyle => &["style.json"],
             ArtifactKind::Selection => &["weights.npy"],
         }
     }

@@ -14,7 +14,9 @@
 //! | `scene` | distill, update-gaussians, stylize-baseline, `pipeline wrap` | [`read_scene`] (a checkpoint's state: [`crate::distill::checkpoint`]) |
 //! | `scene` with regions | distill --region | [`regions::read_regions`]: each region's weights `[R, N]`, name, selection, styles, strength (`meta.regions`); written by [`regions::write_regions`] |
 //! | `selection` | select | [`selection::read_selection`]: a weight per Gaussian `[N]` in [0, 1]; written by [`selection::write_selection`] |
-//! | `eval-reference` | evaluate --reference-only | [`eval::read_eval_reference_for`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`eval::write_eval_reference`] |
+//! | `eval-reference` | evaluate --reference-only | [`eval::read_references`]: pool3 features `[M,2048]`, style Grams `[C,C]` f64, `reference.json`; written by [`eval::write_eval_reference`] |
+//! | `eval-source` | evaluate --reference-only source | [`eval::read_references`] (with an `eval-style`): pool3 features, the views' Grams as upper triangles `[N,C(C+1)/2]` f64, `source.json`; written by [`eval::write_eval_source`] |
+//! | `eval-style` | evaluate --reference-only style | [`eval::read_references`] (with an `eval-source`): pool3 features, style Grams `[C,C]` f64, `style.json`; written by [`eval::write_eval_style`] |
 //!
 //! Artifacts of one iteration of the stage chain (`render-views --window` ->
 //! `encode-latents` -> `mvfc-filter` -> `csd-step`) record the iteration and its window
@@ -33,7 +35,9 @@ pub use chain::{
     Latents, NoisedLatents, Targets, agreed_iteration, iteration_of, open_latents, read_latents,
     read_noised_latents, read_targets, window_rows,
 };
-pub use eval::{read_eval_reference_for, write_eval_reference};
+pub use eval::{
+    ReferenceFor, read_references, write_eval_reference, write_eval_source, write_eval_style,
+};
 pub use regions::{read_regions, write_regions};
 pub use selection::{SELECTION_WEIGHTS, read_selection, write_selection};
 

@@ -232,6 +232,15 @@ pub fn load_cameras(spec: &str, bounds: &Bounds, width: u32, height: u32) -> Res
     fit_cameras(cams, &src, width, height)
 }
 
+/// How many cameras `spec` (as for [`load_cameras`]) names, without a scene: the `N` of
+/// `orbit:N`, or the cameras a file, directory or artifact holds.
+pub fn count_cameras(spec: &str) -> Result<usize> {
+    match spec.strip_prefix("orbit:") {
+        Some(rest) => Ok(orbit::OrbitSpec::parse(rest)?.n),
+        None => Ok(load_camera_file(Path::new(spec))?.0.len()),
+    }
+}
+
 /// The `cameras.json` of an artifact that has one (views, targets, latents), its
 /// manifest and hashes checked, at the artifact's image size; also returns the file.
 fn read_artifact_cameras(dir: &Path) -> Result<(Vec<Camera>, std::path::PathBuf)> {

@@ -17,13 +17,23 @@
 //! long-range consistency (the floor the report shows). [`Settings`] records what it was
 //! made with; a reference made with other settings is refused.
 //!
+//! It comes whole (`evaluate --reference-only`, the `eval-reference` artifact) or in two
+//! parts ([`parts`]: `--reference-only source`, what depends only on the original views,
+//! and `--reference-only style`, what depends only on the style image), which
+//! [`Reference::merge`] joins; the whole one is computed as its two parts merged, so the
+//! two ways give the same values bit for bit.
+//!
 //! Timing ([`crate::timing`]): [`Reference::compute`] is the phase `reference`, in parts
 //! `consistency` (its `warp` and `lpips`), `vgg`, `gram matrices`, `object gram` and
 //! `inception` (per image set: `views`, `style crops`, `object squares`, `style
 //! squares`, each with the making of its images).
 
+mod parts;
+pub use parts::{
+    SourceReference, StyleReference, StyleSettings, from_upper_triangle, upper_triangle,
+};
+
 use super::consistency::{self, PairScore};
-use super::fid;
 use super::gram;
 use super::nets::{LpipsNet, Nets};
 use super::texture;
@@ -162,71 +172,89 @@ pub struct Reference {
 }
 
 impl Reference {
-    /// Compute the reference of evaluating against `orig` and `style` with `p`.
+    /// Compute the reference of evaluating against `orig` and `style` with `p`: its
+    /// source and style parts, merged ([`Self::merge`]).
     pub fn compute(
         nets: &mut Nets,
         orig: &ViewSet,
         style: &Image,
         p: &EvalParams,
     ) -> Result<Reference> {
-        p.validate()?;
-        let (n, w, h) = (orig.n, orig.width, orig.height);
-        let ph = crate::timing::span("reference");
-        let pairs = |offset| consistency::pairs(n, offset);
-        let cons = crate::timing::span("consistency");
-        let (short_original, _) =
-            consistency::score_pairs(&mut nets.lpips, orig, &orig.images, &pairs(p.short_range))?;
-        let (long_original, _) =
-            consistency::score_pairs(&mut nets.lpips, orig, &orig.images, &pairs(p.long_range))?;
-        drop(cons);
+        let source = SourceReference::compute(nets, orig, p)?;
+        let settings = StyleSettings::of(&source.settings);
+        let squares = !source.object_squares_pool3.is_empty();
+        let style = StyleReference::compute_with(nets, style, settings, squares)?;
+        Self::merge(source, style, std::path::Path::new("the style part"))
+    }
 
-        let vgg = nets.vgg();
-        let f = crate::timing::phase("vgg", || vgg.features(&[&style.fit_within(GRAM_MAX_SIDE)]))?;
-        let style_grams = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
-        let object_gram = texture::ObjectGram::new(&style_grams);
-        let (mut gram_original_per_view, mut object_gram_original) = (Vec::new(), Vec::new());
-        for i in 0..n {
-            let f = crate::timing::phase("vgg", || vgg.features(&[&orig.images[i]]))?;
-            object_gram_original.push(crate::timing::phase("object gram", || {
-                object_gram.view_distances(&f[0], orig.geometry(i).1, w, h)
-            }));
-            let g = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
-            gram_original_per_view.push(gram::gram_distance(&g, &style_grams));
+    /// Join a source part and a style part made for the same views' count and size and
+    /// the same seed and object squares (else an error naming `style_origin`, where the
+    /// style part came from, and what differs): the original views' Gram distances to the
+    /// style are made here, from the source's Gram matrices.
+    pub fn merge(
+        source: SourceReference,
+        style: StyleReference,
+        style_origin: &std::path::Path,
+    ) -> Result<Reference> {
+        let diff = style
+            .settings
+            .differences(&StyleSettings::of(&source.settings));
+        if !diff.is_empty() {
+            return Err(Error::input(
+                style_origin,
+                format!(
+                    "this style part was made for other views or options ({}; style part vs \
+                     source part): make it again with `evaluate --reference-only style` for \
+                     these views",
+                    diff.join(", ")
+                ),
+            ));
         }
-
-        let inc = &mut nets.inception;
-        let mut pool3 = |v: &[Image]| inc.pool3(&v.iter().collect::<Vec<_>>());
-        let inception = crate::timing::span("inception");
-        let views_pool3 = crate::timing::phase("views", || pool3(&orig.images))?;
-        let crops_pool3 = crate::timing::phase("style crops", || {
-            pool3(&style_crops(style, n.max(fid::MIN_IMAGES), w, h, p.seed))
-        })?;
-        let sq = crate::timing::span("object squares");
-        let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
-        let object_squares_pool3 = pool3(&texture::object_patches(orig, &at))?;
-        drop(sq);
-        let style_squares_pool3 = if at.is_empty() {
+        let taps_ok = style.style_grams.len() >= texture::GRAM_LAYERS.len()
+            && source
+                .view_grams
+                .iter()
+                .all(|g| g.len() == style.style_grams.len())
+            && source
+                .object_grams
+                .iter()
+                .all(|g| g.len() == texture::GRAM_LAYERS.len());
+        if !taps_ok {
+            return Err(Error::input(
+                style_origin,
+                "the style part's Gram matrices do not match the source part's taps",
+            ));
+        }
+        let object_gram = texture::ObjectGram::new(&style.style_grams);
+        let gram_original_per_view = source
+            .view_grams
+            .iter()
+            .map(|g| gram::gram_distance(g, &style.style_grams))
+            .collect();
+        let object_gram_original = source
+            .object_grams
+            .iter()
+            .map(|g| object_gram.distances(g))
+            .collect();
+        // The style's squares only serve beside object squares (none fit: none used).
+        let style_squares_pool3 = if source.object_squares_pool3.is_empty() {
             Vec::new()
         } else {
-            crate::timing::phase("style squares", || {
-                pool3(&texture::style_patches(style, p.seed))
-            })?
+            style.style_squares_pool3
         };
-        drop(inception);
-        drop(ph);
         Ok(Reference {
             scores: Scores {
-                settings: Settings::of(orig, p),
+                settings: source.settings,
                 gram_original_per_view,
                 object_gram_original,
-                short_original,
-                long_original,
+                short_original: source.short_original,
+                long_original: source.long_original,
             },
-            views_pool3,
-            crops_pool3,
-            object_squares_pool3,
+            views_pool3: source.views_pool3,
+            crops_pool3: style.crops_pool3,
+            object_squares_pool3: source.object_squares_pool3,
             style_squares_pool3,
-            style_grams,
+            style_grams: style.style_grams,
         })
     }
 

@@ -63,7 +63,7 @@ pub use colour::{ObjectColour, object_colour, stats_distance};
 pub use html::html;
 pub use kid::{KID_MIN_IMAGES, KidInterval, kid_interval, kid_jackknife};
 pub use motif::{SpectrumMetrics, spectrum_metrics};
-pub use object_gram::{GRAM_LAYERS, LayerGram, ObjectGram, pool_alpha, weighted_gram};
+pub use object_gram::{GRAM_LAYERS, LayerGram, ObjectGram, pool_alpha, view_grams, weighted_gram};
 pub use patches::{
     PATCH_COVERAGE, PATCH_SIDE, PATCH_STYLE_SIDE, PATCHES_PER_VIEW, STYLE_PATCHES,
     object_patch_positions, object_patches, style_patches,

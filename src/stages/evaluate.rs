@@ -1,7 +1,10 @@
 //! `evaluate`: compare a stylized views artifact with the original one and the style image,
 //! and write an `evaluation` artifact (`metrics.json`, `report.html`). With
 //! `--reference-only` it writes instead the `eval-reference` artifact of the original
-//! views and the style ([`crate::metrics::reference`]), which `--reference` then reuses.
+//! views and the style ([`crate::metrics::reference`]), which `--reference` then reuses;
+//! `--reference-only source` and `--reference-only style` write its two parts
+//! (`eval-source`: the original views' alone; `eval-style`: the style image's alone), which
+//! `--reference SOURCE --reference STYLE` reads together ([`crate::artifacts::eval`]).
 //!
 //! The metrics are [`crate::metrics::evaluate`] (FantasyStyle's experiments: LPIPS_content,
 //! FID/KID, ArtFID, short/long-range consistency, Gram distance), the page
@@ -9,11 +12,11 @@
 //! models directory ([`crate::models`]).
 
 use super::Threads;
-use crate::artifacts::read_view_set;
+use crate::artifacts::{ReferenceFor, read_view_set};
 use crate::imageio::Image;
 use crate::metrics::evaluate::{Metrics, evaluate};
 use crate::metrics::html::fmt_opt;
-use crate::metrics::nets::{LpipsNet, Nets};
+use crate::metrics::nets::LpipsNet;
 use crate::metrics::reference::EvalParams;
 use crate::metrics::reference::Reference;
 use crate::metrics::report::{ReportExtras, ReportPaths, evaluation_report};
@@ -30,27 +33,42 @@ use std::path::{Path, PathBuf};
 #[command(name = "evaluate", version)]
 pub struct Args {
     /// Views artifact of the original (unstylized) scene.
-    #[arg(long)]
-    pub original: PathBuf,
+    #[arg(long, required_unless_present = "cameras")]
+    pub original: Option<PathBuf>,
     /// Views artifact of the stylized scene, rendered from the same cameras.
     #[arg(long, required_unless_present = "reference_only")]
     pub stylized: Option<PathBuf>,
-    /// The style image (PNG or JPEG).
+    /// The style image (PNG or JPEG); not taken by `--reference-only source`.
     #[arg(long)]
-    pub style: PathBuf,
+    pub style: Option<PathBuf>,
     /// Output evaluation artifact directory (written atomically).
     #[arg(long)]
     pub out: PathBuf,
-    /// Write only the part of the evaluation that depends on --original and --style (an
-    /// `eval-reference` artifact: their Inception features, the style's Gram matrices,
-    /// the original's own scores) to --out, for --reference to reuse.
-    #[arg(long, conflicts_with_all = ["stylized", "reference", "sweep", "original_scene", "history", "preview"])]
-    pub reference_only: bool,
-    /// An `eval-reference` artifact (`--reference-only`) made from the same --original,
-    /// --style and options: its part is read instead of computed (about 120 of the 152
-    /// Inception passes of an 8-view evaluation). The metrics are the same bit for bit.
+    /// Write only the part of the evaluation that depends on --original and --style to
+    /// --out, for --reference to reuse: `all` (the default; an `eval-reference` artifact:
+    /// their Inception features, the Gram matrices, the original's own scores), `source`
+    /// (an `eval-source` artifact: what depends on --original alone) or `style` (an
+    /// `eval-style` artifact: what depends on --style alone, given the views' count and
+    /// size by --original or by --cameras, --width and --height).
+    #[arg(long, value_enum, value_name = "PART", num_args = 0..=1, default_missing_value = "all",
+          conflicts_with_all = ["stylized", "reference", "sweep", "original_scene", "history", "preview"])]
+    pub reference_only: Option<ReferencePart>,
+    /// An `eval-reference` artifact (`--reference-only`), or, given twice, an `eval-source`
+    /// and an `eval-style` artifact (`--reference-only source`, `--reference-only
+    /// style`), made from the same --original, --style and options: their part is read
+    /// instead of computed (about 120 of the 152 Inception passes of an 8-view
+    /// evaluation). The metrics are the same bit for bit.
     #[arg(long)]
-    pub reference: Option<PathBuf>,
+    pub reference: Vec<PathBuf>,
+    /// `--reference-only style` without --original: the cameras the views are rendered
+    /// from (as render-views' --cameras; only their count is read).
+    #[arg(long, requires_all = ["reference_only", "width", "height"], conflicts_with = "original")]
+    pub cameras: Option<String>,
+    /// With --cameras: the views' width and height, pixels.
+    #[arg(long, requires = "cameras")]
+    pub width: Option<usize>,
+    #[arg(long, requires = "cameras")]
+    pub height: Option<usize>,
     /// LPIPS backbone for LPIPS_content and the consistency metrics.
     #[arg(long, value_enum, default_value = "alex")]
     pub lpips_net: LpipsNet,
@@ -97,22 +115,41 @@ pub struct Args {
     pub refit_baseline: Option<PathBuf>,
 }
 
+/// Which part of the evaluation `--reference-only` writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ReferencePart {
+    /// The whole reference (`eval-reference`).
+    All,
+    /// What depends on the original views alone (`eval-source`).
+    Source,
+    /// What depends on the style image alone (`eval-style`).
+    Style,
+}
+
 /// The stage: read the views and the style, evaluate (or compute the reference only,
 /// then `None`), write the artifact.
 pub fn run(a: Args) -> Result<Option<Metrics>> {
     let p = eval_params(&a);
     p.validate()?;
-    let orig = crate::timing::load(|| read_view_set(&a.original))?;
-    let Some(stylized) = &a.stylized else {
-        return run_reference(&a, &orig, &p).map(|()| None);
-    };
+    if let Some(part) = a.reference_only {
+        return super::evaluate_reference::run(&a, part, &p).map(|()| None);
+    }
+    let (original, stylized, style_path) = evaluation_inputs(&a)?;
+    let orig = crate::timing::load(|| read_view_set(original))?;
     let styl = crate::timing::load(|| read_view_set(stylized))?;
     orig.check_same_views(&styl)?;
-    let style = Image::load(&a.style)?;
-    let reference = match &a.reference {
-        Some(dir) => Some(crate::timing::load(|| reference_for(dir, &a, &orig, &p))?),
-        None => None,
-    };
+    let style = Image::load(style_path)?;
+    let reference = (!a.reference.is_empty())
+        .then(|| {
+            let dirs = ReferenceFor {
+                dirs: &a.reference,
+                original,
+                style: style_path,
+                lpips_net: p.lpips_net.name(),
+            };
+            crate::timing::load(|| reference_for(dirs, &orig, &p))
+        })
+        .transpose()?;
     let sweep = a.sweep.as_deref().map(Sweep::load).transpose()?;
     let viewer = match (&a.original_scene, &a.stylized_scene) {
         (Some(o), Some(s)) => Some(crate::timing::load(|| viewer_inputs(o, s, &orig))?),
@@ -144,9 +181,9 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         reference.as_ref().map(|(_, r)| r),
     )?;
     let paths = ReportPaths {
-        original: &a.original,
+        original,
         stylized,
-        style: &a.style,
+        style: style_path,
     };
     let ph = crate::timing::span("report");
     let sweep_html = sweep.as_ref().map(Sweep::html);
@@ -162,12 +199,28 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     let html = evaluation_report(paths, &ev, &orig, &styl, &style, &extras);
     drop(ph);
 
-    add_inputs(&mut wr, &a, reference.as_ref().map(|(d, _)| d.as_path()))?;
+    add_inputs(&mut wr, &a)?;
     wr.write_json("metrics.json", &ev.metrics)?;
     wr.write_bytes("report.html", html.as_bytes())?;
     crate::timing::io(|| wr.commit())?;
     log_metrics(&ev.metrics, &a.out);
     Ok(Some(ev.metrics))
+}
+
+/// An evaluation's `--original`, `--stylized` and `--style` (clap requires them without
+/// `--reference-only`; `--cameras` is only for the style part).
+fn evaluation_inputs(a: &Args) -> Result<(&Path, &Path, &Path)> {
+    if a.cameras.is_some() {
+        return Err(Error::param(
+            "--cameras, --width and --height are only for `--reference-only style`",
+        ));
+    }
+    match (&a.original, &a.stylized, &a.style) {
+        (Some(o), Some(s), Some(st)) => Ok((o, s, st)),
+        _ => Err(Error::param(
+            "an evaluation needs --original, --stylized and --style",
+        )),
+    }
 }
 
 /// The evaluation's parameters from the command line.
@@ -216,18 +269,18 @@ fn refit_ceiling(a: &Args) -> Result<Option<(f64, Option<f64>)>> {
     }
 }
 
-/// Record the evaluation's inputs (`reference`: the reference artifact read).
-fn add_inputs(
-    wr: &mut fantasystyle_schemas::ArtifactWriter,
-    a: &Args,
-    reference: Option<&std::path::Path>,
-) -> Result<()> {
-    wr.add_input("original", &a.original)?;
-    if let Some(s) = &a.stylized {
-        wr.add_input("stylized", s)?;
+/// Record the evaluation's inputs (the reference artifacts read among them).
+fn add_inputs(wr: &mut fantasystyle_schemas::ArtifactWriter, a: &Args) -> Result<()> {
+    for (role, path) in [
+        ("original", &a.original),
+        ("stylized", &a.stylized),
+        ("style", &a.style),
+    ] {
+        if let Some(path) = path {
+            wr.add_input(role, path)?;
+        }
     }
-    wr.add_input("style", &a.style)?;
-    if let Some(dir) = reference {
+    for dir in &a.reference {
         wr.add_input("reference", dir)?;
     }
     if let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) {
@@ -272,7 +325,7 @@ fn read_preview(dir: &Path, orig: &ViewSet) -> Result<Preview> {
 }
 
 /// The models directory, with the metric networks in it.
-fn metric_models() -> Result<PathBuf> {
+pub(super) fn metric_models() -> Result<PathBuf> {
     let models = crate::models::models_dir()?;
     if !models.join("metrics").is_dir() {
         return Err(Error::Missing(format!(
@@ -286,51 +339,23 @@ fn metric_models() -> Result<PathBuf> {
 }
 
 /// The options an evaluation (and its reference) records.
-fn params_json(p: &EvalParams) -> serde_json::Value {
+pub(super) fn params_json(p: &EvalParams) -> serde_json::Value {
     serde_json::json!({
         "lpips_net": p.lpips_net.name(), "short_range": p.short_range, "long_range": p.long_range, "seed": p.seed,
         "object_squares": p.object_squares,
     })
 }
 
-/// `--reference-only`: the reference of `orig` and `--style`, written to `--out`. Its
-/// networks load as the phase `models` (one child per network), counted as load time.
-fn run_reference(a: &Args, orig: &ViewSet, p: &EvalParams) -> Result<()> {
-    let style = crate::timing::load(|| Image::load(&a.style))?;
-    let models = metric_models()?;
-    let mut wr = super::create_artifact(
-        &a.out,
-        ArtifactKind::EvalReference,
-        Producer::new("evaluate", crate::VERSION, params_json(p)),
-    )?;
-    let mut nets = crate::timing::load(|| {
-        crate::timing::phase("models", || Nets::load(&models, p.lpips_net, p.threads))
-    })?;
-    let r = Reference::compute(&mut nets, orig, &style, p)?;
-    wr.add_input("original", &a.original)?;
-    wr.add_input("style", &a.style)?;
-    crate::artifacts::write_eval_reference(&mut wr, &r)?;
-    crate::timing::io(|| wr.commit())?;
-    tracing::info!(
-        "evaluate: reference of {} views -> {}",
-        orig.n,
-        a.out.display()
-    );
-    Ok(())
-}
-
-/// `--reference DIR`, checked to be made from this evaluation's original views, style
-/// image and options.
+/// `--reference DIR...`, read ([`crate::artifacts::read_references`]) and checked to be
+/// made from this evaluation's original views, style image and options.
 fn reference_for(
-    dir: &Path,
-    a: &Args,
+    dirs: ReferenceFor<'_>,
     orig: &ViewSet,
     p: &EvalParams,
 ) -> Result<(PathBuf, Reference)> {
-    let r =
-        crate::artifacts::read_eval_reference_for(dir, &a.original, &a.style, p.lpips_net.name())?;
-    r.check(dir, orig, p)?;
-    Ok((dir.to_path_buf(), r))
+    let (dir, r) = crate::artifacts::read_references(dirs)?;
+    r.check(&dir, orig, p)?;
+    Ok((dir, r))
 }
 
 /// The report's 3D viewer section for the two scenes, starting at the first original

@@ -28,6 +28,7 @@ pub mod csd_step;
 pub mod distill;
 pub mod encode_latents;
 pub mod evaluate;
+mod evaluate_reference;
 pub mod make_sample;
 pub mod mvfc_filter;
 pub mod preview;

@@ -9,6 +9,7 @@ mod csd_golden;
 mod diffusion;
 mod distill;
 mod evaluate;
+mod evaluate_reference;
 mod extremes;
 mod formats;
 mod fuzz;

@@ -202,11 +202,11 @@ fn own_splat_scene_with_orbit_cameras_into_a_workdir() {
     let (rc, out, err) = pipeline("run", &run_args(&args));
     assert_eq!(rc, Some(0), "{out}\n{err}");
     let ran = done(&out);
-    // The cameras feed source-views and everything downstream of it: every stage
-    // (source-views, split, init, one distill chunk, final-scene, final-views,
-    // eval-reference, evaluate).
-    assert_eq!(ran.len(), 8, "{out}");
-    for stage in ["source-views", "eval-reference"] {
+    // The cameras feed source-views and everything downstream of it, and eval-style (the
+    // style crops' count): every stage (source-views, split, init, one distill chunk,
+    // final-scene, final-views, eval-source, eval-style, evaluate).
+    assert_eq!(ran.len(), 9, "{out}");
+    for stage in ["source-views", "eval-source", "eval-style"] {
         assert!(ran.contains(&stage.to_string()), "{stage}: {out}");
     }
     assert!(sample_state(&ds) == before, "data-sample/ changed");

@@ -289,12 +289,15 @@ fn report_viewer_shows_both_splats_in_chromium() {
     eprintln!("scenes and renders: {:.1} s", t_all.elapsed().as_secs_f64());
     let t_eval = std::time::Instant::now();
     run(Args {
-        original: orig.clone(),
+        original: Some(orig.clone()),
         stylized: Some(styl.clone()),
-        style: root.join("data-sample/style.png"),
+        style: Some(root.join("data-sample/style.png")),
         out: out.clone(),
-        reference_only: false,
-        reference: None,
+        reference_only: None,
+        reference: Vec::new(),
+        cameras: None,
+        width: None,
+        height: None,
         lpips_net: LpipsNet::Alex,
         short_range: 1,
         long_range: 2,

@@ -52,6 +52,17 @@ fn write_v1(kind: ArtifactKind, dir: &Path) -> Result<Manifest> {
             )?;
             w.write_tensor("views_pool3.npy", &[1, 2], &ramp(2))?;
         }
+        ArtifactKind::EvalSource => {
+            w.write_json(
+                "source.json",
+                &serde_json::json!({"settings": {"views": 1}}),
+            )?;
+            w.write_tensor("views_pool3.npy", &[1, 2], &ramp(2))?;
+        }
+        ArtifactKind::EvalStyle => {
+            w.write_json("style.json", &serde_json::json!({"settings": {"views": 1}}))?;
+            w.write_tensor("crops_pool3.npy", &[1, 2], &ramp(2))?;
+        }
         ArtifactKind::Selection => {
             w.write_tensor("weights.npy", &[4], &[0.0, 1.0, 0.5, 1.0])?;
             w.set_meta(serde_json::json!({"selected": 3, "gaussians": 4}));

@@ -74,6 +74,21 @@ pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
     Some(g)
 }
 
+/// One view's alpha-weighted Gram matrix per layer of [`GRAM_LAYERS`] (`None` where the
+/// view covers less than `MIN_COVERAGE`), from its features and its alpha (`h x w`, the
+/// image's): what [`ObjectGram::distances`] compares with the style's.
+pub fn view_grams(f: &Features, alpha: &[f32], w: usize, h: usize) -> Vec<Option<Vec<f64>>> {
+    let covered = alpha.iter().map(|&a| a as f64).sum::<f64>() >= MIN_COVERAGE;
+    (0..GRAM_LAYERS.len())
+        .map(|k| {
+            let f = &f[k];
+            covered
+                .then(|| weighted_gram(f, &pool_alpha(alpha, w, h, f.w, f.h)))
+                .flatten()
+        })
+        .collect()
+}
+
 fn mean_sq_diff(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / a.len() as f64
 }
@@ -106,7 +121,7 @@ impl ObjectGram {
 
     /// One view's distance to the style per layer of [`GRAM_LAYERS`] (`None` where the
     /// view covers less than `MIN_COVERAGE`), from its features and its alpha (`h x w`,
-    /// the image's).
+    /// the image's): [`Self::distances`] of [`view_grams`].
     pub fn view_distances(
         &self,
         f: &Features,
@@ -114,15 +129,15 @@ impl ObjectGram {
         w: usize,
         h: usize,
     ) -> Vec<Option<f64>> {
-        let covered = alpha.iter().map(|&a| a as f64).sum::<f64>() >= MIN_COVERAGE;
-        (0..GRAM_LAYERS.len())
-            .map(|k| {
-                let f = &f[k];
-                covered
-                    .then(|| weighted_gram(f, &pool_alpha(alpha, w, h, f.w, f.h)))
-                    .flatten()
-                    .map(|g| mean_sq_diff(&g, &self.style[k]))
-            })
+        self.distances(&view_grams(f, alpha, w, h))
+    }
+
+    /// The distance to the style per layer of one view's object Grams ([`view_grams`]).
+    pub fn distances(&self, grams: &[Option<Vec<f64>>]) -> Vec<Option<f64>> {
+        grams
+            .iter()
+            .zip(&self.style)
+            .map(|(g, s)| g.as_ref().map(|g| mean_sq_diff(g, s)))
             .collect()
     }
 
