@@ -17,6 +17,7 @@
 //! | [`interior`] | inside the object (mask eroded 8 px): interior structure, edge recall, motif contrast |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`reference`](mod@reference) | the half of an evaluation that depends only on the original views and the style |
+//! | [`regions`] | a run's regions on the views (outlines, styles, strengths) and each region's Gram distance to every style |
 //! | [`evaluate`] | the whole evaluation: every metric above on two view sets and a style |
 //! | [`html`] | HTML pieces of the reports: tables, inline SVG plots, embedded images, the page |
 //! | [`report`] | the self-contained `report.html` of an evaluation |
@@ -33,6 +34,7 @@ pub mod leakage;
 pub mod lpips;
 pub mod nets;
 pub mod reference;
+pub mod regions;
 pub mod report;
 pub mod spectrum;
 pub mod structure;

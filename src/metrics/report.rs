@@ -50,6 +50,8 @@ pub struct ReportExtras<'a> {
     pub agreement_html: Option<&'a str>,
     /// A preview's views, shown in the opening pictures ([`PREVIEW_LABEL`]).
     pub preview: Option<&'a Preview>,
+    /// A run's regions ([`super::regions::Regions::html`]).
+    pub regions_html: Option<&'a str>,
 }
 
 /// The evaluation's `report.html`: it opens with pictures ([`opening_pictures`]: the
@@ -73,6 +75,9 @@ pub fn evaluation_report(
         p.section("Original / stylized in 3D", v);
     }
     p.raw(&inputs_html(paths, m, extras.preview));
+    if let Some(r) = extras.regions_html {
+        p.section("Regions", r);
+    }
     if !m.warnings.is_empty() {
         let items: String = m
             .warnings

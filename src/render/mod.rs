@@ -26,6 +26,7 @@ pub mod fill;
 pub mod project;
 pub mod raster;
 pub mod sh;
+pub mod shares;
 pub mod source;
 
 pub use cache::{CacheMode, ViewCache};

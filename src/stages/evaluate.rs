@@ -166,6 +166,19 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         .map(|d| crate::timing::load(|| read_preview(d, &orig)))
         .transpose()?;
     let models = metric_models()?;
+    let regions = match (&a.original_scene, &a.stylized_scene) {
+        (Some(o), Some(s)) => match crate::artifacts::read_regions(s)? {
+            Some(rec) => {
+                let scene = crate::timing::load(|| crate::artifacts::load_scene(o))?;
+                let m = crate::metrics::regions::measure(
+                    &rec, &scene, &orig, &styl, &models, p.threads,
+                )?;
+                Some(m)
+            }
+            None => None,
+        },
+        _ => None,
+    };
     // Start the artifact now so an unusable --out fails before the slow part.
     let mut wr = super::create_artifact(
         &a.out,
@@ -187,6 +200,7 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     };
     let ph = crate::timing::span("report");
     let sweep_html = sweep.as_ref().map(Sweep::html);
+    let regions_html = regions.as_ref().map(|r| r.html(&orig, &styl));
     let agreement_html = history
         .as_deref()
         .map(|h| crate::metrics::report::agreement_html(h, ceiling, 20));
@@ -195,12 +209,16 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         viewer_html: viewer.as_deref(),
         agreement_html: agreement_html.as_deref(),
         preview: preview.as_ref(),
+        regions_html: regions_html.as_deref(),
     };
     let html = evaluation_report(paths, &ev, &orig, &styl, &style, &extras);
     drop(ph);
 
     add_inputs(&mut wr, &a)?;
     wr.write_json("metrics.json", &ev.metrics)?;
+    if let Some(r) = &regions {
+        wr.write_json("regions.json", r)?;
+    }
     wr.write_bytes("report.html", html.as_bytes())?;
     crate::timing::io(|| wr.commit())?;
     log_metrics(&ev.metrics, &a.out);

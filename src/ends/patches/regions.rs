@@ -16,7 +16,6 @@
 
 use super::view::Query;
 use crate::imageio::Image;
-use crate::render::{composite, project};
 use crate::{Camera, Error, Result, Scene};
 
 /// One region of the synthesis.
@@ -56,7 +55,8 @@ impl<'a> RegionStyle<'a> {
 }
 
 /// Each region's share of every pixel of every view (`[region][view][H W]`, module
-/// docs); empty when there is one region (it owns every pixel).
+/// docs, [`crate::render::shares`]); empty when there is one region (it owns every
+/// pixel).
 pub(super) fn cover(
     scene: &Scene,
     cameras: &[Camera],
@@ -65,33 +65,18 @@ pub(super) fn cover(
     if regions.len() < 2 {
         return Ok(Vec::new());
     }
-    let n = scene.len();
-    let weight = |r: usize, g: u32| -> f32 {
-        regions
-            .get(r)
-            .map_or(0.0, |reg| reg.weights.map_or(1.0, |w| w[g as usize]))
-    };
-    debug_assert!(
-        regions
-            .iter()
-            .all(|r| r.weights.is_none_or(|w| w.len() == n))
-    );
+    let every = vec![1.0f32; scene.len()];
+    let weights: Vec<&[f32]> = regions
+        .iter()
+        .map(|r| r.weights.unwrap_or(&every))
+        .collect();
     let mut out = vec![Vec::with_capacity(cameras.len()); regions.len()];
     for cam in cameras {
-        crate::render::validate_camera(cam)?;
-        let frame = project(scene, cam);
-        // Three regions per composite, one in each colour channel.
-        for first in (0..regions.len()).step_by(3) {
-            let colours: Vec<[f32; 3]> = frame
-                .splats
-                .ids
-                .iter()
-                .map(|&g| [0, 1, 2].map(|c| weight(first + c, g)))
-                .collect();
-            let rgb = composite(&frame, &colours, [0.0; 3]).rgb;
-            for c in 0..3.min(regions.len() - first) {
-                out[first + c].push(rgb.iter().skip(c).step_by(3).copied().collect());
-            }
+        for (r, s) in crate::render::shares::shares(scene, cam, &weights)?
+            .into_iter()
+            .enumerate()
+        {
+            out[r].push(s);
         }
     }
     Ok(out)
@@ -201,42 +186,6 @@ mod tests {
             0,
             "the first where none covers"
         );
-    }
-
-    #[test]
-    fn the_shares_are_the_regions_weights_composited() {
-        // The sample's Gaussians split in two by their index: the shares of the two
-        // regions add up to the coverage, and each is the render of its weights alone.
-        let scene = crate::sample::sample_scene(1);
-        let cams = crate::camera::load_cameras("orbit:2", &scene.bounds(), 24, 24).unwrap();
-        let n = scene.len();
-        let a: Vec<f32> = (0..n).map(|i| (i % 2) as f32).collect();
-        let b: Vec<f32> = a.iter().map(|w| 1.0 - w).collect();
-        let style = Image {
-            width: 8,
-            height: 8,
-            data: vec![0.5; 192],
-        };
-        let regions = [
-            RegionStyle {
-                weights: Some(&a),
-                ..RegionStyle::one(&style)
-            },
-            RegionStyle {
-                weights: Some(&b),
-                ..RegionStyle::one(&style)
-            },
-        ];
-        let c = cover(&scene, &cams, &regions).unwrap();
-        let alpha = crate::render::render_all(&scene, &cams, [0.0; 3]).unwrap();
-        for v in 0..cams.len() {
-            for (i, &al) in alpha[v].alpha.iter().enumerate() {
-                let sum = c[0][v][i] + c[1][v][i];
-                assert!((sum - al).abs() < 1e-4, "view {v} pixel {i}: {sum} vs {al}");
-            }
-        }
-        assert!(c[0][0].iter().any(|&s| s > 0.1) && c[1][0].iter().any(|&s| s > 0.1));
-        assert!(cover(&scene, &cams, &regions[..1]).unwrap().is_empty());
     }
 }
 
