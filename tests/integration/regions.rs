@@ -153,6 +153,41 @@ fn two_regions_take_their_own_styles_in_one_run() {
         .unwrap();
     assert_eq!(record.regions.len(), 2);
     assert_eq!(record.regions[0].selected, n_sphere);
+    // The report draws the regions and measures each against both styles.
+    if !crate::evaluate::ready() {
+        return;
+    }
+    run(bin("render-views")
+        .arg("--scene")
+        .arg(d.join("two"))
+        .arg("--cameras")
+        .arg(&v)
+        .args(["--width", "64", "--height", "64", "--threads", "2", "--out"])
+        .arg(d.join("two-views")));
+    run(Command::new(env!("CARGO_BIN_EXE_evaluate"))
+        .arg("--original")
+        .arg(&v)
+        .arg("--stylized")
+        .arg(d.join("two-views"))
+        .arg("--style")
+        .arg(sample("data-sample/style.png"))
+        .arg("--original-scene")
+        .arg(sample("data-sample/scene.ply"))
+        .arg("--stylized-scene")
+        .arg(d.join("two"))
+        .args(["--threads", "2", "--out"])
+        .arg(d.join("eval")));
+    let html = std::fs::read_to_string(d.join("eval/report.html")).unwrap();
+    assert!(html.contains("<h2>Regions</h2>") && html.contains("mosaic.png x 1.00"));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("eval/regions.json")).unwrap()).unwrap();
+    assert_eq!(json["styles"].as_array().unwrap().len(), 2);
+    for (r, region) in json["regions"].as_array().unwrap().iter().enumerate() {
+        let g = region["gram"].as_array().unwrap();
+        let (own, other) = (g[r][0].as_f64().unwrap(), g[1 - r][0].as_f64().unwrap());
+        println!("region {r}: Gram to its own style {own:.3}, to the other {other:.3}");
+        assert!(own < other, "region {r} is not nearest its own style");
+    }
 }
 
 #[test]
