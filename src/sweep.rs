@@ -13,7 +13,7 @@
 //! `OUT/sweep.html` (table and plots); `evaluate --sweep OUT/sweep.json` also embeds them
 //! in an evaluation report.
 
-use crate::metrics::html::{Page, Series, esc, fmt_opt, svg_plot, table};
+use crate::metrics::html::{Page, Series, esc, figure, fmt_opt, svg_plot, table};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -29,8 +29,13 @@ pub struct SweepPoint {
     pub settings: BTreeMap<String, serde_json::Value>,
     /// Wall time of the stylization (not the evaluation), seconds.
     pub wall_s: f64,
-    /// Metric name -> value, from the point's `metrics.json` summary.
+    /// Metric name -> value, from the point's `metrics.json` summary (and, for a run
+    /// of regions, each style's Gram distance from the first region's `regions.json`:
+    /// `gram_to_STEM`).
     pub metrics: BTreeMap<String, Option<f64>>,
+    /// One stylized view of the point (the spec's `view`), shown in the report's strip.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view: Option<PathBuf>,
 }
 
 /// The file the sweep driver writes.
@@ -121,7 +126,19 @@ impl Sweep {
             .into_iter()
             .map(|r| r.into_iter().map(|c| esc(&c)).collect())
             .collect();
-        let mut s = table(&h, &rows);
+        let mut s = String::new();
+        let strip: Vec<String> = self
+            .points
+            .iter()
+            .filter_map(|p| {
+                let img = crate::imageio::Image::load(p.view.as_deref()?).ok()?;
+                Some(figure(&img, 160, &p.name))
+            })
+            .collect();
+        if !strip.is_empty() {
+            s.push_str(&format!("<div>{}</div>", strip.concat()));
+        }
+        s.push_str(&table(&h, &rows));
         for m in self.metric_names() {
             let pts = self
                 .points
@@ -160,6 +177,10 @@ pub struct SweepSpec {
     /// The evaluation's `metrics.json`, relative to the DAG directory.
     #[serde(default = "default_metrics")]
     pub metrics: PathBuf,
+    /// A stylized view of each point, relative to the point's directory, shown in the
+    /// report's strip of the points.
+    #[serde(default = "default_view")]
+    pub view: PathBuf,
     /// The points.
     pub point: Vec<PointSpec>,
 }
@@ -172,6 +193,9 @@ fn default_eval_target() -> String {
 }
 fn default_metrics() -> PathBuf {
     "runs/eval/metrics.json".into()
+}
+fn default_view() -> PathBuf {
+    "runs/final-views/view_000.png".into()
 }
 
 /// One point: a name and params-file overrides (dotted keys, e.g. `"render.width"`).
@@ -317,6 +341,29 @@ pub fn summary(metrics: &serde_json::Value) -> BTreeMap<String, Option<f64>> {
     .collect()
 }
 
+/// For a run of regions (`regions.json` at `path`, [`crate::metrics::regions`]): the
+/// first region's Gram distance to each style of the run, `gram_to_STEM` (none without
+/// the file).
+fn region_grams(path: &Path) -> BTreeMap<String, Option<f64>> {
+    let Some(v) = std::fs::read(path)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+    else {
+        return BTreeMap::new();
+    };
+    let styles = v["styles"].as_array().cloned().unwrap_or_default();
+    styles
+        .iter()
+        .enumerate()
+        .map(|(k, s)| {
+            let stem = Path::new(s.as_str().unwrap_or_default())
+                .file_stem()
+                .map_or(String::new(), |f| f.to_string_lossy().into_owned());
+            (format!("gram_to_{stem}"), v["regions"][0]["gram"][k][0].as_f64())
+        })
+        .collect()
+}
+
 /// Run every point; failed points are recorded with `wall_s = NaN` and no metrics.
 pub fn run_sweep(spec: &SweepSpec, out: &Path) -> Result<Sweep> {
     let mut points = Vec::new();
@@ -333,7 +380,9 @@ pub fn run_sweep(spec: &SweepSpec, out: &Path) -> Result<Sweep> {
                 let t = std::fs::read_to_string(&mp).map_err(|e| Error::io(&mp, e))?;
                 let v: serde_json::Value = serde_json::from_str(&t)
                     .map_err(|e| Error::input(&mp, format!("invalid metrics.json: {e}")))?;
-                summary(&v)
+                let mut m = summary(&v);
+                m.extend(region_grams(&mp.with_file_name("regions.json")));
+                m
             }
             Err(e) => {
                 tracing::warn!("sweep: point `{}` failed: {e}", p.name);
@@ -350,11 +399,13 @@ pub fn run_sweep(spec: &SweepSpec, out: &Path) -> Result<Sweep> {
                 )
             })
             .collect();
+        let view = dir.join(&spec.view);
         points.push(SweepPoint {
             name: p.name.clone(),
             settings,
             wall_s: if metrics.is_empty() { f64::NAN } else { wall },
             metrics,
+            view: view.is_file().then_some(view),
         });
     }
     let sweep = Sweep { points };
@@ -391,6 +442,7 @@ mod tests {
             settings: [("width".to_string(), serde_json::json!(w))].into(),
             wall_s: t,
             metrics: [("artfid".to_string(), a)].into(),
+            view: None,
         };
         let s = Sweep {
             points: vec![p("a", 64, 1.0, Some(20.0)), p("b", 128, 3.5, None)],
@@ -403,7 +455,14 @@ mod tests {
         assert!(md.contains("| b | 128 | 3.5 | n/a |"), "{md}");
         let html = s.html();
         assert!(html.contains("<svg") && html.contains("artfid vs wall time"));
+        assert!(!html.contains("<figure>"), "no view, no strip");
         let d = tempfile::tempdir().unwrap();
+        // A point's view joins the strip.
+        let view = d.path().join("v.png");
+        crate::imageio::write_png_rgb(&view, &[0.5; 12], 2, 2).unwrap();
+        let mut with = s.clone();
+        with.points[0].view = Some(view);
+        assert_eq!(with.html().matches("<figure>").count(), 1);
         let f = d.path().join("s.json");
         std::fs::write(&f, serde_json::to_string(&s).unwrap()).unwrap();
         assert_eq!(Sweep::load(&f).unwrap(), s);
