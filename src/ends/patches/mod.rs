@@ -27,7 +27,8 @@
 //! mean that concentrates on the nearest patch), run without noise and with the targets
 //! held (docs/patch-prior.md, "The deterministic end").
 //!
-//! The files: [`level`] (a level's style model and the search), [`couple`] (the
+//! The files: [`level`] (a level's style model), [`search`] (the exact search in
+//! it), [`couple`] (the
 //! balance), [`view`] (a view's queries, votes and target), [`motif`] (a style's
 //! background), [`coherence`] (the pieces copied whole). The parts ([`PARTS`], their
 //! kinds in [`parts`]: the structure guide [`guide`], the negative branch [`negative`])
@@ -47,6 +48,7 @@ pub mod level;
 pub mod motif;
 pub mod negative;
 pub mod parts;
+pub mod search;
 #[cfg(test)]
 mod test_red;
 pub mod view;
