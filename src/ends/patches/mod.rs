@@ -282,12 +282,12 @@ pub fn synthesize(
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
             let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
-                all.iter().map(|&v| fit.render_view(v)).collect()
+                all.par_iter().map(|&v| fit.render_view(v)).collect()
             });
             let (targets, stats) = e_step(&renders, &sizes, &level, s, &src, p);
             let fit_phase = crate::timing::span("colour fit");
             for _ in 0..p.steps {
-                last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
+                last.loss = fit.step_views_par(&all, &|v, rgb, _| Ok(l2(rgb, &targets[v])))?;
             }
             drop(fit_phase);
             (last.distance, last.cells_used) = (stats.distance, stats.cells_used);
@@ -484,7 +484,7 @@ fn e_step(
         .into_par_iter()
         .map(|v| ViewImage::new(&renders[v], src, v, sizes[v], s, p))
         .collect();
-    let queries: Vec<Query> = views.iter().map(|v| v.queries(p)).collect();
+    let queries: Vec<Query> = views.par_iter().map(|v| v.queries(p)).collect();
     let stack = |f: &dyn Fn(&Query) -> Option<ndarray::ArrayView2<'_, f32>>| {
         let rows: Option<Vec<_>> = queries.iter().map(f).collect();
         rows.map(|r| ndarray::concatenate(Axis(0), &r).expect("patches of one width"))
@@ -512,13 +512,21 @@ fn e_step(
     };
     drop(ph);
     let _ph = crate::timing::span("votes");
-    let mut offset = 0;
-    let mut targets = Vec::with_capacity(n);
-    for (v, q) in queries.iter().enumerate() {
-        let mv = &m[offset..offset + q.pixels.len()];
-        offset += q.pixels.len();
-        targets.push(views[v].target(level, &q.pixels, mv, p, &renders[v], &src.alpha[v]));
-    }
+    let offsets: Vec<usize> = queries
+        .iter()
+        .scan(0, |at, q| {
+            *at += q.pixels.len();
+            Some(*at - q.pixels.len())
+        })
+        .collect();
+    let targets = (0..n)
+        .into_par_iter()
+        .map(|v| {
+            let (q, o) = (&queries[v], offsets[v]);
+            let mv = &m[o..o + q.pixels.len()];
+            views[v].target(level, &q.pixels, mv, p, &renders[v], &src.alpha[v])
+        })
+        .collect();
     (targets, stats)
 }
 
