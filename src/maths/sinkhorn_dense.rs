@@ -92,7 +92,7 @@ fn columns(scaled: &[f32], per: usize, f: &[f32], target: &[f32], rho: f32, g: &
             let mut sum = [0.0f32; GROUP];
             for (row, &fi) in scaled.chunks_exact(per).zip(f) {
                 for ((a, &s), &t) in sum[..w].iter_mut().zip(&row[c0..c1]).zip(&top) {
-                    *a = *a + exp0((fi - s) - t);
+                    *a += exp0((fi - s) - t);
                 }
             }
             (0..w).map(move |c| {
