@@ -6,6 +6,7 @@
 //! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64), PSD square roots, small dense products |
 //! | [`gram`] | the Gram matrix of a feature map (Gatys et al. 2016, Eq. 3) |
 //! | [`sinkhorn`] | log-sum-exp, max-shifted softmax weights, the entropic coupling by log-domain Sinkhorn iterations (Cuturi 2013; Schmitzer 2019) |
+//! | [`sinkhorn_dense`] | the dense log-unit Sinkhorn rounds of the synthesis's balance, rearranged for speed (the same bits) |
 //! | [`kid`] | KID's polynomial kernel and unbiased MMD² estimate (Bińkowski et al. 2018) |
 //! | [`warp`] | depth reprojection of one rendered view into another, with an occlusion test |
 
@@ -13,4 +14,5 @@ pub mod gram;
 pub mod kid;
 pub mod linalg;
 pub mod sinkhorn;
+pub mod sinkhorn_dense;
 pub mod warp;

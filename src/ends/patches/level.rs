@@ -12,12 +12,12 @@ use super::coherence::Neighbour;
 use super::couple::couple;
 use super::motif::{fill_background, motif_mask};
 use super::parts::{Channel, Rematch};
+use super::search::{CellSearch, Path};
 use super::{BALANCE_EPS, CELLS, Named, SynthesisParams};
 use crate::Result;
 use crate::imageio::Image;
 use crate::prior::patch::bank::{Bank, Pca, patches};
 use ndarray::{Array2, Array3, Axis};
-use rayon::prelude::*;
 
 /// One level's style model: the bank, each patch's cell, and the search space (the
 /// patches' colour PCA coordinates, beside their guide's when the end is guided).
@@ -28,9 +28,9 @@ pub(super) struct StyleLevel {
     pub(super) share: Vec<f32>,
     /// The channels' parts of the search ([`super::parts::Channel`]), in order.
     channels: Vec<ChannelSpace>,
-    /// Search coordinates `[M, d]` of the bank's patches and their squared norms.
-    coords: Array2<f32>,
-    norms: Vec<f32>,
+    /// The bank's search coordinates (`[M, d]`: the colours' PCA beside each channel's)
+    /// packed for the search.
+    search: CellSearch,
     /// Each bank patch's centre (y, x) in the level's style image.
     pub(super) pos: Vec<[i32; 2]>,
 }
@@ -161,14 +161,14 @@ impl StyleLevel {
             let views: Vec<_> = parts.iter().map(|c| c.view()).collect();
             ndarray::concatenate(Axis(1), &views).expect("one row per patch")
         };
-        let norms = coords.rows().into_iter().map(|row| row.dot(&row)).collect();
+        let norms: Vec<f32> = coords.rows().into_iter().map(|row| row.dot(&row)).collect();
+        let search = CellSearch::new(&coords, &norms, &cell_of, share.len());
         Ok(StyleLevel {
             bank,
             cell_of,
             share,
             channels: spaces,
-            coords,
-            norms,
+            search,
             pos,
         })
     }
@@ -198,39 +198,10 @@ impl StyleLevel {
     }
 
     /// For each query (search coordinates `qc` `[P, d]`) and each cell of the bank, the
-    /// nearest patch of that cell (exact search): `[P x cells]` squared distances and
-    /// patch indices (infinite distance for an empty cell).
+    /// nearest patch of that cell (exact search, [`super::search`]): `[P x cells]`
+    /// squared distances and patch indices (infinite distance for an empty cell).
     pub(super) fn nearest_per_cell(&self, qc: &Array2<f32>) -> (Vec<f32>, Vec<u32>) {
-        let cells = self.share.len();
-        let qn: Vec<f32> = qc.rows().into_iter().map(|row| row.dot(&row)).collect();
-        let rows: Vec<usize> = (0..qc.nrows()).collect();
-        let out: Vec<(Vec<f32>, Vec<u32>)> = rows
-            .par_chunks(256)
-            .map(|chunk| {
-                let block = qc.slice(ndarray::s![chunk[0]..chunk[0] + chunk.len(), ..]);
-                let dots = block.dot(&self.coords.t());
-                let mut dist = vec![f32::INFINITY; chunk.len() * cells];
-                let mut arg = vec![0u32; chunk.len() * cells];
-                for (k, (row, &i)) in dots.rows().into_iter().zip(chunk).enumerate() {
-                    let (d, a) = (&mut dist[k * cells..], &mut arg[k * cells..]);
-                    for (j, (&dot, &n)) in row.iter().zip(self.norms.iter()).enumerate() {
-                        let c = self.cell_of[j] as usize;
-                        let v = (qn[i] + n - 2.0 * dot).max(0.0);
-                        if v < d[c] {
-                            d[c] = v;
-                            a[c] = j as u32;
-                        }
-                    }
-                }
-                (dist, arg)
-            })
-            .collect();
-        let (mut dist, mut arg) = (Vec::new(), Vec::new());
-        for (d, a) in out {
-            dist.extend(d);
-            arg.extend(a);
-        }
-        (dist, arg)
+        self.search.nearest_per_cell(qc, Path::Best)
     }
 
     /// Each query's style patch (index, squared distance): for search coordinates `qc`

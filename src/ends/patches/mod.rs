@@ -27,7 +27,8 @@
 //! mean that concentrates on the nearest patch), run without noise and with the targets
 //! held (docs/patch-prior.md, "The deterministic end").
 //!
-//! The files: [`level`] (a level's style model and the search), [`couple`] (the
+//! The files: [`level`] (a level's style model), [`search`] (the exact search in
+//! it), [`couple`] (the
 //! balance), [`view`] (a view's queries, votes and target), [`motif`] (a style's
 //! background), [`coherence`] (the pieces copied whole). The parts ([`PARTS`], their
 //! kinds in [`parts`]: the structure guide [`guide`], the negative branch [`negative`])
@@ -48,6 +49,7 @@ pub mod motif;
 pub mod negative;
 pub mod parts;
 pub mod regions;
+pub mod search;
 #[cfg(test)]
 mod test_red;
 pub mod view;
@@ -286,12 +288,12 @@ pub fn synthesize(
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
             let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
-                all.iter().map(|&v| fit.render_view(v)).collect()
+                all.par_iter().map(|&v| fit.render_view(v)).collect()
             });
             let (targets, stats) = e_step(&renders, &sizes, &levels, s, &src, p);
             let fit_phase = crate::timing::span("colour fit");
             for _ in 0..p.steps {
-                last.loss = fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))?;
+                last.loss = fit.step_views_par(&all, &|v, rgb, _| Ok(l2(rgb, &targets[v])))?;
             }
             drop(fit_phase);
             (last.distance, last.cells_used) = (stats.distance, stats.cells_used);
@@ -536,7 +538,7 @@ fn e_step(
         .into_par_iter()
         .map(|v| ViewImage::new(&renders[v], src, v, sizes[v], s, p))
         .collect();
-    let queries: Vec<Query> = views.iter().map(|v| v.queries(p)).collect();
+    let queries: Vec<Query> = views.par_iter().map(|v| v.queries(p)).collect();
     drop(ph);
     let total: usize = queries.iter().map(|q| q.pixels.len()).sum();
     let mut m = vec![(0u32, 0.0f32); total];
@@ -573,13 +575,21 @@ fn e_step(
         loss: 0.0,
     };
     let _ph = crate::timing::span("votes");
-    let mut offset = 0;
-    let mut targets = Vec::with_capacity(n);
-    for (v, q) in queries.iter().enumerate() {
-        let mv = &m[offset..offset + q.pixels.len()];
-        offset += q.pixels.len();
-        targets.push(views[v].target(levels, q, mv, p, &renders[v], &src.alpha[v]));
-    }
+    let offsets: Vec<usize> = queries
+        .iter()
+        .scan(0, |at, q| {
+            *at += q.pixels.len();
+            Some(*at - q.pixels.len())
+        })
+        .collect();
+    let targets = (0..n)
+        .into_par_iter()
+        .map(|v| {
+            let (q, o) = (&queries[v], offsets[v]);
+            let mv = &m[o..o + q.pixels.len()];
+            views[v].target(levels, q, mv, p, &renders[v], &src.alpha[v])
+        })
+        .collect();
     (targets, stats)
 }
 
