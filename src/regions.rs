@@ -135,8 +135,9 @@ fn split_weight(part: &str) -> (&str, Option<f32>) {
 pub const REST: &str = "rest";
 
 /// A blend's images and weights as written: `a.png:0.7,b.png:0.3` (a path alone weighs
-/// 1). Checked: no negative or non-finite weight, not all zero, no image twice; parts of
-/// weight 0 are dropped; the weights normalised to sum 1.
+/// 1). Checked: no negative or non-finite weight, not all zero, no image twice; the
+/// weights normalised to sum 1. A part of weight 0 stays (its image is read and the
+/// report measures the result against it) but adds nothing to the synthesis.
 pub fn parse_blend(s: &str) -> std::result::Result<Vec<(PathBuf, f32)>, String> {
     let mut parts: Vec<(PathBuf, f32)> = Vec::new();
     for part in s.split(',') {
@@ -159,11 +160,7 @@ pub fn parse_blend(s: &str) -> std::result::Result<Vec<(PathBuf, f32)>, String> 
     if sum <= 0.0 {
         return Err(format!("`{s}`: every weight is 0"));
     }
-    Ok(parts
-        .into_iter()
-        .filter(|p| p.1 > 0.0)
-        .map(|(p, w)| (p, w / sum))
-        .collect())
+    Ok(parts.into_iter().map(|(p, w)| (p, w / sum)).collect())
 }
 
 /// One region, loaded.
@@ -348,7 +345,10 @@ mod tests {
         let b = parse_blend("a.png:3,b.png:1").unwrap();
         assert_eq!(b, vec![("a.png".into(), 0.75), ("b.png".into(), 0.25)]);
         assert_eq!(parse_blend("a.png").unwrap(), vec![("a.png".into(), 1.0)]);
-        assert_eq!(parse_blend("a.png:1,b.png:0").unwrap().len(), 1);
+        assert_eq!(
+            parse_blend("a.png:1,b.png:0").unwrap(),
+            vec![("a.png".into(), 1.0), ("b.png".into(), 0.0)]
+        );
         for bad in [
             "a.png:-1,b.png:1",
             "a.png:0,b.png:0",

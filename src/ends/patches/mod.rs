@@ -376,7 +376,12 @@ pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Resu
             .list
             .iter()
             .map(|reg| RegionStyle {
-                styles: reg.styles.iter().map(|(_, img, w)| (img, *w)).collect(),
+                styles: reg
+                    .styles
+                    .iter()
+                    .filter(|s| s.2 > 0.0)
+                    .map(|(_, img, w)| (img, *w))
+                    .collect(),
                 weights: Some(&reg.weights),
                 strength: reg.strength,
             })
