@@ -359,7 +359,10 @@ fn region_grams(path: &Path) -> BTreeMap<String, Option<f64>> {
             let stem = Path::new(s.as_str().unwrap_or_default())
                 .file_stem()
                 .map_or(String::new(), |f| f.to_string_lossy().into_owned());
-            (format!("gram_to_{stem}"), v["regions"][0]["gram"][k][0].as_f64())
+            (
+                format!("gram_to_{stem}"),
+                v["regions"][0]["gram"][k][0].as_f64(),
+            )
         })
         .collect()
 }
