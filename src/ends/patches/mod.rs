@@ -544,22 +544,28 @@ fn e_step(
         .map(|v| ViewImage::new(&renders[v], src, v, sizes[v], s, p))
         .collect();
     let queries: Vec<Query> = views.par_iter().map(|v| v.queries(p)).collect();
+    // Each region's queries in its level's search coordinates (one region: all of them).
+    let owned: Vec<_> = levels
+        .iter()
+        .enumerate()
+        .map(|(r, level)| {
+            let own = regions::Owned::new(&queries, r, levels.len() == 1);
+            let colour = own.stack(&queries, |q| q.colour.view());
+            let channels: Vec<_> = (0..src.parts.len())
+                .map(|c| own.stack(&queries, |q| q.channels[r][c].view()))
+                .collect();
+            let pixels: Vec<&[[usize; 3]]> = own.pixels.iter().map(|p| &p[..]).collect();
+            let nbrs = coherence::neighbours(&pixels, p.stride.max(1));
+            let qc = level.project(&colour, &channels);
+            (own, nbrs, qc)
+        })
+        .collect();
     drop(ph);
     let total: usize = queries.iter().map(|q| q.pixels.len()).sum();
     let mut m = vec![(0u32, 0.0f32); total];
     let (mut used, mut coherent) = (0, 0.0f64);
-    for (r, level) in levels.iter().enumerate() {
-        let ph = crate::timing::span("queries");
-        let own = regions::Owned::new(&queries, r, levels.len() == 1);
-        let colour = own.stack(&queries, |q| q.colour.view());
-        let channels: Vec<_> = (0..src.parts.len())
-            .map(|c| own.stack(&queries, |q| q.channels[r][c].view()))
-            .collect();
-        let pixels: Vec<&[[usize; 3]]> = own.pixels.iter().map(|p| &p[..]).collect();
-        let nbrs = coherence::neighbours(&pixels, p.stride.max(1));
-        let qc = level.project(&colour, &channels);
-        drop(ph);
-        let mr = level.match_all(&qc, &nbrs, p, &src.rematches);
+    for (level, (own, nbrs, qc)) in levels.iter().zip(&owned) {
+        let mr = level.match_all(qc, nbrs, p, &src.rematches);
         let _ph = crate::timing::span("stats");
         let mut hit = vec![false; level.share.len()];
         for &(j, _) in &mr {
@@ -567,7 +573,7 @@ fn e_step(
         }
         used += hit.iter().filter(|&&u| u).count();
         let chosen: Vec<u32> = mr.iter().map(|x| x.0).collect();
-        let c = coherence::coherence(&chosen, &nbrs, &level.pos) as f64;
+        let c = coherence::coherence(&chosen, nbrs, &level.pos) as f64;
         coherent += c * mr.len() as f64 / total.max(1) as f64;
         for (&i, x) in own.index.iter().zip(mr) {
             m[i] = x;
