@@ -218,65 +218,12 @@ pub fn load(
         return Err(Error::param("regions: `rest` is given twice"));
     }
     let n = scene.len();
-    let mut list = Vec::with_capacity(specs.len());
-    for (spec, name) in specs.iter().zip(names) {
-        let err = |e: Error| match e {
-            Error::Param(m) => Error::param(format!("region `{name}`: {m}")),
-            Error::Input { path, reason } => {
-                Error::input(path, format!("region `{name}`: {reason}"))
-            }
-            other => Error::param(format!("region `{name}`: {other}")),
-        };
-        if !(spec.strength.is_finite() && (0.0..=1.0).contains(&spec.strength)) {
-            return Err(err(Error::param(format!(
-                "strength {} is outside [0, 1]",
-                spec.strength
-            ))));
-        }
-        let weights = if spec.selection == REST {
-            Vec::new()
-        } else {
-            select(&spec.selection, scene, ctx).map_err(err)?.weights
-        };
-        let blend = match &spec.style {
-            Some(s) => parse_blend(s).map_err(|e| err(Error::param(e)))?,
-            None => vec![(default_style.to_path_buf(), 1.0)],
-        };
-        let styles = blend
-            .into_iter()
-            .map(|(p, w)| {
-                crate::imageio::load_style(&p, crate::imageio::MIN_STYLE_SIDE)
-                    .map(|img| (p, img, w))
-                    .map_err(err)
-            })
-            .collect::<Result<Vec<_>>>()?;
-        list.push(Region {
-            name,
-            selection: spec.selection.clone(),
-            weights,
-            styles,
-            strength: spec.strength,
-        });
-    }
-    // Overlaps normalised, then `rest` is what is left.
-    let mut overlapping = 0;
-    let mut sum = vec![0.0f32; n];
-    for r in list.iter().filter(|r| r.selection != REST) {
-        for (s, w) in sum.iter_mut().zip(&r.weights) {
-            *s += w;
-        }
-    }
-    for (i, &s) in sum.iter().enumerate() {
-        if s > 1.0 {
-            overlapping += 1;
-            for r in list.iter_mut().filter(|r| r.selection != REST) {
-                r.weights[i] /= s;
-            }
-        }
-    }
-    for r in list.iter_mut().filter(|r| r.selection == REST) {
-        r.weights = sum.iter().map(|&s| 1.0 - s.min(1.0)).collect();
-    }
+    let mut list = specs
+        .iter()
+        .zip(names)
+        .map(|(spec, name)| load_one(spec, name, scene, default_style, ctx))
+        .collect::<Result<Vec<_>>>()?;
+    let overlapping = normalise(&mut list, n);
     for r in &list {
         if r.weights.iter().all(|&w| w <= 0.0) {
             return Err(Error::param(format!(
@@ -298,6 +245,76 @@ pub fn load(
         combined: Selection { weights: combined },
         overlapping,
     })
+}
+
+/// One region of `spec`, named `name`: its strength checked, its selection made (`rest`:
+/// none yet, [`normalise`] fills it), its styles read. Errors name the region.
+fn load_one(
+    spec: &RegionSpec,
+    name: String,
+    scene: &Scene,
+    default_style: &Path,
+    ctx: &Context,
+) -> Result<Region> {
+    let err = |e: Error| match e {
+        Error::Param(m) => Error::param(format!("region `{name}`: {m}")),
+        Error::Input { path, reason } => Error::input(path, format!("region `{name}`: {reason}")),
+        other => Error::param(format!("region `{name}`: {other}")),
+    };
+    if !(spec.strength.is_finite() && (0.0..=1.0).contains(&spec.strength)) {
+        return Err(err(Error::param(format!(
+            "strength {} is outside [0, 1]",
+            spec.strength
+        ))));
+    }
+    let weights = if spec.selection == REST {
+        Vec::new()
+    } else {
+        select(&spec.selection, scene, ctx).map_err(err)?.weights
+    };
+    let blend = match &spec.style {
+        Some(s) => parse_blend(s).map_err(|e| err(Error::param(e)))?,
+        None => vec![(default_style.to_path_buf(), 1.0)],
+    };
+    let styles = blend
+        .into_iter()
+        .map(|(p, w)| {
+            crate::imageio::load_style(&p, crate::imageio::MIN_STYLE_SIDE)
+                .map(|img| (p, img, w))
+                .map_err(err)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Region {
+        name,
+        selection: spec.selection.clone(),
+        weights,
+        styles,
+        strength: spec.strength,
+    })
+}
+
+/// The regions' weights where they sum past 1 divided by the sum, then `rest` given
+/// what is left, over a scene of `n` Gaussians; how many Gaussians were normalised.
+fn normalise(list: &mut [Region], n: usize) -> usize {
+    let mut overlapping = 0;
+    let mut sum = vec![0.0f32; n];
+    for r in list.iter().filter(|r| r.selection != REST) {
+        for (s, w) in sum.iter_mut().zip(&r.weights) {
+            *s += w;
+        }
+    }
+    for (i, &s) in sum.iter().enumerate() {
+        if s > 1.0 {
+            overlapping += 1;
+            for r in list.iter_mut().filter(|r| r.selection != REST) {
+                r.weights[i] /= s;
+            }
+        }
+    }
+    for r in list.iter_mut().filter(|r| r.selection == REST) {
+        r.weights = sum.iter().map(|&s| 1.0 - s.min(1.0)).collect();
+    }
+    overlapping
 }
 
 /// The selection `spec` of `scene`: a selection artifact directory or a source.

@@ -132,7 +132,12 @@ impl Sweep {
             .iter()
             .filter_map(|p| {
                 let img = crate::imageio::Image::load(p.view.as_deref()?).ok()?;
-                Some(figure(&img, 160, &p.name))
+                let set: Vec<String> = p
+                    .settings
+                    .iter()
+                    .map(|(k, v)| format!("--set {k}={}", value_text(v)))
+                    .collect();
+                Some(figure(&img, 160, &format!("{}: {}", p.name, set.join(" "))))
             })
             .collect();
         if !strip.is_empty() {
@@ -335,6 +340,10 @@ pub fn summary(metrics: &serde_json::Value) -> BTreeMap<String, Option<f64>> {
         ("long_lpips", get(&["long_range", "lpips_mean"])),
         ("short_rmse", get(&["short_range", "rmse_mean"])),
         ("gram_style", get(&["gram_style"])),
+        ("structure_kept", get(&["structure_kept"])),
+        ("interior_structure", get(&["interior_structure"])),
+        ("edge_recall", get(&["edge_recall"])),
+        ("motif_contrast", get(&["motif_contrast"])),
     ]
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))

@@ -70,34 +70,8 @@ pub fn measure(
 ) -> Result<Regions> {
     let _ph = crate::timing::span("regions");
     let (w, h) = (orig.width, orig.height);
-    let weights: Vec<&[f32]> = record.weights.iter().map(|w| &w[..]).collect();
-    let mut shares = vec![Vec::with_capacity(orig.n); weights.len()];
-    let mut owner = Vec::with_capacity(orig.n);
-    for (v, cam) in orig.cameras.iter().enumerate() {
-        let s = crate::render::shares::shares(scene, cam, &weights)?;
-        let alpha = orig.geometry(v).1;
-        owner.push(
-            (0..w * h)
-                .map(|i| {
-                    let (r, best) = s.iter().enumerate().fold((0, 0.0f32), |b, (r, x)| {
-                        if x[i] > b.1 { (r, x[i]) } else { b }
-                    });
-                    (best > 0.0 && best >= 0.5 * alpha[i]).then_some(r as u8)
-                })
-                .collect(),
-        );
-        for (r, x) in s.into_iter().enumerate() {
-            shares[r].push(x);
-        }
-    }
-    let mut styles: Vec<PathBuf> = Vec::new();
-    for r in &record.regions {
-        for (p, _) in &r.styles {
-            if !styles.contains(p) {
-                styles.push(p.clone());
-            }
-        }
-    }
+    let (shares, owner) = shares_and_owners(record, scene, orig)?;
+    let styles = style_paths(record);
     let images: Vec<Image> = styles
         .iter()
         .map(|p| Image::load(p))
@@ -159,6 +133,51 @@ pub fn measure(
     })
 }
 
+/// Each region's share of every view's pixels (`[region][view][H W]`) and each pixel's
+/// owner (module docs).
+#[allow(clippy::type_complexity)]
+fn shares_and_owners(
+    record: &RegionsRecord,
+    scene: &Scene,
+    orig: &ViewSet,
+) -> Result<(Vec<Vec<Vec<f32>>>, Vec<Vec<Option<u8>>>)> {
+    let (w, h) = (orig.width, orig.height);
+    let weights: Vec<&[f32]> = record.weights.iter().map(|w| &w[..]).collect();
+    let mut shares = vec![Vec::with_capacity(orig.n); weights.len()];
+    let mut owner = Vec::with_capacity(orig.n);
+    for (v, cam) in orig.cameras.iter().enumerate() {
+        let s = crate::render::shares::shares(scene, cam, &weights)?;
+        let alpha = orig.geometry(v).1;
+        owner.push(
+            (0..w * h)
+                .map(|i| {
+                    let (r, best) = s.iter().enumerate().fold((0, 0.0f32), |b, (r, x)| {
+                        if x[i] > b.1 { (r, x[i]) } else { b }
+                    });
+                    (best > 0.0 && best >= 0.5 * alpha[i]).then_some(r as u8)
+                })
+                .collect(),
+        );
+        for (r, x) in s.into_iter().enumerate() {
+            shares[r].push(x);
+        }
+    }
+    Ok((shares, owner))
+}
+
+/// Every style image of the run, once, in the order the regions name them.
+fn style_paths(record: &RegionsRecord) -> Vec<PathBuf> {
+    let mut styles: Vec<PathBuf> = Vec::new();
+    for r in &record.regions {
+        for (p, _) in &r.styles {
+            if !styles.contains(p) {
+                styles.push(p.clone());
+            }
+        }
+    }
+    styles
+}
+
 /// `img` with the outlines of the regions `owner` says own its pixels (a pixel whose
 /// right or lower neighbour has another owner takes its region's colour).
 fn outlined(img: &Image, owner: &[Option<u8>]) -> Image {
@@ -185,6 +204,21 @@ impl Regions {
     /// stylized), each region's colour, selection, style thumbnails, strength, and its
     /// Gram distances to every style.
     pub fn html(&self, orig: &ViewSet, styl: &ViewSet) -> String {
+        let mut s = self.outlines_html(orig, styl);
+        s.push_str(&self.legend_html());
+        s.push_str(&self.grams_html());
+        if self.overlapping > 0 {
+            s.push_str(&format!(
+                "<p class=\"note\">{} Gaussians were in regions whose weights summed past 1: each \
+                 region's weight was divided by the sum.</p>",
+                self.overlapping
+            ));
+        }
+        s
+    }
+
+    /// The views with the regions' outlines.
+    fn outlines_html(&self, orig: &ViewSet, styl: &ViewSet) -> String {
         let n = orig.n;
         let views: Vec<usize> = (0..DRAWN.min(n)).map(|k| k * n / DRAWN.min(n)).collect();
         let mut s = String::from(
@@ -192,18 +226,17 @@ impl Regions {
              it the largest share of its light, at least half its coverage).</p><div>",
         );
         for &v in &views {
-            s.push_str(&figure(
-                &outlined(&orig.images[v], &self.owner[v]),
-                192,
-                &format!("original {v}"),
-            ));
-            s.push_str(&figure(
-                &outlined(&styl.images[v], &self.owner[v]),
-                192,
-                &format!("stylized {v}"),
-            ));
+            let o = outlined(&orig.images[v], &self.owner[v]);
+            s.push_str(&figure(&o, 192, &format!("original {v}")));
+            let st = outlined(&styl.images[v], &self.owner[v]);
+            s.push_str(&figure(&st, 192, &format!("stylized {v}")));
         }
         s.push_str("</div>");
+        s
+    }
+
+    /// Each region's colour, selection, Gaussians, style thumbnails and strength.
+    fn legend_html(&self) -> String {
         let swatch = |r: usize| {
             let c = COLOURS[r % COLOURS.len()].map(|x| (x * 255.0) as u8);
             format!(
@@ -211,38 +244,42 @@ impl Regions {
                 c[0], c[1], c[2]
             )
         };
-        let mut rows = Vec::new();
-        for (i, r) in self.regions.iter().enumerate() {
-            let thumbs: String = r
-                .styles
-                .iter()
-                .map(|(p, wt)| {
-                    let k = self.styles.iter().position(|q| q == p).unwrap_or(0);
-                    let name = p
-                        .file_name()
-                        .map_or(String::new(), |f| f.to_string_lossy().into_owned());
-                    figure(&self.images[k], 72, &format!("{name} x {wt:.2}"))
-                })
-                .collect();
-            rows.push(vec![
-                format!("{} {}", swatch(i), esc(&r.name)),
-                format!("<code>{}</code>", esc(&r.selection)),
-                r.selected.to_string(),
-                thumbs,
-                format!("{}", r.strength),
-            ]);
-        }
-        s.push_str(&table(
+        let rows: Vec<Vec<String>> = self
+            .regions
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let thumbs: String = r
+                    .styles
+                    .iter()
+                    .map(|(p, wt)| {
+                        let k = self.styles.iter().position(|q| q == p).unwrap_or(0);
+                        figure(&self.images[k], 72, &format!("{} x {wt:.2}", file_name(p)))
+                    })
+                    .collect();
+                vec![
+                    format!("{} {}", swatch(i), esc(&r.name)),
+                    format!("<code>{}</code>", esc(&r.selection)),
+                    r.selected.to_string(),
+                    thumbs,
+                    format!("{}", r.strength),
+                ]
+            })
+            .collect();
+        table(
             &["region", "selection", "Gaussians", "style", "strength"],
             &rows,
-        ));
+        )
+    }
+
+    /// Each region's Gram distance to every style.
+    fn grams_html(&self) -> String {
         let mut header = vec!["region".to_string()];
-        header.extend(self.styles.iter().map(|p| {
-            let name = p
-                .file_name()
-                .map_or(String::new(), |f| f.to_string_lossy().into_owned());
-            format!("to {name}: stylized (original)")
-        }));
+        header.extend(
+            self.styles
+                .iter()
+                .map(|p| format!("to {}: stylized (original)", file_name(p))),
+        );
         let rows: Vec<Vec<String>> = self
             .regions
             .iter()
@@ -257,20 +294,18 @@ impl Regions {
             })
             .collect();
         let hdr: Vec<&str> = header.iter().map(String::as_str).collect();
-        s.push_str(
+        format!(
             "<p>Each region's Gram distance (VGG16 relu1_2 + relu2_2, over the region's pixels) to \
-             every style of the run: a region styled as asked is nearest its own style.</p>",
-        );
-        s.push_str(&table(&hdr, &rows));
-        if self.overlapping > 0 {
-            s.push_str(&format!(
-                "<p class=\"note\">{} Gaussians were in regions whose weights summed past 1: each \
-                 region's weight was divided by the sum.</p>",
-                self.overlapping
-            ));
-        }
-        s
+             every style of the run: a region styled as asked is nearest its own style.</p>{}",
+            table(&hdr, &rows)
+        )
     }
+}
+
+/// A path's file name, for captions.
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map_or(String::new(), |f| f.to_string_lossy().into_owned())
 }
 
 #[cfg(test)]

@@ -166,19 +166,7 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         .map(|d| crate::timing::load(|| read_preview(d, &orig)))
         .transpose()?;
     let models = metric_models()?;
-    let regions = match (&a.original_scene, &a.stylized_scene) {
-        (Some(o), Some(s)) => match crate::artifacts::read_regions(s)? {
-            Some(rec) => {
-                let scene = crate::timing::load(|| crate::artifacts::load_scene(o))?;
-                let m = crate::metrics::regions::measure(
-                    &rec, &scene, &orig, &styl, &models, p.threads,
-                )?;
-                Some(m)
-            }
-            None => None,
-        },
-        _ => None,
-    };
+    let regions = regions_of(&a, &orig, &styl, &models, p.threads)?;
     // Start the artifact now so an unusable --out fails before the slow part.
     let mut wr = super::create_artifact(
         &a.out,
@@ -239,6 +227,24 @@ fn evaluation_inputs(a: &Args) -> Result<(&Path, &Path, &Path)> {
             "an evaluation needs --original, --stylized and --style",
         )),
     }
+}
+
+/// The regions of `--stylized-scene` measured on the views (none without regions).
+fn regions_of(
+    a: &Args,
+    orig: &ViewSet,
+    styl: &ViewSet,
+    models: &Path,
+    threads: usize,
+) -> Result<Option<crate::metrics::regions::Regions>> {
+    let (Some(o), Some(s)) = (&a.original_scene, &a.stylized_scene) else {
+        return Ok(None);
+    };
+    let Some(rec) = crate::artifacts::read_regions(s)? else {
+        return Ok(None);
+    };
+    let scene = crate::timing::load(|| crate::artifacts::load_scene(o))?;
+    crate::metrics::regions::measure(&rec, &scene, orig, styl, models, threads).map(Some)
 }
 
 /// The evaluation's parameters from the command line.
