@@ -137,7 +137,12 @@ impl Sweep {
                     .iter()
                     .map(|(k, v)| format!("--set {k}={}", value_text(v)))
                     .collect();
-                Some(figure(&img, 160, &format!("{}: {}", p.name, set.join(" "))))
+                let measures: Vec<String> = ["edge_recall", "motif_contrast", "interior_structure"]
+                    .iter()
+                    .filter_map(|k| Some(format!("{k} {:.3}", p.metrics.get(*k).copied()??)))
+                    .collect();
+                let caption = format!("{}: {} ({})", p.name, set.join(" "), measures.join(", "));
+                Some(figure(&img, 160, &caption))
             })
             .collect();
         if !strip.is_empty() {
