@@ -288,3 +288,45 @@ mod blend_tests {
         }
     }
 }
+
+#[cfg(test)]
+mod empty_tests {
+    use super::super::{SynthesisParams, synthesize};
+    use super::RegionStyle;
+    use crate::scene::colour::Bands;
+
+    /// A region that owns no pixel (its Gaussians cover none: here, no Gaussian at all)
+    /// searches no query and changes nothing; the other region is styled as usual.
+    #[test]
+    fn a_region_that_owns_no_pixel_is_harmless() {
+        let scene = crate::sample::sample_scene(1);
+        let cams = crate::camera::load_cameras("orbit:2", &scene.bounds(), 32, 32).unwrap();
+        let style = super::super::motif::tests::disc();
+        let (all, none) = (vec![1.0f32; scene.len()], vec![0.0f32; scene.len()]);
+        let p = SynthesisParams {
+            levels: vec![2, 1],
+            rounds: 1,
+            steps: 2,
+            control: 1.0,
+            ..SynthesisParams::default()
+        };
+        let regions = [
+            RegionStyle {
+                weights: Some(&all),
+                ..RegionStyle::one(&style)
+            },
+            RegionStyle {
+                weights: Some(&none),
+                ..RegionStyle::one(&style)
+            },
+        ];
+        let run = |r: &[RegionStyle<'_>]| {
+            synthesize(&scene, &cams, r, [0.0; 3], 32, &p, None, None, Bands::Keep)
+                .unwrap()
+                .0
+        };
+        let two = run(&regions);
+        let one = run(&regions[..1]);
+        assert_eq!(two.sh_dc, one.sh_dc, "the empty region changed the result");
+    }
+}
