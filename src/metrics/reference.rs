@@ -61,7 +61,26 @@ pub struct EvalParams {
     pub threads: usize,
 }
 
+/// Which part of the evaluation `evaluate --reference-only` writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ReferencePart {
+    /// The whole reference (`eval-reference`).
+    All,
+    /// What depends on the original views alone (`eval-source`).
+    Source,
+    /// What depends on the style image alone (`eval-style`).
+    Style,
+}
+
 impl EvalParams {
+    /// The options an evaluation (and its reference) records.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "lpips_net": self.lpips_net.name(), "short_range": self.short_range, "long_range": self.long_range, "seed": self.seed,
+            "object_squares": self.object_squares,
+        })
+    }
+
     /// Error unless both pair offsets are at least 1.
     pub fn validate(&self) -> Result<()> {
         if self.short_range == 0 || self.long_range == 0 {

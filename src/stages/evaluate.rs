@@ -115,16 +115,7 @@ pub struct Args {
     pub refit_baseline: Option<PathBuf>,
 }
 
-/// Which part of the evaluation `--reference-only` writes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ReferencePart {
-    /// The whole reference (`eval-reference`).
-    All,
-    /// What depends on the original views alone (`eval-source`).
-    Source,
-    /// What depends on the style image alone (`eval-style`).
-    Style,
-}
+pub use crate::metrics::reference::ReferencePart;
 
 /// The stage: read the views and the style, evaluate (or compute the reference only,
 /// then `None`), write the artifact.
@@ -132,7 +123,15 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
     let p = eval_params(&a);
     p.validate()?;
     if let Some(part) = a.reference_only {
-        return super::evaluate_reference::run(&a, part, &p).map(|()| None);
+        let request = super::evaluate_reference::Request {
+            original: a.original.clone(),
+            style: a.style.clone(),
+            cameras: a.cameras.clone(),
+            width: a.width,
+            height: a.height,
+            out: a.out.clone(),
+        };
+        return super::evaluate_reference::run(&request, part, &p).map(|()| None);
     }
     let (original, stylized, style_path) = evaluation_inputs(&a)?;
     let orig = crate::timing::load(|| read_view_set(original))?;
@@ -165,13 +164,13 @@ pub fn run(a: Args) -> Result<Option<Metrics>> {
         .as_deref()
         .map(|d| crate::timing::load(|| read_preview(d, &orig)))
         .transpose()?;
-    let models = metric_models()?;
+    let models = crate::models::metric_models()?;
     let regions = regions_of(&a, &orig, &styl, &models, p.threads)?;
     // Start the artifact now so an unusable --out fails before the slow part.
     let mut wr = super::create_artifact(
         &a.out,
         ArtifactKind::Evaluation,
-        Producer::new("evaluate", crate::VERSION, params_json(&p)),
+        Producer::new("evaluate", crate::VERSION, p.to_json()),
     )?;
     let ev = evaluate(
         &models,
@@ -346,28 +345,6 @@ fn read_preview(dir: &Path, orig: &ViewSet) -> Result<Preview> {
         })?)
     };
     Preview::new(views, indices, orig)
-}
-
-/// The models directory, with the metric networks in it.
-pub(super) fn metric_models() -> Result<PathBuf> {
-    let models = crate::models::models_dir()?;
-    if !models.join("metrics").is_dir() {
-        return Err(Error::Missing(format!(
-            "the metric networks are not installed in {} (run scripts/setup.sh, or set {} \
-             to a models directory that has metrics/)",
-            models.display(),
-            crate::models::MODELS_ENV
-        )));
-    }
-    Ok(models)
-}
-
-/// The options an evaluation (and its reference) records.
-pub(super) fn params_json(p: &EvalParams) -> serde_json::Value {
-    serde_json::json!({
-        "lpips_net": p.lpips_net.name(), "short_range": p.short_range, "long_range": p.long_range, "seed": p.seed,
-        "object_squares": p.object_squares,
-    })
 }
 
 /// `--reference DIR...`, read ([`crate::artifacts::read_references`]) and checked to be

@@ -6,20 +6,33 @@
 //! `--width` and `--height` give). The networks load as the phase `models` (one child
 //! per network), counted as load time.
 
-use super::evaluate::{Args, ReferencePart, metric_models, params_json};
 use crate::artifacts::read_view_set;
 use crate::imageio::Image;
 use crate::metrics::nets::{LpipsNet, Nets};
+use crate::metrics::reference::ReferencePart;
 use crate::metrics::reference::{
     EvalParams, Reference, Settings, SourceReference, StyleReference, StyleSettings,
 };
 use crate::metrics::views::ViewSet;
+use crate::models::metric_models;
 use crate::{Error, Result};
 use fantasystyle_schemas::{ArtifactKind, ArtifactWriter, Producer};
 use std::path::Path;
+use std::path::PathBuf;
+
+/// What `evaluate --reference-only` was given (the stage's flags of the same names).
+#[derive(Debug, Clone)]
+pub(super) struct Request {
+    pub original: Option<PathBuf>,
+    pub style: Option<PathBuf>,
+    pub cameras: Option<String>,
+    pub width: Option<usize>,
+    pub height: Option<usize>,
+    pub out: PathBuf,
+}
 
 /// Write the `part` of the reference `a` asks for to `--out`.
-pub(super) fn run(a: &Args, part: ReferencePart, p: &EvalParams) -> Result<()> {
+pub(super) fn run(a: &Request, part: ReferencePart, p: &EvalParams) -> Result<()> {
     if part != ReferencePart::Style && a.cameras.is_some() {
         return Err(Error::param(
             "--cameras, --width and --height are only for `--reference-only style` (the other \
@@ -31,7 +44,7 @@ pub(super) fn run(a: &Args, part: ReferencePart, p: &EvalParams) -> Result<()> {
             let (original, style) = (need_original(a)?, need_style(a, part)?);
             let orig = crate::timing::load(|| read_view_set(original))?;
             let style_image = crate::timing::load(|| Image::load(style))?;
-            let mut wr = create(a, ArtifactKind::EvalReference, params_json(p))?;
+            let mut wr = create(a, ArtifactKind::EvalReference, p.to_json())?;
             let mut nets = load_nets(p.lpips_net, p.threads)?;
             let r = Reference::compute(&mut nets, &orig, &style_image, p)?;
             wr.add_input("original", original)?;
@@ -48,7 +61,7 @@ pub(super) fn run(a: &Args, part: ReferencePart, p: &EvalParams) -> Result<()> {
             }
             let original = need_original(a)?;
             let orig = crate::timing::load(|| read_view_set(original))?;
-            let mut params = params_json(p);
+            let mut params = p.to_json();
             params["part"] = "source".into();
             let mut wr = create(a, ArtifactKind::EvalSource, params)?;
             let mut nets = load_nets(p.lpips_net, p.threads)?;
@@ -62,7 +75,7 @@ pub(super) fn run(a: &Args, part: ReferencePart, p: &EvalParams) -> Result<()> {
 }
 
 /// `--reference-only style`.
-fn run_style(a: &Args, p: &EvalParams) -> Result<()> {
+fn run_style(a: &Request, p: &EvalParams) -> Result<()> {
     let style = need_style(a, ReferencePart::Style)?;
     let settings = style_settings(a, p)?;
     let style_image = crate::timing::load(|| Image::load(style))?;
@@ -87,7 +100,7 @@ fn run_style(a: &Args, p: &EvalParams) -> Result<()> {
 
 /// What the style part is made for: the views' count and size from `--original`, or
 /// from `--cameras` (their count), `--width` and `--height`.
-fn style_settings(a: &Args, p: &EvalParams) -> Result<StyleSettings> {
+fn style_settings(a: &Request, p: &EvalParams) -> Result<StyleSettings> {
     let s = |views, width, height| {
         StyleSettings::of(&Settings {
             views,
@@ -114,13 +127,13 @@ fn style_settings(a: &Args, p: &EvalParams) -> Result<StyleSettings> {
     }
 }
 
-fn need_original(a: &Args) -> Result<&Path> {
+fn need_original(a: &Request) -> Result<&Path> {
     a.original
         .as_deref()
         .ok_or_else(|| Error::param("this part of the reference needs --original"))
 }
 
-fn need_style(a: &Args, part: ReferencePart) -> Result<&Path> {
+fn need_style(a: &Request, part: ReferencePart) -> Result<&Path> {
     a.style.as_deref().ok_or_else(|| {
         Error::param(format!(
             "`--reference-only {}` needs --style",
@@ -134,7 +147,7 @@ fn need_style(a: &Args, part: ReferencePart) -> Result<&Path> {
 }
 
 /// Start the artifact now, so that an unusable --out fails before the slow part.
-fn create(a: &Args, kind: ArtifactKind, params: serde_json::Value) -> Result<ArtifactWriter> {
+fn create(a: &Request, kind: ArtifactKind, params: serde_json::Value) -> Result<ArtifactWriter> {
     super::create_artifact(
         &a.out,
         kind,
@@ -148,7 +161,7 @@ fn load_nets(net: LpipsNet, threads: usize) -> Result<Nets> {
     crate::timing::load(|| crate::timing::phase("models", || Nets::load(&models, net, threads)))
 }
 
-fn commit(wr: ArtifactWriter, a: &Args, what: &str, views: usize) -> Result<()> {
+fn commit(wr: ArtifactWriter, a: &Request, what: &str, views: usize) -> Result<()> {
     crate::timing::io(|| wr.commit())?;
     tracing::info!("evaluate: {what} for {views} views -> {}", a.out.display());
     Ok(())

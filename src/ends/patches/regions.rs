@@ -82,17 +82,6 @@ pub(super) fn cover(
     Ok(out)
 }
 
-/// The region owning a pixel of shares `shares` (module docs).
-pub(super) fn owner(shares: impl Iterator<Item = f32>) -> u8 {
-    let mut best = (0u8, 0.0f32);
-    for (r, s) in shares.enumerate() {
-        if s > best.1 {
-            best = (r as u8, s);
-        }
-    }
-    best.0
-}
-
 /// The regions' styles and strengths checked: at least one region, each with at least
 /// one style, its weights finite, positive and summing to 1, its strength in [0, 1].
 pub(super) fn check(regions: &[RegionStyle<'_>]) -> Result<()> {
@@ -176,17 +165,6 @@ impl Owned {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_pixel_belongs_to_the_region_with_the_largest_share() {
-        assert_eq!(owner([0.2, 0.5, 0.3].into_iter()), 1);
-        assert_eq!(owner([0.4, 0.4].into_iter()), 0, "the first on a tie");
-        assert_eq!(
-            owner([0.0, 0.0].into_iter()),
-            0,
-            "the first where none covers"
-        );
-    }
 }
 
 #[cfg(test)]

@@ -93,7 +93,7 @@ impl ViewImage {
                 .collect();
             let (_, _, hl, wl) = shares[0].dim();
             Array2::from_shape_fn((hl, wl), |(y, x)| {
-                super::regions::owner(shares.iter().map(|c| c[[0, 0, y, x]]))
+                owner(shares.iter().map(|c| c[[0, 0, y, x]]))
             })
         });
         ViewImage {
@@ -235,5 +235,32 @@ impl ViewImage {
                 0.0
             }
         })
+    }
+}
+
+/// The region owning a pixel of shares `shares` ([`super::regions`]: the largest share, the first on a tie, the first where none covers).
+fn owner(shares: impl Iterator<Item = f32>) -> u8 {
+    let mut best = (0u8, 0.0f32);
+    for (r, s) in shares.enumerate() {
+        if s > best.1 {
+            best = (r as u8, s);
+        }
+    }
+    best.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::owner;
+
+    #[test]
+    fn a_pixel_belongs_to_the_region_with_the_largest_share() {
+        assert_eq!(owner([0.2, 0.5, 0.3].into_iter()), 1);
+        assert_eq!(owner([0.4, 0.4].into_iter()), 0, "the first on a tie");
+        assert_eq!(
+            owner([0.0, 0.0].into_iter()),
+            0,
+            "the first where none covers"
+        );
     }
 }
