@@ -117,21 +117,27 @@ pub struct Args {
 
 pub use crate::metrics::reference::ReferencePart;
 
+impl Args {
+    /// What `--reference-only` reads of these flags.
+    fn reference_request(&self) -> super::evaluate_reference::Request {
+        super::evaluate_reference::Request {
+            original: self.original.clone(),
+            style: self.style.clone(),
+            cameras: self.cameras.clone(),
+            width: self.width,
+            height: self.height,
+            out: self.out.clone(),
+        }
+    }
+}
+
 /// The stage: read the views and the style, evaluate (or compute the reference only,
 /// then `None`), write the artifact.
 pub fn run(a: Args) -> Result<Option<Metrics>> {
     let p = eval_params(&a);
     p.validate()?;
     if let Some(part) = a.reference_only {
-        let request = super::evaluate_reference::Request {
-            original: a.original.clone(),
-            style: a.style.clone(),
-            cameras: a.cameras.clone(),
-            width: a.width,
-            height: a.height,
-            out: a.out.clone(),
-        };
-        return super::evaluate_reference::run(&request, part, &p).map(|()| None);
+        return super::evaluate_reference::run(&a.reference_request(), part, &p).map(|()| None);
     }
     let (original, stylized, style_path) = evaluation_inputs(&a)?;
     let orig = crate::timing::load(|| read_view_set(original))?;

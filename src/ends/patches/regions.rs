@@ -163,11 +163,6 @@ impl Owned {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-}
-
-#[cfg(test)]
 mod blend_tests {
     use super::super::{SynthesisParams, synthesize_images};
     use crate::imageio::Image;
