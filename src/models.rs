@@ -80,6 +80,20 @@ pub fn vendor_candidates(sub: &str) -> Vec<PathBuf> {
     v
 }
 
+/// The models directory, with the metric networks in it.
+pub fn metric_models() -> Result<PathBuf> {
+    let models = models_dir()?;
+    if !models.join("metrics").is_dir() {
+        return Err(Error::Missing(format!(
+            "the metric networks are not installed in {} (run scripts/setup.sh, or set {} \
+             to a models directory that has metrics/)",
+            models.display(),
+            MODELS_ENV
+        )));
+    }
+    Ok(models)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -112,18 +126,4 @@ mod tests {
             "{e}"
         );
     }
-}
-
-/// The models directory, with the metric networks in it.
-pub fn metric_models() -> Result<PathBuf> {
-    let models = models_dir()?;
-    if !models.join("metrics").is_dir() {
-        return Err(Error::Missing(format!(
-            "the metric networks are not installed in {} (run scripts/setup.sh, or set {} \
-             to a models directory that has metrics/)",
-            models.display(),
-            MODELS_ENV
-        )));
-    }
-    Ok(models)
 }
