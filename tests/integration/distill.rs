@@ -6,7 +6,7 @@
 //! covered pixels than the original; finite at t = 1, t = T-1, strength 0 and 1; chunks
 //! and resume (also after a kill) give the same bytes as one run.
 
-use crate::harness::repo_root;
+use crate::harness::{bin, repo_root};
 use fantasystyle::camera::load_cameras;
 use fantasystyle::distill::{Config, Distiller, SourceViews};
 use fantasystyle::prior::{self, PriorOptions};
@@ -300,16 +300,6 @@ fn extremes_are_finite() {
         );
         assert!(r.iter().flatten().all(|v| v.is_finite()));
     }
-}
-
-fn bin(name: &str) -> Command {
-    let exe = match name {
-        "distill" => env!("CARGO_BIN_EXE_distill"),
-        "render-views" => env!("CARGO_BIN_EXE_render-views"),
-        "split" => env!("CARGO_BIN_EXE_split"),
-        _ => unreachable!(),
-    };
-    Command::new(exe)
 }
 
 /// `render-views` of `scene` from `cameras` at `size` x `size` into `out`.

@@ -132,3 +132,26 @@ pub fn python() -> Option<PathBuf> {
     let p = repo_root().join("vendor/venv/bin/python");
     need("vendor/venv/bin/python (numpy)", p.is_file()).then_some(p)
 }
+
+/// A stage binary of this package by name, as a command.
+pub fn bin(name: &str) -> std::process::Command {
+    std::process::Command::new(match name {
+        "distill" => env!("CARGO_BIN_EXE_distill"),
+        "render-views" => env!("CARGO_BIN_EXE_render-views"),
+        "select" => env!("CARGO_BIN_EXE_select"),
+        "split" => env!("CARGO_BIN_EXE_split"),
+        "evaluate" => env!("CARGO_BIN_EXE_evaluate"),
+        _ => unreachable!("no binary `{name}` in the harness"),
+    })
+}
+
+/// Run `c`, which must succeed (its stderr in the failure).
+pub fn ok(c: &mut std::process::Command) -> std::process::Output {
+    let out = c.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{c:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}

@@ -3,30 +3,12 @@
 //! bits, one region over the whole scene is the plain run bit for bit, and bad input is
 //! refused naming the region with nothing written.
 
-use crate::harness::repo_root;
+use crate::harness::{bin, ok, repo_root};
 use fantasystyle::Scene;
 use fantasystyle::artifacts::load_scene;
 use fantasystyle::sample::sample_parts;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bin(name: &str) -> Command {
-    Command::new(match name {
-        "distill" => env!("CARGO_BIN_EXE_distill"),
-        "render-views" => env!("CARGO_BIN_EXE_render-views"),
-        _ => unreachable!(),
-    })
-}
-
-fn run(c: &mut Command) -> Output {
-    let out = c.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{c:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
+use std::process::Command;
 
 fn part(name: &str) -> std::ops::Range<usize> {
     sample_parts(0).into_iter().find(|p| p.0 == name).unwrap().1
@@ -42,7 +24,7 @@ const MOSAIC: &str = "benches/quality/styles/mosaic.png";
 /// 4 views of 64 x 64 of the sample into `dir/views`.
 fn views(dir: &Path) -> PathBuf {
     let out = dir.join("views");
-    run(bin("render-views")
+    ok(bin("render-views")
         .arg("--scene")
         .arg(sample("data-sample/scene.ply"))
         .args(["--cameras", "orbit:4,elev=30,radius=2.4"])
@@ -115,7 +97,7 @@ fn two_regions_take_their_own_styles_in_one_run() {
         "--region".into(),
         format!("{cube_box}={mosaic}"),
     ];
-    run(&mut distill(&v, &two, &d.join("two")));
+    ok(&mut distill(&v, &two, &d.join("two")));
     let out = load_scene(&d.join("two")).unwrap();
     let record = fantasystyle::artifacts::read_regions(&d.join("two"))
         .unwrap()
@@ -137,7 +119,7 @@ fn two_regions_take_their_own_styles_in_one_run() {
             "--region".into(),
             format!("{cube_box}={style}"),
         ];
-        run(&mut distill(&v, &args, &d.join(name)));
+        ok(&mut distill(&v, &args, &d.join(name)));
         load_scene(&d.join(name)).unwrap()
     };
     let (a, b) = (whole(&style, "a"), whole(&mosaic, "b"));
@@ -157,14 +139,14 @@ fn two_regions_take_their_own_styles_in_one_run() {
     if !crate::evaluate::ready() {
         return;
     }
-    run(bin("render-views")
+    ok(bin("render-views")
         .arg("--scene")
         .arg(d.join("two"))
         .arg("--cameras")
         .arg(&v)
         .args(["--width", "64", "--height", "64", "--threads", "2", "--out"])
         .arg(d.join("two-views")));
-    run(Command::new(env!("CARGO_BIN_EXE_evaluate"))
+    ok(bin("evaluate")
         .arg("--original")
         .arg(&v)
         .arg("--stylized")
@@ -195,10 +177,10 @@ fn one_region_over_the_whole_scene_is_the_plain_run() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let v = views(d);
-    run(&mut distill(&v, &[], &d.join("plain")));
+    ok(&mut distill(&v, &[], &d.join("plain")));
     let mosaic = sample(MOSAIC).display().to_string();
     let style = sample("data-sample/style.png").display().to_string();
-    run(&mut distill(
+    ok(&mut distill(
         &v,
         &["--region".into(), format!("rest={style}")],
         &d.join("rest"),
@@ -210,7 +192,7 @@ fn one_region_over_the_whole_scene_is_the_plain_run() {
     );
     // A blend of one image at weight 1 and another at 0 is that image.
     let blend = format!("rest={style}:1,{mosaic}:0");
-    run(&mut distill(
+    ok(&mut distill(
         &v,
         &["--region".into(), blend],
         &d.join("blend"),
@@ -322,7 +304,7 @@ fn bad_regions_are_refused_naming_the_region() {
         "--region".into(),
         all.into(),
     ];
-    let o = run(&mut distill(&v, &args, &d.join("overlap")));
+    let o = ok(&mut distill(&v, &args, &d.join("overlap")));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("sum past 1"), "{err}");
 }

@@ -4,32 +4,12 @@
 //! the ground under it), `distill --selection` holding every other Gaussian's bytes, and
 //! bad input refused naming the file.
 
-use crate::harness::repo_root;
+use crate::harness::{bin, ok, repo_root};
 use fantasystyle::Scene;
 use fantasystyle::render::ViewCache;
 use fantasystyle::sample::{part_masks, sample_parts, sample_scene};
 use fantasystyle::selection::lift::{LiftOptions, Mask, lift, lift_with};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bin(name: &str) -> Command {
-    Command::new(match name {
-        "select" => env!("CARGO_BIN_EXE_select"),
-        "distill" => env!("CARGO_BIN_EXE_distill"),
-        "render-views" => env!("CARGO_BIN_EXE_render-views"),
-        _ => unreachable!(),
-    })
-}
-
-fn ok(c: &mut Command) -> Output {
-    let out = c.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{c:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
 
 fn sphere() -> std::ops::Range<usize> {
     sample_parts(0)
