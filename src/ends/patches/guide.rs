@@ -109,6 +109,41 @@ pub fn source_guides(
         .collect()
 }
 
+/// `x` (`[h w]`) blurred by a separable Gaussian of standard deviation `sigma` pixels,
+/// taps `exp(-i^2 / (2 sigma^2))` for `|i| <= ceil(3 sigma)` over their sum, the edge
+/// pixel repeated outside; `x` itself when `sigma` is 0.
+pub fn blur(x: Vec<f32>, (h, w): (usize, usize), sigma: f32) -> Vec<f32> {
+    if sigma <= 0.0 {
+        return x;
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let taps: Vec<f32> = (-r..=r)
+        .map(|i| (-((i * i) as f32) / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let sum: f32 = taps.iter().sum();
+    let taps: Vec<f32> = taps.iter().map(|t| t / sum).collect();
+    let pass = |src: &[f32], along_x: bool| -> Vec<f32> {
+        let mut out = vec![0.0f32; h * w];
+        for y in 0..h {
+            for xx in 0..w {
+                let mut acc = 0.0f32;
+                for (t, &k) in taps.iter().enumerate() {
+                    let d = t as isize - r;
+                    let (sy, sx) = if along_x {
+                        (y, (xx as isize + d).clamp(0, w as isize - 1) as usize)
+                    } else {
+                        ((y as isize + d).clamp(0, h as isize - 1) as usize, xx)
+                    };
+                    acc += k * src[sy * w + sx];
+                }
+                out[y * w + xx] = acc;
+            }
+        }
+        out
+    };
+    pass(&pass(&x, true), false)
+}
+
 /// The structure guide as a part of the synthesis ([`super::PARTS`]).
 #[derive(Debug, Clone, Copy)]
 pub struct StructureGuide;
@@ -126,8 +161,12 @@ impl Channel for StructureGuide {
         source_guides(rgb, alpha, sizes, background, &to)
     }
 
-    fn style(&self, sized: &Image) -> Vec<f32> {
-        luma(&sized.data)
+    fn style(&self, sized: &Image, p: &SynthesisParams) -> Vec<f32> {
+        blur(luma(&sized.data), (sized.height, sized.width), p.guide_blur)
+    }
+
+    fn at_level(&self, pooled: Vec<f32>, size: (usize, usize), p: &SynthesisParams) -> Vec<f32> {
+        blur(pooled, size, p.guide_blur)
     }
 
     fn weight(&self, p: &SynthesisParams) -> f32 {

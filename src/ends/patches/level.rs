@@ -139,7 +139,7 @@ impl StyleLevel {
             let _ph = crate::timing::span(name);
             let gp = stack(
                 each.iter()
-                    .map(|e| e.channel(ch, p.patch, stride))
+                    .map(|e| e.channel(ch, p, stride))
                     .collect::<Vec<_>>()
                     .iter()
                     .map(|g| g.view())
@@ -302,11 +302,11 @@ impl Sized {
     }
 
     /// Its patches of `ch`'s image of it `[M_i, k k]`.
-    fn channel(&self, ch: &dyn Channel, k: usize, stride: usize) -> Array2<f32> {
+    fn channel(&self, ch: &dyn Channel, p: &SynthesisParams, stride: usize) -> Array2<f32> {
         let (h, w) = (self.image.height, self.image.width);
-        let l =
-            Array3::from_shape_vec((1, h, w), ch.style(&self.image)).expect("one value per pixel");
-        select_rows(patches(l.view(), k, stride), &self.keep)
+        let l = Array3::from_shape_vec((1, h, w), ch.style(&self.image, p))
+            .expect("one value per pixel");
+        select_rows(patches(l.view(), p.patch, stride), &self.keep)
     }
 }
 

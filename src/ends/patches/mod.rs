@@ -43,6 +43,7 @@
 
 pub mod coherence;
 pub mod couple;
+pub mod detail;
 pub mod guide;
 pub mod level;
 pub mod motif;
@@ -50,6 +51,7 @@ pub mod negative;
 pub mod parts;
 pub mod regions;
 pub mod search;
+pub mod settings;
 #[cfg(test)]
 mod test_red;
 pub mod view;
@@ -63,6 +65,7 @@ use level::StyleLevel;
 use parts::{Channel, Hook, PartKind, Rematch};
 use rayon::prelude::*;
 use regions::RegionStyle;
+pub use settings::SynthesisParams;
 use view::{Query, ViewImage};
 
 /// The parts, in the order their channels join the search and their rematches apply.
@@ -111,100 +114,6 @@ pub fn parts_help() -> String {
         .iter()
         .map(|k| format!("          {} ({} > 0): {}\n", k.name, k.key, k.help))
         .collect()
-}
-
-/// The settings of the patch synthesis (the `[synthesis]` section of the method's
-/// configuration; `finish = "patches"` runs it).
-#[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct SynthesisParams {
-    /// Levels, coarsest first: render pixels per synthesis pixel (a patch covers
-    /// patch x level render pixels: 7 x 8 = 56 px places motifs of that size).
-    #[arg(long, value_delimiter = ',', default_value = "8,4,2,1")]
-    pub levels: Vec<usize>,
-    /// Patch side in synthesis pixels (odd).
-    #[arg(long, default_value_t = 7)]
-    pub patch: usize,
-    /// Step of the grid of the object's patches (synthesis pixels).
-    #[arg(long, default_value_t = 2)]
-    pub stride: usize,
-    /// Step of the grid the style's patches are taken on at the finest level (coarser
-    /// levels take every pixel).
-    #[arg(long, default_value_t = 2)]
-    pub style_stride: usize,
-    /// E/M rounds per level.
-    #[arg(long, default_value_t = 3)]
-    pub rounds: usize,
-    /// Colour-fit steps per round (Adam, every view).
-    #[arg(long, default_value_t = 8)]
-    pub steps: usize,
-    /// Adam learning rate of the SH DC colours in the fit.
-    #[arg(long, default_value_t = 0.05)]
-    pub lr: f32,
-    /// Balance of the style's patch use, in [0, 1]: the exponent of the cells' marginal
-    /// in the coupling of the object's patches to the style's cells (0: each patch its
-    /// nearest; 1: every cell used in proportion to its share of the style).
-    #[arg(long, default_value_t = 1.0)]
-    pub balance: f32,
-    /// PCA dimensions of the search.
-    #[arg(long, default_value_t = 24)]
-    pub pca_dims: usize,
-    /// The structure guide's weight (ControlNet's role): how much the frozen source
-    /// render's luminance, remapped to the style's, counts beside the colours in the
-    /// match and the coupling (0: unguided; 1: a pixel's guide weighs like its three
-    /// colour channels). See `guide.rs`.
-    #[arg(long, default_value_t = 0.0)]
-    pub control: f32,
-    /// The guidance scale at t -> 0: how far each patch moves from the scene's own
-    /// (the source branch) toward its style patch (the style branch): 1 takes the style
-    /// patch, 0 keeps the scene.
-    #[arg(long, default_value_t = 1.0)]
-    pub guidance: f32,
-    /// The negative scale at t -> 0: the cost, in mean match distances, of a style patch
-    /// that continues the piece a neighbouring patch copied (the content branch's
-    /// prediction, the style image's own layout); higher copies smaller pieces. See
-    /// `negative.rs`.
-    #[arg(long, default_value_t = 0.0)]
-    pub negative: f32,
-}
-
-impl Default for SynthesisParams {
-    fn default() -> Self {
-        crate::params::defaults()
-    }
-}
-
-impl SynthesisParams {
-    /// Checked ranges.
-    pub fn validate(&self) -> Result<()> {
-        if self.patch.is_multiple_of(2) || self.patch < 3 {
-            return Err(Error::param("synthesis.patch must be odd and >= 3"));
-        }
-        if self.levels.is_empty() || self.levels.iter().any(|&s| s == 0 || s > 32) {
-            return Err(Error::param("synthesis.levels: 1 to 32 each, at least one"));
-        }
-        if self.stride == 0 || self.style_stride == 0 || self.pca_dims == 0 {
-            return Err(Error::param(
-                "synthesis.stride, style_stride and pca_dims must be >= 1",
-            ));
-        }
-        if !(self.lr.is_finite() && self.lr >= 0.0) {
-            return Err(Error::param("synthesis.lr must be finite and >= 0"));
-        }
-        if !(0.0..=1.0).contains(&self.balance) {
-            return Err(Error::param("synthesis.balance must lie in [0, 1]"));
-        }
-        if !(self.control.is_finite() && (0.0..=100.0).contains(&self.control)) {
-            return Err(Error::param("synthesis.control must lie in [0, 100]"));
-        }
-        if !(self.guidance.is_finite() && (0.0..=2.0).contains(&self.guidance)) {
-            return Err(Error::param("synthesis.guidance must lie in [0, 2]"));
-        }
-        if !(self.negative.is_finite() && (0.0..=100.0).contains(&self.negative)) {
-            return Err(Error::param("synthesis.negative must lie in [0, 100]"));
-        }
-        Ok(())
-    }
 }
 
 /// Cells of a level's style bank (the balance's unit).
@@ -477,6 +386,8 @@ struct Frozen {
     parts: Vec<Named<dyn Channel>>,
     rematches: Vec<Named<dyn Rematch>>,
     regions: Vec<FrozenRegion>,
+    /// The detail layer of every view ([`detail`]; empty when `synthesis.detail` is 0).
+    detail: Vec<Vec<f32>>,
 }
 
 /// A region's frozen images: `channels[c][view]`, `cover[view]` (empty with one region).
@@ -498,7 +409,7 @@ impl Frozen {
     ) -> Frozen {
         let parts = channels(p);
         let mut cover = cover.into_iter();
-        let regions = regions
+        let frozen: Vec<FrozenRegion> = regions
             .iter()
             .map(|r| FrozenRegion {
                 channels: parts
@@ -513,13 +424,24 @@ impl Frozen {
                 guidance: p.guidance * r.strength,
             })
             .collect();
+        let detail = if detail::weight(p) > 0.0 {
+            crate::timing::phase("detail", || {
+                let each: Vec<_> = (regions.iter().zip(&frozen))
+                    .map(|(r, f)| (r.lead(), f.guidance, &f.cover[..]))
+                    .collect();
+                detail::layer(&rgb, &alpha, sizes, background, &each, p)
+            })
+        } else {
+            Vec::new()
+        };
         Frozen {
+            regions: frozen,
+            detail,
             rgb,
             alpha,
             background,
             parts,
             rematches: rematches(p),
-            regions,
         }
     }
 }
@@ -538,6 +460,13 @@ fn e_step(
     p: &SynthesisParams,
 ) -> (Vec<Vec<f32>>, RoundStats) {
     let n = src.alpha.len();
+    let lifted;
+    let renders = if src.detail.is_empty() {
+        renders
+    } else {
+        lifted = detail::with(renders, &src.detail, -detail::weight(p));
+        &lifted[..]
+    };
     let ph = crate::timing::span("queries");
     let views: Vec<ViewImage> = (0..n)
         .into_par_iter()
@@ -593,7 +522,7 @@ fn e_step(
             Some(*at - q.pixels.len())
         })
         .collect();
-    let targets = (0..n)
+    let mut targets: Vec<Vec<f32>> = (0..n)
         .into_par_iter()
         .map(|v| {
             let (q, o) = (&queries[v], offsets[v]);
@@ -601,6 +530,9 @@ fn e_step(
             views[v].target(levels, q, mv, p, &renders[v], &src.alpha[v])
         })
         .collect();
+    if !src.detail.is_empty() {
+        detail::lay(&mut targets, &src.detail, detail::weight(p));
+    }
     (targets, stats)
 }
 

@@ -28,7 +28,12 @@ pub trait Channel: Sync {
         style: &Image,
     ) -> Vec<Vec<f32>>;
     /// The channel of the style image at one level (`[h w]`).
-    fn style(&self, sized: &Image) -> Vec<f32>;
+    fn style(&self, sized: &Image, p: &SynthesisParams) -> Vec<f32>;
+    /// A source view's channel at one level (`[h w]`, pooled from [`Channel::source`]'s),
+    /// as the match sees it (the default: as it is).
+    fn at_level(&self, pooled: Vec<f32>, _size: (usize, usize), _p: &SynthesisParams) -> Vec<f32> {
+        pooled
+    }
     /// Its weight in the search: a patch's channel distance counts `weight^2` times.
     fn weight(&self, p: &SynthesisParams) -> f32;
 }

@@ -42,7 +42,7 @@ impl Channel for Red {
             .collect()
     }
 
-    fn style(&self, sized: &Image) -> Vec<f32> {
+    fn style(&self, sized: &Image, _: &SynthesisParams) -> Vec<f32> {
         sized.data.iter().step_by(3).copied().collect()
     }
 

@@ -62,7 +62,7 @@ impl ViewImage {
         v: usize,
         size: (usize, usize),
         s: usize,
-        _p: &SynthesisParams,
+        p: &SynthesisParams,
     ) -> Self {
         let (alpha, bg) = (&src.alpha[v][..], src.background);
         let filled = |x: &[f32]| fill_background(x, alpha, bg, size.0, size.1);
@@ -81,7 +81,13 @@ impl ViewImage {
             .map(|r| {
                 r.channels
                     .iter()
-                    .map(|g| pooled(&g[v], 1, size, s))
+                    .zip(&src.parts)
+                    .map(|(g, &(_, part))| {
+                        let c = pooled(&g[v], 1, size, s);
+                        let (_, _, hl, wl) = c.dim();
+                        let c = part.at_level(c.into_raw_vec_and_offset().0, (hl, wl), p);
+                        Array4::from_shape_vec((1, 1, hl, wl), c).expect("one value per pixel")
+                    })
                     .collect()
             })
             .collect();

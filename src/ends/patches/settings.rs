@@ -1,0 +1,123 @@
+//! The settings of the patch synthesis ([`super::synthesize`]): the `[synthesis]` section
+//! of the method's configuration, each key's meaning in its doc comment (`distill --help`).
+
+use crate::{Error, Result};
+
+/// The settings of the patch synthesis (the `[synthesis]` section of the method's
+/// configuration; `finish = "patches"` runs it).
+#[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SynthesisParams {
+    /// Levels, coarsest first: render pixels per synthesis pixel (a patch covers
+    /// patch x level render pixels: 7 x 8 = 56 px places motifs of that size).
+    #[arg(long, value_delimiter = ',', default_value = "8,4,2,1")]
+    pub levels: Vec<usize>,
+    /// Patch side in synthesis pixels (odd).
+    #[arg(long, default_value_t = 7)]
+    pub patch: usize,
+    /// Step of the grid of the object's patches (synthesis pixels).
+    #[arg(long, default_value_t = 2)]
+    pub stride: usize,
+    /// Step of the grid the style's patches are taken on at the finest level (coarser
+    /// levels take every pixel).
+    #[arg(long, default_value_t = 2)]
+    pub style_stride: usize,
+    /// E/M rounds per level.
+    #[arg(long, default_value_t = 3)]
+    pub rounds: usize,
+    /// Colour-fit steps per round (Adam, every view).
+    #[arg(long, default_value_t = 8)]
+    pub steps: usize,
+    /// Adam learning rate of the SH DC colours in the fit.
+    #[arg(long, default_value_t = 0.05)]
+    pub lr: f32,
+    /// Balance of the style's patch use, in [0, 1]: the exponent of the cells' marginal
+    /// in the coupling of the object's patches to the style's cells (0: each patch its
+    /// nearest; 1: every cell used in proportion to its share of the style).
+    #[arg(long, default_value_t = 1.0)]
+    pub balance: f32,
+    /// PCA dimensions of the search.
+    #[arg(long, default_value_t = 24)]
+    pub pca_dims: usize,
+    /// The structure guide's weight (ControlNet's role): how much the frozen source
+    /// render's luminance, remapped to the style's, counts beside the colours in the
+    /// match and the coupling (0: unguided; 1: a pixel's guide weighs like its three
+    /// colour channels). See `guide.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub control: f32,
+    /// The structure guide's scale: its luma blurred with this standard deviation (in
+    /// synthesis pixels, at every level, the style's and the object's alike) before the
+    /// match, so that it asks for the object's shading at the motif's scale and leaves the
+    /// style free to draw its outlines inside (0: the pixel's own luma). See `guide.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub guide_blur: f32,
+    /// The detail layer's weight: the source's fine luminance (its remapped luma minus
+    /// that luma blurred by `detail_blur` render pixels) laid over the synthesised
+    /// texture, which is matched without it (0: none; 1: the detail at the style's
+    /// contrast). See `detail.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub detail: f32,
+    /// The detail layer's scale: the standard deviation (render pixels) of the blur whose
+    /// residue is the detail.
+    #[arg(long, default_value_t = 4.0)]
+    pub detail_blur: f32,
+    /// The guidance scale at t -> 0: how far each patch moves from the scene's own
+    /// (the source branch) toward its style patch (the style branch): 1 takes the style
+    /// patch, 0 keeps the scene.
+    #[arg(long, default_value_t = 1.0)]
+    pub guidance: f32,
+    /// The negative scale at t -> 0: the cost, in mean match distances, of a style patch
+    /// that continues the piece a neighbouring patch copied (the content branch's
+    /// prediction, the style image's own layout); higher copies smaller pieces. See
+    /// `negative.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub negative: f32,
+}
+
+impl Default for SynthesisParams {
+    fn default() -> Self {
+        crate::params::defaults()
+    }
+}
+
+impl SynthesisParams {
+    /// Checked ranges.
+    pub fn validate(&self) -> Result<()> {
+        if self.patch.is_multiple_of(2) || self.patch < 3 {
+            return Err(Error::param("synthesis.patch must be odd and >= 3"));
+        }
+        if self.levels.is_empty() || self.levels.iter().any(|&s| s == 0 || s > 32) {
+            return Err(Error::param("synthesis.levels: 1 to 32 each, at least one"));
+        }
+        if self.stride == 0 || self.style_stride == 0 || self.pca_dims == 0 {
+            return Err(Error::param(
+                "synthesis.stride, style_stride and pca_dims must be >= 1",
+            ));
+        }
+        if !(self.lr.is_finite() && self.lr >= 0.0) {
+            return Err(Error::param("synthesis.lr must be finite and >= 0"));
+        }
+        if !(0.0..=1.0).contains(&self.balance) {
+            return Err(Error::param("synthesis.balance must lie in [0, 1]"));
+        }
+        if !(self.control.is_finite() && (0.0..=100.0).contains(&self.control)) {
+            return Err(Error::param("synthesis.control must lie in [0, 100]"));
+        }
+        if !(self.guidance.is_finite() && (0.0..=2.0).contains(&self.guidance)) {
+            return Err(Error::param("synthesis.guidance must lie in [0, 2]"));
+        }
+        if !(self.guide_blur.is_finite() && (0.0..=64.0).contains(&self.guide_blur)) {
+            return Err(Error::param("synthesis.guide_blur must lie in [0, 64]"));
+        }
+        if !(self.detail.is_finite() && (0.0..=10.0).contains(&self.detail)) {
+            return Err(Error::param("synthesis.detail must lie in [0, 10]"));
+        }
+        if !(self.detail_blur.is_finite() && (0.25..=64.0).contains(&self.detail_blur)) {
+            return Err(Error::param("synthesis.detail_blur must lie in [0.25, 64]"));
+        }
+        if !(self.negative.is_finite() && (0.0..=100.0).contains(&self.negative)) {
+            return Err(Error::param("synthesis.negative must lie in [0, 100]"));
+        }
+        Ok(())
+    }
+}
