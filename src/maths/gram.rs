@@ -10,41 +10,67 @@ use rayon::prelude::*;
 /// in f64.
 ///
 /// Each entry is the sum over positions, in position order, of `f_a f_b` (products in
-/// f64), divided by `H W`. For speed the features are laid out position-major and the
-/// upper triangle is computed in strips of `TILE` rows (in parallel; a strip runs from
-/// the diagonal to the last column, so the features are read once per strip rather
-/// than once per square tile) whose entries all advance one position at a time, so the
-/// inner loop runs over contiguous channels; that changes no entry's summation order
-/// (see the bitwise test below).
+/// f64), divided by `H W`. For speed the features are laid out position-major
+/// ([`position_major`]) and the sums ([`gram_sums`]) advance a block of entries one
+/// position at a time, so the inner loop runs over contiguous channels; that changes
+/// no entry's summation order (see the bitwise test below).
 pub fn gram(t: &Tensor3) -> Vec<f64> {
     let (c, hw) = (t.c, t.h * t.w);
-    // Position-major copy, transposed in blocks of 64 positions (in parallel).
-    let mut xt = vec![0.0f64; hw * c];
+    let mut g = gram_sums(&position_major(t, None), c);
+    g.iter_mut().for_each(|v| *v /= hw as f64);
+    g
+}
+
+/// The features of `t` (`[C, H, W]`) position-major in f64 (`[HW', C]`), of the
+/// positions `keep` (ascending) or of all; transposed in blocks of 64 positions, in
+/// parallel.
+pub fn position_major(t: &Tensor3, keep: Option<&[usize]>) -> Vec<f64> {
+    let (c, hw) = (t.c, t.h * t.w);
+    let n = keep.map_or(hw, <[usize]>::len);
+    let mut xt = vec![0.0f64; n * c];
     xt.par_chunks_mut(64 * c)
         .enumerate()
         .for_each(|(blk, out)| {
             let p0 = blk * 64;
             let np = out.len() / c;
             for a in 0..c {
-                let src = &t.data[a * hw + p0..a * hw + p0 + np];
-                for (k, &v) in src.iter().enumerate() {
-                    out[k * c + a] = v as f64;
+                let ch = &t.data[a * hw..(a + 1) * hw];
+                match keep {
+                    None => {
+                        for (k, &v) in ch[p0..p0 + np].iter().enumerate() {
+                            out[k * c + a] = f64::from(v);
+                        }
+                    }
+                    Some(keep) => {
+                        for (k, &p) in keep[p0..p0 + np].iter().enumerate() {
+                            out[k * c + a] = f64::from(ch[p]);
+                        }
+                    }
                 }
             }
         });
+    xt
+}
+
+/// The `C x C` sums `sum_p x[p][a] x[p][b]` (row-major, symmetric) of position-major
+/// features `xt` (`[HW, C]`, from [`position_major`]), each over the positions in order:
+/// the upper triangle in strips of `TILE` rows, in parallel (a strip runs from the
+/// diagonal to the last column, so the features are read once per strip rather than
+/// once per square tile), mirrored.
+pub fn gram_sums(xt: &[f64], c: usize) -> Vec<f64> {
     let strips: Vec<usize> = (0..c).step_by(TILE).collect();
     let sums: Vec<Vec<f64>> = strips
         .par_iter()
-        .map(|&a0| gram_tile(&xt, c, a0, a0))
+        .map(|&a0| gram_tile(xt, c, a0, a0))
         .collect();
     let mut g = vec![0.0; c * c];
     for (&a0, acc) in strips.iter().zip(&sums) {
         let tb = c - a0;
-        for (k, s) in acc.iter().enumerate() {
+        for (k, &s) in acc.iter().enumerate() {
             let (a, b) = (a0 + k / tb, a0 + k % tb);
             if b >= a {
-                g[a * c + b] = s / hw as f64;
-                g[b * c + a] = s / hw as f64;
+                g[a * c + b] = s;
+                g[b * c + a] = s;
             }
         }
     }
@@ -53,12 +79,15 @@ pub fn gram(t: &Tensor3) -> Vec<f64> {
 
 /// Rows of the strips of the Gram matrix computed as one task.
 const TILE: usize = 16;
+/// Columns of a block of sums held in registers (two vectors of four f64).
+const NJ: usize = 8;
 
 /// The sums `sum_p x[p][a] x[p][b]` of one tile (`a0..a0 + TILE` x `b0..c`, clipped to
 /// `c`) of position-major features `xt` (`hw x c`), row-major `ta x tb`. Each
 /// sum runs over the positions in order; positions are taken in chunks (so the tile's
-/// columns stay in cache) and 4x4 blocks of sums are held in registers within a chunk.
-/// On a diagonal tile only the blocks on or above the diagonal are computed.
+/// columns stay in cache) and 4 x [`NJ`] blocks of sums are held in registers within a
+/// chunk (eight independent vectors of four sums: enough to keep the multiply-adds
+/// busy). On a diagonal tile the blocks wholly below the diagonal are not computed.
 ///
 /// On x86-64 CPUs with AVX2 and FMA the same loop runs with fused multiply-adds, chosen
 /// at run time. That gives the same bits: a product of two f32 values is exact in f64
@@ -90,24 +119,22 @@ fn gram_tile_impl<const FMA: bool>(xt: &[f64], c: usize, a0: usize, b0: usize) -
     let mut acc = vec![-0.0f64; ta * tb];
     for chunk in xt.chunks(CHUNK * c) {
         for i0 in (0..ta).step_by(4) {
-            for j0 in (0..tb).step_by(4) {
-                if a0 == b0 && j0 < i0 {
+            for j0 in (0..tb).step_by(NJ) {
+                if a0 == b0 && j0 + NJ <= i0 {
                     continue; // below the diagonal: its mirror block is computed
                 }
-                let (ni, nj) = (4.min(ta - i0), 4.min(tb - j0));
-                let mut s = [[-0.0f64; 4]; 4];
+                let (ni, nj) = (4.min(ta - i0), NJ.min(tb - j0));
+                let mut s = [[-0.0f64; NJ]; 4];
                 for i in 0..ni {
-                    for j in 0..nj {
-                        s[i][j] = acc[(i0 + i) * tb + j0 + j];
-                    }
+                    s[i][..nj].copy_from_slice(&acc[(i0 + i) * tb + j0..][..nj]);
                 }
                 let (a, b) = (a0 + i0, b0 + j0);
-                if ni == 4 && nj == 4 {
+                if ni == 4 && nj == NJ {
                     for row in chunk.chunks_exact(c) {
                         let x: [f64; 4] = row[a..a + 4].try_into().expect("4 values");
-                        let y: [f64; 4] = row[b..b + 4].try_into().expect("4 values");
+                        let y: [f64; NJ] = row[b..b + NJ].try_into().expect("NJ values");
                         for i in 0..4 {
-                            for j in 0..4 {
+                            for j in 0..NJ {
                                 s[i][j] = if FMA {
                                     x[i].mul_add(y[j], s[i][j])
                                 } else {
@@ -126,9 +153,7 @@ fn gram_tile_impl<const FMA: bool>(xt: &[f64], c: usize, a0: usize, b0: usize) -
                     }
                 }
                 for i in 0..ni {
-                    for j in 0..nj {
-                        acc[(i0 + i) * tb + j0 + j] = s[i][j];
-                    }
+                    acc[(i0 + i) * tb + j0..][..nj].copy_from_slice(&s[i][..nj]);
                 }
             }
         }

@@ -4,12 +4,14 @@
 //! | module | what |
 //! |---|---|
 //! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64), PSD square roots, small dense products |
+//! | [`expf`] | `f32::exp` of many values at once, bit for bit the platform's `expf` (glibc's FMA build's operations on four lanes) |
 //! | [`gram`] | the Gram matrix of a feature map (Gatys et al. 2016, Eq. 3) |
 //! | [`sinkhorn`] | log-sum-exp, max-shifted softmax weights, the entropic coupling by log-domain Sinkhorn iterations (Cuturi 2013; Schmitzer 2019) |
 //! | [`sinkhorn_dense`] | the dense log-unit Sinkhorn rounds of the synthesis's balance, rearranged for speed (the same bits) |
 //! | [`kid`] | KID's polynomial kernel and unbiased MMD² estimate (Bińkowski et al. 2018) |
 //! | [`warp`] | depth reprojection of one rendered view into another, with an occlusion test |
 
+pub mod expf;
 pub mod gram;
 pub mod kid;
 pub mod linalg;

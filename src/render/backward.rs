@@ -159,12 +159,12 @@ fn sh_backward_one(
     for ch in 0..3 {
         gdc[ch] += sh::C0 * g[ch];
     }
-    let Some(d) = sh::unit_dir(centre, scene.positions[i]) else {
-        return;
-    };
     if k == 0 {
         return;
     }
+    let Some(d) = sh::unit_dir(centre, scene.positions[i]) else {
+        return;
+    };
     let mut basis = [0.0f32; 16];
     sh::sh_basis(scene.sh_degree, d, &mut basis);
     for kk in 0..k {

@@ -13,7 +13,7 @@
 //! 4 bytes per pixel ([`ViewCache::bytes`]). [`CacheMode`] chooses between caching
 //! every view, none, or as many as fit a byte budget.
 
-use super::backward::{load_tile, merge};
+use super::backward::merge;
 use super::project::TILE;
 use super::raster::{HALF, Sink, TP, TileState, composite_tile};
 use super::{Frame, project, validate_camera, validate_scene};
@@ -227,6 +227,11 @@ impl ViewCache {
 
     /// [`Self::forward`] into `rgb` (`[H, W, 3]`, every value overwritten), so that a
     /// caller rendering many steps reuses one buffer.
+    ///
+    /// A pixel's three sums are held side by side with a fourth lane (always 0) so that
+    /// each record is one 4-wide multiply and add; every channel still adds `w c` (the
+    /// product rounded, then the sum) in record order, so the bits are the per-channel
+    /// loop's.
     pub fn forward_into(&self, colours: &[[f32; 3]], background: [f32; 3], rgb: &mut [f32]) {
         let w = self.width;
         assert_eq!(rgb.len(), w * self.height * 3, "forward_into: buffer size");
@@ -235,20 +240,19 @@ impl ViewCache {
             .enumerate()
             .for_each(|(ty, out)| {
                 let rows = out.len() / (3 * w);
-                let mut acc = [[0.0f32; TP]; 3];
+                let mut acc = [[0.0f32; 4]; TP];
                 for tx in 0..tiles_x {
-                    for a in acc.iter_mut() {
-                        a.fill(0.0);
-                    }
+                    acc.fill([0.0; 4]);
                     let t = ty * tiles_x + tx;
                     for r in self.tile_runs[t] as usize..self.tile_runs[t + 1] as usize {
-                        let c = colours[self.run_splat[r] as usize];
+                        let [c0, c1, c2] = colours[self.run_splat[r] as usize];
+                        let c = [c0, c1, c2, 0.0];
                         let span = self.run_start[r] as usize..self.run_start[r + 1] as usize;
                         for (&p, &wt) in self.pix[span.clone()].iter().zip(&self.weight[span]) {
-                            let p = p as usize;
-                            acc[0][p] += wt * c[0];
-                            acc[1][p] += wt * c[1];
-                            acc[2][p] += wt * c[2];
+                            let a = &mut acc[usize::from(p)];
+                            for ch in 0..4 {
+                                a[ch] += wt * c[ch];
+                            }
                         }
                     }
                     let x0 = tx * TILE;
@@ -258,7 +262,7 @@ impl ViewCache {
                             let o = r * w + x0 + col;
                             let tf = self.t_final[(ty * TILE + r) * w + x0 + col];
                             for ch in 0..3 {
-                                out[o * 3 + ch] = acc[ch][p] + tf * background[ch];
+                                out[o * 3 + ch] = acc[p][ch] + tf * background[ch];
                             }
                         }
                     }
@@ -266,33 +270,110 @@ impl ViewCache {
             });
     }
 
-    /// `dL/dc` per entry of `gaussians()` given `dL/dC` as an `[H, W, 3]` image.
+    /// `dL/dc` per entry of `gaussians()` given `dL/dC` as an `[H, W, 3]` image (a
+    /// pixel's three gradients side by side, as in [`Self::forward_into`]: each channel's
+    /// sum is the per-channel loop's, bit for bit).
     pub fn backward(&self, grad_rgb: &[f32]) -> Vec<[f32; 3]> {
         let per_tile: Vec<Vec<(u32, [f32; 3])>> = (0..self.tiles())
             .into_par_iter()
             .map(|t| {
-                let g = load_tile(grad_rgb, self.width, self.height, t, self.tiles_x);
-                let g = [
-                    g[0].as_flattened(),
-                    g[1].as_flattened(),
-                    g[2].as_flattened(),
-                ];
+                let g = load_tile4(grad_rgb, self.width, self.height, t, self.tiles_x);
                 let runs = self.tile_runs[t] as usize..self.tile_runs[t + 1] as usize;
                 let mut out = Vec::with_capacity(runs.len());
                 for r in runs {
                     let span = self.run_start[r] as usize..self.run_start[r + 1] as usize;
-                    let mut s = [0.0f32; 3];
+                    let mut s = [0.0f32; 4];
                     for (&p, &wt) in self.pix[span.clone()].iter().zip(&self.weight[span]) {
-                        let p = p as usize;
-                        s[0] += wt * g[0][p];
-                        s[1] += wt * g[1][p];
-                        s[2] += wt * g[2][p];
+                        let gp = &g[usize::from(p)];
+                        for ch in 0..4 {
+                            s[ch] += wt * gp[ch];
+                        }
                     }
-                    out.push((self.run_splat[r], s));
+                    out.push((self.run_splat[r], [s[0], s[1], s[2]]));
                 }
                 out
             })
             .collect();
         merge(per_tile, self.gaussians.len())
+    }
+}
+
+/// Tile `tile` of an `[H, W, 3]` image, a pixel's three values and a 0 side by side,
+/// row-major within the tile (zero outside the image).
+fn load_tile4(
+    img: &[f32],
+    width: usize,
+    height: usize,
+    tile: usize,
+    tiles_x: usize,
+) -> Box<[[f32; 4]; TP]> {
+    let mut g = Box::new([[0.0f32; 4]; TP]);
+    let x0 = (tile % tiles_x) * TILE;
+    let y0 = (tile / tiles_x) * TILE;
+    for r in 0..(height - y0).min(TILE) {
+        for c in 0..(width - x0).min(TILE) {
+            let o = ((y0 + r) * width + x0 + c) * 3;
+            g[r * TILE + c] = [img[o], img[o + 1], img[o + 2], 0.0];
+        }
+    }
+    g
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::tests::{front_camera, random_scene};
+
+    /// The per-channel loops the 4-wide ones replaced: the same bits, forward and
+    /// backward (SH degree 0 and 2, a camera whose width is not a multiple of the tile).
+    #[test]
+    fn four_wide_sums_are_the_per_channel_loops_bitwise() {
+        for deg in [0, 2] {
+            let scene = random_scene(3000, deg, 40 + deg as u64);
+            let cam = front_camera(90, 60, 80.0, 3.0);
+            let c = ViewCache::build(&scene, &cam).unwrap();
+            let mut rng = crate::rng::Rng::new(9);
+            let colours: Vec<[f32; 3]> = (0..c.gaussians().len())
+                .map(|_| {
+                    let x = rng.normals_f32(3);
+                    [x[0].abs(), x[1].abs(), x[2].abs()]
+                })
+                .collect();
+            let bg = [0.1, 0.5, 0.9];
+            let (w, h) = (c.width, c.height);
+            let mut want = vec![0.0f32; w * h * 3];
+            let grad = rng.normals_f32(w * h * 3);
+            let mut want_g = vec![[0.0f32; 3]; colours.len()];
+            for t in 0..c.tiles() {
+                let (x0, y0) = ((t % c.tiles_x) * TILE, (t / c.tiles_x) * TILE);
+                let mut acc = [[0.0f32; TP]; 3];
+                for r in c.tile_runs[t] as usize..c.tile_runs[t + 1] as usize {
+                    let (j, mut s) = (c.run_splat[r] as usize, [0.0f32; 3]);
+                    for k in c.run_start[r] as usize..c.run_start[r + 1] as usize {
+                        let p = usize::from(c.pix[k]);
+                        let o = ((y0 + p / TILE) * w + x0 + p % TILE) * 3;
+                        for ch in 0..3 {
+                            acc[ch][p] += c.weight[k] * colours[j][ch];
+                            s[ch] += c.weight[k] * grad[o + ch];
+                        }
+                    }
+                    for ch in 0..3 {
+                        want_g[j][ch] += s[ch];
+                    }
+                }
+                for p in 0..TP {
+                    let (y, x) = (y0 + p / TILE, x0 + p % TILE);
+                    if y < h && x < w {
+                        for ch in 0..3 {
+                            want[(y * w + x) * 3 + ch] = acc[ch][p] + c.t_final[y * w + x] * bg[ch];
+                        }
+                    }
+                }
+            }
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&c.forward(&colours, bg)), bits(&want), "degree {deg}");
+            let got_g = c.backward(&grad);
+            assert_eq!(bits(got_g.as_flattened()), bits(want_g.as_flattened()));
+        }
     }
 }

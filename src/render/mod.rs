@@ -141,18 +141,27 @@ pub fn validate_scene(scene: &Scene) -> Result<()> {
 pub fn raw_colours(scene: &Scene, ids: &[u32], centre: [f32; 3]) -> Vec<[f32; 3]> {
     let k = scene.rest_per_channel();
     let deg = scene.sh_degree;
-    ids.par_chunks(4096)
-        .flat_map_iter(|chunk| {
-            let mut basis = [0.0f32; 16];
-            chunk.iter().map(move |&id| {
+    if k == 0 {
+        // Degree 0: the basis is `C0` alone, whatever the direction (not computed).
+        let mut basis = [0.0f32; 16];
+        sh::sh_basis(0, [0.0; 3], &mut basis);
+        return ids
+            .par_iter()
+            .map(|&id| sh::raw_colour(&basis, scene.sh_dc[id as usize], &[], 0))
+            .collect();
+    }
+    ids.par_iter()
+        .map_init(
+            || [0.0f32; 16],
+            |basis, &id| {
                 let i = id as usize;
                 let d = sh::unit_dir(centre, scene.positions[i]);
                 let kk = if d.is_some() { k } else { 0 };
-                sh::sh_basis(deg, d.unwrap_or([0.0; 3]), &mut basis);
+                sh::sh_basis(deg, d.unwrap_or([0.0; 3]), basis);
                 let rest = &scene.sh_rest[i * k * 3..(i + 1) * k * 3];
-                sh::raw_colour(&basis, scene.sh_dc[i], rest, kk)
-            })
-        })
+                sh::raw_colour(basis, scene.sh_dc[i], rest, kk)
+            },
+        )
         .collect()
 }
 

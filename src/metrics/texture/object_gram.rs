@@ -5,7 +5,7 @@
 //! resolution as `w`), so that the black background does not dominate the statistics.
 
 use super::ratio;
-use crate::maths::gram::gram;
+use crate::maths::gram::{gram, gram_sums, position_major};
 use crate::metrics::nets::Features;
 use crate::vgg::Tensor3;
 use serde::Serialize;
@@ -56,6 +56,12 @@ pub fn pool_alpha(alpha: &[f32], w: usize, h: usize, tw: usize, th: usize) -> Ve
 
 /// The Gram matrix of `t` weighted by `weights` (one per position):
 /// `sum_p w_p f_p f_p^T / sum_p w_p`; `None` when the weights sum to less than 1e-6.
+///
+/// Computed as the Gram of the features scaled by `sqrt(w_p)` (in f32), times
+/// `HW / sum_p w_p`. The positions of weight 0 (the background, most of a view of an
+/// object) add products of zeros, which change no sum that is not itself zero: the sums
+/// run over the other positions alone, and any entry that comes out zero is summed again
+/// over every position, so every bit is that of the sum over all of them (see the test).
 pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
     let hw = t.h * t.w;
     assert_eq!(weights.len(), hw, "weighted_gram: weights size");
@@ -69,7 +75,34 @@ pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
         ch.iter_mut().zip(&root).for_each(|(f, r)| *f *= r);
     }
     let k = hw as f64 / sw;
-    let mut g = gram(&scaled);
+    let keep: Vec<usize> = (0..hw).filter(|&p| root[p] != 0.0).collect();
+    // A skipped position's products must be zeros: finite features.
+    let finite = scaled.data.iter().all(|v| v.is_finite());
+    let mut g = if keep.len() < hw && finite {
+        let c = t.c;
+        let mut g = gram_sums(&position_major(&scaled, Some(&keep)), c);
+        for a in 0..c {
+            for b in a..c {
+                if g[a * c + b] == 0.0 {
+                    let (fa, fb) = (
+                        &scaled.data[a * hw..(a + 1) * hw],
+                        &scaled.data[b * hw..(b + 1) * hw],
+                    );
+                    let s: f64 = fa
+                        .iter()
+                        .zip(fb)
+                        .map(|(&x, &y)| f64::from(x) * f64::from(y))
+                        .sum();
+                    g[a * c + b] = s;
+                    g[b * c + a] = s;
+                }
+            }
+        }
+        g.iter_mut().for_each(|v| *v /= hw as f64);
+        g
+    } else {
+        gram(&scaled)
+    };
     g.iter_mut().for_each(|v| *v *= k);
     Some(g)
 }
@@ -226,6 +259,44 @@ mod tests {
             assert!((x - y).abs() < 1e-6 * (1.0 + y.abs()));
         }
         assert!(weighted_gram(&t, &vec![0.0; h * w]).is_none());
+    }
+
+    /// With positions of weight 0 (skipped) the bits are those of the Gram over every
+    /// position: ordinary entries, entries that are exactly zero (a channel that is zero
+    /// wherever the weight is not: +0, or -0 from -0 features) and a channel of -0s.
+    #[test]
+    fn skipping_zero_weights_changes_no_bit() {
+        let (c, h, w) = (21, 9, 13);
+        let mut t = rand_tensor(c, h, w, 3);
+        let hw = h * w;
+        let wts: Vec<f32> = (0..hw)
+            .map(|p| {
+                if p % 5 < 2 {
+                    0.0
+                } else {
+                    0.3 + (p % 7) as f32 * 0.1
+                }
+            })
+            .collect();
+        for p in 0..hw {
+            // Channel 3: nonzero only where the weight is 0; channel 4: -0 everywhere;
+            // channel 5: -0 where the weight is 0, +0 elsewhere.
+            t.data[3 * hw + p] = if wts[p] == 0.0 { 1.5 } else { 0.0 };
+            t.data[4 * hw + p] = -0.0;
+            t.data[5 * hw + p] = if wts[p] == 0.0 { -0.0 } else { 0.0 };
+        }
+        let got = weighted_gram(&t, &wts).unwrap();
+        // By definition, every position summed in order.
+        let sw: f64 = wts.iter().map(|&v| v as f64).sum();
+        let root: Vec<f32> = wts.iter().map(|&v| v.max(0.0).sqrt()).collect();
+        let f = |a: usize, p: usize| f64::from(t.data[a * hw + p] * root[p]);
+        for a in 0..c {
+            for b in 0..c {
+                let s: f64 = (0..hw).map(|p| f(a, p) * f(b, p)).sum();
+                let want = s / hw as f64 * (hw as f64 / sw);
+                assert_eq!(got[a * c + b].to_bits(), want.to_bits(), "({a}, {b})");
+            }
+        }
     }
 
     #[test]
