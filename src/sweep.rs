@@ -137,10 +137,15 @@ impl Sweep {
                     .iter()
                     .map(|(k, v)| format!("--set {k}={}", value_text(v)))
                     .collect();
-                let measures: Vec<String> = ["edge_recall", "motif_contrast", "interior_structure"]
-                    .iter()
-                    .filter_map(|k| Some(format!("{k} {:.3}", p.metrics.get(*k).copied()??)))
-                    .collect();
+                let measures: Vec<String> = [
+                    "edge_recall",
+                    "motif_contrast",
+                    "style_texture",
+                    "interior_structure",
+                ]
+                .iter()
+                .filter_map(|k| Some(format!("{k} {:.3}", p.metrics.get(*k).copied()??)))
+                .collect();
                 let caption = format!("{}: {} ({})", p.name, set.join(" "), measures.join(", "));
                 Some(figure(&img, 160, &caption))
             })
@@ -349,6 +354,7 @@ pub fn summary(metrics: &serde_json::Value) -> BTreeMap<String, Option<f64>> {
         ("interior_structure", get(&["interior_structure"])),
         ("edge_recall", get(&["edge_recall"])),
         ("motif_contrast", get(&["motif_contrast"])),
+        ("style_texture", get(&["style_texture"])),
     ]
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
@@ -490,6 +496,34 @@ mod tests {
                 .to_string()
                 .contains("no points")
         );
+    }
+
+    #[test]
+    fn summary_and_strip_show_style_texture_beside_motif_contrast() {
+        let m = summary(&serde_json::json!({
+            "edge_recall": 0.9, "motif_contrast": 0.6, "style_texture": 0.25,
+            "interior_structure": 0.8
+        }));
+        assert_eq!(m["motif_contrast"], Some(0.6));
+        assert_eq!(m["style_texture"], Some(0.25));
+        let d = tempfile::tempdir().unwrap();
+        let view = d.path().join("v.png");
+        crate::imageio::write_png_rgb(&view, &[0.5; 12], 2, 2).unwrap();
+        let s = Sweep {
+            points: vec![SweepPoint {
+                name: "c1".into(),
+                settings: [("synthesis.control".to_string(), serde_json::json!(1))].into(),
+                wall_s: 1.0,
+                metrics: m,
+                view: Some(view),
+            }],
+        };
+        let html = s.html();
+        assert!(
+            html.contains("motif_contrast 0.600, style_texture 0.250, interior_structure"),
+            "{html}"
+        );
+        assert!(s.markdown().contains("| style_texture |"));
     }
 
     #[test]

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Independent float64 reference of interior structure, edge recall and motif contrast
-(issue 53; numpy only).
+"""Independent float64 reference of interior structure, edge recall, motif contrast and
+style texture (issue 53; numpy only).
 
     interior_ref.py SOURCE_VIEWS STYLIZED_VIEWS STYLE_NPY [--out FILE]
 
@@ -10,8 +10,9 @@ SOURCE_VIEWS and STYLIZED_VIEWS are `views` artifact directories of the same cam
 
     {"style_spread": s,
      "per_view": [{"pixels": n, "strong": k, "interior_structure": r,
-                   "edge_recall": e, "motif_contrast": m}, ...],
-     "mean": {"interior_structure": ..., "edge_recall": ..., "motif_contrast": ...}}
+                   "edge_recall": e, "motif_contrast": m, "style_texture": t}, ...],
+     "mean": {"interior_structure": ..., "edge_recall": ..., "motif_contrast": ...,
+              "style_texture": ...}}
 
 Definitions (docs/evaluation.md "Inside the object"):
 
@@ -24,7 +25,10 @@ Definitions (docs/evaluation.md "Inside the object"):
                             D_src D_sty > 0, |D_sty| >= P75(|D_sty|), |D_sty| > 1e-6}
                 / #{p in M: |D_src| >= P90(|D_src|), |D_src| > 1e-6}
     motif contrast = std(D_sty over M) / std(D_style over the whole style image)
-
+    style texture  = std(R over M) / std(D_style over the whole style image), where
+                     R = D_sty - beta D_src over M and beta = sum(D_src D_sty) / sum(D_src^2)
+                     over M (the least-squares projection on the source's band pass,
+                     through the origin), beta = 0 when sum(D_src^2) <= 1e-12
 G_s: separable Gaussian of standard deviation s, taps exp(-i^2 / (2 s^2)) for
 |i| <= ceil(3 s) divided by their sum, edge pixel repeated outside (clamp to edge).
 Percentiles (P90, P75) over M: linear interpolation between closest ranks (numpy's
@@ -35,10 +39,10 @@ halved by 2 x 2 box averaging (odd last rows/columns dropped); then bilinear sam
 ((x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5), sx = current width / target width,
 coordinates clamped to the image.
 
-A view with fewer than 64 pixels in M has no value (null) for all three; interior
+A view with fewer than 64 pixels in M has no value (null) for all four; interior
 structure is null when either band pass has variance below 1e-12 over M; edge recall is
-null when no source pixel qualifies as strong; motif contrast is null when the style's
-spread squared is below 1e-12. Means are over the non-null values.
+null when no source pixel qualifies as strong; motif contrast and style texture are null
+when the style's spread squared is below 1e-12. Means are over the non-null values.
 
 Written from the definitions above; shares no code with the Rust implementation
 (src/metrics/interior.rs, src/metrics/structure.rs). The band pass D and the Pearson
@@ -58,6 +62,7 @@ EROSION = 8
 MIN_PIXELS = 64
 MIN_VARIANCE = 1e-12
 MIN_BAND = 1e-6
+MIN_SOURCE_ENERGY = 1e-12
 STYLE_SIDE = 256
 
 
@@ -97,7 +102,8 @@ def resize_shorter_side(img, side):
 def one_view(src, sty, alpha, style_spread):
     m = erode(alpha > 0.5, EROSION)
     n = int(m.sum())
-    res = {"pixels": n, "strong": 0, "interior_structure": None, "edge_recall": None, "motif_contrast": None}
+    res = {"pixels": n, "strong": 0, "interior_structure": None, "edge_recall": None, "motif_contrast": None,
+           "style_texture": None}
     if n < MIN_PIXELS:
         return res
     a, b = dog(src)[m], dog(sty)[m]
@@ -109,6 +115,11 @@ def one_view(src, sty, alpha, style_spread):
         res["edge_recall"] = float(hit.sum() / strong.sum())
     if style_spread is not None:
         res["motif_contrast"] = float(np.std(b) / style_spread)
+        # The stylized band pass less its least-squares fit by the source's (lstsq of b on
+        # the single column a, no intercept).
+        energy = float(a @ a)
+        beta = float(np.linalg.lstsq(a[:, None], b, rcond=None)[0][0]) if energy > MIN_SOURCE_ENERGY else 0.0
+        res["style_texture"] = float(np.std(b - beta * a) / style_spread)
     return res
 
 
@@ -129,7 +140,7 @@ def main():
     style_spread = s if s * s >= MIN_VARIANCE else None
     per_view = [one_view(src[v], sty[v], alpha[v], style_spread) for v in range(src.shape[0])]
     mean = {}
-    for key in ("interior_structure", "edge_recall", "motif_contrast"):
+    for key in ("interior_structure", "edge_recall", "motif_contrast", "style_texture"):
         have = [p[key] for p in per_view if p[key] is not None]
         mean[key] = sum(have) / len(have) if have else None
     text = json.dumps({"style_spread": style_spread, "per_view": per_view, "mean": mean})

@@ -11,8 +11,8 @@
 //! surface against squares of the style, which the whole-view KID cannot see); the
 //! content leakage of [`super::leakage`]; and the structure kept of [`super::structure`]
 //! (the source's edges and shading detail still where they were), with the interior
-//! structure, edge recall and motif contrast of [`super::interior`] (the same band pass
-//! inside the object only, away from its silhouette).
+//! structure, edge recall, motif contrast and style texture of [`super::interior`] (the
+//! same band pass inside the object only, away from its silhouette).
 //!
 //! The half of it that depends only on the original views and the style image is
 //! [`super::reference::Reference`], computed here or read from an `eval-reference`
@@ -97,7 +97,8 @@ pub struct Metrics {
     pub structure_kept_per_view: Vec<Option<f64>>,
     /// What structure_kept means ([`structure::NOTE`]).
     pub structure_kept_note: &'static str,
-    /// Interior structure, edge recall and motif contrast ([`super::interior`], issue 53):
+    /// Interior structure, edge recall, motif contrast and style texture
+    /// ([`super::interior`], issue 53):
     /// their means, per-view values with why any is missing, and notes, as top-level keys
     /// beside structure kept.
     #[serde(flatten)]

@@ -1,11 +1,11 @@
-//! Interior structure, edge recall and motif contrast (issue 53): three measures of the
-//! object's inside, per view and as the mean over views, beside structure kept
-//! ([`super::structure`]).
+//! Interior structure, edge recall, motif contrast and style texture (issue 53): four
+//! measures of the object's inside, per view and as the mean over views, beside structure
+//! kept ([`super::structure`]).
 //!
 //! Structure kept counts the silhouette (the object against the background is most of
 //! its band-pass energy) and punishes any texture the style adds: a flat wash of one
 //! colour keeps the silhouette and scores well, a stroke texture over intact edges
-//! scores less. These three look only inside the object and separate "kept the source's
+//! scores less. These four look only inside the object and separate "kept the source's
 //! edges" from "carries the style's texture".
 //!
 //! **Common parts.** `D` is the band-passed luminance of [`structure::band_pass`] (Rec.
@@ -15,7 +15,7 @@
 //! **square** structuring element ([`erode`]: a pixel stays when every pixel of the
 //! `(2r+1) x (2r+1)` square centred on it lies inside the image and inside the mask, so
 //! the frame's border erodes like the background). A view whose interior has fewer than
-//! [`MIN_INTERIOR_PIXELS`] pixels has no value for any of the three (`None`, with the
+//! [`MIN_INTERIOR_PIXELS`] pixels has no value for any of the four (`None`, with the
 //! reason). Percentiles are the linear interpolation between closest ranks ([`percentile`]:
 //! numpy's default): the `q` quantile of `n` sorted values `v` is `v[k] + f (v[k+1] -
 //! v[k])` with `k + f = q (n - 1)`.
@@ -45,9 +45,26 @@
 //! style's band-pass contrast; 0: a flat wash; above 1: more contrast than the style.
 //! `None` also when the style's spread is below `sqrt(MIN_VARIANCE)` (a flat style).
 //!
+//! **Style texture.** Motif contrast counts the object's *own* band pass as motif: a
+//! result that lays the source's detail (letters, a face's lines, its shading) over a
+//! flat wash of the style's colours scores a high motif contrast with no style texture at
+//! all. Style texture removes the source's part first: over the interior `M`, with
+//! `D_src` and `D_sty` the source's and the stylized view's band passes, `beta = sum(D_src
+//! D_sty) / sum(D_src^2)` (the least-squares projection of `D_sty` on `D_src`, through
+//! the origin; `beta = 0` when `sum(D_src^2) <= ` [`MIN_SOURCE_ENERGY`]), the residual
+//! `R = D_sty - beta D_src`, and style texture = `std(R over M)` (population) over the
+//! style image's band-pass spread (motif contrast's denominator). What is left is the part
+//! of the stylized band pass that is not the source's own, at any gain or polarity: the
+//! style's motifs. The source itself (or any brightness, contrast or inversion of it) has
+//! 0; the source with the style's texture added keeps about that texture's own value; a
+//! flat wash 0. `None` in the same cases as motif contrast. Motif contrast stays as it
+//! was: together they say how much of the object's band-pass contrast is the style's.
+//!
 //! **Limit.** The coarse Gaussian reaches 12 px, so the silhouette's band-pass response
 //! still reaches the interior's outer 4 px: on a small object a flat wash recalls some of
-//! the edges near the outline and has a small motif contrast (docs/evaluation.md).
+//! the edges near the outline and has a small motif contrast and style texture
+//! (docs/evaluation.md). Style texture removes only a gain of the source's band pass: a
+//! blur or any other change of the source's detail leaves a residual that counts.
 //!
 //! Reference: `scripts/reference/interior_ref.py` (numpy, written from this definition:
 //! its own erosion, percentiles and resize; the band pass and correlation of
@@ -61,7 +78,7 @@ use serde::Serialize;
 
 /// Erosion of the object mask, px (square structuring element of side `2 x 8 + 1`).
 pub const EROSION_PX: usize = 8;
-/// Fewest interior pixels a view needs for any of the three values.
+/// Fewest interior pixels a view needs for any of the four values.
 pub const MIN_INTERIOR_PIXELS: usize = 64;
 /// The source's strong band-pass pixels: `|D|` at least this quantile (the top 10%).
 pub const SOURCE_QUANTILE: f64 = 0.90;
@@ -74,6 +91,9 @@ pub const MIN_BAND: f64 = 1e-6;
 pub const CHANCE_RECALL: f64 = 0.125;
 /// The style image's shorter side for its band-pass spread, px.
 pub const STYLE_SHORTER_SIDE: usize = 256;
+/// Style texture's projection on the source's band pass is skipped (`beta = 0`) when
+/// `sum(D_src^2)` over the interior is at or below this (a flat source).
+pub const MIN_SOURCE_ENERGY: f64 = 1e-12;
 
 /// What interior structure means (`metrics.json`, beside the value).
 pub const INTERIOR_STRUCTURE_NOTE: &str = "interior structure: per view, the Pearson correlation of the source's and the \
@@ -89,8 +109,14 @@ pub const EDGE_RECALL_NOTE: &str = "edge recall: per view, inside the interior (
 pub const MOTIF_CONTRAST_NOTE: &str = "motif contrast: per view, the standard deviation of the stylized view's \
      band-passed luminance over the interior (mask eroded 8 px, square) divided by the style image's own (resized to \
      shorter side 256 px, all its pixels); about 1 = the object carries the style's contrast, 0 = a flat wash";
+/// What style texture means.
+pub const STYLE_TEXTURE_NOTE: &str = "style texture: per view, over the interior (mask eroded 8 px, square), the \
+     stylized band pass D_sty less its least-squares projection on the source's D_src (R = D_sty - beta D_src, beta = \
+     sum(D_src D_sty) / sum(D_src^2), 0 for a flat source); the standard deviation of R divided by the style image's \
+     band-pass spread (motif contrast's denominator); the style's motifs without the object's own edges: 0 = the \
+     source's detail only (or a flat wash), about 1 = the style's contrast on top of it";
 
-/// The three measures of one view, with why any is missing.
+/// The four measures of one view, with why any is missing.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ViewInterior {
     /// Interior pixels (the eroded mask).
@@ -98,22 +124,25 @@ pub struct ViewInterior {
     pub interior_structure: Option<f64>,
     pub edge_recall: Option<f64>,
     pub motif_contrast: Option<f64>,
-    /// Why a value is missing (empty when all three have one).
+    pub style_texture: Option<f64>,
+    /// Why a value is missing (empty when all four have one).
     pub reasons: Vec<String>,
 }
 
-/// The three measures of an evaluation: means over the views with a value, per view.
+/// The four measures of an evaluation: means over the views with a value, per view.
 #[derive(Debug, Clone, Serialize)]
 pub struct Interior {
     pub interior_structure: Option<f64>,
     pub edge_recall: Option<f64>,
     pub motif_contrast: Option<f64>,
+    pub style_texture: Option<f64>,
     /// The style image's band-pass spread (shorter side [`STYLE_SHORTER_SIDE`] px).
     pub style_band_spread: Option<f64>,
     pub interior_per_view: Vec<ViewInterior>,
     pub interior_structure_note: &'static str,
     pub edge_recall_note: &'static str,
     pub motif_contrast_note: &'static str,
+    pub style_texture_note: &'static str,
 }
 
 /// Square erosion of a row-major `w x h` mask by `r` px: a pixel stays when the whole
@@ -211,6 +240,22 @@ pub fn edge_recall(src: &[f64], sty: &[f64], inside: &[bool]) -> Result<f64, Str
     Ok(kept as f64 / strong as f64)
 }
 
+/// The spread of the stylized band pass `sty` over `inside` once its least-squares
+/// projection on the source's `src` is removed: `std(sty - beta src)` with `beta =
+/// sum(src sty) / sum(src^2)` (0 when `sum(src^2) <=` [`MIN_SOURCE_ENERGY`]); style
+/// texture's numerator (see the module docs).
+pub fn residual_spread(src: &[f64], sty: &[f64], inside: &[bool]) -> f64 {
+    let (s, t) = (select(src, inside), select(sty, inside));
+    let energy: f64 = s.iter().map(|a| a * a).sum();
+    let beta = if energy > MIN_SOURCE_ENERGY {
+        s.iter().zip(&t).map(|(a, b)| a * b).sum::<f64>() / energy
+    } else {
+        0.0
+    };
+    let r: Vec<f64> = s.iter().zip(&t).map(|(a, b)| b - beta * a).collect();
+    spread(&r)
+}
+
 /// The band-pass spread of the style image at shorter side [`STYLE_SHORTER_SIDE`] px
 /// (`None` when flat).
 pub fn style_band_spread(style: &Image) -> Option<f64> {
@@ -218,7 +263,7 @@ pub fn style_band_spread(style: &Image) -> Option<f64> {
     (s * s >= structure::MIN_VARIANCE).then_some(s)
 }
 
-/// The three measures of one view: source image `src`, its alpha, the stylized image,
+/// The four measures of one view: source image `src`, its alpha, the stylized image,
 /// and the style's band-pass spread ([`style_band_spread`]).
 pub fn view_interior(
     src: &Image,
@@ -236,6 +281,7 @@ pub fn view_interior(
         interior_structure: None,
         edge_recall: None,
         motif_contrast: None,
+        style_texture: None,
         reasons: Vec::new(),
     };
     if pixels < MIN_INTERIOR_PIXELS {
@@ -255,15 +301,18 @@ pub fn view_interior(
         Err(e) => v.reasons.push(format!("edge recall: {e}")),
     }
     match style_spread {
-        Some(s) => v.motif_contrast = Some(spread(&select(&dt, &inside)) / s),
+        Some(s) => {
+            v.motif_contrast = Some(spread(&select(&dt, &inside)) / s);
+            v.style_texture = Some(residual_spread(&ds, &dt, &inside) / s);
+        }
         None => v
             .reasons
-            .push("motif contrast: the style image's band pass is flat".into()),
+            .push("motif contrast and style texture: the style image's band pass is flat".into()),
     }
     v
 }
 
-/// The three measures of every view of `styl` against `src` (the same views) and the
+/// The four measures of every view of `styl` against `src` (the same views) and the
 /// style image, with their means over the views that have a value.
 pub fn interior(src: &ViewSet, styl: &ViewSet, style: &Image) -> Interior {
     let style_spread = style_band_spread(style);
@@ -284,11 +333,13 @@ pub fn interior(src: &ViewSet, styl: &ViewSet, style: &Image) -> Interior {
         interior_structure: mean(|v| v.interior_structure),
         edge_recall: mean(|v| v.edge_recall),
         motif_contrast: mean(|v| v.motif_contrast),
+        style_texture: mean(|v| v.style_texture),
         style_band_spread: style_spread,
         interior_per_view: per_view,
         interior_structure_note: INTERIOR_STRUCTURE_NOTE,
         edge_recall_note: EDGE_RECALL_NOTE,
         motif_contrast_note: MOTIF_CONTRAST_NOTE,
+        style_texture_note: STYLE_TEXTURE_NOTE,
     }
 }
 
@@ -380,6 +431,7 @@ mod tests {
         let flat = Image::filled(W, H, [0.3, 0.6, 0.2]);
         let v = view_interior(&img, &alpha, &flat, Some(0.05));
         assert!(v.motif_contrast.unwrap() < 1e-9, "{:?}", v.motif_contrast);
+        assert!(v.style_texture.unwrap() < 1e-9, "{:?}", v.style_texture);
         assert_eq!(v.edge_recall, Some(0.0));
         assert_eq!(v.interior_structure, None);
         assert_eq!(v.reasons.len(), 1, "{:?}", v.reasons);
@@ -387,6 +439,9 @@ mod tests {
         let v = view_interior(&flat, &alpha, &img, Some(0.05));
         assert_eq!(v.edge_recall, None);
         assert!(v.reasons.iter().any(|r| r.contains("no edge to recall")));
+        // ... and nothing to project out: all of the stylized band pass is style texture.
+        assert!(v.motif_contrast.unwrap() > 0.1, "{:?}", v.motif_contrast);
+        assert_eq!(v.style_texture, v.motif_contrast);
         // A flat style has no spread to compare with.
         assert_eq!(style_band_spread(&Image::filled(300, 260, [0.4; 3])), None);
     }
@@ -415,6 +470,48 @@ mod tests {
     }
 
     #[test]
+    fn the_sources_own_detail_is_no_style_texture() {
+        // Motif contrast counts the object's own band pass; style texture does not, at
+        // any gain, offset or polarity.
+        let (img, alpha) = object(30.0);
+        let maps: [fn(f32) -> f32; 4] = [|x| x, |x| 0.1 + 0.6 * x, |x| 2.0 * x, |x| 1.0 - x];
+        for (k, f) in maps.into_iter().enumerate() {
+            let v = view_interior(&img, &alpha, &map(&img, f), Some(0.05));
+            assert!(v.motif_contrast.unwrap() > 0.1, "{k}: {v:?}");
+            // 0 up to the f32 rounding of the mapped image.
+            assert!(v.style_texture.unwrap() < 1e-6, "{k}: {v:?}");
+        }
+    }
+
+    #[test]
+    fn texture_added_over_the_source_keeps_about_its_own_style_texture() {
+        let (img, alpha) = object(30.0);
+        let tex = noise_image(W, H, 5);
+        let with = |base: &Image, gain: f32| {
+            Image::from_fn(W, H, |x, y| {
+                let (p, t) = (base.px(x, y), tex.px(x, y));
+                [0, 1, 2].map(|c| gain * p[c] + 0.3 * (t[c] - 0.5))
+            })
+        };
+        // The texture alone (over a flat ground): its own value, all of it style texture.
+        let alone = view_interior(&img, &alpha, &with(&img, 0.0), Some(0.05));
+        let own = alone.motif_contrast.unwrap();
+        assert!(own > 0.1, "{alone:?}");
+        assert!(
+            (alone.style_texture.unwrap() - own).abs() < 0.02 * own,
+            "{alone:?}"
+        );
+        // Over the source, and over the source at half its contrast: the source's part
+        // is projected out, the texture's kept; motif contrast counts both.
+        for gain in [1.0, 0.5] {
+            let v = view_interior(&img, &alpha, &with(&img, gain), Some(0.05));
+            let st = v.style_texture.unwrap();
+            assert!((st - own).abs() < 0.05 * own, "gain {gain}: {st} vs {own}");
+            assert!(v.motif_contrast.unwrap() > 1.1 * st, "gain {gain}: {v:?}");
+        }
+    }
+
+    #[test]
     fn unrelated_detail_recalls_about_chance() {
         let (w, h) = (240, 240);
         let alpha = vec![1.0; w * h];
@@ -422,8 +519,8 @@ mod tests {
         let r = v.edge_recall.unwrap();
         assert!((r - CHANCE_RECALL).abs() < 0.03, "{r}");
         assert!(v.interior_structure.unwrap().abs() < 0.1);
-        assert_eq!(v.motif_contrast, None);
-        assert!(v.reasons.iter().any(|r| r.contains("style")));
+        assert_eq!((v.motif_contrast, v.style_texture), (None, None));
+        assert!(v.reasons.iter().any(|r| r.contains("style texture")));
     }
 
     #[test]
@@ -433,8 +530,13 @@ mod tests {
         let v = view_interior(&img, &alpha, &img, Some(0.05));
         assert!(v.pixels < MIN_INTERIOR_PIXELS, "{}", v.pixels);
         assert_eq!(
-            (v.interior_structure, v.edge_recall, v.motif_contrast),
-            (None, None, None)
+            (
+                v.interior_structure,
+                v.edge_recall,
+                v.motif_contrast,
+                v.style_texture
+            ),
+            (None, None, None, None)
         );
         assert!(v.reasons[0].contains("fewer than 64"), "{:?}", v.reasons);
         // No object at all: no pixels, no panic.

@@ -14,7 +14,7 @@
 //! | [`texture`] | measures that see texture: per-layer object Gram, KID interval, spectrum, object colour |
 //! | [`leakage`] | content leakage: the object's large-scale structure that the scene does not explain |
 //! | [`structure`] | structure kept: correlation of the source's and stylized views' band-passed luminance |
-//! | [`interior`] | inside the object (mask eroded 8 px): interior structure, edge recall, motif contrast |
+//! | [`interior`] | inside the object (mask eroded 8 px): interior structure, edge recall, motif contrast, style texture |
 //! | [`views`] | `views` artifacts as the evaluation holds them, cross-checked |
 //! | [`reference`](mod@reference) | the half of an evaluation that depends only on the original views and the style |
 //! | [`regions`] | a run's regions on the views (outlines, styles, strengths) and each region's Gram distance to every style |

@@ -268,12 +268,13 @@ fn eval_params(a: &Args) -> EvalParams {
 fn log_metrics(m: &Metrics, out: &std::path::Path) {
     tracing::info!(
         "evaluate: LPIPS_content {} structure kept {} interior structure {} edge recall {} \
-         motif contrast {} FID_style {} ArtFID {} short-range LPIPS {} -> {}",
+         motif contrast {} style texture {} FID_style {} ArtFID {} short-range LPIPS {} -> {}",
         fmt_opt(m.lpips_content, 4),
         fmt_opt(m.structure_kept, 3),
         fmt_opt(m.interior.interior_structure, 3),
         fmt_opt(m.interior.edge_recall, 3),
         fmt_opt(m.interior.motif_contrast, 3),
+        fmt_opt(m.interior.style_texture, 3),
         fmt_opt(m.fid_style.value, 2),
         fmt_opt(m.artfid, 2),
         fmt_opt(m.short_range.lpips_mean, 4),

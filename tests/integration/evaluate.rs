@@ -239,14 +239,15 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
             .contains("band-passed luminance")
     );
     eprintln!("structure kept {sm:.4}, per view {sv:.3?}");
-    // Interior structure, edge recall, motif contrast beside it: a value or a reason per
-    // view, the means, the notes.
+    // Interior structure, edge recall, motif contrast, style texture beside it: a value or
+    // a reason per view, the means, the notes.
     let iv = json["interior_per_view"].as_array().unwrap();
     assert_eq!(iv.len(), 7);
     for (k, note) in [
         ("interior_structure", "interior_structure_note"),
         ("edge_recall", "edge_recall_note"),
         ("motif_contrast", "motif_contrast_note"),
+        ("style_texture", "style_texture_note"),
     ] {
         assert!(json[note].as_str().unwrap().contains("8 px"), "{note}");
         let have = iv.iter().filter(|v| v[k].is_f64()).count();
@@ -259,8 +260,11 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
     }
     assert!(json["style_band_spread"].as_f64().unwrap() > 0.0);
     eprintln!(
-        "interior structure {}, edge recall {}, motif contrast {}",
-        json["interior_structure"], json["edge_recall"], json["motif_contrast"]
+        "interior structure {}, edge recall {}, motif contrast {}, style texture {}",
+        json["interior_structure"],
+        json["edge_recall"],
+        json["motif_contrast"],
+        json["style_texture"]
     );
 
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
@@ -276,8 +280,9 @@ fn evaluate_writes_metrics_and_a_report_that_renders() {
     assert!(at("<h2>Metrics</h2>") < at("structure kept ↑"));
     assert!(at("structure kept ↑") < at("interior structure ↑"));
     assert!(at("edge recall ↑") < at("motif contrast (→ 1)"));
-    assert!(at("motif contrast (→ 1)") < at("<h2>Structure kept: the worst view</h2>"));
-    assert!(html.contains("<th>edge recall</th><th>motif contrast</th>"));
+    assert!(at("motif contrast (→ 1)") < at("style texture (→ 1)"));
+    assert!(at("style texture (→ 1)") < at("<h2>Structure kept: the worst view</h2>"));
+    assert!(html.contains("<th>edge recall</th><th>motif contrast</th><th>style texture</th>"));
     assert!(html.contains("band-pass, stylized"));
     assert!(html.contains("<h2>Content leakage</h2>"));
     assert!(html.contains("<h2>Texture</h2>") && html.contains("Radially averaged luminance"));

@@ -1,5 +1,5 @@
-//! Interior structure, edge recall and motif contrast (`fantasystyle::metrics::interior`,
-//! issue 53) against an independent float64 numpy reference computed here, on this
+//! Interior structure, edge recall, motif contrast and style texture
+//! (`fantasystyle::metrics::interior`, issue 53) against an independent float64 numpy reference computed here, on this
 //! machine (`scripts/reference/interior_ref.py`, written from the definitions: its own
 //! erosion, band pass, percentiles and style resize), on renders of the sample scene
 //! perturbed one way per view, with a style image that needs resizing (600 x 840 -> 256 x
@@ -7,8 +7,10 @@
 //!
 //! Tolerances: the interior pixel counts equal; interior structure 1e-9 (both in f64 from
 //! the same f32 rgb); edge recall within one strong pixel (a pixel exactly at a
-//! percentile could fall either way by a rounding difference); motif contrast and the
-//! style's spread 1e-5 relative (the Rust resize interpolates in f32).
+//! percentile could fall either way by a rounding difference); motif contrast, style
+//! texture and the style's spread 1e-5 relative (the Rust resize interpolates in f32),
+//! style texture with an absolute floor of 1e-9 (the unchanged view's is 0 up to rounding:
+//! numpy fits beta by least squares, Rust by the ratio of sums).
 
 use crate::harness::{self, repo_root};
 use clap::Parser;
@@ -121,8 +123,13 @@ fn interior_measures_match_an_independent_numpy_reference() {
     assert_eq!(wv.len(), got.interior_per_view.len());
     for (i, (g, w)) in got.interior_per_view.iter().zip(wv).enumerate() {
         eprintln!(
-            "view {i} ({}): {} interior px; rust IS {:?} ER {:?} MC {:?}; numpy {w}",
-            PERTURBATIONS[i], g.pixels, g.interior_structure, g.edge_recall, g.motif_contrast
+            "view {i} ({}): {} interior px; rust IS {:?} ER {:?} MC {:?} ST {:?}; numpy {w}",
+            PERTURBATIONS[i],
+            g.pixels,
+            g.interior_structure,
+            g.edge_recall,
+            g.motif_contrast,
+            g.style_texture
         );
         assert_eq!(g.pixels as u64, w["pixels"].as_u64().unwrap(), "view {i}");
         let same = |name: &str, got: Option<f64>, tol: &dyn Fn(f64, f64) -> bool| match (
@@ -141,6 +148,9 @@ fn interior_measures_match_an_independent_numpy_reference() {
             (a - b).abs() <= 1.0 / strong + 1e-12
         });
         same("motif_contrast", g.motif_contrast, &|a, b| rel(a, b) < 1e-5);
+        same("style_texture", g.style_texture, &|a, b| {
+            (a - b).abs() <= 1e-5 * b.abs() + 1e-9
+        });
     }
     let wm = &want["mean"];
     assert!(
@@ -153,10 +163,18 @@ fn interior_measures_match_an_independent_numpy_reference() {
             wm["motif_contrast"].as_f64().unwrap()
         ) < 1e-5
     );
+    assert!(
+        rel(
+            got.style_texture.unwrap(),
+            wm["style_texture"].as_f64().unwrap()
+        ) < 1e-5
+    );
 
     // What the definitions say of each perturbation: all of it unchanged; the pasted
-    // style near chance and with the style's contrast, the flat wash with less; the
-    // small interior has no value and says why.
+    // style near chance and with the style's contrast, the flat wash with less; style
+    // texture 0 on the unchanged view (the source's own detail is no style texture) and
+    // most of the pasted style's motif contrast; the small interior has no value and
+    // says why.
     let v = &got.interior_per_view;
     assert!((v[0].interior_structure.unwrap() - 1.0).abs() < 1e-12);
     assert_eq!(v[0].edge_recall, Some(1.0));
@@ -166,8 +184,17 @@ fn interior_measures_match_an_independent_numpy_reference() {
         v[4]
     );
     assert!(v[4].motif_contrast.unwrap() > v[5].motif_contrast.unwrap());
+    assert!(v[0].motif_contrast.unwrap() > 0.1, "{:?}", v[0]);
+    assert!(v[0].style_texture.unwrap() < 1e-9, "{:?}", v[0]);
+    assert!(
+        v[4].style_texture.unwrap() > 0.5 * v[4].motif_contrast.unwrap(),
+        "{:?}",
+        v[4]
+    );
+    assert!(v[4].style_texture.unwrap() > v[5].style_texture.unwrap());
     assert!(v[1].edge_recall.unwrap() < v[3].edge_recall.unwrap());
     assert!(
         v[6].pixels < interior::MIN_INTERIOR_PIXELS && v[6].reasons[0].contains("fewer than 64")
     );
+    assert_eq!((v[6].motif_contrast, v[6].style_texture), (None, None));
 }

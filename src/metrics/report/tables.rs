@@ -69,7 +69,7 @@ pub(super) fn metrics_table(m: &Metrics) -> String {
 }
 
 /// The metrics table's structure rows: structure kept, and inside the object
-/// ([`interior`]) interior structure, edge recall and motif contrast.
+/// ([`interior`]) interior structure, edge recall, motif contrast and style texture.
 fn structure_rows(m: &Metrics) -> Vec<Vec<String>> {
     vec![
         vec![
@@ -113,6 +113,15 @@ fn structure_rows(m: &Metrics) -> Vec<Vec<String>> {
                 interior::STYLE_SHORTER_SIDE,
                 fmt_opt(m.interior.style_band_spread, 4)
             ),
+        ],
+        vec![
+            "style texture (→ 1)".into(),
+            fmt_opt(m.interior.style_texture, 3),
+            "the same spread once the original's own band pass is projected out of the stylized \
+             one (least squares): the style's motifs without the object's own edges, which motif \
+             contrast counts; 0 = the original's detail only (or a flat wash), about 1 = the \
+             style's contrast on top"
+                .into(),
         ],
     ]
 }
@@ -159,15 +168,15 @@ fn consistency_rows(m: &Metrics) -> Vec<Vec<String>> {
 }
 
 /// The style image and every view: original, stylized, LPIPS_content, structure kept,
-/// interior structure, edge recall, motif contrast and Gram distance.
+/// interior structure, edge recall, motif contrast, style texture and Gram distance.
 pub(super) fn views_table(m: &Metrics, orig: &ViewSet, styl: &ViewSet, style: &Image) -> String {
     let mut imgs = String::from("<p>Style image:</p>");
     imgs.push_str(&figure(style, 256, "style"));
-    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>structure</th><th>interior</th><th>edge recall</th><th>motif contrast</th><th>Gram</th></tr>");
+    imgs.push_str("<table><tr><th>view</th><th>original</th><th>stylized</th><th>LPIPS</th><th>structure</th><th>interior</th><th>edge recall</th><th>motif contrast</th><th>style texture</th><th>Gram</th></tr>");
     for i in 0..m.views {
         let v = &m.interior.interior_per_view[i];
         imgs.push_str(&format!(
-            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td></tr>",
+            "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td></tr>",
             img_tag(&orig.images[i], 256, &format!("original {i}")),
             img_tag(&styl.images[i], 256, &format!("stylized {i}")),
             m.lpips_content_per_view[i],
@@ -175,6 +184,7 @@ pub(super) fn views_table(m: &Metrics, orig: &ViewSet, styl: &ViewSet, style: &I
             fmt_opt(v.interior_structure, 3),
             fmt_opt(v.edge_recall, 3),
             fmt_opt(v.motif_contrast, 3),
+            fmt_opt(v.style_texture, 3),
             m.gram_style_per_view[i]
         ));
     }
