@@ -433,9 +433,14 @@ mod tests {
         let paper = Config::default().checked().unwrap();
         assert_eq!(d.finish, End::finish("patches").unwrap());
         assert_eq!(d.synthesis.control, 1.0);
+        assert_eq!((d.synthesis.guide_blur, d.synthesis.detail), (2.0, 1.0));
+        assert_eq!(d.synthesis.lr, 0.1);
         let mut unguided = d.clone();
         unguided.finish = Finish::NONE;
         unguided.synthesis.control = paper.synthesis.control;
+        unguided.synthesis.guide_blur = paper.synthesis.guide_blur;
+        unguided.synthesis.detail = paper.synthesis.detail;
+        unguided.synthesis.lr = paper.synthesis.lr;
         assert_eq!(unguided, paper);
         let c = Config::layered(&[
             Source::Preset("default".into()),

@@ -121,7 +121,14 @@ mod tests {
         let alpha = vec![1.0f32; h * w];
         let style = Image::from_fn(8, 8, |x, _| [x as f32 / 8.0; 3]);
         let p = SynthesisParams::default();
-        let d = source_detail(&[flat], &[alpha.clone()], &[(h, w)], [0.0; 3], &style, &p);
+        let d = source_detail(
+            &[flat],
+            std::slice::from_ref(&alpha),
+            &[(h, w)],
+            [0.0; 3],
+            &style,
+            &p,
+        );
         assert!(d[0].iter().all(|v| v.abs() < 1e-5));
         let step: Vec<f32> = (0..h * w)
             .flat_map(|i| [if i % w < w / 2 { 0.2 } else { 0.8 }; 3])
