@@ -66,6 +66,13 @@ pub struct Config {
     /// 0 = off.
     #[arg(long, default_value_t = 0.0)]
     pub split: f64,
+    /// The prior the loop's iterations call when a stage is given no `--model` (or an
+    /// empty one): a model directory, or the name of one shipped in `priors/` (`patch`:
+    /// the weight-free patch prior) or installed in `vendor/models` by scripts/setup.sh
+    /// (`stylizer`, `gaussian-prior`); src/models.rs [`crate::models::prior_dir`]. A preset
+    /// names the prior it needs (the `arf` preset: `stylizer`).
+    #[arg(long, default_value = "patch")]
+    pub prior: String,
     /// Adjacent views per iteration (the paper's N).
     #[arg(long, default_value_t = 4)]
     pub views: usize,
@@ -216,6 +223,11 @@ impl Config {
         let positive = |x: f32| x.is_finite() && x >= 0.0;
         if !positive(self.lr_dc) {
             return Err(Error::param("lr_dc must be finite and >= 0"));
+        }
+        if self.prior.trim().is_empty() {
+            return Err(Error::param(
+                "prior must name a model directory or an installed prior (patch, stylizer)",
+            ));
         }
         if self.views == 0 {
             return Err(Error::param("views must be at least 1"));
@@ -422,6 +434,10 @@ mod tests {
         assert_eq!(d.csd, CsdParams::default());
         let paper = Config::layered(&[Source::Preset("paper".into())]).unwrap();
         assert_eq!(paper, Config::default().checked().unwrap());
+        // Each preset names the prior its loop calls (src/models.rs `prior_dir`).
+        assert_eq!(d.prior, "patch");
+        let arf = Config::layered(&[Source::Preset("arf".into())]).unwrap();
+        assert_eq!(arf.prior, "stylizer");
         // What a file holds is what it reads back.
         let back: Config = toml::from_str(&d.to_toml()).unwrap();
         assert_eq!(back, d);
@@ -496,6 +512,7 @@ mod tests {
         assert!(e(Source::Config("{ view = 2 }".into())).contains("view"));
         assert!(e(Source::Preset("arff".into())).contains("paper, arf"));
         assert!(e(Source::Set("strength=2".into())).contains("strength"));
+        assert!(e(Source::Set("prior= ".into())).contains("prior"));
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("c.toml");
         std::fs::write(&p, "[mvfc]\ngama = 1.0\n").unwrap();

@@ -1,5 +1,6 @@
 //! Finding the installed models: one rule for every stage that defaults a model path
-//! (`evaluate`'s metric networks, `stylize-baseline`'s `--vgg` and `--stylizer`).
+//! (`evaluate`'s metric networks, `stylize-baseline`'s `--vgg` and `--stylizer`, the
+//! loop's prior named by the configuration's `prior`: [`prior_dir`]).
 //!
 //! The models directory is, in order:
 //! 1. `$FANTASYSTYLE_MODELS` when set (used as given, even if it does not exist, so a
@@ -59,7 +60,12 @@ fn candidates() -> Vec<PathBuf> {
 /// directory, then of the source tree, in that order (the search of the module docs,
 /// also used for other installed assets such as `vendor/viewer`).
 pub fn vendor_candidates(sub: &str) -> Vec<PathBuf> {
-    let rel = Path::new("vendor").join(sub);
+    ancestors_with(&Path::new("vendor").join(sub))
+}
+
+/// `rel` in every ancestor of the running executable, then of the current directory,
+/// then the source tree's, in that order, each once.
+fn ancestors_with(rel: &Path) -> Vec<PathBuf> {
     let mut v = Vec::new();
     let mut push = |p: PathBuf| {
         if !v.contains(&p) {
@@ -68,16 +74,54 @@ pub fn vendor_candidates(sub: &str) -> Vec<PathBuf> {
     };
     if let Ok(exe) = std::env::current_exe() {
         for anc in exe.ancestors().skip(1) {
-            push(anc.join(&rel));
+            push(anc.join(rel));
         }
     }
     if let Ok(cwd) = std::env::current_dir() {
         for anc in cwd.ancestors() {
-            push(anc.join(&rel));
+            push(anc.join(rel));
         }
     }
-    push(Path::new(env!("CARGO_MANIFEST_DIR")).join(&rel));
+    push(Path::new(env!("CARGO_MANIFEST_DIR")).join(rel));
     v
+}
+
+/// The model directory of the configuration's `prior` (what the loop calls when a stage
+/// is given no `--model`): a value that names an existing directory, or holds a path
+/// separator, is that path; a bare name is looked up as `priors/NAME` (the priors
+/// shipped in the repository, e.g. `patch`) near the executable, the current directory
+/// and the source tree, then as `NAME` in the models directory (`stylizer`,
+/// `gaussian-prior`: installed by scripts/setup.sh).
+pub fn prior_dir(name: &str) -> Result<PathBuf> {
+    let as_path = Path::new(name);
+    if as_path.is_dir() || name.contains('/') || name.contains(std::path::MAIN_SEPARATOR) {
+        return Ok(as_path.to_path_buf());
+    }
+    let mut looked = ancestors_with(&Path::new("priors").join(name));
+    if let Ok(models) = models_dir() {
+        looked.push(models.join(name));
+    }
+    find_prior(name, &looked)
+}
+
+/// The first of `candidates` that is a directory, else an error naming `name` and them.
+fn find_prior(name: &str, candidates: &[PathBuf]) -> Result<PathBuf> {
+    candidates
+        .iter()
+        .find(|p| p.is_dir())
+        .cloned()
+        .ok_or_else(|| {
+            Error::Missing(format!(
+                "prior `{name}` (the configuration's `prior`) was not found: give --model DIR, \
+             set prior to a model directory, or run scripts/setup.sh (the installed priors); \
+             looked in: {}",
+                candidates
+                    .iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ))
+        })
 }
 
 /// The models directory, with the metric networks in it.
@@ -106,6 +150,26 @@ mod tests {
         let cwd = std::env::current_dir().unwrap().join("vendor/models");
         let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("vendor/models");
         assert!(c.contains(&cwd) && c.contains(&src), "{c:?}");
+    }
+
+    #[test]
+    fn a_prior_is_a_path_or_a_name_found_in_priors_then_the_models() {
+        // The repository's own prior, by name, from the test's current directory.
+        let patch = prior_dir("patch").unwrap();
+        assert!(patch.ends_with("priors/patch") && patch.join("model.json").is_file());
+        // A path is taken as given, even where nothing exists (the stage then names it).
+        assert_eq!(prior_dir("x/y").unwrap(), PathBuf::from("x/y"));
+        let d = tempfile::tempdir().unwrap();
+        let (a, b) = (d.path().join("a"), d.path().join("b"));
+        std::fs::create_dir(&b).unwrap();
+        assert_eq!(find_prior("b", &[a.clone(), b.clone()]).unwrap(), b);
+        let e = find_prior("nope", std::slice::from_ref(&a))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`nope`") && e.contains(&a.display().to_string()),
+            "{e}"
+        );
     }
 
     #[test]

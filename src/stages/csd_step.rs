@@ -127,7 +127,7 @@ pub fn run(a: Args) -> Result<StepReport> {
         vs,
     )?;
     let plan = Plan::csd_steps(1, n, p.csd.conds(), (h, w), f, 0);
-    let mut cost = CostModel::for_model(a.prior.model()?, a.threads.n, a.prior.device.device)?;
+    let mut cost = CostModel::for_model(&a.prior.model(&p)?, a.threads.n, a.prior.device.device)?;
     announce(cost.as_ref(), "csd-step", &plan);
 
     // The step and the targets.
@@ -257,7 +257,7 @@ fn write(
     ] {
         wr.add_input(name, p)?;
     }
-    a.prior.add_inputs(&mut wr)?;
+    a.prior.add_inputs(&mut wr, p, true)?;
     crate::artifacts::write_array(&mut wr, "rgb.npy", target)?;
     crate::artifacts::write_array(&mut wr, "delta.npy", &(target - &views.rgb))?;
     let cams = views.art.path("cameras.json");

@@ -291,11 +291,12 @@ fn iterate(
         }
         return Ok(Outcome::unchanged(start));
     }
-    let (_, model_set) = model_timesteps(a.prior.model()?)?;
+    let model = a.prior.model(config)?;
+    let (_, model_set) = model_timesteps(&model)?;
     let mut prior = a.prior.open(style, config, a.threads)?;
     crate::csd::check_mode(config.csd.mode, prior.info())?;
     let set = super::timestep_set(config, &prior.info().scheduler, model_set)?;
-    let cost = CostModel::for_model(a.prior.model()?, a.threads.n, a.prior.device.device)?;
+    let cost = CostModel::for_model(&model, a.threads.n, a.prior.device.device)?;
     let texture = super::texture_term(config, &a.prior.style, Some(style), a.threads)?;
     let run = Run {
         params: config.clone(),
@@ -331,7 +332,8 @@ fn write(
     if let Some(dir) = &a.selection {
         out.add_input("selection", dir)?;
     }
-    a.prior.add_inputs(&mut out)?;
+    a.prior
+        .add_inputs(&mut out, config, a.iters > 0 && config.strength > 0.0)?;
     write_scene(&mut out, &outcome.scene, &a.format, &a.out)?;
     if let Some(r) = regions {
         crate::artifacts::write_regions(&mut out, r)?;

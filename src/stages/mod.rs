@@ -190,9 +190,10 @@ impl ConfigArgs {
 #[derive(clap::Args, Debug, Clone)]
 pub struct PriorArgs {
     /// Model directory with model.json (e.g. priors/patch, vendor/models/stylizer,
-    /// vendor/models/gaussian-prior, an export of scripts/export_models.py). Needed by
-    /// the loop (iterations that call the prior); a run of the end alone reads none.
-    #[arg(long)]
+    /// vendor/models/gaussian-prior, an export of scripts/export_models.py), read by the
+    /// loop (iterations that call the prior); absent or empty: the configuration's
+    /// `prior`, which a preset names (`patch`; the `arf` preset's `stylizer`).
+    #[arg(long, value_parser = path_or_empty)]
     pub model: Option<PathBuf>,
     /// Style image (PNG or JPEG, shorter side >= 64 px).
     #[arg(long)]
@@ -206,12 +207,19 @@ pub struct PriorArgs {
     pub device: DeviceArg,
 }
 
+/// A path argument that may be empty (`--model ""`: a DAG's optional input left empty).
+fn path_or_empty(s: &str) -> std::result::Result<PathBuf, std::convert::Infallible> {
+    Ok(PathBuf::from(s))
+}
+
 impl PriorArgs {
-    /// The model directory, which the loop needs (`--model`).
-    pub fn model(&self) -> Result<&std::path::Path> {
-        self.model.as_deref().ok_or_else(|| {
-            Error::param("give --model: iterations of the loop call the prior (priors/patch, or a model directory)")
-        })
+    /// The model directory the loop calls: `--model` when given and not empty, else
+    /// the configuration's `prior` ([`crate::models::prior_dir`]).
+    pub fn model(&self, config: &crate::config::Config) -> Result<PathBuf> {
+        match self.model.as_deref().filter(|m| !m.as_os_str().is_empty()) {
+            Some(m) => Ok(m.to_path_buf()),
+            None => crate::models::prior_dir(&config.prior),
+        }
     }
 
     /// Read the style image (before anything slow).
@@ -237,16 +245,22 @@ impl PriorArgs {
             unet_batch: config.unet_batch,
             ..Default::default()
         };
-        let model = self.model()?;
-        crate::timing::load(|| crate::prior::open(model, &opts))
+        let model = self.model(config)?;
+        crate::timing::load(|| crate::prior::open(&model, &opts))
     }
 
-    /// Record the style image and the model's manifest (if `--model` was given) as
-    /// inputs of an artifact.
-    pub fn add_inputs(&self, w: &mut fantasystyle_schemas::ArtifactWriter) -> Result<()> {
+    /// Record the style image and, when the prior was called (`called`: [`Self::model`])
+    /// or `--model` was given, the model's manifest as inputs of an artifact.
+    pub fn add_inputs(
+        &self,
+        w: &mut fantasystyle_schemas::ArtifactWriter,
+        config: &crate::config::Config,
+        called: bool,
+    ) -> Result<()> {
         w.add_input("style", &self.style)?;
-        if let Some(m) = &self.model {
-            w.add_input("model", &model_manifest(m))?;
+        let given = self.model.as_ref().filter(|m| !m.as_os_str().is_empty());
+        if called || given.is_some() {
+            w.add_input("model", &model_manifest(&self.model(config)?))?;
         }
         Ok(())
     }

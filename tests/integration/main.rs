@@ -18,6 +18,7 @@ mod interior;
 mod mvfc;
 mod own_scene;
 mod patch_prior;
+mod presets;
 mod regions;
 mod render;
 mod runtime;

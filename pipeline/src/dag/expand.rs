@@ -373,6 +373,11 @@ impl Instance<'_> {
         let (argv, deps, outs) = (argv?, deps?, outs?);
         let lines = &self.p.lines;
         let st = self.st;
+        // A dep that substitutes to nothing is no dep (an optional input left empty, e.g.
+        // the sample DAG's `model`, whose stages then use the preset's prior).
+        let kept: Vec<usize> = (0..deps.len()).filter(|&k| !deps[k].is_empty()).collect();
+        let deps: Vec<String> = kept.iter().map(|&k| deps[k].clone()).collect();
+        let st_deps: Vec<&Spanned<String>> = kept.iter().map(|&k| &st.deps[k]).collect();
         Some(Expanded {
             stage: Stage {
                 name: self.name(),
@@ -394,10 +399,9 @@ impl Instance<'_> {
                 line: self.line,
                 upstream: Vec::new(),
             },
-            dep_lines: st.deps.iter().map(|d| lines.line(d.span().start)).collect(),
+            dep_lines: st_deps.iter().map(|d| lines.line(d.span().start)).collect(),
             out_lines: st.outs.iter().map(|d| lines.line(d.span().start)).collect(),
-            dep_literal: st
-                .deps
+            dep_literal: st_deps
                 .iter()
                 .map(|d| !d.get_ref().contains("${"))
                 .collect(),

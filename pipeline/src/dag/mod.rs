@@ -12,7 +12,7 @@
 //! [stages.render]
 //! desc = "render the views"     # optional
 //! cmd = "render-views --scene ${scene} --width ${render.width} --out runs/views"
-//! deps = ["scene.ply"]          # files or directories read (another stage's outs or existing paths)
+//! deps = ["scene.ply"]          # files or directories read (another stage's outs or existing paths; one that substitutes to "" is none)
 //! outs = ["runs/views"]         # files or directories written
 //! params = ["render"]           # params-file keys (dotted; a table name tracks the whole table)
 //! [stages.step]

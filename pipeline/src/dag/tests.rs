@@ -528,3 +528,25 @@ fn normalize_paths() {
     assert_eq!(normalize("/abs/./p"), "/abs/p");
     assert!(inside("a/b", "a") && !inside("ab", "a") && !inside("a", "a"));
 }
+
+/// A dep that substitutes to nothing (an optional input left empty) is no dep; the
+/// command still gets the empty argument, and a set value brings the dep back.
+#[test]
+fn a_dep_that_substitutes_to_nothing_is_no_dep() {
+    let text = r#"
+[vars]
+model = ""
+[stages.step]
+cmd = "step --model ${model} --out runs/a"
+deps = ["${model}", "./in.txt"]
+outs = ["runs/a"]
+"#;
+    let dag = try_parse(text).unwrap();
+    assert_eq!(dag.stages[0].deps, ["in.txt"]);
+    assert_eq!(
+        dag.stages[0].argv,
+        ["step", "--model", "", "--out", "runs/a"]
+    );
+    let dag = try_parse(&text.replace("model = \"\"", "model = \"./in.txt\"")).unwrap();
+    assert_eq!(dag.stages[0].deps, ["in.txt", "in.txt"]);
+}

@@ -1,0 +1,89 @@
+//! A preset names the prior its loop calls (issue 53): `distill` with no `--model` (or an
+//! empty one, what the sample DAG passes by default) opens the configuration's `prior`,
+//! the `arf` preset's the installed stylizer, the default's the repository's patch
+//! prior; an unknown name is a missing-resource error that names it, with nothing written.
+
+use crate::harness::{bin, ok, repo_root};
+use std::path::Path;
+
+/// The `model` input recorded in the manifest of the artifact at `dir`.
+fn model_input(dir: &Path) -> String {
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap();
+    let inputs = m["inputs"].as_array().unwrap();
+    let model = inputs.iter().find(|i| i["role"] == "model").unwrap();
+    model["path"].as_str().unwrap().to_string()
+}
+
+#[test]
+fn a_preset_names_the_prior_its_loop_calls() {
+    let Some(_) = crate::harness::model("stylizer") else {
+        return;
+    };
+    let (root, d) = (repo_root(), tempfile::tempdir().unwrap());
+    let views = d.path().join("views");
+    ok(bin("render-views")
+        .arg("--scene")
+        .arg(root.join("data-sample/scene.ply"))
+        .args([
+            "--cameras",
+            "orbit:2",
+            "--width",
+            "48",
+            "--height",
+            "48",
+            "--out",
+        ])
+        .arg(&views));
+    let distill = |out: &str, model: Option<&str>, sets: &[&str]| {
+        let mut c = bin("distill");
+        c.arg("--scene")
+            .arg(root.join("data-sample/scene.ply"))
+            .arg("--source-views")
+            .arg(&views)
+            .arg("--style")
+            .arg(root.join("data-sample/style.png"))
+            .args([
+                "--iters",
+                "1",
+                "--set",
+                "views=2",
+                "--threads",
+                "1",
+                "--out",
+            ])
+            .arg(d.path().join(out));
+        if let Some(m) = model {
+            c.args(["--model", m]);
+        }
+        for s in sets {
+            c.args(["--set", s]);
+        }
+        c
+    };
+    ok(distill("arf", None, &[]).args(["--preset", "arf"]));
+    let arf = model_input(&d.path().join("arf"));
+    assert!(arf.ends_with("stylizer/model.json"), "{arf}");
+    // The DAG's empty `model`: the same as none.
+    ok(&mut distill("default", Some(""), &["finish=none"]));
+    let default = model_input(&d.path().join("default"));
+    assert!(default.ends_with("priors/patch/model.json"), "{default}");
+    // An explicit --model wins over the preset's.
+    let patch = root.join("priors/patch");
+    ok(distill("given", Some(patch.to_str().unwrap()), &[]).args(["--preset", "arf"]));
+    assert_eq!(
+        model_input(&d.path().join("given")),
+        patch.join("model.json").to_str().unwrap()
+    );
+    // An unknown prior: exit 3 (a missing resource), its name in the message, no output.
+    let out = distill("nope", None, &["prior=nope", "finish=none"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(
+        err.contains("prior `nope`") && err.contains("--model"),
+        "{err}"
+    );
+    assert!(!d.path().join("nope").exists());
+}
