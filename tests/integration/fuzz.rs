@@ -8,6 +8,10 @@
 //! manifest and `model.json` readers. (The DAG TOML and `--set` values are fuzzed in
 //! `pipeline/src/dag/fuzz.rs`.)
 //!
+//! This module is the machinery (the guard, the runner, the mutations); the targets are
+//! in `fuzz_scenes` (PLY, `.splat`), `fuzz_cameras` (`cameras.json`, `transforms.json`,
+//! COLMAP) and `fuzz_npy_manifests` (`.npy`, artifact manifest, `model.json`).
+//!
 //! Every case must: return a value or an error that names the file (never panic); make
 //! no single allocation larger than 16 MiB + 64 bytes per input byte (a header claiming
 //! 4e9 vertices must not reserve them: a tracking global allocator measures it); and
@@ -20,7 +24,6 @@ use proptest::prelude::*;
 use proptest::sample::Index;
 use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
 use std::io::Write;
-use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// A global allocator that forwards to the system one and records, on threads that
@@ -87,7 +90,7 @@ fn allowed(input_len: usize) -> usize {
 
 /// Run `f` (a parser call on `input_len` bytes) on its own thread: a panic, a timeout
 /// or an allocation over [`allowed`] is an error naming what happened.
-fn guarded<R: Send + 'static>(
+pub(crate) fn guarded<R: Send + 'static>(
     input_len: usize,
     f: impl FnOnce() -> R + Send + 'static,
 ) -> Result<R, String> {
@@ -137,7 +140,7 @@ fn cases(default: u32) -> u32 {
 }
 
 /// Run `cases` cases of `strategy` through `check`; print the count and the time.
-fn fuzz<S: Strategy>(
+pub(crate) fn fuzz<S: Strategy>(
     name: &str,
     n: u32,
     strategy: S,
@@ -250,7 +253,7 @@ const NUMBERS: &[&[u8]] = &[
 ];
 
 #[derive(Debug, Clone)]
-enum Edit {
+pub(crate) enum Edit {
     /// Replace the k-th run of ASCII digits (a count, a size, a shape entry) by a number.
     Number(Index, &'static [u8]),
     Truncate(Index),
@@ -269,7 +272,7 @@ fn token() -> impl Strategy<Value = Vec<u8>> {
     ]
 }
 
-fn edit() -> impl Strategy<Value = Edit> {
+pub(crate) fn edit() -> impl Strategy<Value = Edit> {
     prop_oneof![
         4 => (any::<Index>(), prop::sample::select(NUMBERS)).prop_map(|(i, n)| Edit::Number(i, n)),
         1 => any::<Index>().prop_map(Edit::Truncate),
@@ -282,7 +285,7 @@ fn edit() -> impl Strategy<Value = Edit> {
     ]
 }
 
-fn apply(b: &mut Vec<u8>, edits: &[Edit]) {
+pub(crate) fn apply(b: &mut Vec<u8>, edits: &[Edit]) {
     for e in edits {
         if b.is_empty() {
             if let Edit::Insert(_, t) = e {
@@ -358,14 +361,14 @@ fn digit_runs(b: &[u8]) -> Vec<(usize, usize)> {
 /// Edits of a text's lines: drop, double, swap, or replace one whitespace-separated
 /// word by an interesting token.
 #[derive(Debug, Clone)]
-enum LineEdit {
+pub(crate) enum LineEdit {
     Drop(Index),
     Double(Index),
     Swap(Index, Index),
     Word(Index, Index, Vec<u8>),
 }
 
-fn line_edit() -> impl Strategy<Value = LineEdit> {
+pub(crate) fn line_edit() -> impl Strategy<Value = LineEdit> {
     prop_oneof![
         1 => any::<Index>().prop_map(LineEdit::Drop),
         1 => any::<Index>().prop_map(LineEdit::Double),
@@ -375,7 +378,7 @@ fn line_edit() -> impl Strategy<Value = LineEdit> {
 }
 
 /// Apply line edits to the first `head` lines of `b` (all lines when `head` is None).
-fn apply_lines(b: &mut Vec<u8>, edits: &[LineEdit], head: Option<usize>) {
+pub(crate) fn apply_lines(b: &mut Vec<u8>, edits: &[LineEdit], head: Option<usize>) {
     let text_end = match head {
         Some(k) => b
             .iter()
@@ -535,7 +538,7 @@ fn edit_node(v: &mut serde_json::Value, target: usize, e: &JsonEdit) {
 
 /// Mutated JSON text: tree edits, then (sometimes) byte edits, and duplicated keys
 /// spliced in as text (serde_json's maps cannot hold them).
-fn json_case(seeds: Vec<serde_json::Value>) -> impl Strategy<Value = (Vec<u8>, String)> {
+pub(crate) fn json_case(seeds: Vec<serde_json::Value>) -> impl Strategy<Value = (Vec<u8>, String)> {
     (
         prop::sample::select(seeds),
         prop::collection::vec(json_edit(), 0..4),
@@ -565,7 +568,7 @@ fn json_case(seeds: Vec<serde_json::Value>) -> impl Strategy<Value = (Vec<u8>, S
         })
 }
 
-fn tmp() -> tempfile::TempDir {
+pub(crate) fn tmp() -> tempfile::TempDir {
     tempfile::tempdir().unwrap()
 }
 
@@ -575,7 +578,7 @@ thread_local! {
 }
 
 /// The error names `name` (the file), or the value is fine.
-fn names_file<T>(r: &fantasystyle::Result<T>, name: &str) -> Result<(), String> {
+pub(crate) fn names_file<T>(r: &fantasystyle::Result<T>, name: &str) -> Result<(), String> {
     match r {
         Err(e) if !e.to_string().contains(name) => Err(format!("error does not name {name}: {e}")),
         Err(_) => Ok(()),
@@ -584,514 +587,4 @@ fn names_file<T>(r: &fantasystyle::Result<T>, name: &str) -> Result<(), String> 
             Ok(())
         }
     }
-}
-
-// ---------------------------------------------------------------------------------
-// Scenes.
-
-use fantasystyle::Scene;
-use fantasystyle::scene::{ply, splat};
-
-/// A small valid scene of `n` Gaussians at SH degree `deg`.
-fn scene(n: usize, deg: usize, seed: u64) -> Scene {
-    let mut r = fantasystyle::rng::Rng::new(seed);
-    let mut u = || r.uniform() as f32;
-    let k = (deg + 1) * (deg + 1) - 1;
-    Scene {
-        positions: (0..n).map(|_| [u() - 0.5, u() - 0.5, u() - 0.5]).collect(),
-        log_scales: (0..n)
-            .map(|_| [-3.0 - u(), -3.0 - u(), -3.0 - u()])
-            .collect(),
-        rotations: (0..n).map(|_| [1.0, u() - 0.5, 0.0, 0.1]).collect(),
-        opacity_logits: (0..n).map(|_| 4.0 * u() - 2.0).collect(),
-        sh_degree: deg,
-        sh_dc: (0..n).map(|_| [u() - 0.5, u() - 0.5, u() - 0.5]).collect(),
-        sh_rest: (0..n * k * 3).map(|_| 0.1 * (u() - 0.5)).collect(),
-    }
-}
-
-/// The scene as an ASCII PLY with the INRIA properties in a shuffled order, normals,
-/// a `uchar` and a `double` extra, a comment, and a `face` element after the vertices.
-fn ascii_ply(s: &Scene, seed: u64) -> Vec<u8> {
-    let k = s.rest_per_channel();
-    let mut props: Vec<(String, &str)> = ["x", "y", "z", "nx", "ny", "nz"]
-        .iter()
-        .map(|p| (p.to_string(), "float"))
-        .collect();
-    props.extend((0..3).map(|c| (format!("f_dc_{c}"), "float")));
-    props.extend((0..3 * k).map(|j| (format!("f_rest_{j}"), "float")));
-    props.push(("opacity".into(), "float"));
-    props.extend((0..3).map(|c| (format!("scale_{c}"), "float")));
-    props.extend((0..4).map(|c| (format!("rot_{c}"), "float")));
-    props.push(("red".into(), "uchar"));
-    props.push(("extra".into(), "double"));
-    // A deterministic shuffle.
-    let mut r = fantasystyle::rng::Rng::new(seed);
-    for i in (1..props.len()).rev() {
-        let j = (r.uniform() * (i + 1) as f64) as usize % (i + 1);
-        props.swap(i, j);
-    }
-    let mut out = format!(
-        "ply\nformat ascii 1.0\ncomment fuzz seed\nelement vertex {}\n",
-        s.len()
-    );
-    for (p, t) in &props {
-        out += &format!("property {t} {p}\n");
-    }
-    out += "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
-    for i in 0..s.len() {
-        let val = |p: &str| -> String {
-            let f = |v: f32| format!("{v}");
-            match p {
-                "x" => f(s.positions[i][0]),
-                "y" => f(s.positions[i][1]),
-                "z" => f(s.positions[i][2]),
-                "nx" | "ny" | "nz" => "0".into(),
-                "opacity" => f(s.opacity_logits[i]),
-                "red" => "200".into(),
-                "extra" => "2.5".into(),
-                _ => {
-                    let (name, idx) = p.rsplit_once('_').unwrap();
-                    let idx: usize = idx.parse().unwrap();
-                    match name {
-                        "f_dc" => f(s.sh_dc[i][idx]),
-                        "scale" => f(s.log_scales[i][idx]),
-                        "rot" => f(s.rotations[i][idx]),
-                        "f_rest" => {
-                            let (c, kk) = (idx / k, idx % k);
-                            f(s.sh_rest[(i * k + kk) * 3 + c])
-                        }
-                        _ => unreachable!("{p}"),
-                    }
-                }
-            }
-        };
-        let row: Vec<String> = props.iter().map(|(p, _)| val(p)).collect();
-        out += &row.join(" ");
-        out.push('\n');
-    }
-    out += "3 0 1 2\n";
-    out.into_bytes()
-}
-
-fn ply_seeds() -> Vec<Vec<u8>> {
-    let mut v = Vec::new();
-    for (n, deg, seed) in [(1, 0, 1), (3, 1, 2), (5, 2, 3), (2, 3, 4), (9, 0, 5)] {
-        let s = scene(n, deg, seed);
-        v.push(ply::encode_ply(&s));
-        v.push(ascii_ply(&s, seed));
-    }
-    v
-}
-
-fn header_lines(b: &[u8]) -> usize {
-    let end = b
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .map_or(b.len(), |p| p + 11);
-    b[..end].iter().filter(|c| **c == b'\n').count()
-}
-
-fn check_scene(r: fantasystyle::Result<Scene>, name: &str, len: usize) -> Result<(), String> {
-    names_file(&r, name)?;
-    if let Ok(s) = r {
-        s.validate(Path::new(name))
-            .map_err(|e| format!("returned an invalid scene: {e}"))?;
-        if s.len() > len {
-            return Err(format!("{} Gaussians from {len} bytes", s.len()));
-        }
-    }
-    Ok(())
-}
-
-#[test]
-fn fuzz_ply() {
-    let seeds = ply_seeds();
-    for s in &seeds {
-        ply::parse_ply(Path::new("seed.ply"), s).expect("the seeds are valid");
-    }
-    let strategy = (
-        prop::sample::select(seeds),
-        prop::collection::vec(line_edit(), 0..3),
-        prop::collection::vec(edit(), 0..4),
-    );
-    fuzz("ply", 3000, strategy, |(mut b, lines, edits)| {
-        let head = header_lines(&b);
-        apply_lines(&mut b, &lines, Some(head));
-        apply(&mut b, &edits);
-        let len = b.len();
-        let r = guarded(len, move || ply::parse_ply(Path::new("fuzz.ply"), &b))?;
-        check_scene(r, "fuzz.ply", len)
-    });
-}
-
-/// A header that claims 4e9 (or 2^64 - 1) vertices over a few bytes of data: refused
-/// without reserving them.
-#[test]
-fn ply_header_counts_do_not_reserve_memory() {
-    let s = scene(3, 1, 9);
-    for b in [ply::encode_ply(&s), ascii_ply(&s, 9)] {
-        let text = String::from_utf8_lossy(&b[..b.len().min(4000)]).into_owned();
-        for claim in ["4000000000", "18446744073709551615", "1152921504606846976"] {
-            let bad = String::from_utf8_lossy(&b)
-                .replacen("element vertex 3", &format!("element vertex {claim}"), 1)
-                .into_bytes();
-            assert!(text.contains("element vertex 3"));
-            let len = bad.len();
-            let r = guarded(len, move || ply::parse_ply(Path::new("big.ply"), &bad))
-                .unwrap_or_else(|e| panic!("claim {claim}: {e}"));
-            let e = r.expect_err("a lying count").to_string();
-            assert!(e.contains("big.ply"), "{e}");
-        }
-    }
-}
-
-#[test]
-fn fuzz_splat() {
-    let seeds: Vec<Vec<u8>> = [(1, 1), (4, 2), (17, 3)]
-        .iter()
-        .map(|&(n, seed)| splat::encode_splat(&scene(n, 0, seed)))
-        .collect();
-    let strategy = (
-        prop::sample::select(seeds),
-        prop::collection::vec(edit(), 0..4),
-    );
-    fuzz("splat", 2000, strategy, |(mut b, edits)| {
-        apply(&mut b, &edits);
-        let len = b.len();
-        let r = guarded(len, move || splat::parse_splat(Path::new("fuzz.splat"), &b))?;
-        check_scene(r, "fuzz.splat", len)
-    });
-}
-
-// ---------------------------------------------------------------------------------
-// Cameras.
-
-use fantasystyle::camera::{Camera, colmap, inria, load_cameras};
-
-fn orbit_cams(n: usize) -> Vec<Camera> {
-    let b = scene(4, 0, 1).bounds();
-    load_cameras(&format!("orbit:{n}"), &b, 64, 48).unwrap()
-}
-
-/// Load `path` as `load_cameras` does for a stage (and resize to 32x24); a returned
-/// camera set must be valid.
-fn check_cameras(path: PathBuf, name: &str, len: usize) -> Result<(), String> {
-    let r = guarded(len, move || {
-        let b = scene(4, 0, 1).bounds();
-        load_cameras(path.to_str().unwrap(), &b, 32, 24)
-    })?;
-    names_file(&r, name)?;
-    if let Ok(cams) = r {
-        if cams.is_empty() {
-            return Err("an empty camera list was accepted".into());
-        }
-        for c in &cams {
-            c.validate(Path::new(name))
-                .map_err(|e| format!("returned an invalid camera: {e}"))?;
-        }
-    }
-    Ok(())
-}
-
-#[test]
-fn fuzz_inria_cameras_json() {
-    let seeds: Vec<serde_json::Value> = [1, 3, 6]
-        .iter()
-        .map(|&n| serde_json::to_value(inria::to_inria(&orbit_cams(n))).unwrap())
-        .collect();
-    let d = tmp();
-    let p = d.path().join("cameras.json");
-    fuzz("cameras.json", 2000, json_case(seeds), |(b, _)| {
-        std::fs::write(&p, &b).unwrap();
-        check_cameras(p.clone(), "cameras.json", b.len())
-    });
-}
-
-#[test]
-fn fuzz_transforms_json() {
-    let frame = |i: usize| {
-        serde_json::json!({
-            "file_path": format!("images/{i:03}.png"),
-            "transform_matrix": [[1.0, 0.0, 0.0, 0.1 * i as f64], [0.0, 1.0, 0.0, 0.0],
-                                 [0.0, 0.0, 1.0, 3.0], [0.0, 0.0, 0.0, 1.0]],
-        })
-    };
-    let seeds = vec![
-        serde_json::json!({"fl_x": 50.0, "fl_y": 52.0, "cx": 32.0, "cy": 24.0, "w": 64, "h": 48,
-                           "k1": 0.01, "camera_model": "OPENCV",
-                           "frames": [frame(0), frame(1), frame(2)]}),
-        serde_json::json!({"camera_angle_x": 0.69, "frames": [frame(0), frame(1)]}),
-    ];
-    let d = tmp();
-    let p = d.path().join("transforms.json");
-    fuzz("transforms.json", 2000, json_case(seeds), |(b, _)| {
-        std::fs::write(&p, &b).unwrap();
-        check_cameras(p.clone(), "transforms.json", b.len())
-    });
-}
-
-#[test]
-fn fuzz_colmap_text() {
-    let d = tmp();
-    let mut seeds = Vec::new();
-    for n in [1, 3] {
-        colmap::write_colmap_txt(d.path(), &orbit_cams(n)).unwrap();
-        seeds.push((
-            std::fs::read(d.path().join("cameras.txt")).unwrap(),
-            std::fs::read(d.path().join("images.txt")).unwrap(),
-        ));
-    }
-    let strategy = (
-        prop::sample::select(seeds),
-        any::<bool>(),
-        prop::collection::vec(line_edit(), 0..3),
-        prop::collection::vec(edit(), 0..3),
-    );
-    fuzz(
-        "colmap-text",
-        1500,
-        strategy,
-        |((mut c, mut i), which, lines, edits)| {
-            let t = if which { &mut c } else { &mut i };
-            apply_lines(t, &lines, None);
-            apply(t, &edits);
-            std::fs::write(d.path().join("cameras.txt"), &c).unwrap();
-            std::fs::write(d.path().join("images.txt"), &i).unwrap();
-            // The error names the model directory or one of its files.
-            let r = {
-                let dir = d.path().to_path_buf();
-                guarded(c.len() + i.len(), move || colmap::read_colmap(&dir))?
-            };
-            names_file(&r, &d.path().display().to_string())?;
-            if let Ok(cams) = &r {
-                for cam in cams {
-                    cam.validate(d.path())
-                        .map_err(|e| format!("returned an invalid camera: {e}"))?;
-                }
-            }
-            let shown = d.path().display().to_string();
-            check_cameras(d.path().to_path_buf(), &shown, c.len() + i.len())
-        },
-    );
-}
-
-/// `cameras.bin` and `images.bin` for `cams` (COLMAP's binary layout, PINHOLE).
-fn colmap_bin(cams: &[Camera]) -> (Vec<u8>, Vec<u8>) {
-    let mut c = Vec::new();
-    c.extend((cams.len() as u64).to_le_bytes());
-    for (k, cam) in cams.iter().enumerate() {
-        c.extend((k as i32 + 1).to_le_bytes());
-        c.extend(1i32.to_le_bytes());
-        c.extend((cam.width as u64).to_le_bytes());
-        c.extend((cam.height as u64).to_le_bytes());
-        for v in [cam.fx, cam.fy, cam.cx, cam.cy] {
-            c.extend((v as f64).to_le_bytes());
-        }
-    }
-    let mut i = Vec::new();
-    i.extend((cams.len() as u64).to_le_bytes());
-    for (k, cam) in cams.iter().enumerate() {
-        i.extend((k as i32 + 1).to_le_bytes());
-        let q = fantasystyle::geometry::mat_to_quat(fantasystyle::geometry::mat3(
-            cam.rotation.map(|r| r.map(|v| v as f64)),
-        ));
-        for v in q {
-            i.extend(v.to_le_bytes());
-        }
-        for v in cam.translation {
-            i.extend((v as f64).to_le_bytes());
-        }
-        i.extend((k as i32 + 1).to_le_bytes());
-        i.extend(format!("view_{k:03}.png\0").as_bytes());
-        i.extend(2u64.to_le_bytes());
-        i.extend([0u8; 48]);
-    }
-    (c, i)
-}
-
-#[test]
-fn fuzz_colmap_binary() {
-    let seeds: Vec<(Vec<u8>, Vec<u8>)> = [1, 2, 4]
-        .iter()
-        .map(|&n| colmap_bin(&orbit_cams(n)))
-        .collect();
-    let d = tmp();
-    let (c0, i0) = &seeds[1];
-    std::fs::write(d.path().join("cameras.bin"), c0).unwrap();
-    std::fs::write(d.path().join("images.bin"), i0).unwrap();
-    assert_eq!(
-        colmap::read_colmap(d.path()).unwrap().len(),
-        2,
-        "the seed is valid"
-    );
-    let strategy = (
-        prop::sample::select(seeds),
-        any::<bool>(),
-        prop::collection::vec(edit(), 0..4),
-    );
-    fuzz(
-        "colmap-binary",
-        2000,
-        strategy,
-        |((mut c, mut i), which, edits)| {
-            apply(if which { &mut c } else { &mut i }, &edits);
-            std::fs::write(d.path().join("cameras.bin"), &c).unwrap();
-            std::fs::write(d.path().join("images.bin"), &i).unwrap();
-            let dir = d.path().to_path_buf();
-            let r = guarded(c.len() + i.len(), move || colmap::read_colmap(&dir))?;
-            let shown = d.path().display().to_string();
-            names_file(&r, &shown)?;
-            check_cameras(d.path().to_path_buf(), &shown, c.len() + i.len())
-        },
-    );
-}
-
-// ---------------------------------------------------------------------------------
-// .npy, artifact manifests, model manifests.
-
-use fantasystyle_schemas::NpyReader;
-use fantasystyle_schemas::npy::{decode_npy, encode_npy};
-
-fn npy_seeds() -> Vec<Vec<u8>> {
-    vec![
-        encode_npy::<f32>(
-            &[2, 3, 4],
-            &(0..24).map(|i| i as f32 * 0.5).collect::<Vec<_>>(),
-        ),
-        encode_npy::<f32>(&[5], &[1.0, -2.0, 3.5, 0.0, 1e-3]),
-        encode_npy::<f32>(&[0, 7], &[]),
-        encode_npy::<f64>(&[2, 2], &[1.0, 2.0, 3.0, 4.0]),
-        encode_npy::<u8>(&[4], &[1, 2, 3, 255]),
-    ]
-}
-
-#[test]
-fn fuzz_npy() {
-    let strategy = (
-        prop::sample::select(npy_seeds()),
-        prop::collection::vec(line_edit(), 0..2),
-        prop::collection::vec(edit(), 0..4),
-    );
-    let d = tmp();
-    let p = d.path().join("fuzz.npy");
-    fuzz("npy", 3000, strategy, |(mut b, lines, edits)| {
-        // Line edits touch the header dict's words ("'shape': (2, 3, 4)").
-        apply_lines(&mut b, &lines, Some(1));
-        apply(&mut b, &edits);
-        let len = b.len();
-        let bb = b.clone();
-        let r = guarded(len, move || {
-            decode_npy::<f32>(Path::new("fuzz.npy"), &bb).map_err(fantasystyle::Error::from)
-        })?;
-        names_file(&r, "fuzz.npy")?;
-        if let Ok(a) = &r
-            && a.data.len() != a.shape.iter().product::<usize>()
-        {
-            return Err(format!("{} values for shape {:?}", a.data.len(), a.shape));
-        }
-        // The streaming reader, item by item.
-        std::fs::write(&p, &b).unwrap();
-        let pp = p.clone();
-        let r = guarded(len, move || -> fantasystyle::Result<usize> {
-            let mut rd = NpyReader::<f32>::open(&pp)?;
-            let mut out = Vec::new();
-            let mut n = 0;
-            while rd.remaining() > 0 {
-                rd.read_items(1, &mut out)?;
-                n += out.len();
-            }
-            Ok(n)
-        })?;
-        names_file(&r, "fuzz.npy")
-    });
-}
-
-/// A valid views artifact's directory and its manifest.json as JSON.
-fn views_artifact(dir: &Path) -> serde_json::Value {
-    let (n, h, w) = (2, 4, 3);
-    crate::harness::write_views(
-        dir,
-        [n, h, w],
-        &vec![0.5; n * h * w * 3],
-        &vec![2.0; n * h * w],
-        &vec![1.0; n * h * w],
-        b"[]",
-    );
-    serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap()
-}
-
-#[test]
-fn fuzz_artifact_manifest() {
-    let d = tmp();
-    let art = d.path().join("views");
-    let seed = views_artifact(&art);
-    fantasystyle::artifacts::read_views(&art).expect("the seed is valid");
-    fuzz("manifest.json", 2000, json_case(vec![seed]), |(b, _)| {
-        std::fs::write(art.join("manifest.json"), &b).unwrap();
-        let a = art.clone();
-        let r = guarded(b.len(), move || {
-            fantasystyle_schemas::Artifact::open_any(&a).map_err(fantasystyle::Error::from)
-        })?;
-        names_file(&r, "views")?;
-        let a = art.clone();
-        let r = guarded(b.len(), move || {
-            fantasystyle::artifacts::read_views(&a).map(|_| ())
-        })?;
-        names_file(&r, "views")
-    });
-}
-
-#[test]
-fn fuzz_model_json() {
-    let sched = serde_json::json!({
-        "num_train_timesteps": 1000, "beta_start": 0.00085, "beta_end": 0.012,
-        "beta_schedule": "scaled_linear", "prediction_type": "epsilon"
-    });
-    let seeds = vec![
-        serde_json::json!({
-            "format": "fantasystyle-model/1", "family": "sd15", "name": "t",
-            "latent_channels": 4, "vae_scaling_factor": 0.18215, "downsample": 8,
-            "scheduler": sched,
-            "vae_encoder": {"file": "e.onnx", "input": "sample", "output": "latent"},
-            "vae_decoder": {"file": "d.onnx", "input": "latent_sample", "output": "sample"},
-            "unet": {"file": "u.onnx", "sample": "sample", "timestep": "timestep",
-                     "encoder_hidden_states": "ehs", "output": "out_sample"},
-            "text": {"null": {"file": "n.npy"}, "prompts": [{"text": "a", "file": "p.npy"}]}
-        }),
-        serde_json::json!({
-            "format": "fantasystyle-model/1", "family": "stylizer", "name": "s",
-            "latent_channels": 3, "downsample": 1, "scheduler": sched,
-            "stylizer": {
-                "timesteps": {"t_min": 20, "t_max": 300, "count": 25},
-                "style_predict": {"file": "p.onnx", "input": "i", "output": "o", "size": 256},
-                "transform": {"file": "t.onnx", "content_input": "c", "style_input": "s",
-                              "output": "o", "size": 384, "dynamic": true},
-                "style_dim": 100
-            }
-        }),
-    ];
-    let d = tmp();
-    for f in [
-        "e.onnx", "d.onnx", "u.onnx", "n.npy", "p.npy", "p.onnx", "t.onnx",
-    ] {
-        std::fs::write(d.path().join(f), b"x").unwrap();
-    }
-    for s in &seeds {
-        std::fs::write(d.path().join("model.json"), s.to_string()).unwrap();
-        fantasystyle::prior::model_timesteps(d.path()).expect("the seeds are valid");
-    }
-    fuzz("model.json", 2000, json_case(seeds), |(b, _)| {
-        std::fs::write(d.path().join("model.json"), &b).unwrap();
-        let dir = d.path().to_path_buf();
-        let r = guarded(b.len(), move || {
-            fantasystyle::prior::manifest::ModelManifest::load(&dir).map(|_| ())
-        })?;
-        names_file(&r, "model.json")?;
-        let dir = d.path().to_path_buf();
-        let r = guarded(b.len(), move || {
-            fantasystyle::prior::model_timesteps(&dir).map(|(_, set)| set.steps().len())
-        })?;
-        names_file(&r, "model.json")
-    });
 }
