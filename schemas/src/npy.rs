@@ -490,7 +490,7 @@ impl NpyReader<f32> {
 mod tests {
     use super::*;
 
-    /// Fuzzing regressions (tests/integration/fuzz.rs): shapes whose byte count or
+    /// Fuzzing regressions (tests/integration/fuzz_npy_manifests.rs): shapes whose byte count or
     /// per-item element count overflows usize are errors, not overflow panics.
     #[test]
     fn overflowing_shapes_are_errors() {
