@@ -12,7 +12,8 @@
 //! 2. a preset (`--preset NAME`): a configuration file of the repository's `presets/`
 //!    directory, built into the binaries ([`PRESETS`]): `default` (the sample DAG's:
 //!    FantasyStyle's loop ended by the patch prior's deterministic limit), `paper`
-//!    (FantasyStyle alone) and `arf` (ARF's recipe on the loop);
+//!    (FantasyStyle alone), `arf` (ARF's recipe on the loop) and `motifs` (the default
+//!    with the style's motifs laid out at their scale first: src/ends/layout.rs);
 //! 3. configuration files and inline tables (`--config FILE` or `--config '{ k = v }'`,
 //!    in order; a table's `preset = "NAME"` puts that preset under it);
 //! 4. single keys (`--set KEY=VALUE`, dotted for a section: `csd.guidance=0`), parsed as
@@ -178,10 +179,11 @@ pub const SECTIONS: &[Section] = &[
 ];
 
 /// The presets: `presets/NAME.toml` of the repository, built into the binaries.
-pub const PRESETS: [(&str, &str); 3] = [
+pub const PRESETS: [(&str, &str); 4] = [
     ("default", include_str!("../presets/default.toml")),
     ("paper", include_str!("../presets/paper.toml")),
     ("arf", include_str!("../presets/arf.toml")),
+    ("motifs", include_str!("../presets/motifs.toml")),
 ];
 
 /// Where a layer of the configuration comes from.
@@ -438,6 +440,15 @@ mod tests {
         assert_eq!(d.prior, "patch");
         let arf = Config::layered(&[Source::Preset("arf".into())]).unwrap();
         assert_eq!(arf.prior, "stylizer");
+        // `motifs` is the default over the layout start, its keys over the default's.
+        let m = Config::layered(&[Source::Preset("motifs".into())]).unwrap();
+        let default = Config::layered(&[Source::Preset("default".into())]).unwrap();
+        assert_eq!(m.start, End::start("layout").unwrap());
+        assert_eq!(
+            (m.synthesis.levels.clone(), m.synthesis.control),
+            (vec![2, 1], 0.6)
+        );
+        assert_eq!((m.finish, m.synthesis.guide_blur), (default.finish, 2.0));
         // What a file holds is what it reads back.
         let back: Config = toml::from_str(&d.to_toml()).unwrap();
         assert_eq!(back, d);

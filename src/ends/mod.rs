@@ -10,6 +10,7 @@
 //! | `none` | finish | the last iteration's colours | here |
 //! | `colour` | start, finish | the object's colour mean and covariance moved onto the style image's, each Gaussian then clamped into the style's colour extent: over the source views (ARF's colour pre-transfer), or over the result's renders (ARF's colour transfer after the optimisation: the loop's palette drift taken back) | [`colour`] |
 //! | `projection` | start | the style image texture-mapped onto the object: triplanar projection along each Gaussian's normal, one style pixel per render pixel at the object (`texture.style_size`), shaded by each Gaussian's relative brightness | [`projection`] |
+//! | `layout` | start | the object cut into 3D Voronoi cells at the motif scale (`synthesis.motifs_across` across its extent), each one random colour of the style's motifs: the layout the patch end draws its motifs on | [`layout`] |
 //! | `patches` | finish | the patch prior's deterministic t -> 0 end: the colours fitted, coarse to fine, to every view's average of its nearest style patches, targets held, patch use balanced (texture optimisation, Kwatra et al. 2005), guided by the scene's structure; settings `[synthesis]`, parts [`patches::PARTS`] | [`patches`] |
 //!
 //! A new end is one new file here and one line of [`ENDS`] (its name, its roles, its
@@ -22,6 +23,7 @@
 //! geometry: its own stage (`split`, [`split`]).
 
 pub mod colour;
+pub mod layout;
 pub mod patches;
 pub mod projection;
 pub mod split;
@@ -65,6 +67,7 @@ pub const ENDS: &[EndKind] = &[
     EndKind { name: "none", roles: FINISH, section: None, help: "the last iteration's colours (FantasyStyle)", run: as_it_is },
     EndKind { name: "colour", roles: BOTH, section: None, help: "the colours moved onto the style's mean and covariance (ARF's colour transfer)", run: colour::run },
     EndKind { name: "projection", roles: START, section: Some("texture"), help: "the style image texture-mapped onto the object (triplanar)", run: projection::run },
+    EndKind { name: "layout", roles: START, section: Some("synthesis"), help: "the object cut into 3D cells at the motif scale, each one random colour of the style's motifs (a layout for the patch end to draw on)", run: layout::run },
     EndKind { name: "patches", roles: FINISH, section: Some("synthesis"), help: "the patch prior's deterministic end: the style's patches synthesised onto the colours, coarse to fine", run: patches::run },
     #[cfg(test)]
     EndKind { name: "test-grey", roles: FINISH, section: None, help: "every colour grey (a test-only end)", run: test_grey::run },

@@ -155,7 +155,9 @@ pub struct ConfigArgs {
     /// end guided by the scene's structure, `finish = "patches"`, `synthesis.control = 1`),
     /// `paper` (FantasyStyle alone: the CSD term, no start, no finish, no split: the
     /// defaults) or `arf` (ARF's recipe on the loop: NNFM and a light Gram term, the
-    /// projected start, the colour finish, a 2 px split). The files are presets/NAME.toml.
+    /// projected start, the colour finish, a 2 px split) or `motifs` (the default with the
+    /// style's motifs laid out at their scale first, for smooth objects). The files are
+    /// presets/NAME.toml.
     #[arg(long, value_name = "NAME")]
     pub preset: Option<String>,
     /// A configuration file (TOML, the keys listed below; a file may name its base with

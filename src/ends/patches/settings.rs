@@ -61,6 +61,10 @@ pub struct SynthesisParams {
     /// residue is the detail.
     #[arg(long, default_value_t = 4.0)]
     pub detail_blur: f32,
+    /// The `layout` start's cells across the object's largest extent (the motif scale it
+    /// seeds; read by that start only). See src/ends/layout.rs.
+    #[arg(long, default_value_t = 6.0)]
+    pub motifs_across: f32,
     /// The guidance scale at t -> 0: how far each patch moves from the scene's own
     /// (the source branch) toward its style patch (the style branch): 1 takes the style
     /// patch, 0 keeps the scene.
@@ -102,6 +106,11 @@ impl SynthesisParams {
         }
         if !(self.control.is_finite() && (0.0..=100.0).contains(&self.control)) {
             return Err(Error::param("synthesis.control must lie in [0, 100]"));
+        }
+        if !(self.motifs_across.is_finite() && (1.0..=1000.0).contains(&self.motifs_across)) {
+            return Err(Error::param(
+                "synthesis.motifs_across must lie in [1, 1000]",
+            ));
         }
         if !(self.guidance.is_finite() && (0.0..=2.0).contains(&self.guidance)) {
             return Err(Error::param("synthesis.guidance must lie in [0, 2]"));
