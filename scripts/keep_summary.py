@@ -6,7 +6,7 @@
 Reads RUNS_DIR/<scene>/<style>/<method>-eval/metrics.json (what `evaluate` wrote) and
 prints Markdown (plain Python and numpy only):
 
-* per case, for default / loop / colour / original / preview: structure kept (the
+* per case, for default / motifs / unguided / loop / colour / original / preview: structure kept (the
   top-level `structure_kept`, the mean over views; "-" where a metrics.json lacks it),
   the object's Gram distance to the style at relu1_2 and relu2_2 as stylized / original
   (texture.gram_object[].ratio: below 1 is closer to the style than the untouched
@@ -21,15 +21,21 @@ prints Markdown (plain Python and numpy only):
   the original's + 0.02 in how many cases (the failures listed); loop minus default,
   paired over the loop's cases, each measure's mean difference with a 95% interval
   (Student t);
+* issue 53's checks, of the default and of the `motifs` preset (method `motifs`): edge
+  recall (mean >= 0.85, min >= 0.75), motif
+  contrast against the unguided end's (`unguided`, >= 0.8x in every case), both Gram
+  layers below colour transfer's (>= 14 of the 15 base cases); the per-case table adds
+  interior structure, edge recall, motif contrast and style texture;
 * each sweep (methods control_W, guidance_W, negative_W) per case: the measures by W,
-  and whether structure kept and the two Gram distances move monotonically with W.
+  and whether structure kept, the two Gram distances, edge recall, motif contrast and
+  style texture move monotonically with W.
 """
 import json
 import math
 import os
 import sys
 
-METHODS = ["default", "loop", "colour", "original", "preview"]
+METHODS = ["default", "motifs", "unguided", "loop", "colour", "original", "preview"]
 BASE_SCENES = ["plant", "bob_100k", "fish_10k"]
 BASE_STYLES = ["painting", "brick", "opart", "astronaut", "coffee"]
 SWEEPS = ["control", "guidance", "negative"]
@@ -40,7 +46,9 @@ T95 = {1: 12.71, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 
 # (key, column title, decimals)
 MEASURES = [("structure", "structure kept", 3), ("g1", "Gram relu1_2 (s/o)", 3),
             ("g2", "Gram relu2_2 (s/o)", 3), ("kid", "object KID", 4),
-            ("lpips", "LPIPS content", 3), ("long", "long-range LPIPS", 4)]
+            ("lpips", "LPIPS content", 3), ("long", "long-range LPIPS", 4),
+            ("interior", "interior structure", 3), ("edge", "edge recall", 3),
+            ("motif", "motif contrast", 3), ("tex", "style texture", 3)]
 
 
 def load_json(path):
@@ -64,6 +72,10 @@ def measures(m):
         "lpips": m.get("lpips_content"),
         "long": lr.get("lpips_mean"),
         "long_orig": lr.get("original_lpips_mean"),
+        "interior": m.get("interior_structure"),
+        "edge": m.get("edge_recall"),
+        "motif": m.get("motif_contrast"),
+        "tex": m.get("style_texture"),
     }
 
 
@@ -170,6 +182,38 @@ def check_long_range(res, cases):
           f"({verdict(None if rows == 0 else not fails)})" + (f"; fails: {', '.join(fails)}" if fails else ""))
 
 
+def check_motifs(res, cases, me="default"):
+    """Issue 53's checks of method `me`: edge recall, motif contrast against the unguided
+    end, both Gram layers below colour transfer's."""
+    if not any(c + (me,) in res for c in cases):
+        print(f"- {me}: not evaluated yet")
+        return
+    edges = [(res[c + (me,)]["edge"], c) for c in cases
+             if c + (me,) in res and res[c + (me,)]["edge"] is not None]
+    if edges:
+        mu, (lo, worst) = sum(e for e, _ in edges) / len(edges), min(edges)
+        print(f"- edge recall ({me}), {len(edges)} cases: mean {mu:.3f} (>= 0.85: {verdict(mu >= 0.85)}), "
+              f"min {lo:.3f} at {worst[0]} x {worst[1]} (>= 0.75: {verdict(lo >= 0.75)})")
+    else:
+        print(f"- edge recall ({me}): {verdict(None)}")
+    pairs = [(res[c + (me,)]["motif"], res[c + ("unguided",)]["motif"], c) for c in cases
+             if c + (me,) in res and c + ("unguided",) in res]
+    pairs = [(a, b, c) for a, b, c in pairs if a is not None and b]
+    fails = [f"{c[0]} x {c[1]} ({a / b:.2f})" for a, b, c in pairs if a < 0.8 * b]
+    ratios = [a / b for a, b, _ in pairs]
+    lo = f", lowest {min(ratios):.2f}" if ratios else ""
+    print(f"- motif contrast >= 0.8 x the unguided end's ({me}): {len(pairs) - len(fails)} of {len(pairs)} cases"
+          f"{lo} ({verdict(None if not pairs else not fails)})" + (f"; fails: {', '.join(fails)}" if fails else ""))
+    base = [(sc, sty) for sc in BASE_SCENES for sty in BASE_STYLES]
+    both = []
+    for c in base:
+        d, k = res.get(c + (me,)), res.get(c + ("colour",))
+        if d and k and None not in (d["g1"], d["g2"], k["g1"], k["g2"]):
+            both.append(d["g1"] < k["g1"] and d["g2"] < k["g2"])
+    print(f"- relu1_2 and relu2_2 object Gram of {me} both below colour transfer's: {sum(both)} of {len(both)} base cases "
+          f"(>= 14 of 15: {verdict(None if len(both) < 15 else sum(both) >= 14)})")
+
+
 def check_loop(res, cases):
     pairs = [(res[c + ("loop",)], res[c + ("default",)]) for c in cases
              if c + ("loop",) in res and c + ("default",) in res]
@@ -220,7 +264,8 @@ def sweeps(res, cases):
             for (w, _), r in zip(pts, rows):
                 print(f"| {w:g} | " + " | ".join(fmt(r[k], d) for k, _, d in MEASURES) + " |")
             print()
-            notes = [f"{name} {monotone([r[k] for r in rows])}" for k, name, _ in MEASURES[:3]]
+            notes = [f"{name} {monotone([r[k] for r in rows])}" for k, name, _ in MEASURES
+                     if k in ("structure", "g1", "g2", "edge", "motif", "tex")]
             print(f"As {key} grows: " + "; ".join(notes) + ".")
 
 
@@ -252,6 +297,11 @@ def main():
     check_texture(res, cases)
     check_long_range(res, cases)
     check_loop(res, cases)
+    print()
+    print("## The Done checks of issue 53")
+    print()
+    check_motifs(res, cases)
+    check_motifs(res, cases, "motifs")
     print()
     sweeps(res, cases)
 
