@@ -87,3 +87,54 @@ fn a_preset_names_the_prior_its_loop_calls() {
     );
     assert!(!d.path().join("nope").exists());
 }
+
+#[test]
+fn the_motifs_preset_lays_cells_under_the_default_end() {
+    let (root, d) = (repo_root(), tempfile::tempdir().unwrap());
+    let views = d.path().join("views");
+    ok(bin("render-views")
+        .arg("--scene")
+        .arg(root.join("data-sample/scene.ply"))
+        .args([
+            "--cameras",
+            "orbit:2",
+            "--width",
+            "48",
+            "--height",
+            "48",
+            "--out",
+        ])
+        .arg(&views));
+    let run = |preset: &str| {
+        let out = d.path().join(preset);
+        let o = ok(bin("distill")
+            .arg("--scene")
+            .arg(root.join("data-sample/scene.ply"))
+            .arg("--source-views")
+            .arg(&views)
+            .arg("--style")
+            .arg(root.join("data-sample/style.png"))
+            .args([
+                "--preset",
+                preset,
+                "--iters",
+                "0",
+                "--threads",
+                "1",
+                "--out",
+            ])
+            .arg(&out));
+        let scene = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
+        (scene, String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let (motifs, log) = run("motifs");
+    let (default, _) = run("default");
+    // The layout start ran (6 cells across the object), and the result is not the
+    // default's: the geometry is, the colours are not.
+    assert!(
+        log.contains("layout: cells of") && log.contains("(6 across"),
+        "{log}"
+    );
+    assert_eq!(motifs.positions, default.positions);
+    assert_ne!(motifs.sh_dc, default.sh_dc);
+}
