@@ -29,20 +29,24 @@ fn resolve(env: Option<std::ffi::OsString>, candidates: &[PathBuf]) -> Result<Pa
     if let Some(p) = env.filter(|p| !p.is_empty()) {
         return Ok(PathBuf::from(p));
     }
+    first_dir(candidates, || {
+        format!(
+            "the models directory was not found (set {MODELS_ENV}, or run scripts/setup.sh to \
+             make vendor/models)"
+        )
+    })
+}
+
+/// The first of `candidates` that is a directory, else a missing-resource error: `what`
+/// and the places looked in.
+fn first_dir(candidates: &[PathBuf], what: impl FnOnce() -> String) -> Result<PathBuf> {
     candidates
         .iter()
         .find(|p| p.is_dir())
         .cloned()
         .ok_or_else(|| {
-            Error::Missing(format!(
-                "the models directory was not found (set {MODELS_ENV}, or run scripts/setup.sh \
-                 to make vendor/models); looked in: {}",
-                candidates
-                    .iter()
-                    .map(|p| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ))
+            let looked: Vec<String> = candidates.iter().map(|p| p.display().to_string()).collect();
+            Error::Missing(format!("{}; looked in: {}", what(), looked.join(", ")))
         })
 }
 
@@ -106,22 +110,12 @@ pub fn prior_dir(name: &str) -> Result<PathBuf> {
 
 /// The first of `candidates` that is a directory, else an error naming `name` and them.
 fn find_prior(name: &str, candidates: &[PathBuf]) -> Result<PathBuf> {
-    candidates
-        .iter()
-        .find(|p| p.is_dir())
-        .cloned()
-        .ok_or_else(|| {
-            Error::Missing(format!(
-                "prior `{name}` (the configuration's `prior`) was not found: give --model DIR, \
-             set prior to a model directory, or run scripts/setup.sh (the installed priors); \
-             looked in: {}",
-                candidates
-                    .iter()
-                    .map(|p| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ))
-        })
+    first_dir(candidates, || {
+        format!(
+            "prior `{name}` (the configuration's `prior`) was not found: give --model DIR, set \
+             prior to a model directory, or run scripts/setup.sh (the installed priors)"
+        )
+    })
 }
 
 /// The models directory, with the metric networks in it.
