@@ -4,7 +4,8 @@
 //! prior; an unknown name is a missing-resource error that names it, with nothing written.
 
 use crate::harness::{bin, ok, repo_root};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 
 /// The `model` input recorded in the manifest of the artifact at `dir`.
 fn model_input(dir: &Path) -> String {
@@ -15,16 +16,12 @@ fn model_input(dir: &Path) -> String {
     model["path"].as_str().unwrap().to_string()
 }
 
-#[test]
-fn a_preset_names_the_prior_its_loop_calls() {
-    let Some(_) = crate::harness::model("stylizer") else {
-        return;
-    };
-    let (root, d) = (repo_root(), tempfile::tempdir().unwrap());
-    let views = d.path().join("views");
+/// Two 48 px views of the sample scene, rendered into `dir/views`.
+fn sample_views(dir: &Path) -> PathBuf {
+    let views = dir.join("views");
     ok(bin("render-views")
         .arg("--scene")
-        .arg(root.join("data-sample/scene.ply"))
+        .arg(repo_root().join("data-sample/scene.ply"))
         .args([
             "--cameras",
             "orbit:2",
@@ -35,24 +32,35 @@ fn a_preset_names_the_prior_its_loop_calls() {
             "--out",
         ])
         .arg(&views));
+    views
+}
+
+/// `distill` on the sample scene with its style, `views` as the source views, one thread,
+/// writing `out`.
+fn distill_sample(views: &Path, out: &Path) -> Command {
+    let root = repo_root();
+    let mut c = bin("distill");
+    c.arg("--scene")
+        .arg(root.join("data-sample/scene.ply"))
+        .arg("--source-views")
+        .arg(views)
+        .arg("--style")
+        .arg(root.join("data-sample/style.png"))
+        .args(["--threads", "1", "--out"])
+        .arg(out);
+    c
+}
+
+#[test]
+fn a_preset_names_the_prior_its_loop_calls() {
+    let Some(_) = crate::harness::model("stylizer") else {
+        return;
+    };
+    let (root, d) = (repo_root(), tempfile::tempdir().unwrap());
+    let views = sample_views(d.path());
     let distill = |out: &str, model: Option<&str>, sets: &[&str]| {
-        let mut c = bin("distill");
-        c.arg("--scene")
-            .arg(root.join("data-sample/scene.ply"))
-            .arg("--source-views")
-            .arg(&views)
-            .arg("--style")
-            .arg(root.join("data-sample/style.png"))
-            .args([
-                "--iters",
-                "1",
-                "--set",
-                "views=2",
-                "--threads",
-                "1",
-                "--out",
-            ])
-            .arg(d.path().join(out));
+        let mut c = distill_sample(&views, &d.path().join(out));
+        c.args(["--iters", "1", "--set", "views=2"]);
         if let Some(m) = model {
             c.args(["--model", m]);
         }
@@ -90,40 +98,11 @@ fn a_preset_names_the_prior_its_loop_calls() {
 
 #[test]
 fn the_motifs_preset_lays_cells_under_the_default_end() {
-    let (root, d) = (repo_root(), tempfile::tempdir().unwrap());
-    let views = d.path().join("views");
-    ok(bin("render-views")
-        .arg("--scene")
-        .arg(root.join("data-sample/scene.ply"))
-        .args([
-            "--cameras",
-            "orbit:2",
-            "--width",
-            "48",
-            "--height",
-            "48",
-            "--out",
-        ])
-        .arg(&views));
+    let d = tempfile::tempdir().unwrap();
+    let views = sample_views(d.path());
     let run = |preset: &str| {
         let out = d.path().join(preset);
-        let o = ok(bin("distill")
-            .arg("--scene")
-            .arg(root.join("data-sample/scene.ply"))
-            .arg("--source-views")
-            .arg(&views)
-            .arg("--style")
-            .arg(root.join("data-sample/style.png"))
-            .args([
-                "--preset",
-                preset,
-                "--iters",
-                "0",
-                "--threads",
-                "1",
-                "--out",
-            ])
-            .arg(&out));
+        let o = ok(distill_sample(&views, &out).args(["--preset", preset, "--iters", "0"]));
         let scene = fantasystyle::artifacts::load_scene(&out.join("scene.ply")).unwrap();
         (scene, String::from_utf8_lossy(&o.stderr).into_owned())
     };
