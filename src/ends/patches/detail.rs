@@ -16,6 +16,16 @@
 //! The base-detail split is the one of detail-preserving tone mapping (Durand & Dorsey
 //! 2002); in guided synthesis it is StyLit's and EbSynth's edge guide turned from a cost
 //! into a layer.
+//!
+//! **Line weight.** Remapped to the style's global luma moments, a smooth object's detail
+//! (a fish's eye and fin creases, a duck's bill) is far fainter than a busy style's own
+//! edges (a wall's mortar, op-art bands), and the texture drowns it. So the layer is
+//! raised until its strongest tenth (the [`LINE_QUANTILE`] of `|D|` over the object's
+//! pixels of every view) is as strong as the same quantile of the style's own band-pass
+//! (its luma minus that luma blurred alike, the style at the motif scale), by a gain
+//! `clamp(q_style / q_object, 1, synthesis.line_weight)`: an illustrator's line weight,
+//! matched to the style's. One gain per style for all views, so they agree. Measured in
+//! BENCHMARKS.md "Line weight".
 
 use super::SynthesisParams;
 use super::guide::{blur, source_guides, style_moments};
@@ -27,19 +37,24 @@ pub fn weight(p: &SynthesisParams) -> f32 {
     p.detail * p.control
 }
 
+/// The quantile of `|detail|` that the line weight matches: the strongest tenth.
+pub const LINE_QUANTILE: f32 = 0.9;
+
 /// The detail layer of every source view (`[H W]` each; module docs), from the frozen
 /// source views (`rgb` `[H, W, 3]`, `alpha` `[H, W]`, `sizes` (H, W), composited over
-/// `background`) remapped to `style`'s luma moments.
+/// `background`) remapped to `style`'s luma moments, times the line weight's gain
+/// ([`line_gain`]; `style_size`: the style's shorter side in render pixels).
 pub fn source_detail(
     rgb: &[Vec<f32>],
     alpha: &[Vec<f32>],
-    sizes: &[(usize, usize)],
+    (sizes, style_size): (&[(usize, usize)], usize),
     background: [f32; 3],
     style: &Image,
     p: &SynthesisParams,
 ) -> Vec<Vec<f32>> {
     let g = source_guides(rgb, alpha, sizes, background, &style_moments(style));
-    g.into_iter()
+    let mut d: Vec<Vec<f32>> = g
+        .into_iter()
         .zip(alpha)
         .zip(sizes)
         .map(|((g, a), &size)| {
@@ -50,7 +65,57 @@ pub fn source_detail(
                 .map(|((&v, &b), &a)| a * (v - b))
                 .collect()
         })
-        .collect()
+        .collect();
+    if p.line_weight > 1.0 {
+        let k = line_gain(&d, alpha, style, style_size, p);
+        tracing::debug!("detail layer: line weight gain {k:.3}");
+        d.iter_mut().flatten().for_each(|v| *v *= k);
+    }
+    d
+}
+
+/// The line weight's gain (module docs): `clamp(q_style / q_object, 1,
+/// synthesis.line_weight)`, `q` the [`LINE_QUANTILE`] of `|band-pass|` of the style's
+/// luma (at `style_size`, its shorter side in render pixels, blurred by
+/// `synthesis.detail_blur` as the views are) and of the detail `d` over the pixels of
+/// coverage > 0.5 of every view; 1 where either is empty or the object has no detail.
+pub fn line_gain(
+    d: &[Vec<f32>],
+    alpha: &[Vec<f32>],
+    style: &Image,
+    style_size: usize,
+    p: &SynthesisParams,
+) -> f32 {
+    let st = style.with_shorter_side(style_size.max(1));
+    let l = super::motif::luma(&st.data);
+    let base = blur(l.clone(), (st.height, st.width), p.detail_blur);
+    let style_band: Vec<f32> = l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect();
+    let object_band: Vec<f32> = d
+        .iter()
+        .zip(alpha)
+        .flat_map(|(d, a)| {
+            d.iter()
+                .zip(a)
+                .filter(|(_, a)| **a > 0.5)
+                .map(|(d, _)| d.abs())
+        })
+        .collect();
+    match (
+        quantile(style_band, LINE_QUANTILE),
+        quantile(object_band, LINE_QUANTILE),
+    ) {
+        (Some(s), Some(o)) if o > 0.0 && s.is_finite() => (s / o).clamp(1.0, p.line_weight),
+        _ => 1.0,
+    }
+}
+
+/// The `q` quantile of `v` (the value at rank `floor((n - 1) q)`); `None` when empty.
+fn quantile(mut v: Vec<f32>, q: f32) -> Option<f32> {
+    if v.is_empty() {
+        return None;
+    }
+    let k = ((v.len() - 1) as f32 * q) as usize;
+    Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
 }
 
 /// The detail layer the synthesis lays over its texture (`[H W]` per view): with one
@@ -61,14 +126,14 @@ pub fn source_detail(
 pub fn layer(
     rgb: &[Vec<f32>],
     alpha: &[Vec<f32>],
-    sizes: &[(usize, usize)],
+    (sizes, style_size): (&[(usize, usize)], usize),
     background: [f32; 3],
     regions: &[(&Image, f32, &[Vec<f32>])],
     p: &SynthesisParams,
 ) -> Vec<Vec<f32>> {
     let mut out: Vec<Vec<f32>> = sizes.iter().map(|&(h, w)| vec![0.0; h * w]).collect();
     for &(style, g, cover) in regions {
-        let d = source_detail(rgb, alpha, sizes, background, style, p);
+        let d = source_detail(rgb, alpha, (sizes, style_size), background, style, p);
         for (v, (o, d)) in out.iter_mut().zip(d).enumerate() {
             for (i, (o, d)) in o.iter_mut().zip(d).enumerate() {
                 let share = cover.get(v).map_or(1.0, |c| c[i]);
@@ -124,7 +189,7 @@ mod tests {
         let d = source_detail(
             &[flat],
             std::slice::from_ref(&alpha),
-            &[(h, w)],
+            (&[(h, w)], 8),
             [0.0; 3],
             &style,
             &p,
@@ -133,12 +198,63 @@ mod tests {
         let step: Vec<f32> = (0..h * w)
             .flat_map(|i| [if i % w < w / 2 { 0.2 } else { 0.8 }; 3])
             .collect();
-        let d = source_detail(&[step], &[alpha], &[(h, w)], [0.0; 3], &style, &p);
+        let d = source_detail(&[step], &[alpha], (&[(h, w)], 8), [0.0; 3], &style, &p);
         let (dark, light) = (d[0][5 * w + w / 2 - 1], d[0][5 * w + w / 2]);
         assert!(dark < -0.01 && light > 0.01, "{dark} {light}");
         let mut imgs = vec![vec![0.5f32; h * w * 3]];
         add(&mut imgs, &d, 2.0);
         assert!((imgs[0][(5 * w + w / 2) * 3] - (0.5 + 2.0 * light)).abs() < 1e-6);
+    }
+
+    /// A faint crease on a flat object under a striped style: the line weight raises the
+    /// detail by the ratio of the two quantiles (computed here by sorting), capped by
+    /// `line_weight`; a flat style or `line_weight = 1` leaves it as it was.
+    #[test]
+    fn the_line_weight_matches_the_styles_strongest_edges() {
+        let (h, w) = (32, 32);
+        let alpha = vec![1.0f32; h * w];
+        let crease: Vec<f32> = (0..h * w)
+            .flat_map(|i| [if i % w == w / 2 { 0.45 } else { 0.5 }; 3])
+            .collect();
+        let stripes = Image::from_fn(40, 40, |x, _| [if x % 6 < 2 { 0.05 } else { 0.9 }; 3]);
+        let flat = Image::from_fn(40, 40, |_, _| [0.4; 3]);
+        let detail = |style: &Image, line_weight: f32| {
+            let p = SynthesisParams {
+                line_weight,
+                ..SynthesisParams::default()
+            };
+            let views = (&[(h, w)][..], 40);
+            let rgb = std::slice::from_ref(&crease);
+            source_detail(
+                rgb,
+                std::slice::from_ref(&alpha),
+                views,
+                [0.0; 3],
+                style,
+                &p,
+            )
+        };
+        let raw = detail(&stripes, 1.0);
+        let q = |mut v: Vec<f32>| {
+            v.sort_by(f32::total_cmp);
+            v[((v.len() - 1) as f32 * LINE_QUANTILE) as usize]
+        };
+        let l = super::super::motif::luma(&stripes.data);
+        let base = blur(l.clone(), (40, 40), SynthesisParams::default().detail_blur);
+        let want = q(l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect())
+            / q(raw[0].iter().map(|v| v.abs()).collect());
+        assert!(want > 2.0, "the stripes' edges are the stronger: {want}");
+        let peak = |d: &[Vec<f32>]| d[0].iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let capped = detail(&stripes, 2.0);
+        assert!((peak(&capped) / peak(&raw) - 2.0).abs() < 1e-4);
+        let free = detail(&stripes, 10.0);
+        let got = peak(&free) / peak(&raw);
+        assert!(
+            (got - want.min(10.0)).abs() < 1e-3 * want,
+            "{got} vs {want}"
+        );
+        // A flat style has no edges to match: the gain stays 1.
+        assert_eq!(detail(&flat, 4.0), detail(&flat, 1.0));
     }
 
     /// A flat grey square with a thin dark cross (the object's detail), styled with

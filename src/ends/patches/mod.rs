@@ -173,7 +173,15 @@ pub fn synthesize(
         .map(|c| (c.height as usize, c.width as usize))
         .collect();
     let (mut fit, src) = crate::timing::phase("setup", || {
-        set_up(scene, (cameras, &sizes), regions, &fp, p, selection, source)
+        set_up(
+            scene,
+            (cameras, &sizes, style_size),
+            regions,
+            &fp,
+            p,
+            selection,
+            source,
+        )
     })?;
     let all: Vec<usize> = (0..cameras.len()).collect();
     let mut reports = Vec::new();
@@ -237,7 +245,7 @@ pub fn synthesize(
 /// colour fit of the views and the frozen views (`source` or `scene`'s renders).
 fn set_up<'a>(
     scene: &Scene,
-    (cameras, sizes): (&'a [Camera], &[(usize, usize)]),
+    (cameras, sizes, style_size): (&'a [Camera], &[(usize, usize)], usize),
     regions: &[RegionStyle<'_>],
     fp: &FitParams,
     p: &SynthesisParams,
@@ -269,7 +277,15 @@ fn set_up<'a>(
         None => rgb,
     };
     let cover = crate::timing::phase("regions", || regions::cover(scene, cameras, regions))?;
-    let src = Frozen::new(rgb, alpha, sizes, regions, cover, background, p);
+    let src = Frozen::new(
+        rgb,
+        alpha,
+        (sizes, style_size),
+        regions,
+        cover,
+        background,
+        p,
+    );
     Ok((fit, src))
 }
 
@@ -344,7 +360,7 @@ pub fn synthesize_images(
     let src = Frozen::new(
         images.to_vec(),
         alpha.to_vec(),
-        sizes,
+        (sizes, style_size),
         &region,
         Vec::new(),
         background,
@@ -401,7 +417,7 @@ impl Frozen {
     fn new(
         rgb: Vec<Vec<f32>>,
         alpha: Vec<Vec<f32>>,
-        sizes: &[(usize, usize)],
+        (sizes, style_size): (&[(usize, usize)], usize),
         regions: &[RegionStyle<'_>],
         cover: Vec<Vec<Vec<f32>>>,
         background: [f32; 3],
@@ -429,7 +445,7 @@ impl Frozen {
                 let each: Vec<_> = (regions.iter().zip(&frozen))
                     .map(|(r, f)| (r.lead(), f.guidance, &f.cover[..]))
                     .collect();
-                detail::layer(&rgb, &alpha, sizes, background, &each, p)
+                detail::layer(&rgb, &alpha, (sizes, style_size), background, &each, p)
             })
         } else {
             Vec::new()

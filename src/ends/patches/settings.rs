@@ -61,6 +61,11 @@ pub struct SynthesisParams {
     /// residue is the detail.
     #[arg(long, default_value_t = 4.0)]
     pub detail_blur: f32,
+    /// The detail layer's line weight: its most gain where the object's fine structure
+    /// is fainter than the style's own edges (the strongest tenth of each matched; 1: the
+    /// detail at the style's global contrast). See `detail.rs`.
+    #[arg(long, default_value_t = 1.0)]
+    pub line_weight: f32,
     /// The `layout` start's cells across the object's largest extent (the motif scale it
     /// seeds; read by that start only). See src/ends/layout.rs.
     #[arg(long, default_value_t = 6.0)]
@@ -120,6 +125,9 @@ impl SynthesisParams {
         }
         if !(self.detail.is_finite() && (0.0..=10.0).contains(&self.detail)) {
             return Err(Error::param("synthesis.detail must lie in [0, 10]"));
+        }
+        if !(self.line_weight.is_finite() && (1.0..=10.0).contains(&self.line_weight)) {
+            return Err(Error::param("synthesis.line_weight must lie in [1, 10]"));
         }
         if !(self.detail_blur.is_finite() && (0.25..=64.0).contains(&self.detail_blur)) {
             return Err(Error::param("synthesis.detail_blur must lie in [0.25, 64]"));
