@@ -43,13 +43,15 @@ pub const LINE_QUANTILE: f32 = 0.9;
 /// The detail layer of every source view (`[H W]` each; module docs), from the frozen
 /// source views (`rgb` `[H, W, 3]`, `alpha` `[H, W]`, `sizes` (H, W), composited over
 /// `background`) remapped to `style`'s luma moments, times the line weight's gain
-/// ([`line_gain`]; `style_size`: the style's shorter side in render pixels).
+/// ([`line_gain`]; `style_size`: the style's shorter side in render pixels) measured over
+/// the pixels of the region `within` (its share of each view's pixels; empty: the whole
+/// object): a region's lines are matched to its own style where it lies.
 pub fn source_detail(
     rgb: &[Vec<f32>],
     alpha: &[Vec<f32>],
     (sizes, style_size): (&[(usize, usize)], usize),
     background: [f32; 3],
-    style: &Image,
+    (style, within): (&Image, &[Vec<f32>]),
     p: &SynthesisParams,
 ) -> Vec<Vec<f32>> {
     let g = source_guides(rgb, alpha, sizes, background, &style_moments(style));
@@ -67,7 +69,18 @@ pub fn source_detail(
         })
         .collect();
     if p.line_weight > 1.0 {
-        let k = line_gain(&d, alpha, style, style_size, p);
+        let own: Vec<Vec<f32>>;
+        let at = if within.is_empty() {
+            alpha
+        } else {
+            own = alpha
+                .iter()
+                .zip(within)
+                .map(|(a, c)| a.iter().zip(c).map(|(a, c)| a * c).collect())
+                .collect();
+            &own[..]
+        };
+        let k = line_gain(&d, at, style, style_size, p);
         tracing::debug!("detail layer: line weight gain {k:.3}");
         d.iter_mut().flatten().for_each(|v| *v *= k);
     }
@@ -121,7 +134,8 @@ fn quantile(mut v: Vec<f32>, q: f32) -> Option<f32> {
 /// The detail layer the synthesis lays over its texture (`[H W]` per view): with one
 /// region (`cover` empty) its [`source_detail`] times its guidance scale; with several,
 /// each pixel the sum over the regions of their share of it (`cover[view]`) times their
-/// guidance scale times their detail (each remapped to the region's own style).
+/// guidance scale times their detail (each remapped to the region's own style, its line
+/// weight measured over the region's own pixels).
 /// `regions`: (the region's style, its guidance scale, its cover per view).
 pub fn layer(
     rgb: &[Vec<f32>],
@@ -133,7 +147,14 @@ pub fn layer(
 ) -> Vec<Vec<f32>> {
     let mut out: Vec<Vec<f32>> = sizes.iter().map(|&(h, w)| vec![0.0; h * w]).collect();
     for &(style, g, cover) in regions {
-        let d = source_detail(rgb, alpha, (sizes, style_size), background, style, p);
+        let d = source_detail(
+            rgb,
+            alpha,
+            (sizes, style_size),
+            background,
+            (style, cover),
+            p,
+        );
         for (v, (o, d)) in out.iter_mut().zip(d).enumerate() {
             for (i, (o, d)) in o.iter_mut().zip(d).enumerate() {
                 let share = cover.get(v).map_or(1.0, |c| c[i]);
@@ -191,14 +212,21 @@ mod tests {
             std::slice::from_ref(&alpha),
             (&[(h, w)], 8),
             [0.0; 3],
-            &style,
+            (&style, &[]),
             &p,
         );
         assert!(d[0].iter().all(|v| v.abs() < 1e-5));
         let step: Vec<f32> = (0..h * w)
             .flat_map(|i| [if i % w < w / 2 { 0.2 } else { 0.8 }; 3])
             .collect();
-        let d = source_detail(&[step], &[alpha], (&[(h, w)], 8), [0.0; 3], &style, &p);
+        let d = source_detail(
+            &[step],
+            &[alpha],
+            (&[(h, w)], 8),
+            [0.0; 3],
+            (&style, &[]),
+            &p,
+        );
         let (dark, light) = (d[0][5 * w + w / 2 - 1], d[0][5 * w + w / 2]);
         assert!(dark < -0.01 && light > 0.01, "{dark} {light}");
         let mut imgs = vec![vec![0.5f32; h * w * 3]];
@@ -230,7 +258,7 @@ mod tests {
                 std::slice::from_ref(&alpha),
                 views,
                 [0.0; 3],
-                style,
+                (style, &[]),
                 &p,
             )
         };
@@ -255,6 +283,58 @@ mod tests {
         );
         // A flat style has no edges to match: the gain stays 1.
         assert_eq!(detail(&flat, 4.0), detail(&flat, 1.0));
+    }
+
+    /// Two regions of one object: a strong edge on the left, a faint crease on the right.
+    /// The right region's line weight is measured over its own pixels, so its crease is
+    /// raised as the crease alone would be (by the quantiles of the right half, computed
+    /// here by sorting); measured over the whole object, the left edge would hold it down.
+    #[test]
+    fn a_regions_line_weight_is_measured_where_it_lies() {
+        let (h, w) = (32, 48);
+        let alpha = vec![1.0f32; h * w];
+        let obj: Vec<f32> = (0..h * w)
+            .flat_map(|i| {
+                let x = i % w;
+                [if x < 12 {
+                    0.2
+                } else if x == 36 {
+                    0.47
+                } else {
+                    0.5
+                }; 3]
+            })
+            .collect();
+        let right: Vec<f32> = (0..h * w)
+            .map(|i| f32::from(u8::from(i % w >= 24)))
+            .collect();
+        let stripes = Image::from_fn(40, 40, |x, _| [if x % 6 < 2 { 0.05 } else { 0.9 }; 3]);
+        let p = SynthesisParams {
+            line_weight: 10.0,
+            ..SynthesisParams::default()
+        };
+        let detail = |within: &[Vec<f32>], p: &SynthesisParams| {
+            let (rgb, a) = (std::slice::from_ref(&obj), std::slice::from_ref(&alpha));
+            source_detail(rgb, a, (&[(h, w)], 40), [0.0; 3], (&stripes, within), p)
+        };
+        let raw = detail(&[], &SynthesisParams::default());
+        let (whole, own) = (detail(&[], &p), detail(std::slice::from_ref(&right), &p));
+        let at = 5 * w + 36;
+        let (k_whole, k_own) = (whole[0][at] / raw[0][at], own[0][at] / raw[0][at]);
+        let q = |mut v: Vec<f32>| {
+            v.sort_by(f32::total_cmp);
+            v[((v.len() - 1) as f32 * LINE_QUANTILE) as usize]
+        };
+        let l = super::super::motif::luma(&stripes.data);
+        let base = blur(l.clone(), (40, 40), p.detail_blur);
+        let q_style = q(l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect());
+        let q_right = q((0..h * w)
+            .filter(|i| i % w >= 24)
+            .map(|i| raw[0][i].abs())
+            .collect());
+        let want = (q_style / q_right).clamp(1.0, 10.0);
+        assert!((k_own - want).abs() < 1e-3 * want, "{k_own} vs {want}");
+        assert!(k_own > 1.5 * k_whole, "own {k_own}, whole object {k_whole}");
     }
 
     /// A flat grey square with a thin dark cross (the object's detail), styled with
