@@ -24,6 +24,17 @@ const BACKGROUND_TOLERANCE: f32 = 0.1;
 const BACKGROUND_FLAT: f32 = 0.03;
 /// The border must be this much of one flat colour for the style to have a background.
 const BACKGROUND_BORDER_SHARE: f32 = 0.75;
+/// A border between this share and [`BACKGROUND_BORDER_SHARE`] of one flat colour (an
+/// object photographed on a plain background and cropped tight, touching the image's
+/// sides) is a background only when the fill from the border leaves at most
+/// [`BACKGROUND_INNER_SHARE`] of that colour's flat pixels unreached (a pattern's flat
+/// colour also fills closed areas inside the image: op-art's bands, a wall's bricks) and
+/// leaves one object (stripes that all reach the border leave several).
+const BACKGROUND_TIGHT_SHARE: f32 = 0.5;
+/// See [`BACKGROUND_TIGHT_SHARE`].
+const BACKGROUND_INNER_SHARE: f32 = 0.1;
+/// Parts of the motif smaller than this share of the image are not counted as objects.
+const OBJECT_MIN_SHARE: f32 = 0.01;
 /// Pixels of the background's colour it grows by beside the motif.
 const BACKGROUND_RING: usize = 3;
 
@@ -60,38 +71,19 @@ pub fn motif_mask(img: &Image) -> Vec<bool> {
         .filter(|&&(y, x)| candidate(y * w + x))
         .count() as f32
         / border.len() as f32;
-    let mut motif = vec![true; h * w];
-    if share < BACKGROUND_BORDER_SHARE {
-        return motif;
+    if share < BACKGROUND_TIGHT_SHARE {
+        return vec![true; h * w];
     }
-    let mut stack: Vec<usize> = border
+    let seeds: Vec<usize> = border.iter().map(|&(y, x)| y * w + x).collect();
+    let mut motif: Vec<bool> = fill(&seeds, (h, w), candidate)
         .iter()
-        .map(|&(y, x)| y * w + x)
-        .filter(|&i| candidate(i))
+        .map(|&b| !b)
         .collect();
-    while let Some(i) = stack.pop() {
-        if !motif[i] {
-            continue;
-        }
-        motif[i] = false;
-        let (y, x) = (i / w, i % w);
-        let mut push = |yy: usize, xx: usize| {
-            let j = yy * w + xx;
-            if motif[j] && candidate(j) {
-                stack.push(j);
-            }
-        };
-        if y > 0 {
-            push(y - 1, x);
-        }
-        if y + 1 < h {
-            push(y + 1, x);
-        }
-        if x > 0 {
-            push(y, x - 1);
-        }
-        if x + 1 < w {
-            push(y, x + 1);
+    if share < BACKGROUND_BORDER_SHARE {
+        let reached = motif.iter().filter(|&&m| !m).count();
+        let inner = (0..h * w).filter(|&i| motif[i] && candidate(i)).count();
+        if inner as f32 > BACKGROUND_INNER_SHARE * reached as f32 || objects(&motif, (h, w)) != 1 {
+            return vec![true; h * w];
         }
     }
     // The flatness test misses the background's last pixels beside the motif (their
@@ -124,6 +116,64 @@ pub fn fill_background(img: &Image, motif: &[bool]) -> Image {
         height: img.height,
         data: push_pull(&img.data, &weight, img.height, img.width),
     }
+}
+
+/// The pixels (`[h w]`) reached from the `seeds` through 4-neighbours where `pass` holds
+/// (a seed where `pass` fails is not taken).
+fn fill(seeds: &[usize], (h, w): (usize, usize), pass: impl Fn(usize) -> bool) -> Vec<bool> {
+    let mut reached = vec![false; h * w];
+    let mut stack: Vec<usize> = seeds.iter().copied().filter(|&i| pass(i)).collect();
+    while let Some(i) = stack.pop() {
+        if reached[i] {
+            continue;
+        }
+        reached[i] = true;
+        let (y, x) = (i / w, i % w);
+        let next = [
+            (y > 0).then(|| i - w),
+            (y + 1 < h).then(|| i + w),
+            (x > 0).then(|| i - 1),
+            (x + 1 < w).then(|| i + 1),
+        ];
+        stack.extend(
+            next.into_iter()
+                .flatten()
+                .filter(|&j| !reached[j] && pass(j)),
+        );
+    }
+    reached
+}
+
+/// The 4-connected parts of `mask` (`[h w]`) of at least [`OBJECT_MIN_SHARE`] of the
+/// image.
+fn objects(mask: &[bool], (h, w): (usize, usize)) -> usize {
+    let mut seen = vec![false; h * w];
+    let mut count = 0;
+    for start in 0..h * w {
+        if !mask[start] || seen[start] {
+            continue;
+        }
+        let (mut n, mut stack) = (0usize, vec![start]);
+        seen[start] = true;
+        while let Some(i) = stack.pop() {
+            n += 1;
+            let (y, x) = (i / w, i % w);
+            let next = [
+                (y > 0).then(|| i - w),
+                (y + 1 < h).then(|| i + w),
+                (x > 0).then(|| i - 1),
+                (x + 1 < w).then(|| i + 1),
+            ];
+            for j in next.into_iter().flatten() {
+                if mask[j] && !seen[j] {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        count += usize::from(n as f32 >= OBJECT_MIN_SHARE * (h * w) as f32);
+    }
+    count
 }
 
 /// The range (max - min) of `v` `[h, w]` over each pixel's (2r+1)^2 neighbourhood.
@@ -191,5 +241,60 @@ pub(super) mod tests {
             |_, x| if (x / 8) % 2 == 0 { [0.0; 3] } else { [1.0; 3] },
         );
         assert!(motif_mask(&stripes).iter().all(|&v| v));
+    }
+
+    /// The share of the border of `img` within the tolerance of `colour` and flat.
+    fn flat_border_share(img: &Image, colour: f32) -> f32 {
+        let (h, w) = (img.height, img.width);
+        let flat = local_spread(&luma(&img.data), h, w, 2);
+        let border: Vec<usize> = (0..w)
+            .flat_map(|x| [x, (h - 1) * w + x])
+            .chain((0..h).flat_map(|y| [y * w, y * w + w - 1]))
+            .collect();
+        let on = |i: usize| {
+            let d: f32 = (0..3).map(|c| (img.data[i * 3 + c] - colour).powi(2)).sum();
+            d.sqrt() < BACKGROUND_TOLERANCE && flat[i] < BACKGROUND_FLAT
+        };
+        border.iter().filter(|&&i| on(i)).count() as f32 / border.len() as f32
+    }
+
+    #[test]
+    fn a_tight_crop_on_black_has_a_background_and_rings_have_none() {
+        // A textured disc cropped to its box, touching all four sides: the black corners
+        // make less than 3/4 of the border, and they are the background.
+        let tight = image(64, 64, |y, x| {
+            let (dy, dx) = (y as f32 - 31.5, x as f32 - 31.5);
+            if dy * dy + dx * dx < 32.5 * 32.5 {
+                [if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.3 }, 0.6, 0.4]
+            } else {
+                [0.02; 3]
+            }
+        });
+        let share = flat_border_share(&tight, 0.02);
+        assert!(
+            (BACKGROUND_TIGHT_SHARE..BACKGROUND_BORDER_SHARE).contains(&share),
+            "{share}"
+        );
+        let m = motif_mask(&tight);
+        assert!(
+            !m[0] && !m[63] && !m[64 * 63] && !m[64 * 64 - 1],
+            "the corners"
+        );
+        assert!(
+            m[32 * 64 + 32] && m[32 * 64] && m[32],
+            "the disc, to its sides"
+        );
+        // Rings, black wider than white, as much of the border: the black also fills
+        // rings inside the image, so it is the pattern's colour, not a background.
+        let rings = image(64, 64, |y, x| {
+            let r = ((y as f32 - 31.5).powi(2) + (x as f32 - 31.5).powi(2)).sqrt();
+            if (r as usize) % 16 < 13 {
+                [0.02; 3]
+            } else {
+                [0.95; 3]
+            }
+        });
+        assert!(flat_border_share(&rings, 0.02) >= BACKGROUND_TIGHT_SHARE);
+        assert!(motif_mask(&rings).iter().all(|&v| v));
     }
 }
