@@ -122,25 +122,8 @@ pub fn fill_background(img: &Image, motif: &[bool]) -> Image {
 /// (a seed where `pass` fails is not taken).
 fn fill(seeds: &[usize], (h, w): (usize, usize), pass: impl Fn(usize) -> bool) -> Vec<bool> {
     let mut reached = vec![false; h * w];
-    let mut stack: Vec<usize> = seeds.iter().copied().filter(|&i| pass(i)).collect();
-    while let Some(i) = stack.pop() {
-        if reached[i] {
-            continue;
-        }
-        reached[i] = true;
-        let (y, x) = (i / w, i % w);
-        let next = [
-            (y > 0).then(|| i - w),
-            (y + 1 < h).then(|| i + w),
-            (x > 0).then(|| i - 1),
-            (x + 1 < w).then(|| i + 1),
-        ];
-        stack.extend(
-            next.into_iter()
-                .flatten()
-                .filter(|&j| !reached[j] && pass(j)),
-        );
-    }
+    let start = seeds.iter().copied().filter(|&i| pass(i)).collect();
+    grow(start, &mut reached, (h, w), pass);
     reached
 }
 
@@ -150,30 +133,40 @@ fn objects(mask: &[bool], (h, w): (usize, usize)) -> usize {
     let mut seen = vec![false; h * w];
     let mut count = 0;
     for start in 0..h * w {
-        if !mask[start] || seen[start] {
-            continue;
+        if mask[start] && !seen[start] {
+            let n = grow(vec![start], &mut seen, (h, w), |j| mask[j]);
+            count += usize::from(n as f32 >= OBJECT_MIN_SHARE * (h * w) as f32);
         }
-        let (mut n, mut stack) = (0usize, vec![start]);
-        seen[start] = true;
-        while let Some(i) = stack.pop() {
-            n += 1;
-            let (y, x) = (i / w, i % w);
-            let next = [
-                (y > 0).then(|| i - w),
-                (y + 1 < h).then(|| i + w),
-                (x > 0).then(|| i - 1),
-                (x + 1 < w).then(|| i + 1),
-            ];
-            for j in next.into_iter().flatten() {
-                if mask[j] && !seen[j] {
-                    seen[j] = true;
-                    stack.push(j);
-                }
-            }
-        }
-        count += usize::from(n as f32 >= OBJECT_MIN_SHARE * (h * w) as f32);
     }
     count
+}
+
+/// Marks in `seen` the pixels of `stack` and every pixel reached from them through
+/// 4-neighbours where `pass` holds, not entering pixels already seen; returns how many
+/// it marked.
+fn grow(
+    mut stack: Vec<usize>,
+    seen: &mut [bool],
+    (h, w): (usize, usize),
+    pass: impl Fn(usize) -> bool,
+) -> usize {
+    let mut n = 0;
+    while let Some(i) = stack.pop() {
+        if seen[i] {
+            continue;
+        }
+        seen[i] = true;
+        n += 1;
+        let (y, x) = (i / w, i % w);
+        let next = [
+            (y > 0).then(|| i - w),
+            (y + 1 < h).then(|| i + w),
+            (x > 0).then(|| i - 1),
+            (x + 1 < w).then(|| i + 1),
+        ];
+        stack.extend(next.into_iter().flatten().filter(|&j| !seen[j] && pass(j)));
+    }
+    n
 }
 
 /// The range (max - min) of `v` `[h, w]` over each pixel's (2r+1)^2 neighbourhood.
