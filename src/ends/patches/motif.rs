@@ -1,8 +1,9 @@
 //! A style's motif and its background: a style photographed on a plain background (an
 //! object on black) has a flat region of one colour touching its border, which is not a
 //! motif. [`motif_mask`] finds it (a flood fill from the border through pixels near the
-//! border's dominant colour with no local texture); its patches leave the bank and its
-//! pixels the style's moments ([`super::guide`]), so its share of the style is not forced
+//! border's dominant colour with no local texture), with the same colour's flat pockets
+//! inside the object when they are few beside it (the background seen between a plant's
+//! leaves); its patches leave the bank and its pixels the style's moments ([`super::guide`]), so its share of the style is not forced
 //! onto the object. Every level of the synthesis uses it, guided or not.
 
 use crate::imageio::Image;
@@ -40,7 +41,8 @@ const BACKGROUND_RING: usize = 3;
 
 /// The style's motif pixels (`[h w]`, row-major): every pixel except a flat background,
 /// the connected region of pixels near the border's dominant colour with no local
-/// texture that touches the border (module docs). Every pixel when the border is not
+/// texture that touches the border, and that colour's flat pixels out of its reach when
+/// they are at most [`BACKGROUND_INNER_SHARE`] of it (module docs). Every pixel when the border is not
 /// dominated by one colour (textures, paintings, patterns).
 pub fn motif_mask(img: &Image) -> Vec<bool> {
     let (h, w) = (img.height, img.width);
@@ -79,11 +81,17 @@ pub fn motif_mask(img: &Image) -> Vec<bool> {
         .iter()
         .map(|&b| !b)
         .collect();
-    if share < BACKGROUND_BORDER_SHARE {
-        let reached = motif.iter().filter(|&&m| !m).count();
-        let inner = (0..h * w).filter(|&i| motif[i] && candidate(i)).count();
-        if inner as f32 > BACKGROUND_INNER_SHARE * reached as f32 || objects(&motif, (h, w)) != 1 {
-            return vec![true; h * w];
+    let reached = motif.iter().filter(|&&m| !m).count();
+    let inner: Vec<usize> = (0..h * w).filter(|&i| motif[i] && candidate(i)).collect();
+    let pockets = inner.len() as f32 <= BACKGROUND_INNER_SHARE * reached as f32;
+    if share < BACKGROUND_BORDER_SHARE && (!pockets || objects(&motif, (h, w)) != 1) {
+        return vec![true; h * w];
+    }
+    if pockets {
+        // The background seen through the object (between a plant's leaves): the
+        // border's flat colour in closed areas, few beside the fill's.
+        for i in inner {
+            motif[i] = false;
         }
     }
     // The flatness test misses the background's last pixels beside the motif (their
@@ -289,5 +297,33 @@ pub(super) mod tests {
         });
         assert!(flat_border_share(&rings, 0.02) >= BACKGROUND_TIGHT_SHARE);
         assert!(motif_mask(&rings).iter().all(|&v| v));
+    }
+
+    /// A textured disc of radius 24 on black with a black hole of radius `hole` at its
+    /// centre, 64 x 64.
+    fn holed_disc(hole: f32) -> Image {
+        image(64, 64, |y, x| {
+            let r = ((y as f32 - 32.0).powi(2) + (x as f32 - 32.0).powi(2)).sqrt();
+            if (hole..24.0).contains(&r) {
+                [if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.3 }, 0.6, 0.4]
+            } else {
+                [0.02; 3]
+            }
+        })
+    }
+
+    #[test]
+    fn the_background_seen_through_the_object_is_background_when_small() {
+        // A hole of radius 5 (about 80 px against the 2300 px of background reached from
+        // the border): the background seen through the object, not a motif.
+        let m = motif_mask(&holed_disc(5.0));
+        assert!(!m[0], "the corner");
+        assert!(!m[32 * 64 + 32] && !m[32 * 64 + 35], "the hole");
+        assert!(m[32 * 64 + 40] && m[32 * 64 + 12], "the disc around it");
+        // A hole of radius 12 (about 450 px, over a tenth of the background): black is
+        // also a colour of the object there, and it stays a motif.
+        let m = motif_mask(&holed_disc(12.0));
+        assert!(!m[0], "the corner");
+        assert!(m[32 * 64 + 32], "the large hole");
     }
 }
