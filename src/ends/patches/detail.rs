@@ -26,6 +26,14 @@
 //! `clamp(q_style / q_object, 1, synthesis.line_weight)`: an illustrator's line weight,
 //! matched to the style's. One gain per style for all views, so they agree. Measured in
 //! BENCHMARKS.md "Line weight".
+//!
+//! **Shading band** (`synthesis.shade_blur`, off by default): the layer can also hold the
+//! object's shading, `alpha (G_detail * g - G_shade * g)`, at the style's contrast and
+//! without the line weight's gain. With the guide weak (`control` 0.1, `detail` 10 so
+//! `k` stays 1) the synthesis then lays the style out as if unguided (op-art's bands, a
+//! wall's rows across a smooth object) and the layer shades it, where the guide would
+//! have posterised the shading into areas of the style's colours (BENCHMARKS.md "Why the
+//! op-art bands come out as blobs").
 
 use super::SynthesisParams;
 use super::guide::{blur, source_guides, style_moments};
@@ -55,19 +63,21 @@ pub fn source_detail(
     p: &SynthesisParams,
 ) -> Vec<Vec<f32>> {
     let g = source_guides(rgb, alpha, sizes, background, &style_moments(style));
-    let mut d: Vec<Vec<f32>> = g
+    let (mut d, bases): (Vec<Vec<f32>>, Vec<Vec<f32>>) = g
         .into_iter()
         .zip(alpha)
         .zip(sizes)
         .map(|((g, a), &size)| {
             let base = blur(g.clone(), size, p.detail_blur);
-            g.iter()
+            let d = g
+                .iter()
                 .zip(&base)
                 .zip(a)
                 .map(|((&v, &b), &a)| a * (v - b))
-                .collect()
+                .collect();
+            (d, base)
         })
-        .collect();
+        .unzip();
     if p.line_weight > 1.0 {
         let own: Vec<Vec<f32>>;
         let at = if within.is_empty() {
@@ -84,7 +94,21 @@ pub fn source_detail(
         tracing::debug!("detail layer: line weight gain {k:.3}");
         d.iter_mut().flatten().for_each(|v| *v *= k);
     }
+    if p.shade_blur > 0.0 {
+        for (((d, base), a), &size) in d.iter_mut().zip(bases).zip(alpha).zip(sizes) {
+            let coarse = blur(base.clone(), size, shade_sigma(p));
+            for (((d, b), c), a) in d.iter_mut().zip(&base).zip(&coarse).zip(a) {
+                *d += a * (b - c);
+            }
+        }
+    }
     d
+}
+
+/// The blur that takes the layer's base (`G_detail_blur * g`) to `G_shade_blur * g`:
+/// Gaussians compose by their variances.
+fn shade_sigma(p: &SynthesisParams) -> f32 {
+    (p.shade_blur * p.shade_blur - p.detail_blur * p.detail_blur).sqrt()
 }
 
 /// The line weight's gain (module docs): `clamp(q_style / q_object, 1,
@@ -283,6 +307,64 @@ mod tests {
         );
         // A flat style has no edges to match: the gain stays 1.
         assert_eq!(detail(&flat, 4.0), detail(&flat, 1.0));
+    }
+
+    /// The shading band: with the line weight off, the layer at `detail_blur` 4 plus the
+    /// band from 4 to 16 px is the layer at `detail_blur` 16 (the two residues telescope;
+    /// up to the Gaussians' truncation); with a line weight the gain raises the fine part
+    /// only, so the difference the band makes is the same at every gain.
+    #[test]
+    fn the_shading_band_telescopes_and_takes_no_line_weight() {
+        let (h, w) = (64, 64);
+        let alpha = vec![1.0f32; h * w];
+        // A lit sphere-like ramp with a crease.
+        let obj: Vec<f32> = (0..h * w)
+            .flat_map(|i| {
+                let (y, x) = ((i / w) as f32, (i % w) as f32);
+                let r2 = ((x - 32.0).powi(2) + (y - 32.0).powi(2)) / 900.0;
+                let crease = if (i % w) == 40 { -0.06 } else { 0.0 };
+                [0.2 + 0.6 * (1.0 - r2).max(0.0) + crease; 3]
+            })
+            .collect();
+        let stripes = Image::from_fn(40, 40, |x, _| [if x % 6 < 2 { 0.05 } else { 0.9 }; 3]);
+        let detail = |detail_blur: f32, shade_blur: f32, line_weight: f32| {
+            let p = SynthesisParams {
+                detail_blur,
+                shade_blur,
+                line_weight,
+                ..SynthesisParams::default()
+            };
+            p.validate().unwrap();
+            let (rgb, a) = (std::slice::from_ref(&obj), std::slice::from_ref(&alpha));
+            source_detail(rgb, a, (&[(h, w)], 40), [0.0; 3], (&stripes, &[]), &p).remove(0)
+        };
+        let banded = detail(4.0, 16.0, 1.0);
+        let wide = detail(16.0, 0.0, 1.0);
+        let range = wide.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(range > 0.1, "the shading is in the wide layer: {range}");
+        // Away from the frame's border (clamp-to-edge differs there).
+        for y in 20..44 {
+            for x in 20..44 {
+                let (a, b) = (banded[y * w + x], wide[y * w + x]);
+                assert!((a - b).abs() < 0.02 * range, "({y}, {x}): {a} vs {b}");
+            }
+        }
+        let band = |lw: f32| -> Vec<f32> {
+            let (with, without) = (detail(4.0, 16.0, lw), detail(4.0, 0.0, lw));
+            with.iter().zip(&without).map(|(a, b)| a - b).collect()
+        };
+        let (b1, b4) = (band(1.0), band(4.0));
+        assert!(b1.iter().zip(&b4).all(|(a, b)| (a - b).abs() < 1e-5));
+        assert!(
+            detail(4.0, 0.0, 4.0) != detail(4.0, 0.0, 1.0),
+            "the gain acts"
+        );
+        // Out of range: below the detail's own scale.
+        let bad = SynthesisParams {
+            shade_blur: 2.0,
+            ..SynthesisParams::default()
+        };
+        assert!(bad.validate().is_err());
     }
 
     /// Two regions of one object: a strong edge on the left, a faint crease on the right.

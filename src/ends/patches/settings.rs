@@ -66,6 +66,13 @@ pub struct SynthesisParams {
     /// detail at the style's global contrast). See `detail.rs`.
     #[arg(long, default_value_t = 1.0)]
     pub line_weight: f32,
+    /// The detail layer's shading band: when above `detail_blur`, the layer also holds
+    /// the source's shading between the two scales (its luma blurred by `detail_blur`
+    /// minus that luma blurred by this many render pixels), at the style's contrast and
+    /// without the line weight's gain, so a weak guide can leave the style's layout free
+    /// and still show the object's volume (0: none). See `detail.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub shade_blur: f32,
     /// The `layout` start's cells across the object's largest extent (the motif scale it
     /// seeds; read by that start only). See src/ends/layout.rs.
     #[arg(long, default_value_t = 6.0)]
@@ -131,6 +138,15 @@ impl SynthesisParams {
         }
         if !(self.detail_blur.is_finite() && (0.25..=64.0).contains(&self.detail_blur)) {
             return Err(Error::param("synthesis.detail_blur must lie in [0.25, 64]"));
+        }
+        if !(self.shade_blur == 0.0
+            || (self.shade_blur.is_finite()
+                && self.shade_blur > self.detail_blur
+                && self.shade_blur <= 64.0))
+        {
+            return Err(Error::param(
+                "synthesis.shade_blur must be 0 or lie in (synthesis.detail_blur, 64]",
+            ));
         }
         if !(self.negative.is_finite() && (0.0..=100.0).contains(&self.negative)) {
             return Err(Error::param("synthesis.negative must lie in [0, 100]"));
