@@ -179,11 +179,12 @@ pub const SECTIONS: &[Section] = &[
 ];
 
 /// The presets: `presets/NAME.toml` of the repository, built into the binaries.
-pub const PRESETS: [(&str, &str); 4] = [
+pub const PRESETS: [(&str, &str); 5] = [
     ("default", include_str!("../presets/default.toml")),
     ("paper", include_str!("../presets/paper.toml")),
     ("arf", include_str!("../presets/arf.toml")),
     ("motifs", include_str!("../presets/motifs.toml")),
+    ("shaded", include_str!("../presets/shaded.toml")),
 ];
 
 /// Where a layer of the configuration comes from.
@@ -449,6 +450,16 @@ mod tests {
             (vec![2, 1], 0.6)
         );
         assert_eq!((m.finish, m.synthesis.guide_blur), (default.finish, 2.0));
+        // `shaded` is the default's end with the guide nearly off and the shading in the
+        // layer, whose weight detail x control stays the default's.
+        let s = Config::layered(&[Source::Preset("shaded".into())]).unwrap();
+        assert_eq!((s.start, s.finish), (default.start, default.finish));
+        assert_eq!(
+            (s.synthesis.control, s.synthesis.shade_blur, s.synthesis.line_weight),
+            (0.1, 16.0, 4.0)
+        );
+        assert!((s.synthesis.detail * s.synthesis.control - 1.0).abs() < 1e-6);
+        assert_eq!(default.synthesis.shade_blur, 0.0);
         // What a file holds is what it reads back.
         let back: Config = toml::from_str(&d.to_toml()).unwrap();
         assert_eq!(back, d);
