@@ -455,7 +455,11 @@ mod tests {
         let s = Config::layered(&[Source::Preset("shaded".into())]).unwrap();
         assert_eq!((s.start, s.finish), (default.start, default.finish));
         assert_eq!(
-            (s.synthesis.control, s.synthesis.shade_blur, s.synthesis.line_weight),
+            (
+                s.synthesis.control,
+                s.synthesis.shade_blur,
+                s.synthesis.line_weight
+            ),
             (0.1, 16.0, 4.0)
         );
         assert!((s.synthesis.detail * s.synthesis.control - 1.0).abs() < 1e-6);
