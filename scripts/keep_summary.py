@@ -6,7 +6,7 @@
 Reads RUNS_DIR/<scene>/<style>/<method>-eval/metrics.json (what `evaluate` wrote) and
 prints Markdown (plain Python and numpy only):
 
-* per case, for default / motifs / unguided / loop / colour / original / preview: structure kept (the
+* per case, for default / motifs / shaded / unguided / loop / colour / original / preview: structure kept (the
   top-level `structure_kept`, the mean over views; "-" where a metrics.json lacks it),
   the object's Gram distance to the style at relu1_2 and relu2_2 as stylized / original
   (texture.gram_object[].ratio: below 1 is closer to the style than the untouched
@@ -23,7 +23,7 @@ prints Markdown (plain Python and numpy only):
   default against 1.5 x colour transfer's own + 0.02; loop minus default,
   paired over the loop's cases, each measure's mean difference with a 95% interval
   (Student t);
-* issue 53's checks, of the default and of the `motifs` preset (method `motifs`): edge
+* issue 53's checks, of the default and of the `motifs` and `shaded` presets: edge
   recall (mean >= 0.85, min >= 0.75), motif
   contrast against the unguided end's (`unguided`, >= 0.8x in every case), both Gram
   layers below colour transfer's (>= 14 of the 15 base cases); the per-case table adds
@@ -37,7 +37,7 @@ import math
 import os
 import sys
 
-METHODS = ["default", "motifs", "unguided", "loop", "colour", "original", "preview"]
+METHODS = ["default", "motifs", "shaded", "unguided", "loop", "colour", "original", "preview"]
 BASE_SCENES = ["plant", "bob_100k", "fish_10k"]
 BASE_STYLES = ["painting", "brick", "opart", "astronaut", "coffee"]
 SWEEPS = ["control", "guidance", "negative"]
@@ -329,6 +329,7 @@ def main():
     print()
     check_motifs(res, cases)
     check_motifs(res, cases, "motifs")
+    check_motifs(res, cases, "shaded")
     print()
     sweeps(res, cases)
 
