@@ -224,6 +224,11 @@ pub fn add(images: &mut [Vec<f32>], d: &[Vec<f32>], k: f32) {
 mod tests {
     use super::*;
 
+    /// A 40 x 40 style of dark and light vertical stripes (2 and 4 px): strong edges.
+    fn stripes() -> Image {
+        Image::from_fn(40, 40, |x, _| [if x % 6 < 2 { 0.05 } else { 0.9 }; 3])
+    }
+
     #[test]
     fn a_flat_object_has_no_detail_and_an_edge_has_both_signs() {
         let (h, w) = (24, 24);
@@ -268,7 +273,7 @@ mod tests {
         let crease: Vec<f32> = (0..h * w)
             .flat_map(|i| [if i % w == w / 2 { 0.45 } else { 0.5 }; 3])
             .collect();
-        let stripes = Image::from_fn(40, 40, |x, _| [if x % 6 < 2 { 0.05 } else { 0.9 }; 3]);
+        let stripes = stripes();
         let flat = Image::from_fn(40, 40, |_, _| [0.4; 3]);
         let detail = |style: &Image, line_weight: f32| {
             let p = SynthesisParams {
@@ -326,7 +331,7 @@ mod tests {
                 [0.2 + 0.6 * (1.0 - r2).max(0.0) + crease; 3]
             })
             .collect();
-        let stripes = Image::from_fn(40, 40, |x, _| [if x % 6 < 2 { 0.05 } else { 0.9 }; 3]);
+        let stripes = stripes();
         let detail = |detail_blur: f32, shade_blur: f32, line_weight: f32| {
             let p = SynthesisParams {
                 detail_blur,
@@ -390,7 +395,7 @@ mod tests {
         let right: Vec<f32> = (0..h * w)
             .map(|i| f32::from(u8::from(i % w >= 24)))
             .collect();
-        let stripes = Image::from_fn(40, 40, |x, _| [if x % 6 < 2 { 0.05 } else { 0.9 }; 3]);
+        let stripes = stripes();
         let p = SynthesisParams {
             line_weight: 10.0,
             ..SynthesisParams::default()

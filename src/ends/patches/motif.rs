@@ -3,8 +3,9 @@
 //! motif. [`motif_mask`] finds it (a flood fill from the border through pixels near the
 //! border's dominant colour with no local texture), with the same colour's flat pockets
 //! inside the object when they are few beside it (the background seen between a plant's
-//! leaves); its patches leave the bank and its pixels the style's moments ([`super::guide`]), so its share of the style is not forced
-//! onto the object. Every level of the synthesis uses it, guided or not.
+//! leaves); its patches leave the bank and its pixels the style's moments
+//! ([`super::guide`]), so its share of the style is not forced onto the object. Every level
+//! of the synthesis uses it, guided or not.
 
 use crate::imageio::Image;
 use crate::render::fill::push_pull;
@@ -39,10 +40,10 @@ const OBJECT_MIN_SHARE: f32 = 0.01;
 /// Pixels of the background's colour it grows by beside the motif.
 const BACKGROUND_RING: usize = 3;
 
-/// The style's motif pixels (`[h w]`, row-major): every pixel except a flat background,
-/// the connected region of pixels near the border's dominant colour with no local
-/// texture that touches the border, and that colour's flat pixels out of its reach when
-/// they are at most [`BACKGROUND_INNER_SHARE`] of it (module docs). Every pixel when the border is not
+/// The style's motif pixels (`[h w]`, row-major): every pixel except a flat background, the
+/// connected region of pixels near the border's dominant colour with no local texture that
+/// touches the border, and that colour's flat pixels out of its reach when they are at most
+/// [`BACKGROUND_INNER_SHARE`] of it (module docs). Every pixel when the border is not
 /// dominated by one colour (textures, paintings, patterns).
 pub fn motif_mask(img: &Image) -> Vec<bool> {
     let (h, w) = (img.height, img.width);
