@@ -29,7 +29,7 @@ use super::gram;
 use super::interior::{self, Interior};
 use super::leakage::{self, Leakage};
 use super::lpips;
-use super::nets::{LpipsModel, LpipsNet, Nets};
+use super::nets::{Inception, LpipsModel, LpipsNet, Nets};
 use super::reference::{EvalParams, GRAM_MAX_SIDE, Reference, style_crops};
 use super::structure;
 use super::texture::{self, TextureMetrics};
@@ -63,6 +63,19 @@ pub struct SetDistance {
     /// False when the sample counts make the value biased or impossible.
     pub reliable: bool,
     pub note: String,
+}
+
+impl SetDistance {
+    /// A measure not computed because the Inception measures are off.
+    fn off() -> SetDistance {
+        SetDistance {
+            value: None,
+            n_a: 0,
+            n_b: 0,
+            reliable: false,
+            note: fid::OFF_NOTE.into(),
+        }
+    }
 }
 
 /// Consistency at one pair offset.
@@ -261,7 +274,7 @@ fn gram_distances(
 /// Inception pool3 of the stylized object's squares, at the reference's positions (the
 /// object's surface against the style's: [`texture::kid_interval`]).
 fn object_squares_pool3(
-    nets: &mut Nets,
+    inc: &mut Inception,
     orig: &ViewSet,
     styl: &ViewSet,
     p: &EvalParams,
@@ -275,34 +288,43 @@ fn object_squares_pool3(
             "the reference's object squares differ from this evaluation's: it was made from another original views set",
         ));
     }
-    nets.inception.pool3(
+    inc.pool3(
         &texture::object_patches(styl, &at)
             .iter()
             .collect::<Vec<_>>(),
     )
 }
 
+/// Inception pool3 features of a set of images, one 2048-vector each.
+type Pool3 = [Vec<f32>];
+
 /// The measures that see texture, from the object Gram distances and the pool3 features
-/// `(fs, fps)` of the stylized views and object squares.
+/// `(fs, fps)` of the stylized views and object squares (`None`: Inception is off).
 fn texture_metrics(
     orig: &ViewSet,
     styl: &ViewSet,
     style: &Image,
     r: &Reference,
     object_gram: texture::ObjectGram,
-    (fs, fps): (&[Vec<f32>], &[Vec<f32>]),
+    pool3: Option<(&Pool3, &Pool3)>,
 ) -> TextureMetrics {
     let (fc, fpo, fpc) = (
         &r.crops_pool3,
         &r.object_squares_pool3,
         &r.style_squares_pool3,
     );
+    let kid = |a: Option<&Pool3>, b, sets| {
+        a.map_or_else(texture::KidInterval::off, |a| {
+            texture::kid_interval(a, b, sets)
+        })
+    };
+    let (fs, fps) = (pool3.map(|p| p.0), pool3.map(|p| p.1));
     TextureMetrics {
         gram_object: object_gram.finish(),
-        kid_style: texture::kid_interval(fs, fc, ["stylized views", "style crops"]),
-        kid_object: texture::kid_interval(fps, fpc, ["object squares", "style squares"]),
-        kid_object_original: texture::kid_interval(
-            fpo,
+        kid_style: kid(fs, fc, ["stylized views", "style crops"]),
+        kid_object: kid(fps, fpc, ["object squares", "style squares"]),
+        kid_object_original: kid(
+            pool3.map(|_| fpo.as_slice()),
             fpc,
             ["original object squares", "style squares"],
         ),
@@ -366,19 +388,28 @@ fn style_measures(
     object_gram: texture::ObjectGram,
     warnings: &mut Vec<String>,
 ) -> Result<StyleMeasures> {
-    let ph = crate::timing::span("inception");
     let k = orig.n.max(fid::MIN_IMAGES);
     let crops = style_crops(style, k, orig.width, orig.height, p.seed);
-    let fs = nets
-        .inception
-        .pool3(&styl.images.iter().collect::<Vec<_>>())?;
-    let fps = object_squares_pool3(nets, orig, styl, p, r)?;
+    let Some(inc) = nets.inception.as_mut().filter(|_| p.inception) else {
+        let off = SetDistance::off();
+        return Ok(StyleMeasures {
+            crops,
+            fid_style: off.clone(),
+            kid_style: off.clone(),
+            fid_content: off.clone(),
+            kid_content: off,
+            texture: texture_metrics(orig, styl, style, r, object_gram, None),
+        });
+    };
+    let ph = crate::timing::span("inception");
+    let fs = inc.pool3(&styl.images.iter().collect::<Vec<_>>())?;
+    let fps = object_squares_pool3(inc, orig, styl, p, r)?;
     drop(ph);
     let _ph = crate::timing::span("fid kid");
     let (fc, fo) = (&r.crops_pool3, &r.views_pool3);
     let (fid_style, kid_style) = set_distances(&fs, fc, "FID_style", warnings);
     let (fid_content, kid_content) = set_distances(&fs, fo, "FID_content", warnings);
-    let texture = texture_metrics(orig, styl, style, r, object_gram, (&fs, &fps));
+    let texture = texture_metrics(orig, styl, style, r, object_gram, Some((&fs, &fps)));
     Ok(StyleMeasures {
         crops,
         fid_style,
@@ -417,7 +448,8 @@ pub fn evaluate(
     let mut lp = crate::timing::load(|| LpipsModel::load(models, p.lpips_net, p.threads))?;
     let loading = {
         let (models, net, threads) = (models.to_path_buf(), p.lpips_net, p.threads);
-        std::thread::spawn(move || Nets::load_rest(&models, net, threads))
+        let inception = p.inception;
+        std::thread::spawn(move || Nets::load_rest(&models, net, inception, threads))
     };
 
     let scores = lpips_scores(&mut lp, orig, styl, p, &mut warnings, &pb)?;

@@ -29,6 +29,11 @@ use crate::{Error, Result};
 /// Fewest images per set for which FID/KID can be computed at all.
 pub const MIN_IMAGES: usize = 2;
 
+/// The note of an Inception measure that was not computed because they are off
+/// (`evaluate --inception false`).
+pub const OFF_NOTE: &str = "not computed: the Inception measures are off (evaluate --inception false; \
+     the sample DAG's default, params.toml eval.inception)";
+
 /// A set of feature vectors, row-major `n x d`, f64.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FeatureSet {

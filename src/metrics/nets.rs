@@ -205,7 +205,8 @@ pub struct Nets {
     pub lpips: LpipsModel,
     /// VGG16 LPIPS model for the Gram distances (`None`: `lpips` is VGG16 itself).
     pub vgg: Option<LpipsModel>,
-    pub inception: Inception,
+    /// Inception (`None`: the Inception measures are off, [`super::reference::EvalParams`]).
+    pub inception: Option<Inception>,
 }
 
 impl Nets {
@@ -214,9 +215,9 @@ impl Nets {
         self.vgg.as_mut().unwrap_or(&mut self.lpips)
     }
 
-    /// Load the networks for `net` from the models directory, each timed as a phase
-    /// named after it ([`crate::timing`]).
-    pub fn load(models: &Path, net: LpipsNet, threads: usize) -> Result<Nets> {
+    /// Load the networks for `net` (Inception only with `inception`) from the models
+    /// directory, each timed as a phase named after it ([`crate::timing`]).
+    pub fn load(models: &Path, net: LpipsNet, inception: bool, threads: usize) -> Result<Nets> {
         let load = |n: LpipsNet| {
             crate::timing::phase(&format!("lpips {}", n.name()), || {
                 LpipsModel::load(models, n, threads)
@@ -226,7 +227,9 @@ impl Nets {
         let vgg = (net != LpipsNet::Vgg16)
             .then(|| load(LpipsNet::Vgg16))
             .transpose()?;
-        let inception = crate::timing::phase("inception", || Inception::load(models, threads))?;
+        let inception = inception
+            .then(|| crate::timing::phase("inception", || Inception::load(models, threads)))
+            .transpose()?;
         Ok(Nets {
             lpips,
             vgg,
@@ -234,16 +237,21 @@ impl Nets {
         })
     }
 
-    /// The networks beside LPIPS: VGG16 (unless `net` is VGG16) and Inception.
+    /// The networks beside LPIPS: VGG16 (unless `net` is VGG16) and Inception (with
+    /// `inception`).
     pub fn load_rest(
         models: &Path,
         net: LpipsNet,
+        inception: bool,
         threads: usize,
-    ) -> Result<(Option<LpipsModel>, Inception)> {
+    ) -> Result<(Option<LpipsModel>, Option<Inception>)> {
         let vgg = (net != LpipsNet::Vgg16)
             .then(|| LpipsModel::load(models, LpipsNet::Vgg16, threads))
             .transpose()?;
-        Ok((vgg, Inception::load(models, threads)?))
+        let inception = inception
+            .then(|| Inception::load(models, threads))
+            .transpose()?;
+        Ok((vgg, inception))
     }
 }
 

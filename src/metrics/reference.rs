@@ -57,6 +57,9 @@ pub struct EvalParams {
     pub seed: u64,
     /// Object squares per view for the object KID (0: not computed).
     pub object_squares: usize,
+    /// Whether the Inception measures are computed (FID and KID of the style and the
+    /// content, ArtFID, the object KID); off, Inception is not even loaded.
+    pub inception: bool,
     /// onnxruntime intra-op threads (0 = all cores).
     pub threads: usize,
 }
@@ -77,7 +80,7 @@ impl EvalParams {
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "lpips_net": self.lpips_net.name(), "short_range": self.short_range, "long_range": self.long_range, "seed": self.seed,
-            "object_squares": self.object_squares,
+            "object_squares": self.object_squares, "inception": self.inception,
         })
     }
 
@@ -129,6 +132,14 @@ pub struct Settings {
     pub long_range: usize,
     pub seed: u64,
     pub object_squares: usize,
+    /// The Inception measures computed (a reference made before this field: yes).
+    #[serde(default = "yes")]
+    pub inception: bool,
+}
+
+/// `true` (serde's default for fields added later).
+pub(crate) fn yes() -> bool {
+    true
 }
 
 impl Settings {
@@ -142,6 +153,7 @@ impl Settings {
             long_range: p.long_range,
             seed: p.seed,
             object_squares: p.object_squares,
+            inception: p.inception,
         }
     }
 
@@ -293,7 +305,8 @@ impl Reference {
             ));
         }
         let s = &self.scores;
-        let sizes_ok = self.views_pool3.len() == want.views
+        let pool3_views = if want.inception { want.views } else { 0 };
+        let sizes_ok = self.views_pool3.len() == pool3_views
             && s.gram_original_per_view.len() == want.views
             && s.object_gram_original.len() == want.views
             && s.object_gram_original
@@ -349,6 +362,7 @@ mod tests {
             long_range: 1,
             seed: 1,
             object_squares: 4,
+            inception: true,
             threads: 1,
         };
         let names = [
@@ -369,7 +383,7 @@ mod tests {
             names.map(|n| ph.iter().find(|e| e.name == n).map_or(0, |e| e.calls))
         };
         let before = calls();
-        let mut nets = Nets::load(&models, p.lpips_net, p.threads).unwrap();
+        let mut nets = Nets::load(&models, p.lpips_net, p.inception, p.threads).unwrap();
         Reference::compute(&mut nets, &orig, &style, &p).unwrap();
         for ((name, after), b) in names.iter().zip(calls()).zip(before) {
             assert!(after > b, "phase `{name}` not timed");

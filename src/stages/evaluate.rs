@@ -86,6 +86,13 @@ pub struct Args {
     /// are most of its cost).
     #[arg(long, default_value_t = crate::metrics::texture::PATCHES_PER_VIEW)]
     pub object_squares: usize,
+    /// Compute the Inception measures: FID and KID against the style crops and the
+    /// original views, ArtFID, and the object KID. `false` skips them and Inception
+    /// itself, most of an evaluation's time; the other measures are the same bit for bit.
+    /// The sample DAG's default is `false` (its params.toml `eval.inception`): at 8 to 16
+    /// views FID is biased and KID noisy, so they are for the quality benchmarks.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub inception: bool,
     #[command(flatten)]
     pub threads: Threads,
     /// A sweep.json (from the `sweep` stage) to include as the speed-accuracy section.
@@ -260,6 +267,7 @@ fn eval_params(a: &Args) -> EvalParams {
         long_range: a.long_range,
         seed: a.seed,
         object_squares: a.object_squares,
+        inception: a.inception,
         threads: a.threads.n,
     }
 }

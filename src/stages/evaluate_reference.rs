@@ -45,7 +45,7 @@ pub(super) fn run(a: &Request, part: ReferencePart, p: &EvalParams) -> Result<()
             let orig = crate::timing::load(|| read_view_set(original))?;
             let style_image = crate::timing::load(|| Image::load(style))?;
             let mut wr = create(a, ArtifactKind::EvalReference, p.to_json())?;
-            let mut nets = load_nets(p.lpips_net, p.threads)?;
+            let mut nets = load_nets(p.lpips_net, p)?;
             let r = Reference::compute(&mut nets, &orig, &style_image, p)?;
             wr.add_input("original", original)?;
             wr.add_input("style", style)?;
@@ -64,7 +64,7 @@ pub(super) fn run(a: &Request, part: ReferencePart, p: &EvalParams) -> Result<()
             let mut params = p.to_json();
             params["part"] = "source".into();
             let mut wr = create(a, ArtifactKind::EvalSource, params)?;
-            let mut nets = load_nets(p.lpips_net, p.threads)?;
+            let mut nets = load_nets(p.lpips_net, p)?;
             let r = SourceReference::compute(&mut nets, &orig, p)?;
             wr.add_input("original", original)?;
             crate::artifacts::write_eval_source(&mut wr, &r)?;
@@ -85,7 +85,7 @@ fn run_style(a: &Request, p: &EvalParams) -> Result<()> {
         serde_json::json!({"part": "style", "settings": &settings}),
     )?;
     // VGG16 and Inception only: VGG16 as the LPIPS backbone loads no AlexNet.
-    let mut nets = load_nets(LpipsNet::Vgg16, p.threads)?;
+    let mut nets = load_nets(LpipsNet::Vgg16, p)?;
     let views = settings.views;
     let r = StyleReference::compute(&mut nets, &style_image, settings)?;
     wr.add_input("style", style)?;
@@ -110,6 +110,7 @@ fn style_settings(a: &Request, p: &EvalParams) -> Result<StyleSettings> {
             long_range: p.long_range,
             seed: p.seed,
             object_squares: p.object_squares,
+            inception: p.inception,
         })
     };
     match (&a.original, &a.cameras, a.width, a.height) {
@@ -155,10 +156,15 @@ fn create(a: &Request, kind: ArtifactKind, params: serde_json::Value) -> Result<
     )
 }
 
-/// The metric networks (the models directory's), timed as the phase `models`.
-fn load_nets(net: LpipsNet, threads: usize) -> Result<Nets> {
+/// The metric networks (the models directory's; Inception as `p` says), timed as the
+/// phase `models`.
+fn load_nets(net: LpipsNet, p: &EvalParams) -> Result<Nets> {
     let models = metric_models()?;
-    crate::timing::load(|| crate::timing::phase("models", || Nets::load(&models, net, threads)))
+    crate::timing::load(|| {
+        crate::timing::phase("models", || {
+            Nets::load(&models, net, p.inception, p.threads)
+        })
+    })
 }
 
 fn commit(wr: ArtifactWriter, a: &Request, what: &str, views: usize) -> Result<()> {

@@ -102,6 +102,7 @@ pub(crate) fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         long_range: 5,
         seed: 0,
         object_squares: fantasystyle::metrics::texture::PATCHES_PER_VIEW,
+        inception: true,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
         original_scene: None,

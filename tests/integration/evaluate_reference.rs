@@ -306,3 +306,120 @@ fn the_reference_parts_give_the_whole_references_metrics() {
         assert!(!out.exists(), "nothing written on bad input");
     }
 }
+
+/// `--inception false` (the sample DAG's default): the Inception measures (FID and KID
+/// of style and content, ArtFID, the object KIDs) are null with a note saying why, and
+/// every other measure is the same bit for bit as with them on; its reference parts
+/// give the same metrics as computing it whole; a reference made with Inception is
+/// refused by an evaluation without, naming the setting.
+#[test]
+fn the_inception_measures_off_change_no_other_measure() {
+    if !ready() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path();
+    let cams = cameras(7);
+    let orig = write_views(&p.join("orig"), &cams, &|_, i| i);
+    let styl = write_views(&p.join("styl"), &cams, &|_, i| {
+        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
+    });
+    let style = style_png(p);
+    let (on, off) = (p.join("on"), p.join("off"));
+    run(opts(&orig, &styl, &style, &on)).unwrap().unwrap();
+    let no_inception = |out: &Path| Args {
+        inception: false,
+        ..opts(&orig, &styl, &style, out)
+    };
+    run(no_inception(&off)).unwrap().unwrap();
+    let json = |d: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join("metrics.json")).unwrap()).unwrap()
+    };
+    let (mut a, mut b) = (json(&on), json(&off));
+    for key in ["fid_style", "kid_style", "fid_content", "kid_content"] {
+        assert!(
+            a[key]["value"].is_number(),
+            "{key} computed with Inception on"
+        );
+        assert!(b[key]["value"].is_null(), "{key} not computed with it off");
+        let note = b[key]["note"].as_str().unwrap();
+        assert!(note.contains("--inception false"), "{key}: {note}");
+    }
+    for key in ["kid_style", "kid_object", "kid_object_original"] {
+        assert!(a["texture"][key]["value"].is_number(), "texture.{key} on");
+        assert!(b["texture"][key]["value"].is_null(), "texture.{key} off");
+    }
+    assert!(a["artfid"].is_number() && b["artfid"].is_null());
+    for m in [&mut a, &mut b] {
+        let o = m.as_object_mut().unwrap();
+        for key in [
+            "fid_style",
+            "kid_style",
+            "fid_content",
+            "kid_content",
+            "artfid",
+            "warnings",
+        ] {
+            o.remove(key);
+        }
+        let t = o["texture"].as_object_mut().unwrap();
+        for key in ["kid_style", "kid_object", "kid_object_original"] {
+            t.remove(key);
+        }
+    }
+    assert_eq!(a, b, "the other measures are the same with Inception off");
+    assert!(
+        !json(&off)["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("FID")),
+        "no FID warning when FID is not computed"
+    );
+
+    // Its parts: the same metrics.json as computing it whole.
+    let (source, style_part, via) = (p.join("source"), p.join("style-part"), p.join("via"));
+    run(Args {
+        stylized: None,
+        style: None,
+        reference_only: Some(ReferencePart::Source),
+        ..no_inception(&source)
+    })
+    .unwrap();
+    run(Args {
+        stylized: None,
+        reference_only: Some(ReferencePart::Style),
+        ..no_inception(&style_part)
+    })
+    .unwrap();
+    run(Args {
+        reference: vec![source.clone(), style_part],
+        ..no_inception(&via)
+    })
+    .unwrap()
+    .unwrap();
+    let read = |d: &Path| std::fs::read(d.join("metrics.json")).unwrap();
+    assert!(
+        read(&via) == read(&off),
+        "metrics.json differs through the parts"
+    );
+
+    // A whole reference made with Inception, read by an evaluation without it: refused.
+    let whole = p.join("whole");
+    run(Args {
+        stylized: None,
+        reference_only: Some(ReferencePart::All),
+        ..opts(&orig, &styl, &style, &whole)
+    })
+    .unwrap();
+    let out = p.join("refused");
+    let err = run(Args {
+        reference: vec![whole.clone()],
+        ..no_inception(&out)
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("inception true vs false"), "{err}");
+    assert!(err.contains(whole.to_str().unwrap()), "{err}");
+    assert!(!out.exists(), "nothing written on a refused reference");
+}

@@ -303,6 +303,7 @@ fn report_viewer_shows_both_splats_in_chromium() {
         long_range: 2,
         seed: 0,
         object_squares: 0,
+        inception: false,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
         original_scene: Some(orig_scene.clone()),

@@ -53,6 +53,9 @@ pub struct StyleSettings {
     pub height: usize,
     pub seed: u64,
     pub object_squares: usize,
+    /// The Inception features made (a part made before this field: yes).
+    #[serde(default = "super::yes")]
+    pub inception: bool,
 }
 
 impl StyleSettings {
@@ -64,6 +67,7 @@ impl StyleSettings {
             height: s.height,
             seed: s.seed,
             object_squares: s.object_squares,
+            inception: s.inception,
         }
     }
 
@@ -79,6 +83,11 @@ impl StyleSettings {
                 "object_squares",
                 self.object_squares as u64,
                 other.object_squares as u64,
+            ),
+            (
+                "inception",
+                u64::from(self.inception),
+                u64::from(other.inception),
             ),
         ];
         for (name, a, b) in fields {
@@ -128,17 +137,20 @@ impl SourceReference {
             view_grams.push(crate::timing::phase("gram matrices", || gram::grams(&f[0])));
         }
 
-        let inc = &mut nets.inception;
-        let inception = crate::timing::span("inception");
-        let views_pool3 = crate::timing::phase("views", || {
-            inc.pool3(&orig.images.iter().collect::<Vec<_>>())
-        })?;
-        let sq = crate::timing::span("object squares");
-        let at = texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
-        let squares = texture::object_patches(orig, &at);
-        let object_squares_pool3 = inc.pool3(&squares.iter().collect::<Vec<_>>())?;
-        drop(sq);
-        drop(inception);
+        let (views_pool3, object_squares_pool3) = match nets.inception.as_mut() {
+            Some(inc) if p.inception => {
+                let _inception = crate::timing::span("inception");
+                let views_pool3 = crate::timing::phase("views", || {
+                    inc.pool3(&orig.images.iter().collect::<Vec<_>>())
+                })?;
+                let _sq = crate::timing::span("object squares");
+                let at =
+                    texture::object_patch_positions(&orig.alpha, w, h, p.object_squares, p.seed);
+                let squares = texture::object_patches(orig, &at);
+                (views_pool3, inc.pool3(&squares.iter().collect::<Vec<_>>())?)
+            }
+            _ => (Vec::new(), Vec::new()),
+        };
         drop(ph);
         Ok(SourceReference {
             settings: Settings::of(orig, p),
@@ -177,26 +189,30 @@ impl StyleReference {
         let vgg = nets.vgg();
         let f = crate::timing::phase("vgg", || vgg.features(&[&style.fit_within(GRAM_MAX_SIDE)]))?;
         let style_grams = crate::timing::phase("gram matrices", || gram::grams(&f[0]));
-        let inc = &mut nets.inception;
-        let mut pool3 = |v: &[Image]| inc.pool3(&v.iter().collect::<Vec<_>>());
-        let inception = crate::timing::span("inception");
-        let crops_pool3 = crate::timing::phase("style crops", || {
-            pool3(&style_crops(
-                style,
-                s.views.max(fid::MIN_IMAGES),
-                s.width,
-                s.height,
-                s.seed,
-            ))
-        })?;
-        let style_squares_pool3 = if !squares {
-            Vec::new()
-        } else {
-            crate::timing::phase("style squares", || {
-                pool3(&texture::style_patches(style, s.seed))
-            })?
+        let (crops_pool3, style_squares_pool3) = match nets.inception.as_mut() {
+            Some(inc) if s.inception => {
+                let mut pool3 = |v: &[Image]| inc.pool3(&v.iter().collect::<Vec<_>>());
+                let _inception = crate::timing::span("inception");
+                let crops_pool3 = crate::timing::phase("style crops", || {
+                    pool3(&style_crops(
+                        style,
+                        s.views.max(fid::MIN_IMAGES),
+                        s.width,
+                        s.height,
+                        s.seed,
+                    ))
+                })?;
+                let style_squares_pool3 = if squares {
+                    crate::timing::phase("style squares", || {
+                        pool3(&texture::style_patches(style, s.seed))
+                    })?
+                } else {
+                    Vec::new()
+                };
+                (crops_pool3, style_squares_pool3)
+            }
+            _ => (Vec::new(), Vec::new()),
         };
-        drop(inception);
         drop(ph);
         Ok(StyleReference {
             settings,

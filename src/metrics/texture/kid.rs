@@ -24,6 +24,21 @@ pub struct KidInterval {
     pub note: String,
 }
 
+impl KidInterval {
+    /// A KID not computed because the Inception measures are off.
+    pub fn off() -> KidInterval {
+        KidInterval {
+            value: None,
+            se: None,
+            ci95: None,
+            n_a: 0,
+            n_b: 0,
+            reliable: false,
+            note: crate::metrics::fid::OFF_NOTE.into(),
+        }
+    }
+}
+
 /// KID (the value of [`crate::metrics::fid::kid`]) and its two-sample jackknife standard error;
 /// `None` for the error when a set has fewer than 3 images.
 pub fn kid_jackknife(a: &FeatureSet, b: &FeatureSet) -> Option<(f64, Option<f64>)> {

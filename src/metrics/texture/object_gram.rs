@@ -60,8 +60,11 @@ pub fn pool_alpha(alpha: &[f32], w: usize, h: usize, tw: usize, th: usize) -> Ve
 /// Computed as the Gram of the features scaled by `sqrt(w_p)` (in f32), times
 /// `HW / sum_p w_p`. The positions of weight 0 (the background, most of a view of an
 /// object) add products of zeros, which change no sum that is not itself zero: the sums
-/// run over the other positions alone, and any entry that comes out zero is summed again
-/// over every position, so every bit is that of the sum over all of them (see the test).
+/// run over the other positions alone. An entry that comes out zero is zero over every
+/// position too, and only its sign can differ: a sum in order from -0 stays -0 only while
+/// every product is -0. So it is +0 unless a channel of the two has a sign bit set (a
+/// negative value or a -0; ReLU features have none), and then summed again over every
+/// position; every bit is that of the sum over all of them (see the test).
 pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
     let hw = t.h * t.w;
     assert_eq!(weights.len(), hw, "weighted_gram: weights size");
@@ -80,19 +83,27 @@ pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
     let finite = scaled.data.iter().all(|v| v.is_finite());
     let mut g = if keep.len() < hw && finite {
         let c = t.c;
+        let signed: Vec<bool> = scaled
+            .data
+            .chunks_exact(hw)
+            .map(|ch| ch.iter().any(|v| v.is_sign_negative()))
+            .collect();
         let mut g = gram_sums(&position_major(&scaled, Some(&keep)), c);
         for a in 0..c {
             for b in a..c {
                 if g[a * c + b] == 0.0 {
-                    let (fa, fb) = (
-                        &scaled.data[a * hw..(a + 1) * hw],
-                        &scaled.data[b * hw..(b + 1) * hw],
-                    );
-                    let s: f64 = fa
-                        .iter()
-                        .zip(fb)
-                        .map(|(&x, &y)| f64::from(x) * f64::from(y))
-                        .sum();
+                    let s = if signed[a] || signed[b] {
+                        let (fa, fb) = (
+                            &scaled.data[a * hw..(a + 1) * hw],
+                            &scaled.data[b * hw..(b + 1) * hw],
+                        );
+                        fa.iter()
+                            .zip(fb)
+                            .map(|(&x, &y)| f64::from(x) * f64::from(y))
+                            .sum()
+                    } else {
+                        0.0
+                    };
                     g[a * c + b] = s;
                     g[b * c + a] = s;
                 }
@@ -263,7 +274,8 @@ mod tests {
 
     /// With positions of weight 0 (skipped) the bits are those of the Gram over every
     /// position: ordinary entries, entries that are exactly zero (a channel that is zero
-    /// wherever the weight is not: +0, or -0 from -0 features) and a channel of -0s.
+    /// wherever the weight is not: +0, or -0 from -0 or negative features), a channel of
+    /// -0s and one of +0s.
     #[test]
     fn skipping_zero_weights_changes_no_bit() {
         let (c, h, w) = (21, 9, 13);
@@ -280,10 +292,13 @@ mod tests {
             .collect();
         for p in 0..hw {
             // Channel 3: nonzero only where the weight is 0; channel 4: -0 everywhere;
-            // channel 5: -0 where the weight is 0, +0 elsewhere.
+            // channel 5: -0 where the weight is 0, +0 elsewhere; channel 6: +0
+            // everywhere; channel 7: negative only where the weight is 0.
             t.data[3 * hw + p] = if wts[p] == 0.0 { 1.5 } else { 0.0 };
             t.data[4 * hw + p] = -0.0;
             t.data[5 * hw + p] = if wts[p] == 0.0 { -0.0 } else { 0.0 };
+            t.data[6 * hw + p] = 0.0;
+            t.data[7 * hw + p] = if wts[p] == 0.0 { -2.0 } else { 0.0 };
         }
         let got = weighted_gram(&t, &wts).unwrap();
         // By definition, every position summed in order.
