@@ -5,7 +5,7 @@
 //! resolution as `w`), so that the black background does not dominate the statistics.
 
 use super::ratio;
-use crate::maths::gram::{gram, gram_sums, position_major};
+use crate::maths::gram::{gram, gram_sums};
 use crate::metrics::nets::Features;
 use crate::vgg::Tensor3;
 use serde::Serialize;
@@ -88,7 +88,7 @@ pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
             .chunks_exact(hw)
             .map(|ch| ch.iter().any(|v| v.is_sign_negative()))
             .collect();
-        let mut g = gram_sums(&position_major(&scaled, Some(&keep)), c);
+        let mut g = gram_sums(&scaled, Some(&keep));
         for a in 0..c {
             for b in a..c {
                 if g[a * c + b] == 0.0 {
