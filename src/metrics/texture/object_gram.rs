@@ -60,11 +60,12 @@ pub fn pool_alpha(alpha: &[f32], w: usize, h: usize, tw: usize, th: usize) -> Ve
 /// Computed as the Gram of the features scaled by `sqrt(w_p)` (in f32), times
 /// `HW / sum_p w_p`. The positions of weight 0 (the background, most of a view of an
 /// object) add products of zeros, which change no sum that is not itself zero: the sums
-/// run over the other positions alone. An entry that comes out zero is zero over every
-/// position too, and only its sign can differ: a sum in order from -0 stays -0 only while
-/// every product is -0. So it is +0 unless a channel of the two has a sign bit set (a
-/// negative value or a -0; ReLU features have none), and then summed again over every
-/// position; every bit is that of the sum over all of them (see the test).
+/// run over the other positions alone (their scaled features gathered first, so the
+/// work follows the object's size, not the view's). An entry that comes out zero is zero
+/// over every position too, and only its sign can differ: a sum in order from -0 stays
+/// -0 only while every product is -0. So it is +0 unless a channel of the two has a sign
+/// bit set (a negative value or a -0; ReLU features have none), and then summed again
+/// over every position; every bit is that of the sum over all of them (see the test).
 pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
     let hw = t.h * t.w;
     assert_eq!(weights.len(), hw, "weighted_gram: weights size");
@@ -73,33 +74,37 @@ pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
         return None;
     }
     let root: Vec<f32> = weights.iter().map(|&v| v.max(0.0).sqrt()).collect();
-    let mut scaled = t.clone();
-    for ch in scaled.data.chunks_exact_mut(hw) {
-        ch.iter_mut().zip(&root).for_each(|(f, r)| *f *= r);
-    }
     let k = hw as f64 / sw;
     let keep: Vec<usize> = (0..hw).filter(|&p| root[p] != 0.0).collect();
-    // A skipped position's products must be zeros: finite features.
-    let finite = scaled.data.iter().all(|v| v.is_finite());
+    // A skipped position's products must be zeros: finite features (`f * 0` is then a
+    // zero of `f`'s sign).
+    let finite = t.data.iter().all(|v| v.is_finite());
     let mut g = if keep.len() < hw && finite {
         let c = t.c;
-        let signed: Vec<bool> = scaled
+        let kept = Tensor3 {
+            c,
+            h: 1,
+            w: keep.len(),
+            data: t
+                .data
+                .chunks_exact(hw)
+                .flat_map(|ch| keep.iter().map(|&p| ch[p] * root[p]))
+                .collect(),
+        };
+        let signed: Vec<bool> = t
             .data
             .chunks_exact(hw)
             .map(|ch| ch.iter().any(|v| v.is_sign_negative()))
             .collect();
-        let mut g = gram_sums(&scaled, Some(&keep));
+        let mut g = gram_sums(&kept, None);
         for a in 0..c {
             for b in a..c {
                 if g[a * c + b] == 0.0 {
                     let s = if signed[a] || signed[b] {
-                        let (fa, fb) = (
-                            &scaled.data[a * hw..(a + 1) * hw],
-                            &scaled.data[b * hw..(b + 1) * hw],
-                        );
-                        fa.iter()
-                            .zip(fb)
-                            .map(|(&x, &y)| f64::from(x) * f64::from(y))
+                        let (fa, fb) =
+                            (&t.data[a * hw..(a + 1) * hw], &t.data[b * hw..(b + 1) * hw]);
+                        (0..hw)
+                            .map(|p| f64::from(fa[p] * root[p]) * f64::from(fb[p] * root[p]))
                             .sum()
                     } else {
                         0.0
@@ -112,6 +117,10 @@ pub fn weighted_gram(t: &Tensor3, weights: &[f32]) -> Option<Vec<f64>> {
         g.iter_mut().for_each(|v| *v /= hw as f64);
         g
     } else {
+        let mut scaled = t.clone();
+        for ch in scaled.data.chunks_exact_mut(hw) {
+            ch.iter_mut().zip(&root).for_each(|(f, r)| *f *= r);
+        }
         gram(&scaled)
     };
     g.iter_mut().for_each(|v| *v *= k);
