@@ -66,6 +66,11 @@ pub struct SetDistance {
 }
 
 impl SetDistance {
+    /// Whether this is a measure not computed because the Inception measures are off.
+    pub fn is_off(&self) -> bool {
+        self.value.is_none() && self.note == fid::OFF_NOTE
+    }
+
     /// A measure not computed because the Inception measures are off.
     fn off() -> SetDistance {
         SetDistance {

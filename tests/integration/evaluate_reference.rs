@@ -350,6 +350,15 @@ fn the_inception_measures_off_change_no_other_measure() {
         assert!(b["texture"][key]["value"].is_null(), "texture.{key} off");
     }
     assert!(a["artfid"].is_number() && b["artfid"].is_null());
+    // The report's metrics table says they are off in one row, instead of rows of n/a.
+    let report = |d: &Path| std::fs::read_to_string(d.join("report.html")).unwrap();
+    let (ron, roff) = (report(&on), report(&off));
+    assert!(ron.contains("ArtFID ↓") && ron.contains("FID_style ↓"));
+    assert!(!roff.contains("ArtFID ↓") && !roff.contains("FID_style ↓"));
+    assert!(
+        roff.contains("--set eval.inception=true"),
+        "the report says how to add them"
+    );
     for m in [&mut a, &mut b] {
         let o = m.as_object_mut().unwrap();
         for key in [

@@ -19,43 +19,66 @@ pub(super) fn metrics_table(m: &Metrics) -> String {
         format!("{}{mark}", fmt_opt(x.value, digits))
     };
     let net = m.lpips_net.name();
-    let mut rows = vec![
-        vec!["ArtFID ↓".into(), fmt_opt(m.artfid, 3), esc(ARTFID_NOTE)],
-        vec![
-            format!("LPIPS_content ({net}) ↓"),
-            fmt_opt(m.lpips_content, 4),
-            "mean over views of LPIPS(original, stylized)".into(),
-        ],
-    ];
-    rows.extend(structure_rows(m));
-    rows.extend([
-        vec![
-            "FID_style ↓".into(),
-            d(&m.fid_style, 2, "biased"),
-            esc(&format!(
-                "stylized views vs style crops; {}",
-                m.fid_style.note
-            )),
-        ],
-        vec![
-            "KID_style ↓".into(),
-            d(&m.kid_style, 5, "few images"),
-            esc(&m.kid_style.note),
-        ],
-        vec![
-            "FID_content ↓".into(),
-            d(&m.fid_content, 2, "biased"),
-            esc(&format!(
-                "stylized vs original views; {}",
-                m.fid_content.note
-            )),
-        ],
-        vec![
-            "KID_content ↓".into(),
-            d(&m.kid_content, 5, "few images"),
-            esc(&m.kid_content.note),
-        ],
+    let inception = !m.fid_style.is_off();
+    let mut rows = Vec::new();
+    if inception {
+        rows.push(vec![
+            "ArtFID ↓".into(),
+            fmt_opt(m.artfid, 3),
+            esc(ARTFID_NOTE),
+        ]);
+    }
+    rows.push(vec![
+        format!("LPIPS_content ({net}) ↓"),
+        fmt_opt(m.lpips_content, 4),
+        "mean over views of LPIPS(original, stylized)".into(),
     ]);
+    rows.extend(structure_rows(m));
+    if !inception {
+        rows.push(vec![
+            "FID, KID, ArtFID".into(),
+            "off".into(),
+            "the Inception measures are not computed in this run (at 8 to 16 views FID is \
+             biased and KID noisy): `pipeline run --set eval.inception=true` or `evaluate \
+             --inception true` adds them"
+                .into(),
+        ]);
+    }
+    rows.extend(
+        inception
+            .then(|| {
+                [
+                    vec![
+                        "FID_style ↓".into(),
+                        d(&m.fid_style, 2, "biased"),
+                        esc(&format!(
+                            "stylized views vs style crops; {}",
+                            m.fid_style.note
+                        )),
+                    ],
+                    vec![
+                        "KID_style ↓".into(),
+                        d(&m.kid_style, 5, "few images"),
+                        esc(&m.kid_style.note),
+                    ],
+                    vec![
+                        "FID_content ↓".into(),
+                        d(&m.fid_content, 2, "biased"),
+                        esc(&format!(
+                            "stylized vs original views; {}",
+                            m.fid_content.note
+                        )),
+                    ],
+                    vec![
+                        "KID_content ↓".into(),
+                        d(&m.kid_content, 5, "few images"),
+                        esc(&m.kid_content.note),
+                    ],
+                ]
+            })
+            .into_iter()
+            .flatten(),
+    );
     rows.extend(consistency_rows(m));
     rows.push(vec![
         "Gram distance to style (VGG16) ↓".into(),
