@@ -14,6 +14,12 @@
 //! structure, edge recall, motif contrast and style texture of [`super::interior`] (the
 //! same band pass inside the object only, away from its silhouette).
 //!
+//! The Inception measures (FID, KID, ArtFID and the object KID) are computed only with
+//! [`EvalParams`]`::inception` (`evaluate --inception`, on by default; the sample DAGs
+//! turn it off): without it they are `None` with [`fid::OFF_NOTE`], Inception is not
+//! loaded, and every other measure is the same bit for bit (docs/evaluation.md "The
+//! measures").
+//!
 //! The half of it that depends only on the original views and the style image is
 //! [`super::reference::Reference`], computed here or read from an `eval-reference`
 //! artifact (`evaluate --reference`): the same metrics either way.
