@@ -6,8 +6,19 @@
 use super::evaluate::{H, W, cameras, opts, ready, restyle, style_png, write_views};
 use fantasystyle::imageio::Image;
 use fantasystyle::stages::evaluate::{Args, ReferencePart, run};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
+
+/// Seven original views under `p`, their restyled copies and a style image: the views
+/// directories and the image's path.
+fn seven_views(p: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    let cams = cameras(7);
+    let orig = write_views(&p.join("orig"), &cams, &|_, i| i);
+    let styl = write_views(&p.join("styl"), &cams, &|_, i| {
+        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
+    });
+    (orig, styl, style_png(p))
+}
 
 /// `--reference-only`, then `--reference`: the same metrics.json, bit for bit, as one
 /// evaluation that computes everything; a reference made from another style, another
@@ -20,12 +31,7 @@ fn a_reference_gives_the_same_metrics_and_a_foreign_one_is_refused() {
     }
     let d = tempfile::tempdir().unwrap();
     let p = d.path();
-    let cams = cameras(7);
-    let orig = write_views(&p.join("orig"), &cams, &|_, i| i);
-    let styl = write_views(&p.join("styl"), &cams, &|_, i| {
-        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
-    });
-    let style = style_png(p);
+    let (orig, styl, style) = seven_views(p);
     let full = p.join("full");
     run(opts(&orig, &styl, &style, &full)).unwrap().unwrap();
     let reference = p.join("ref");
@@ -184,12 +190,7 @@ fn the_reference_parts_give_the_whole_references_metrics() {
     }
     let d = tempfile::tempdir().unwrap();
     let p = d.path();
-    let cams = cameras(7);
-    let orig = write_views(&p.join("orig"), &cams, &|_, i| i);
-    let styl = write_views(&p.join("styl"), &cams, &|_, i| {
-        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
-    });
-    let style = style_png(p);
+    let (orig, styl, style) = seven_views(p);
     let whole = p.join("whole");
     run(Args {
         stylized: None,
@@ -319,12 +320,7 @@ fn the_inception_measures_off_change_no_other_measure() {
     }
     let d = tempfile::tempdir().unwrap();
     let p = d.path();
-    let cams = cameras(7);
-    let orig = write_views(&p.join("orig"), &cams, &|_, i| i);
-    let styl = write_views(&p.join("styl"), &cams, &|_, i| {
-        Image::from_fn(i.width, i.height, |x, y| restyle(i.px(x, y)))
-    });
-    let style = style_png(p);
+    let (orig, styl, style) = seven_views(p);
     let (on, off) = (p.join("on"), p.join("off"));
     run(opts(&orig, &styl, &style, &on)).unwrap().unwrap();
     let no_inception = |out: &Path| Args {

@@ -34,7 +34,34 @@ pub(super) fn metrics_table(m: &Metrics) -> String {
         "mean over views of LPIPS(original, stylized)".into(),
     ]);
     rows.extend(structure_rows(m));
-    if !inception {
+    if inception {
+        let sets = [
+            (
+                "style",
+                &m.fid_style,
+                &m.kid_style,
+                "stylized views vs style crops",
+            ),
+            (
+                "content",
+                &m.fid_content,
+                &m.kid_content,
+                "stylized vs original views",
+            ),
+        ];
+        for (what, fid, kid, against) in sets {
+            rows.push(vec![
+                format!("FID_{what} ↓"),
+                d(fid, 2, "biased"),
+                esc(&format!("{against}; {}", fid.note)),
+            ]);
+            rows.push(vec![
+                format!("KID_{what} ↓"),
+                d(kid, 5, "few images"),
+                esc(&kid.note),
+            ]);
+        }
+    } else {
         rows.push(vec![
             "FID, KID, ArtFID".into(),
             "off".into(),
@@ -44,41 +71,6 @@ pub(super) fn metrics_table(m: &Metrics) -> String {
                 .into(),
         ]);
     }
-    rows.extend(
-        inception
-            .then(|| {
-                [
-                    vec![
-                        "FID_style ↓".into(),
-                        d(&m.fid_style, 2, "biased"),
-                        esc(&format!(
-                            "stylized views vs style crops; {}",
-                            m.fid_style.note
-                        )),
-                    ],
-                    vec![
-                        "KID_style ↓".into(),
-                        d(&m.kid_style, 5, "few images"),
-                        esc(&m.kid_style.note),
-                    ],
-                    vec![
-                        "FID_content ↓".into(),
-                        d(&m.fid_content, 2, "biased"),
-                        esc(&format!(
-                            "stylized vs original views; {}",
-                            m.fid_content.note
-                        )),
-                    ],
-                    vec![
-                        "KID_content ↓".into(),
-                        d(&m.kid_content, 5, "few images"),
-                        esc(&m.kid_content.note),
-                    ],
-                ]
-            })
-            .into_iter()
-            .flatten(),
-    );
     rows.extend(consistency_rows(m));
     rows.push(vec![
         "Gram distance to style (VGG16) ↓".into(),
