@@ -11,8 +11,7 @@
 //! `f32::exp` over a dense sweep of the floats (and [`tests::every_float`], run by hand
 //! with `--ignored`, over all 2^32 of them).
 //!
-//! Used by the balance's Sinkhorn rounds ([`super::sinkhorn_dense`]), where `expf`
-//! was a fifth of the synthesis's time.
+//! Used by the balance's Sinkhorn rounds ([`super::sinkhorn_scaling`]) for their kernel.
 
 /// `2^(i/32)` as the bits of an f64 with `i` taken off its exponent (glibc's
 /// `__exp2f_data.tab`).

@@ -7,7 +7,7 @@
 //! | [`expf`] | `f32::exp` of many values at once, bit for bit the platform's `expf` (glibc's FMA build's operations on four lanes) |
 //! | [`gram`] | the Gram matrix of a feature map (Gatys et al. 2016, Eq. 3) |
 //! | [`sinkhorn`] | log-sum-exp, max-shifted softmax weights, the entropic coupling by log-domain Sinkhorn iterations (Cuturi 2013; Schmitzer 2019) |
-//! | [`sinkhorn_dense`] | the dense log-unit Sinkhorn rounds of the synthesis's balance, rearranged for speed (the same bits) |
+//! | [`sinkhorn_scaling`] | the synthesis's balance: dense log-unit Sinkhorn rounds at one temperature in the scaling form with absorption (Schmitzer 2019) |
 //! | [`kid`] | KID's polynomial kernel and unbiased MMD² estimate (Bińkowski et al. 2018) |
 //! | [`warp`] | depth reprojection of one rendered view into another, with an occlusion test |
 
@@ -16,5 +16,5 @@ pub mod gram;
 pub mod kid;
 pub mod linalg;
 pub mod sinkhorn;
-pub mod sinkhorn_dense;
+pub mod sinkhorn_scaling;
 pub mod warp;

@@ -120,16 +120,6 @@ impl Sinkhorn {
         f: &mut [f32],
         g: &mut [f32],
     ) {
-        if self.units == Units::Log
-            && self.columns == Columns::F32Zero
-            && costs.index.is_none()
-            && costs.per == costs.cols
-            && costs.per > 0
-        {
-            // The same operations, rearranged (the balance of the synthesis).
-            let per = costs.per;
-            return super::sinkhorn_dense::run(costs.cost, per, self.rho, target, taus, f, g);
-        }
         for tau in taus {
             self.rows(costs, g, f, tau);
             self.columns(costs, f, target, g, tau);

@@ -1,11 +1,12 @@
 //! The balance of the synthesis: an entropic coupling of the object's patches to the
-//! style bank's k-means cells, made in the log domain by Sinkhorn's iterations, the
+//! style bank's k-means cells, made by Sinkhorn's iterations, the
 //! cells' marginal their share of the bank relaxed by the exponent `balance` (the
 //! KL-penalised unbalanced form of Chizat et al. 2018); each patch then takes the cell
-//! its row of the coupling favours most. The iterations are [`crate::maths::sinkhorn`]'s
-//! (log units, f32 column sums), which the patch prior's denoiser shares.
+//! its row of the coupling favours most. The iterations are
+//! [`crate::maths::sinkhorn_scaling`]'s: the log-domain rounds of [`crate::maths::sinkhorn`]
+//! (log units, the patch prior's denoiser's scheme) in the scaling form, at one temperature.
 
-use crate::maths::sinkhorn::{Columns, Costs, Sinkhorn, Units};
+use crate::maths::sinkhorn_scaling;
 
 /// Each query's cell under the balanced coupling of its distances `dist`
 /// `[P x cells]` to the cells' nearest patches, the cells' shares of the bank `share`
@@ -23,7 +24,6 @@ pub fn couple(share: &[f32], dist: &[f32], balance: f32, eps: f32) -> Vec<usize>
         }
         b.0
     };
-    let mut log_v = vec![0.0f32; cells];
     if balance > 0.0 && p > 0 {
         let mean_min = dist
             .chunks(cells)
@@ -35,24 +35,13 @@ pub fn couple(share: &[f32], dist: &[f32], balance: f32, eps: f32) -> Vec<usize>
         // KL-penalised unbalanced form, Chizat et al. 2018), potentials in log units.
         let log_p = (p as f32).ln();
         let target: Vec<f32> = share.iter().map(|s| s.max(1e-12).ln() + log_p).collect();
-        let mut log_u = vec![0.0f32; p];
-        let scheme = Sinkhorn {
-            units: Units::Log,
-            columns: Columns::F32Zero,
-            rho: balance,
-        };
-        let costs = Costs {
-            cost: dist,
-            index: None,
-            per: cells,
-            cols: cells,
-        };
-        let taus = std::iter::repeat_n(t, SINKHORN_ITERS);
-        scheme.run(costs, &target, taus, &mut log_u, &mut log_v);
+        let scaled: Vec<f32> = dist.iter().map(|d| d / t).collect();
+        let (log_v, _) = sinkhorn_scaling::run(&scaled, cells, balance, &target, SINKHORN_ITERS);
         return dist.chunks(cells).map(|row| best(row, &log_v, t)).collect();
     }
+    let zero = vec![0.0f32; cells];
     dist.chunks(cells)
-        .map(|row| best(row, &log_v, 1.0))
+        .map(|row| best(row, &zero, 1.0))
         .collect()
 }
 
