@@ -64,7 +64,7 @@ pub fn run(
     rounds: usize,
 ) -> (Vec<f32>, Rounds) {
     assert!(
-        per > 0 && scaled.len() % per == 0,
+        per > 0 && scaled.len().is_multiple_of(per),
         "a dense [rows, per] matrix"
     );
     assert_eq!(target.len(), per, "one marginal per column");
