@@ -10,9 +10,11 @@
 # mosaic from the keep benchmark's runs (its source views and default views must
 # exist: benches/quality/keep.toml). B_EVALUATE_FLAGS (default "--inception false")
 # are given to B's evaluate in the 16-view case, as the sample DAG does. Prints one line
-# per run; compares the two sample scene.ply files at the end.
+# per run; compares the two sample scene.ply files at the end. JOBS (default 2, as
+# scripts/run-sample.sh runs it) is the sample DAG's --jobs.
 set -euo pipefail
 A=$(realpath "$1"); B=$(realpath "$2"); PAIRS=${3:-3}; BFLAGS=${4:---inception false}
+JOBS=${JOBS:-2}
 HERE=$(cd "$(dirname "$0")/../.." && pwd)
 K=$HERE/benches/quality/runs-keep/bob_100k
 ST=$HERE/benches/quality/styles/mosaic.png
@@ -22,7 +24,7 @@ for r in $(seq "$PAIRS"); do
   for v in A B; do
     repo=$A; [ $v = B ] && repo=$B
     rm -rf "$W/sample" && mkdir "$W/sample" && cp -r "$repo/data-sample/." "$W/sample/"
-    t=$( (cd "$W/sample" && "$repo/target/release/pipeline" run --dag stylize.toml 2>&1) \
+    t=$( (cd "$W/sample" && "$repo/target/release/pipeline" run --dag stylize.toml --jobs "$JOBS" 2>&1) \
       | grep -o "ran [0-9]*, .*(.*s)" | grep -o "([0-9.]*s)")
     echo "sample $v run $r $t"
     cp "$W/sample/runs/final/scene.ply" "$W/scene_$v.ply"
