@@ -136,7 +136,6 @@ impl StyleLevel {
         let mut spaces = Vec::with_capacity(channels.len());
         let mut parts = vec![r.coords.clone()];
         for &(name, ch) in channels {
-            let _ph = crate::timing::span(name);
             let gp = stack(
                 each.iter()
                     .map(|e| e.channel(ch, p, stride))

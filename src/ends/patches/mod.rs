@@ -11,8 +11,8 @@
 //!    overlapping pixels are averaged into the view's target (Kwatra's E-step with his
 //!    robust weights, r = 0.8, and a Gaussian fall-off from each patch's centre).
 //! 2. **Balance**: the matches of all views are made together, through an entropic
-//!    coupling of the object's patches to the style bank's k-means cells (Sinkhorn in the
-//!    log domain, the cells' marginal their share of the bank relaxed by the exponent
+//!    coupling of the object's patches to the style bank's k-means cells (Sinkhorn's
+//!    iterations, [`crate::maths::sinkhorn_scaling`], the cells' marginal their share of the bank relaxed by the exponent
 //!    `balance`, the KL-penalised unbalanced form of Chizat et al. 2018); each patch takes
 //!    the nearest style patch of its cell. The patch prior balances its posterior the same
 //!    way (docs/patch-prior.md); without it the object takes the style's patches nearest
@@ -36,8 +36,8 @@
 //!
 //! Timing ([`crate::timing`], `pipeline report`): [`synthesize`] is the phase `patch
 //! synthesis`, its parts summed over the levels and rounds: `setup` (the colour fit's
-//! views, the source renders, the channels' source images), `style bank` (each level's
-//! [`level::StyleLevel`]), `render`, `queries`, `search`, `balance`, `stats`, `votes`
+//! views, the source renders, the channels' source images), `style bank` (every level's
+//! [`level::StyleLevel`], built at the start, the levels on all cores), `render`, `queries`, `search`, `balance`, `stats`, `votes`
 //! and `colour fit` (the Adam steps); a part's own work is under its name (`guide`,
 //! `negative`). Each level's wall time is in its log line.
 
@@ -192,15 +192,22 @@ pub fn synthesize(
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    for &s in &p.levels {
+    // Every level's style banks at once, the levels on all cores (each depends only on
+    // the styles and the frozen views).
+    let banks: Vec<Vec<StyleLevel>> = crate::timing::phase("style bank", || {
+        p.levels
+            .par_iter()
+            .map(|&s| {
+                let stride = if s == 1 { p.style_stride } else { 1 };
+                regions
+                    .iter()
+                    .map(|r| StyleLevel::new(&r.styles, style_size / s, p, stride, &src.parts))
+                    .collect::<Result<Vec<_>>>()
+            })
+            .collect::<Result<Vec<_>>>()
+    })?;
+    for (&s, levels) in p.levels.iter().zip(banks) {
         let started = std::time::Instant::now();
-        let stride = if s == 1 { p.style_stride } else { 1 };
-        let levels = crate::timing::phase("style bank", || {
-            regions
-                .iter()
-                .map(|r| StyleLevel::new(&r.styles, style_size / s, p, stride, &src.parts))
-                .collect::<Result<Vec<_>>>()
-        })?;
         let mut last = RoundStats::default();
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
@@ -655,8 +662,7 @@ mod tests {
             ("setup/colour fit", 1),
             ("setup/render", 1),
             ("setup/guide", 1),
-            ("style bank", 2),
-            ("style bank/guide", 2),
+            ("style bank", 1),
             ("render", 4),
             ("queries", 4),
             ("queries/guide", 4),
