@@ -192,20 +192,7 @@ pub fn synthesize(
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    // Every level's style banks at once, the levels on all cores (each depends only on
-    // the styles and the frozen views).
-    let banks: Vec<Vec<StyleLevel>> = crate::timing::phase("style bank", || {
-        p.levels
-            .par_iter()
-            .map(|&s| {
-                let stride = if s == 1 { p.style_stride } else { 1 };
-                regions
-                    .iter()
-                    .map(|r| StyleLevel::new(&r.styles, style_size / s, p, stride, &src.parts))
-                    .collect::<Result<Vec<_>>>()
-            })
-            .collect::<Result<Vec<_>>>()
-    })?;
+    let banks = crate::timing::phase("style bank", || style_banks(regions, style_size, p, &src))?;
     for (&s, levels) in p.levels.iter().zip(banks) {
         let started = std::time::Instant::now();
         let mut last = RoundStats::default();
@@ -246,6 +233,26 @@ pub fn synthesize(
     }
     bar.finish_and_clear();
     Ok((fit.scene().clone(), reports))
+}
+
+/// Every level's style bank of each region, the levels on all cores (each depends only
+/// on the styles and the frozen views), coarsest first.
+fn style_banks(
+    regions: &[RegionStyle<'_>],
+    style_size: usize,
+    p: &SynthesisParams,
+    src: &Frozen,
+) -> Result<Vec<Vec<StyleLevel>>> {
+    p.levels
+        .par_iter()
+        .map(|&s| {
+            let stride = if s == 1 { p.style_stride } else { 1 };
+            regions
+                .iter()
+                .map(|r| StyleLevel::new(&r.styles, style_size / s, p, stride, &src.parts))
+                .collect::<Result<Vec<_>>>()
+        })
+        .collect()
 }
 
 /// The synthesis's set-up ([`synthesize`]'s arguments; `sizes` (H, W) per camera): the
