@@ -10,11 +10,9 @@
 //! g_c =  tau rho (t_c - lse_q((f_q - C_qc) / tau))  (columns: sums pushed to exp(t_c))
 //! ```
 //!
-//! with rho = 1 the balanced problem and rho < 1 its KL relaxation. The potentials are
-//! kept either in cost units (as written) or in log units (f / tau, g / tau:
-//! `f_q = -lse_c(g_c - C_qc / tau)`, `g_c = rho (t_c - lse_q(f_q - C_qc / tau))`); the
-//! two are the same coupling but not the same floating-point operations, so
-//! [`Sinkhorn::units`] says which a caller computes. The costs are a dense matrix or, per
+//! with rho = 1 the balanced problem and rho < 1 its KL relaxation, the potentials in
+//! cost units (the patch prior's cell coupling). The synthesis's balance, in log units at
+//! one temperature, is [`super::sinkhorn_scaling`]'s. The costs are a dense matrix or, per
 //! row, a short list of columns ([`Costs`]).
 //!
 //! Every function here keeps its callers' float type and order of operations: a max
@@ -80,32 +78,11 @@ impl Costs<'_> {
     }
 }
 
-/// The units of the potentials (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Units {
-    /// f, g in cost units: terms (g - C) / tau, f = -tau lse.
-    Cost,
-    /// f, g in log units: terms g - C / tau, f = -lse.
-    Log,
-}
-
-/// How a column's log-sum-exp is summed and what a column whose sum is not usable gets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Columns {
-    /// The shifted exponentials summed in f64; a column with no positive sum (no entry,
-    /// or a non-finite maximum) keeps its potential.
-    F64Keep,
-    /// Summed in f32 as [`logsumexp`]; a column whose log-sum-exp is not finite gets
-    /// potential 0.
-    F32Zero,
-}
-
-/// One log-domain Sinkhorn scheme: the potentials' units, the column sums, and the
-/// column relaxation `rho` (1: balanced).
+/// One log-domain Sinkhorn scheme in cost units, its column log-sum-exps summed in f64
+/// (a column with no positive sum, no entry or a non-finite maximum, keeps its
+/// potential), with the column relaxation `rho` (1: balanced).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sinkhorn {
-    pub units: Units,
-    pub columns: Columns,
     pub rho: f32,
 }
 
@@ -129,15 +106,11 @@ impl Sinkhorn {
     /// The row potentials `f` (every row's mass 1) given the column potentials `g`.
     pub fn rows(&self, costs: Costs<'_>, g: &[f32], f: &mut [f32], tau: f32) {
         let per = costs.per;
-        let units = self.units;
         f.par_iter_mut().enumerate().for_each(|(i, fi)| {
             let entries = i * per..(i + 1) * per;
             let cost = &costs.cost[entries.clone()];
             let terms = entries.map(|e| (costs.col(e), e - i * per));
-            *fi = match units {
-                Units::Cost => -tau * logsumexp(terms.map(|(c, l)| (g[c] - cost[l]) / tau)),
-                Units::Log => -logsumexp(terms.map(|(c, l)| g[c] - cost[l] / tau)),
-            };
+            *fi = -tau * logsumexp(terms.map(|(c, l)| (g[c] - cost[l]) / tau));
         });
     }
 
@@ -145,82 +118,21 @@ impl Sinkhorn {
     /// over its entries (rows in order), then `g_c` from `target_c` (module docs).
     pub fn columns(&self, costs: Costs<'_>, f: &[f32], target: &[f32], g: &mut [f32], tau: f32) {
         let (k, per) = (costs.cols, costs.per);
-        let term = |e: usize| {
-            let fi = f[e / per];
-            match self.units {
-                Units::Cost => (fi - costs.cost[e]) / tau,
-                Units::Log => fi - costs.cost[e] / tau,
-            }
-        };
+        let term = |e: usize| (f[e / per] - costs.cost[e]) / tau;
         let n = costs.cost.len();
         let mut col_max = vec![f32::NEG_INFINITY; k];
         for e in 0..n {
             let c = costs.col(e);
             col_max[c] = col_max[c].max(term(e));
         }
-        let scale = match self.units {
-            Units::Cost => tau * self.rho,
-            Units::Log => self.rho,
-        };
-        match self.columns {
-            Columns::F64Keep => {
-                let mut col = vec![0.0f64; k];
-                for e in 0..n {
-                    let c = costs.col(e);
-                    col[c] += (term(e) - col_max[c]).exp() as f64;
-                }
-                for c in 0..k {
-                    if col[c] > 0.0 {
-                        g[c] = scale * (target[c] - (col_max[c] + (col[c] as f32).ln()));
-                    }
-                }
-            }
-            Columns::F32Zero if costs.index.is_none() => {
-                // Dense costs: each column on its own thread, its rows in order (the
-                // same max and the same sums as the row-major pass below).
-                let dense = |c: usize| (0..n / per.max(1)).map(move |i| term(i * per + c));
-                let lse: Vec<f32> = (0..k)
-                    .into_par_iter()
-                    .map(|c| {
-                        let top = col_max[c];
-                        if top.is_finite() {
-                            top + dense(c)
-                                .map(|v| (v - top).exp())
-                                .fold(0.0f32, |a, b| a + b)
-                                .ln()
-                        } else {
-                            top
-                        }
-                    })
-                    .collect();
-                for c in 0..k {
-                    g[c] = if lse[c].is_finite() {
-                        scale * (target[c] - lse[c])
-                    } else {
-                        0.0
-                    };
-                }
-            }
-            Columns::F32Zero => {
-                let mut col = vec![0.0f32; k];
-                for e in 0..n {
-                    let c = costs.col(e);
-                    if col_max[c].is_finite() {
-                        col[c] += (term(e) - col_max[c]).exp();
-                    }
-                }
-                for c in 0..k {
-                    let lse = if col_max[c].is_finite() {
-                        col_max[c] + col[c].ln()
-                    } else {
-                        col_max[c]
-                    };
-                    g[c] = if lse.is_finite() {
-                        scale * (target[c] - lse)
-                    } else {
-                        0.0
-                    };
-                }
+        let mut col = vec![0.0f64; k];
+        for e in 0..n {
+            let c = costs.col(e);
+            col[c] += (term(e) - col_max[c]).exp() as f64;
+        }
+        for c in 0..k {
+            if col[c] > 0.0 {
+                g[c] = tau * self.rho * (target[c] - (col_max[c] + (col[c] as f32).ln()));
             }
         }
     }
@@ -322,11 +234,7 @@ mod tests {
                 per: near,
                 cols: k,
             };
-            let scheme = Sinkhorn {
-                units: Units::Cost,
-                columns: Columns::F64Keep,
-                rho: 1.0,
-            };
+            let scheme = Sinkhorn { rho: 1.0 };
             let (mut f, mut g) = (vec![0.0f32; q], vec![0.0f32; k]);
             scheme.run(
                 costs,
@@ -338,81 +246,6 @@ mod tests {
             scheme.rows(costs, &g, &mut f, cold);
             assert_eq!(bits(&f), bits(&f0));
             assert_eq!(bits(&g), bits(&g0));
-        }
-    }
-
-    /// `distill::synthesis`'s balanced assignment loop as written there (dense rows, log
-    /// units, f32 column log-sum-exp, relaxed by `balance`): its column potentials.
-    fn inline_dense(dist: &[f32], share: &[f32], balance: f32, t: f32, iters: usize) -> Vec<f32> {
-        let cells = share.len();
-        let p = dist.len() / cells;
-        let mut log_v = vec![0.0f32; cells];
-        let log_share: Vec<f32> = share.iter().map(|s| s.max(1e-12).ln()).collect();
-        let mut log_u = vec![0.0f32; p];
-        for _ in 0..iters {
-            log_u
-                .par_iter_mut()
-                .zip(dist.par_chunks(cells))
-                .for_each(|(u, row)| {
-                    *u = -logsumexp(row.iter().zip(&log_v).map(|(&d, &v)| v - d / t));
-                });
-            let col: Vec<f32> = (0..cells)
-                .into_par_iter()
-                .map(|c| {
-                    logsumexp(
-                        dist.chunks(cells)
-                            .zip(&log_u)
-                            .map(|(row, &u)| u - row[c] / t),
-                    )
-                })
-                .collect();
-            let log_p = (p as f32).ln();
-            for c in 0..cells {
-                log_v[c] = if col[c].is_finite() {
-                    balance * (log_share[c] + log_p - col[c])
-                } else {
-                    0.0
-                };
-            }
-        }
-        log_v
-    }
-
-    #[test]
-    fn the_dense_log_unit_scheme_is_the_synthesis_loop_bit_for_bit() {
-        let mut r = Rng::new(5);
-        let (p, cells) = (200, 16);
-        let mut dist = uniform(&mut r, p * cells, 4.0);
-        // A column no row can reach (potential 0 in both).
-        for i in 0..p {
-            dist[i * cells + 3] = f32::INFINITY;
-        }
-        let share: Vec<f32> = (0..cells).map(|c| (c + 1) as f32 / 136.0).collect();
-        for (balance, t, iters) in [(0.5, 0.3, 30), (1.0, 1.7, 30), (0.1, 0.02, 5)] {
-            let v0 = inline_dense(&dist, &share, balance, t, iters);
-            let log_p = (p as f32).ln();
-            let target: Vec<f32> = share.iter().map(|s| s.max(1e-12).ln() + log_p).collect();
-            let scheme = Sinkhorn {
-                units: Units::Log,
-                columns: Columns::F32Zero,
-                rho: balance,
-            };
-            let costs = Costs {
-                cost: &dist,
-                index: None,
-                per: cells,
-                cols: cells,
-            };
-            let (mut u, mut v) = (vec![0.0f32; p], vec![0.0f32; cells]);
-            scheme.run(
-                costs,
-                &target,
-                std::iter::repeat_n(t, iters),
-                &mut u,
-                &mut v,
-            );
-            assert_eq!(bits(&v), bits(&v0));
-            assert_eq!(v[3], 0.0);
         }
     }
 

@@ -1,6 +1,7 @@
-//! The synthesis's balance ([`crate::ends::patches::couple`]): rounds of dense, log-unit,
-//! `rho`-relaxed Sinkhorn at one temperature (the potentials of
-//! [`super::sinkhorn::Sinkhorn`] with `Units::Log` and `Columns::F32Zero`), computed in
+//! The synthesis's balance ([`crate::ends::patches::couple`]): rounds of dense,
+//! `rho`-relaxed Sinkhorn at one temperature in log units (`f_q = -lse_c(g_c - C_qc / tau)`,
+//! `g_c = rho (t_c - lse_q(f_q - C_qc / tau))`, 0 where that log-sum-exp is not finite;
+//! [`super::sinkhorn`]'s rounds with the potentials over tau), computed in
 //! the scaling form with absorption (Schmitzer 2019, section 4.1) instead of the log
 //! domain.
 //!
@@ -22,8 +23,9 @@
 //! below `COLUMN_FLOOR` (a cell no patch is near yet, or an empty one) takes its
 //! log-sum-exp in the log domain, in f64.
 //!
-//! The result is not bit for bit the log domain's (it rounds differently): its potentials
-//! agree to about 1e-5 in log units (the tests), and the assignment that follows
+//! The result is not bit for bit the f32 log-domain loop's that the balance ran before
+//! (it rounds differently): its potentials agree with the log domain in f64 to about
+//! 1e-5 in log units (the tests), and the assignment that follows
 //! (each patch's most favoured cell) differs only where two cells tie to that precision
 //! (BENCHMARKS.md "The sample DAG's wall time" gives the count on the sample).
 //!
@@ -87,6 +89,7 @@ pub fn run(
         kernels: 0,
         log_columns: 0,
     };
+    let (hi, lo) = (ABSORB.exp(), (-ABSORB).exp());
     let mut stale = true;
     for _ in 0..rounds {
         if stale {
@@ -94,7 +97,6 @@ pub fn run(
             stats.kernels += 1;
         }
         row_scalings(&kernel, per, &b, &mut a);
-        let (hi, lo) = (ABSORB.exp(), (-ABSORB).exp());
         if a.iter().any(|&x| x > 0.0 && (x > hi || x < lo)) {
             // Absorb the rows (and the columns with them) and make the kernel again
             // before the column pass.
@@ -229,29 +231,38 @@ fn column_lse(scaled: &[f32], per: usize, c: usize, fh: &[f64], a: &[f64]) -> f6
 
 #[cfg(test)]
 mod tests {
-    use super::super::sinkhorn::{Columns, Costs, Sinkhorn, Units};
     use crate::rng::Rng;
 
-    /// The log-domain rounds (the generic passes of [`Sinkhorn`]) on the same matrix.
+    /// The log-domain rounds, written out in f64 (`f_q = -lse_c(g_c - s_qc)`,
+    /// `g_c = rho (t_c - lse_q(f_q - s_qc))`, 0 where that log-sum-exp is not finite): the
+    /// potentials the scaling form must give.
     fn log_domain(scaled: &[f32], per: usize, rho: f32, target: &[f32], rounds: usize) -> Vec<f32> {
+        let lse = |xs: &mut dyn Iterator<Item = f64>| {
+            let v: Vec<f64> = xs.collect();
+            let top = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if top.is_finite() {
+                top + v.iter().map(|x| (x - top).exp()).sum::<f64>().ln()
+            } else {
+                top
+            }
+        };
         let p = scaled.len() / per;
-        let scheme = Sinkhorn {
-            units: Units::Log,
-            columns: Columns::F32Zero,
-            rho,
-        };
-        let costs = Costs {
-            cost: scaled,
-            index: None,
-            per,
-            cols: per,
-        };
-        let (mut f, mut g) = (vec![0.0f32; p], vec![0.0f32; per]);
+        let s = |q: usize, c: usize| scaled[q * per + c] as f64;
+        let (mut f, mut g) = (vec![0.0f64; p], vec![0.0f64; per]);
         for _ in 0..rounds {
-            scheme.rows(costs, &g, &mut f, 1.0);
-            scheme.columns(costs, &f, target, &mut g, 1.0);
+            for q in 0..p {
+                f[q] = -lse(&mut (0..per).map(|c| g[c] - s(q, c)));
+            }
+            for c in 0..per {
+                let l = lse(&mut (0..p).map(|q| f[q] - s(q, c)));
+                g[c] = if l.is_finite() {
+                    rho as f64 * (target[c] as f64 - l)
+                } else {
+                    0.0
+                };
+            }
         }
-        g
+        g.iter().map(|&x| x as f32).collect()
     }
 
     /// A `[p, per]` problem: costs over the temperature spread up to `spread`, column

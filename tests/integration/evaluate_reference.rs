@@ -49,9 +49,8 @@ fn a_reference_gives_the_same_metrics_and_a_foreign_one_is_refused() {
     })
     .unwrap()
     .unwrap();
-    let read = |d: &Path| std::fs::read(d.join("metrics.json")).unwrap();
     assert!(
-        read(&full) == read(&via),
+        metrics_json(&full) == metrics_json(&via),
         "metrics.json differs with the reference"
     );
     let manifest = std::fs::read_to_string(via.join("manifest.json")).unwrap();
@@ -231,7 +230,6 @@ fn the_reference_parts_give_the_whole_references_metrics() {
         "{}",
         String::from_utf8_lossy(&made.stderr)
     );
-    let read = |d: &Path| std::fs::read(d.join("metrics.json")).unwrap();
     for (i, refs) in [
         vec![source.clone(), style_part.clone()],
         vec![style_part.clone(), source.clone()],
@@ -247,7 +245,7 @@ fn the_reference_parts_give_the_whole_references_metrics() {
         .unwrap()
         .unwrap();
         assert!(
-            read(&via_whole) == read(&via),
+            metrics_json(&via_whole) == metrics_json(&via),
             "metrics.json differs with the two parts ({i})"
         );
     }
@@ -403,9 +401,8 @@ fn the_inception_measures_off_change_no_other_measure() {
     })
     .unwrap()
     .unwrap();
-    let read = |d: &Path| std::fs::read(d.join("metrics.json")).unwrap();
     assert!(
-        read(&via) == read(&off),
+        metrics_json(&via) == metrics_json(&off),
         "metrics.json differs through the parts"
     );
 
@@ -427,4 +424,9 @@ fn the_inception_measures_off_change_no_other_measure() {
     assert!(err.contains("inception true vs false"), "{err}");
     assert!(err.contains(whole.to_str().unwrap()), "{err}");
     assert!(!out.exists(), "nothing written on a refused reference");
+}
+
+/// The bytes of `metrics.json` in evaluation directory `d`.
+fn metrics_json(d: &Path) -> Vec<u8> {
+    std::fs::read(d.join("metrics.json")).unwrap()
 }

@@ -27,8 +27,7 @@
 
 use super::bank::{Bank, row_norms};
 use crate::maths::sinkhorn::{
-    Columns, Costs, Sinkhorn, Units, epsilon_scaling, logsumexp, shifted_exp, shifted_exp_f64,
-    softmax_into,
+    Costs, Sinkhorn, epsilon_scaling, logsumexp, shifted_exp, shifted_exp_f64, softmax_into,
 };
 use ndarray::{Array2, ArrayView2, ArrayView3, ArrayView4, Axis, s};
 use rayon::prelude::*;

@@ -191,11 +191,7 @@ impl CellSearch<'_> {
             per: near,
             cols: k,
         };
-        let scheme = Sinkhorn {
-            units: Units::Cost,
-            columns: Columns::F64Keep,
-            rho: 1.0,
-        };
+        let scheme = Sinkhorn { rho: 1.0 };
         scheme.run(
             costs,
             &share,
