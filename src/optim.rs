@@ -27,7 +27,7 @@ pub use adam::{Adam, AdamState, OptimizerState};
 pub use colour_fit::{ColourFit, ParViewLoss, ViewLoss, fit_colours};
 pub use fit::{FitParams, FitReport};
 pub use loss::{
-    LossParams, LossScratch, SSIM_C1, SSIM_C2, loss_and_grad, loss_and_grad_into, psnr, ssim,
+    LossParams, LossScratch, SSIM_C1, SSIM_C2, l2, loss_and_grad, loss_and_grad_into, psnr, ssim,
 };
 
 #[cfg(test)]

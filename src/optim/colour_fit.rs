@@ -46,6 +46,9 @@ type SeqLoss<'a> =
 enum Losses<'a, 'b> {
     Parallel(&'a StepLoss<'b>),
     InOrder(&'a mut SeqLoss<'b>),
+    /// The mean squared error against these targets (one per camera), on all cores;
+    /// cached views fuse it into their forward and backward ([`ViewCache::l2_backward`]).
+    L2(&'a [Vec<f32>]),
 }
 
 /// Image buffers of one view's step: the render (cached views), dL/drgb, the loss planes.
@@ -317,6 +320,22 @@ impl<'a> ColourFit<'a> {
         self.step_over(views, Losses::Parallel(&loss))
     }
 
+    /// One Adam step over all views with the mean squared error against `targets` (one
+    /// `[H, W, 3]` image per camera) as each view's loss: [`Self::step_views_par`] with
+    /// [`super::l2`], the same step bit for bit (the returned loss may differ in its
+    /// last digits: a cached view sums it tile by tile). The patch synthesis's step.
+    pub fn step_l2(&mut self, targets: &[Vec<f32>]) -> Result<f64> {
+        if targets.len() != self.cameras.len() {
+            return Err(Error::param(format!(
+                "step_l2: {} targets for {} cameras",
+                targets.len(),
+                self.cameras.len()
+            )));
+        }
+        let all: Vec<usize> = (0..self.cameras.len()).collect();
+        self.step_over(&all, Losses::L2(targets))
+    }
+
     /// One step: for every view (in parallel or in order, see [`Losses`]), colours,
     /// render, the loss (which leaves dL/drgb in the buffers' `grad`), colour and SH
     /// backward; then the Adam update.
@@ -366,14 +385,7 @@ impl<'a> ColourFit<'a> {
         let window = crate::parallel::window_for(rayon::current_num_threads()).max(8);
         let mut first_err = None;
         for chunk in views.chunks(window) {
-            let outs: Vec<Result<ViewGradOwned<'_>>> = match &mut losses {
-                Losses::Parallel(f) => chunk
-                    .par_iter()
-                    .map(|&v| self.view_grad(v, &mut |v, b, rgb, alpha| f(v, b, rgb, alpha)))
-                    .collect(),
-                Losses::InOrder(f) => chunk.iter().map(|&v| self.view_grad(v, &mut **f)).collect(),
-            };
-            let outs: Vec<ViewGradOwned<'_>> = match outs.into_iter().collect() {
+            let outs: Vec<ViewGradOwned<'_>> = match self.view_grads(chunk, &mut losses) {
                 Ok(o) => o,
                 Err(e) => {
                     first_err = Some(e);
@@ -434,6 +446,26 @@ impl<'a> ColourFit<'a> {
         Ok((loss, gdc))
     }
 
+    /// [`Self::view_grad`] (or [`Self::view_grad_l2`]) of each view of `chunk`, in
+    /// parallel unless the loss must be called in order; the first error if any.
+    fn view_grads(
+        &self,
+        chunk: &[usize],
+        losses: &mut Losses<'_, '_>,
+    ) -> Result<Vec<ViewGradOwned<'_>>> {
+        match losses {
+            Losses::Parallel(f) => chunk
+                .par_iter()
+                .map(|&v| self.view_grad(v, &mut |v, b, rgb, alpha| f(v, b, rgb, alpha)))
+                .collect(),
+            Losses::InOrder(f) => chunk.iter().map(|&v| self.view_grad(v, &mut **f)).collect(),
+            Losses::L2(targets) => chunk
+                .par_iter()
+                .map(|&v| self.view_grad_l2(v, &targets[v]))
+                .collect(),
+        }
+    }
+
     /// Forward, loss and colour backward of view `v`.
     fn view_grad<'s>(&'s self, v: usize, loss: &mut SeqLoss<'_>) -> Result<ViewGradOwned<'s>> {
         let p = &self.params;
@@ -475,6 +507,40 @@ impl<'a> ColourFit<'a> {
         };
         self.bufs.put(b);
         r
+    }
+
+    /// [`Self::view_grad`] with the mean squared error against `target` as the loss,
+    /// fused into the forward and backward when the view is cached.
+    fn view_grad_l2<'s>(&'s self, v: usize, target: &[f32]) -> Result<ViewGradOwned<'s>> {
+        let (h, w) = (
+            self.cameras[v].height as usize,
+            self.cameras[v].width as usize,
+        );
+        if target.len() != h * w * 3 {
+            return Err(Error::param(format!(
+                "step_l2: view {v}'s target has {} values for {h}x{w}x3",
+                target.len()
+            )));
+        }
+        let ViewState::Cached { cache, .. } = &self.states[v] else {
+            return self.view_grad(v, &mut |_, b, rgb, _| {
+                let (l, g) = super::l2(rgb.unwrap_or(&b.rgb), target);
+                b.grad = g;
+                Ok(l)
+            });
+        };
+        let centre = self.cameras[v].center();
+        let ids = cache.gaussians();
+        let raw = raw_colours(&self.scene, ids, centre);
+        let (loss, grad_c) =
+            cache.l2_backward(&clamp_colours(&raw), self.params.background, target);
+        Ok(ViewGradOwned {
+            loss,
+            ids: std::borrow::Cow::Borrowed(ids),
+            centre,
+            grad_c,
+            raw,
+        })
     }
 
     /// Camera `v`'s render `[H, W, 3]` with the current colours (the cached forward

@@ -351,6 +351,25 @@ pub fn ssim(a: &[f32], b: &[f32], h: usize, w: usize) -> f32 {
     1.0 - l
 }
 
+/// The mean squared error of `rgb` against `target` over every value, and its gradient
+/// `2 (rgb - target) / n` (the patch synthesis's loss; [`crate::render::ViewCache::l2_backward`]
+/// fuses it into the cached views' forward and backward).
+pub fn l2(rgb: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
+    let n = rgb.len().max(1) as f32;
+    let grad: Vec<f32> = rgb
+        .iter()
+        .zip(target)
+        .map(|(a, b)| 2.0 * (a - b) / n)
+        .collect();
+    let loss = rgb
+        .iter()
+        .zip(target)
+        .map(|(a, b)| ((a - b) * (a - b)) as f64)
+        .sum::<f64>()
+        / n as f64;
+    (loss, grad)
+}
+
 /// PSNR in dB of `a` against `b` (values in [0, 1]).
 pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
     let mse = a

@@ -230,3 +230,62 @@ fn fit_is_identical_for_any_thread_count() {
         assert_eq!(hooked.0, fits[0].0);
     }
 }
+
+/// [`ColourFit::step_l2`] (cached views fused, the rest through [`l2`]) moves the scene
+/// exactly as the hook path with [`l2`] does, for every cache mode and thread count; its
+/// losses agree to rounding (a cached view sums them tile by tile).
+#[test]
+fn step_l2_is_the_hook_path_with_l2() {
+    let scene = random_scene(700, 1, 57);
+    let cams: Vec<Camera> = (0..5)
+        .map(|i| {
+            let mut c = front_camera(53, 37, 50.0, 3.0);
+            c.translation[0] = i as f32 * 0.15 - 0.3;
+            c
+        })
+        .collect();
+    let mut rng = Rng::new(8);
+    let targets: Vec<Vec<f32>> = cams.iter().map(|_| image(&mut rng, 53 * 37 * 3)).collect();
+    let pool = |n: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+    };
+    let all: Vec<usize> = (0..cams.len()).collect();
+    for cache in [CacheMode::On, CacheMode::Off, CacheMode::Budget(40_000)] {
+        let p = FitParams {
+            lr_dc: 0.05,
+            lr_rest: 0.01,
+            cache,
+            ..Default::default()
+        };
+        let hooked = pool(2).install(|| {
+            let mut fit = ColourFit::without_targets(&scene, &cams, &p).unwrap();
+            let losses: Vec<f64> = (0..4)
+                .map(|_| {
+                    fit.step_views_par(&all, &|v, rgb, _| Ok(l2(rgb, &targets[v])))
+                        .unwrap()
+                })
+                .collect();
+            (fit.scene().clone(), losses)
+        });
+        for threads in [1, 3] {
+            let (s, losses) = pool(threads).install(|| {
+                let mut fit = ColourFit::without_targets(&scene, &cams, &p).unwrap();
+                let losses: Vec<f64> = (0..4).map(|_| fit.step_l2(&targets).unwrap()).collect();
+                (fit.scene().clone(), losses)
+            });
+            assert_eq!(s, hooked.0, "{cache:?}, {threads} threads");
+            assert_ne!(s.sh_dc, scene.sh_dc);
+            for (a, b) in losses.iter().zip(&hooked.1) {
+                assert!((a - b).abs() <= 1e-12 * b, "{cache:?}: loss {a} vs {b}");
+            }
+        }
+    }
+    let mut fit = ColourFit::without_targets(&scene, &cams, &FitParams::default()).unwrap();
+    assert!(fit.step_l2(&targets[..4]).is_err());
+    let mut short = targets.clone();
+    short[2].pop();
+    assert!(fit.step_l2(&short).is_err());
+}

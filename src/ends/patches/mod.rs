@@ -204,7 +204,7 @@ pub fn synthesize(
             let (targets, stats) = e_step(&renders, &sizes, &levels, s, &src, p);
             let fit_phase = crate::timing::span("colour fit");
             for _ in 0..p.steps {
-                last.loss = fit.step_views_par(&all, &|v, rgb, _| Ok(l2(rgb, &targets[v])))?;
+                last.loss = fit.step_l2(&targets)?;
             }
             drop(fit_phase);
             (last.distance, last.cells_used) = (stats.distance, stats.cells_used);
@@ -568,23 +568,6 @@ fn e_step(
 
 /// The coupling's temperature relative to the mean nearest distance.
 pub(super) const BALANCE_EPS: f32 = 0.1;
-
-/// The mean squared error of `rgb` against `target` and its gradient.
-fn l2(rgb: &[f32], target: &[f32]) -> (f64, Vec<f32>) {
-    let n = rgb.len().max(1) as f32;
-    let grad: Vec<f32> = rgb
-        .iter()
-        .zip(target)
-        .map(|(a, b)| 2.0 * (a - b) / n)
-        .collect();
-    let loss = rgb
-        .iter()
-        .zip(target)
-        .map(|(a, b)| ((a - b) * (a - b)) as f64)
-        .sum::<f64>()
-        / n as f64;
-    (loss, grad)
-}
 
 #[cfg(test)]
 mod tests {
