@@ -7,6 +7,7 @@
 //! (log units, the patch prior's denoiser's scheme) in the scaling form, at one temperature.
 
 use crate::maths::sinkhorn_scaling;
+use rayon::prelude::*;
 
 /// Each query's cell under the balanced coupling of its distances `dist`
 /// `[P x cells]` to the cells' nearest patches, the cells' shares of the bank `share`
@@ -25,19 +26,23 @@ pub fn couple(share: &[f32], dist: &[f32], balance: f32, eps: f32) -> Vec<usize>
         b.0
     };
     if balance > 0.0 && p > 0 {
-        let mean_min = dist
-            .chunks(cells)
-            .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min) as f64)
-            .sum::<f64>()
-            / p as f64;
+        // The rows' minima on all cores, their sum in row order.
+        let mins: Vec<f32> = dist
+            .par_chunks(cells)
+            .map(|r| r.iter().copied().fold(f32::INFINITY, f32::min))
+            .collect();
+        let mean_min = mins.iter().map(|&m| m as f64).sum::<f64>() / p as f64;
         let t = (eps as f64 * mean_min).max(1e-6) as f32;
         // The cells' marginal p share_c, relaxed by the exponent rho = balance (the
         // KL-penalised unbalanced form, Chizat et al. 2018), potentials in log units.
         let log_p = (p as f32).ln();
         let target: Vec<f32> = share.iter().map(|s| s.max(1e-12).ln() + log_p).collect();
-        let scaled: Vec<f32> = dist.iter().map(|d| d / t).collect();
+        let scaled: Vec<f32> = dist.par_iter().map(|d| d / t).collect();
         let (log_v, _) = sinkhorn_scaling::run(&scaled, cells, balance, &target, SINKHORN_ITERS);
-        return dist.chunks(cells).map(|row| best(row, &log_v, t)).collect();
+        return dist
+            .par_chunks(cells)
+            .map(|row| best(row, &log_v, t))
+            .collect();
     }
     let zero = vec![0.0f32; cells];
     dist.chunks(cells)

@@ -38,6 +38,7 @@
 use super::SynthesisParams;
 use super::guide::{blur, source_guides, style_moments};
 use crate::imageio::Image;
+use rayon::prelude::*;
 
 /// The detail layer's weight `k`: `synthesis.detail` times the structure's weight
 /// `synthesis.control` (0: the unguided end, no guide and no detail).
@@ -64,7 +65,7 @@ pub fn source_detail(
 ) -> Vec<Vec<f32>> {
     let g = source_guides(rgb, alpha, sizes, background, &style_moments(style));
     let (mut d, bases): (Vec<Vec<f32>>, Vec<Vec<f32>>) = g
-        .into_iter()
+        .into_par_iter()
         .zip(alpha)
         .zip(sizes)
         .map(|((g, a), &size)| {
@@ -95,12 +96,12 @@ pub fn source_detail(
         d.iter_mut().flatten().for_each(|v| *v *= k);
     }
     if p.shade_blur > 0.0 {
-        for (((d, base), a), &size) in d.iter_mut().zip(bases).zip(alpha).zip(sizes) {
+        (d.par_iter_mut().zip(bases).zip(alpha).zip(sizes)).for_each(|(((d, base), a), &size)| {
             let coarse = blur(base.clone(), size, shade_sigma(p));
             for (((d, b), c), a) in d.iter_mut().zip(&base).zip(&coarse).zip(a) {
                 *d += a * (b - c);
             }
-        }
+        });
     }
     d
 }
