@@ -24,6 +24,8 @@ for r in $(seq "$PAIRS"); do
   for v in A B; do
     repo=$A; [ $v = B ] && repo=$B
     rm -rf "$W/sample" && mkdir "$W/sample" && cp -r "$repo/data-sample/." "$W/sample/"
+    # A fresh work directory: none of the checkout's earlier runs, records or locks.
+    rm -rf "$W/sample/runs" "$W/sample/.pipeline" "$W/sample/"*.lock
     t=$( (cd "$W/sample" && "$repo/target/release/pipeline" run --dag stylize.toml --jobs "$JOBS" 2>&1) \
       | grep -o "ran [0-9]*, .*(.*s)" | grep -o "([0-9.]*s)")
     echo "sample $v run $r $t"
