@@ -24,7 +24,7 @@ mod fit;
 mod loss;
 
 pub use adam::{Adam, AdamState, OptimizerState};
-pub use colour_fit::{ColourFit, ParViewLoss, ViewLoss, fit_colours};
+pub use colour_fit::{ColourFit, ViewLoss, fit_colours};
 pub use fit::{FitParams, FitReport};
 pub use loss::{
     LossParams, LossScratch, SSIM_C1, SSIM_C2, l2, loss_and_grad, loss_and_grad_into, psnr, ssim,

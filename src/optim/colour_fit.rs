@@ -27,11 +27,6 @@ enum ViewState {
 /// A per-view loss for [`ColourFit::step_with`]: `(view, rgb, alpha) -> (loss, dL/drgb)`.
 pub type ViewLoss<'a> = dyn FnMut(usize, &[f32], Option<&[f32]>) -> Result<(f64, Vec<f32>)> + 'a;
 
-/// A per-view loss for [`ColourFit::step_views_par`]: [`ViewLoss`], called from
-/// several threads at once.
-pub type ParViewLoss<'a> =
-    dyn Fn(usize, &[f32], Option<&[f32]>) -> Result<(f64, Vec<f32>)> + Sync + 'a;
-
 /// A view's loss inside a step: `loss(v, bufs, rgb, alpha)` reads the render from
 /// `rgb`, or from `bufs.rgb` when `rgb` is `None` (cached views render into the
 /// buffers), and leaves dL/drgb in `bufs.grad`.
@@ -306,24 +301,11 @@ impl<'a> ColourFit<'a> {
         self.step_over(views, Losses::InOrder(&mut loss))
     }
 
-    /// [`Self::step_views`] with a thread-safe per-view loss, called for the views in
-    /// parallel (a window at a time); the losses and the gradients are still added in
-    /// the order of `views`, so the step is bit for bit [`Self::step_views`]'s with the
-    /// same loss, for any thread count. The patch synthesis steps on all views this way.
-    pub fn step_views_par(&mut self, views: &[usize], view_loss: &ParViewLoss<'_>) -> Result<f64> {
-        let loss = |v: usize, b: &mut ViewBufs, rgb: Option<&[f32]>, alpha: Option<&[f32]>| {
-            let rgb = rgb.unwrap_or(&b.rgb);
-            let (l, g) = view_loss(v, rgb, alpha)?;
-            b.grad = g;
-            Ok(l)
-        };
-        self.step_over(views, Losses::Parallel(&loss))
-    }
-
     /// One Adam step over all views with the mean squared error against `targets` (one
-    /// `[H, W, 3]` image per camera) as each view's loss: [`Self::step_views_par`] with
-    /// [`super::l2`], the same step bit for bit (the returned loss may differ in its
-    /// last digits: a cached view sums it tile by tile). The patch synthesis's step.
+    /// `[H, W, 3]` image per camera, no alpha mask) as each view's loss, the views in
+    /// parallel: [`Self::step_views`] with [`super::l2`] over all views, the same step bit
+    /// for bit (the returned loss may differ in its last digits: a cached view sums it
+    /// tile by tile). The patch synthesis's step.
     pub fn step_l2(&mut self, targets: &[Vec<f32>]) -> Result<f64> {
         if targets.len() != self.cameras.len() {
             return Err(Error::param(format!(

@@ -231,8 +231,8 @@ fn fit_is_identical_for_any_thread_count() {
     }
 }
 
-/// [`ColourFit::step_l2`] (cached views fused, the rest through [`l2`]) moves the scene
-/// exactly as the hook path with [`l2`] does, for every cache mode and thread count; its
+/// [`ColourFit::step_l2`] (cached views fused, the rest through [`l2`], the views in
+/// parallel) moves the scene exactly as the in-order hook path with [`l2`] does, for every cache mode and thread count; its
 /// losses agree to rounding (a cached view sums them tile by tile).
 #[test]
 fn step_l2_is_the_hook_path_with_l2() {
@@ -264,7 +264,7 @@ fn step_l2_is_the_hook_path_with_l2() {
             let mut fit = ColourFit::without_targets(&scene, &cams, &p).unwrap();
             let losses: Vec<f64> = (0..4)
                 .map(|_| {
-                    fit.step_views_par(&all, &|v, rgb, _| Ok(l2(rgb, &targets[v])))
+                    fit.step_views(&all, &mut |v, rgb, _| Ok(l2(rgb, &targets[v])))
                         .unwrap()
                 })
                 .collect();
