@@ -2,7 +2,7 @@
 """Independent float64 reference of interior structure, edge recall, motif contrast and
 style texture (issue 53; numpy only).
 
-    interior_ref.py SOURCE_VIEWS STYLIZED_VIEWS STYLE_NPY [--out FILE]
+    interior_ref.py SOURCE_VIEWS STYLIZED_VIEWS STYLE_NPY [--style-side N] [--out FILE]
 
 SOURCE_VIEWS and STYLIZED_VIEWS are `views` artifact directories of the same cameras
 (rgb.npy [N, H, W, 3], alpha.npy [N, H, W]); STYLE_NPY the style image as loaded,
@@ -33,8 +33,8 @@ G_s: separable Gaussian of standard deviation s, taps exp(-i^2 / (2 s^2)) for
 |i| <= ceil(3 s) divided by their sum, edge pixel repeated outside (clamp to edge).
 Percentiles (P90, P75) over M: linear interpolation between closest ranks (numpy's
 default). std: population (mean squared deviation). The style is first resized so its
-shorter side is 256 px: target size round(w * 256 / min(w, h)) x round(h * 256 / min(w,
-h)) (halves rounded up); while the image is at least twice the target in both axes it is
+shorter side is N px (--style-side, 256 by default): target size round(w * N / min(w, h)) x
+round(h * N / min(w, h)) (halves rounded up); while the image is at least twice the target in both axes it is
 halved by 2 x 2 box averaging (odd last rows/columns dropped); then bilinear sampling at
 ((x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5), sx = current width / target width,
 coordinates clamped to the image.
@@ -130,13 +130,18 @@ def main():
         k = args.index("--out")
         out = args[k + 1]
         del args[k:k + 2]
+    side = STYLE_SIDE
+    if "--style-side" in args:
+        k = args.index("--style-side")
+        side = int(args[k + 1])
+        del args[k:k + 2]
     src_dir, sty_dir, style_path = args
     src = np.load(f"{src_dir}/rgb.npy").astype(np.float64)
     sty = np.load(f"{sty_dir}/rgb.npy").astype(np.float64)
     alpha = np.load(f"{src_dir}/alpha.npy").astype(np.float64)
     style = np.load(style_path).astype(np.float64)
     assert src.shape == sty.shape and src.shape[:3] == alpha.shape, (src.shape, sty.shape, alpha.shape)
-    s = float(np.std(dog(resize_shorter_side(style, STYLE_SIDE))))
+    s = float(np.std(dog(resize_shorter_side(style, side))))
     style_spread = s if s * s >= MIN_VARIANCE else None
     per_view = [one_view(src[v], sty[v], alpha[v], style_spread) for v in range(src.shape[0])]
     mean = {}

@@ -538,7 +538,9 @@ fn measure(
     pb.inc(2);
     let leakage = crate::timing::phase("leakage", || leakage::leakage(orig, styl, style));
     let (structure_kept, structure_per_view) = structure_scores(orig, styl, &mut warnings);
-    let interior = crate::timing::phase("interior", || interior::interior(orig, styl, style));
+    let interior = crate::timing::phase("interior", || {
+        interior::interior(orig, styl, style, p.style_size)
+    });
     warnings.extend(interior.warnings());
     if style.width < 64 || style.height < 64 {
         warnings.push(format!(

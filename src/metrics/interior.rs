@@ -89,7 +89,9 @@ pub const MIN_BAND: f64 = 1e-6;
 /// Edge recall of a stylized band pass unrelated to the source's: same sign (1/2) and
 /// among its top quarter (1/4).
 pub const CHANCE_RECALL: f64 = 0.125;
-/// The style image's shorter side for its band-pass spread, px.
+/// The style image's shorter side for its band-pass spread, px, unless the evaluation
+/// is told the style size the end used (`evaluate --style-size`, the end's
+/// `texture.style_size`, whose default this is).
 pub const STYLE_SHORTER_SIDE: usize = 256;
 /// Style texture's projection on the source's band pass is skipped (`beta = 0`) when
 /// `sum(D_src^2)` over the interior is at or below this (a flat source).
@@ -108,7 +110,8 @@ pub const EDGE_RECALL_NOTE: &str = "edge recall: per view, inside the interior (
 /// What motif contrast means.
 pub const MOTIF_CONTRAST_NOTE: &str = "motif contrast: per view, the standard deviation of the stylized view's \
      band-passed luminance over the interior (mask eroded 8 px, square) divided by the style image's own (resized to \
-     shorter side 256 px, all its pixels); about 1 = the object carries the style's contrast, 0 = a flat wash";
+     shorter side style_size px, the scale the end laid it at: 256 unless evaluate --style-size, all its pixels); \
+     about 1 = the object carries the style's contrast, 0 = a flat wash";
 /// What style texture means.
 pub const STYLE_TEXTURE_NOTE: &str = "style texture: per view, over the interior (mask eroded 8 px, square), the \
      stylized band pass D_sty less its least-squares projection on the source's D_src (R = D_sty - beta D_src, beta = \
@@ -136,8 +139,10 @@ pub struct Interior {
     pub edge_recall: Option<f64>,
     pub motif_contrast: Option<f64>,
     pub style_texture: Option<f64>,
-    /// The style image's band-pass spread (shorter side [`STYLE_SHORTER_SIDE`] px).
+    /// The style image's band-pass spread at shorter side `style_size` px.
     pub style_band_spread: Option<f64>,
+    /// The style's shorter side for its spread, px ([`STYLE_SHORTER_SIDE`] unless told).
+    pub style_size: usize,
     pub interior_per_view: Vec<ViewInterior>,
     pub interior_structure_note: &'static str,
     pub edge_recall_note: &'static str,
@@ -256,10 +261,10 @@ pub fn residual_spread(src: &[f64], sty: &[f64], inside: &[bool]) -> f64 {
     spread(&r)
 }
 
-/// The band-pass spread of the style image at shorter side [`STYLE_SHORTER_SIDE`] px
+/// The band-pass spread of the style image at shorter side `side` px
 /// (`None` when flat).
-pub fn style_band_spread(style: &Image) -> Option<f64> {
-    let s = spread(&band_pass(&style.with_shorter_side(STYLE_SHORTER_SIDE)));
+pub fn style_band_spread(style: &Image, side: usize) -> Option<f64> {
+    let s = spread(&band_pass(&style.with_shorter_side(side)));
     (s * s >= structure::MIN_VARIANCE).then_some(s)
 }
 
@@ -313,9 +318,10 @@ pub fn view_interior(
 }
 
 /// The four measures of every view of `styl` against `src` (the same views) and the
-/// style image, with their means over the views that have a value.
-pub fn interior(src: &ViewSet, styl: &ViewSet, style: &Image) -> Interior {
-    let style_spread = style_band_spread(style);
+/// style image taken at shorter side `style_size` px (the scale the end laid it at),
+/// with their means over the views that have a value.
+pub fn interior(src: &ViewSet, styl: &ViewSet, style: &Image, style_size: usize) -> Interior {
+    let style_spread = style_band_spread(style, style_size);
     let per_view: Vec<ViewInterior> = (0..src.n)
         .map(|i| {
             view_interior(
@@ -335,6 +341,7 @@ pub fn interior(src: &ViewSet, styl: &ViewSet, style: &Image) -> Interior {
         motif_contrast: mean(|v| v.motif_contrast),
         style_texture: mean(|v| v.style_texture),
         style_band_spread: style_spread,
+        style_size,
         interior_per_view: per_view,
         interior_structure_note: INTERIOR_STRUCTURE_NOTE,
         edge_recall_note: EDGE_RECALL_NOTE,
@@ -443,7 +450,10 @@ mod tests {
         assert!(v.motif_contrast.unwrap() > 0.1, "{:?}", v.motif_contrast);
         assert_eq!(v.style_texture, v.motif_contrast);
         // A flat style has no spread to compare with.
-        assert_eq!(style_band_spread(&Image::filled(300, 260, [0.4; 3])), None);
+        assert_eq!(
+            style_band_spread(&Image::filled(300, 260, [0.4; 3]), 256),
+            None
+        );
     }
 
     #[test]
@@ -456,7 +466,7 @@ mod tests {
         });
         let at = style.with_shorter_side(STYLE_SHORTER_SIDE);
         assert_eq!((at.width, at.height), (256, 320));
-        let spread = style_band_spread(&style).unwrap();
+        let spread = style_band_spread(&style, STYLE_SHORTER_SIDE).unwrap();
         let alpha = vec![1.0; at.width * at.height];
         let v = view_interior(&at, &alpha, &at, Some(spread));
         let m = v.motif_contrast.unwrap();

@@ -62,6 +62,9 @@ pub struct EvalParams {
     pub inception: bool,
     /// onnxruntime intra-op threads (0 = all cores).
     pub threads: usize,
+    /// The style's shorter side in render pixels that the end laid it at (its
+    /// `texture.style_size`): motif contrast and style texture take the style at it.
+    pub style_size: usize,
 }
 
 /// Which part of the evaluation `evaluate --reference-only` writes.
@@ -90,6 +93,12 @@ impl EvalParams {
             return Err(Error::param(
                 "--short-range and --long-range must be at least 1",
             ));
+        }
+        if self.style_size < 8 {
+            return Err(Error::param(format!(
+                "--style-size {}: the style's shorter side must be at least 8 px",
+                self.style_size
+            )));
         }
         Ok(())
     }
@@ -364,6 +373,7 @@ mod tests {
             object_squares: 4,
             inception: true,
             threads: 1,
+            style_size: 256,
         };
         let names = [
             "lpips alex",

@@ -86,6 +86,11 @@ pub struct Args {
     /// are most of its cost).
     #[arg(long, default_value_t = crate::metrics::texture::PATCHES_PER_VIEW)]
     pub object_squares: usize,
+    /// The style's shorter side in render pixels the stylization laid it at (the end's
+    /// `texture.style_size`): motif contrast and style texture compare the object's
+    /// band-pass contrast with the style's at this size.
+    #[arg(long, default_value_t = crate::metrics::interior::STYLE_SHORTER_SIDE)]
+    pub style_size: usize,
     /// Compute the Inception measures: FID and KID against the style crops and the
     /// original views, ArtFID, and the object KID. `false` skips them and Inception
     /// itself, most of an evaluation's time; the other measures are the same bit for bit.
@@ -269,6 +274,7 @@ fn eval_params(a: &Args) -> EvalParams {
         object_squares: a.object_squares,
         inception: a.inception,
         threads: a.threads.n,
+        style_size: a.style_size,
     }
 }
 

@@ -103,6 +103,7 @@ pub(crate) fn opts(o: &Path, s: &Path, style: &Path, out: &Path) -> Args {
         seed: 0,
         object_squares: fantasystyle::metrics::texture::PATCHES_PER_VIEW,
         inception: true,
+        style_size: fantasystyle::metrics::interior::STYLE_SHORTER_SIDE,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
         original_scene: None,

@@ -98,7 +98,7 @@ fn interior_measures_match_an_independent_numpy_reference() {
         .flat_map(|i| perturb(i, &src.images[i], src.geometry(i).1, &style, i as u64).data)
         .collect();
     let styl = write(&r, &d.path().join("stylized"), &styl_rgb, &alpha);
-    let got = interior::interior(&src, &styl, &style);
+    let got = interior::interior(&src, &styl, &style, interior::STYLE_SHORTER_SIDE);
 
     let style_npy = d.path().join("style.npy");
     fantasystyle_schemas::npy::write_npy(&style_npy, &[840, 600, 3], &style.data).unwrap();
@@ -197,4 +197,32 @@ fn interior_measures_match_an_independent_numpy_reference() {
         v[6].pixels < interior::MIN_INTERIOR_PIXELS && v[6].reasons[0].contains("fewer than 64")
     );
     assert_eq!((v[6].motif_contrast, v[6].style_texture), (None, None));
+
+    // The style taken at the scale an end laid it at (`evaluate --style-size`): 96 px.
+    let at96 = interior::interior(&src, &styl, &style, 96);
+    let st = std::process::Command::new(&py)
+        .arg(repo_root().join("scripts/reference/interior_ref.py"))
+        .arg(d.path().join("source"))
+        .arg(d.path().join("stylized"))
+        .arg(&style_npy)
+        .args(["--style-side", "96", "--out"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(st.success(), "interior_ref.py --style-side 96 failed");
+    let want: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let spread96 = want["style_spread"].as_f64().unwrap();
+    assert!(rel(at96.style_band_spread.unwrap(), spread96) < 1e-5);
+    assert!(rel(spread96, spread) > 0.01, "{spread96} vs {spread}");
+    assert_eq!(at96.style_size, 96);
+    for (g, w) in at96
+        .interior_per_view
+        .iter()
+        .zip(want["per_view"].as_array().unwrap())
+    {
+        if let (Some(a), Some(b)) = (g.motif_contrast, w["motif_contrast"].as_f64()) {
+            assert!(rel(a, b) < 1e-5, "motif contrast at 96 px: {a} vs {b}");
+        }
+    }
 }

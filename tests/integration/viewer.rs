@@ -304,6 +304,7 @@ fn report_viewer_shows_both_splats_in_chromium() {
         seed: 0,
         object_squares: 0,
         inception: false,
+        style_size: fantasystyle::metrics::interior::STYLE_SHORTER_SIDE,
         threads: fantasystyle::stages::Threads::new(2),
         sweep: None,
         original_scene: Some(orig_scene.clone()),

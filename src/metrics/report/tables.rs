@@ -125,7 +125,7 @@ fn structure_rows(m: &Metrics) -> Vec<Vec<String>> {
             format!(
                 "band-pass standard deviation of the stylized interior over the style image's own \
                  (shorter side {} px: {}); about 1 = the style's contrast, 0 = a flat wash",
-                interior::STYLE_SHORTER_SIDE,
+                m.interior.style_size,
                 fmt_opt(m.interior.style_band_spread, 4)
             ),
         ],
