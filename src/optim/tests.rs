@@ -232,8 +232,9 @@ fn fit_is_identical_for_any_thread_count() {
 }
 
 /// [`ColourFit::step_l2`] (cached views fused, the rest through [`l2`], the views in
-/// parallel) moves the scene exactly as the in-order hook path with [`l2`] does, for every cache mode and thread count; its
-/// losses agree to rounding (a cached view sums them tile by tile).
+/// parallel) moves the scene exactly as the in-order hook path with [`l2`] does, for
+/// every cache mode and thread count; its losses agree to rounding (a cached view sums
+/// them tile by tile).
 #[test]
 fn step_l2_is_the_hook_path_with_l2() {
     let scene = random_scene(700, 1, 57);

@@ -420,6 +420,16 @@ mod tests {
     use super::*;
     use crate::render::tests::{front_camera, random_scene};
 
+    /// A non-negative random colour per contributing Gaussian of `c`.
+    fn random_colours(c: &ViewCache, rng: &mut crate::rng::Rng) -> Vec<[f32; 3]> {
+        (0..c.gaussians().len())
+            .map(|_| {
+                let x = rng.normals_f32(3);
+                [x[0].abs(), x[1].abs(), x[2].abs()]
+            })
+            .collect()
+    }
+
     /// The per-channel loops the 4-wide ones replaced: the same bits, forward and
     /// backward (SH degree 0 and 2, a camera whose width is not a multiple of the tile).
     #[test]
@@ -429,12 +439,7 @@ mod tests {
             let cam = front_camera(90, 60, 80.0, 3.0);
             let c = ViewCache::build(&scene, &cam).unwrap();
             let mut rng = crate::rng::Rng::new(9);
-            let colours: Vec<[f32; 3]> = (0..c.gaussians().len())
-                .map(|_| {
-                    let x = rng.normals_f32(3);
-                    [x[0].abs(), x[1].abs(), x[2].abs()]
-                })
-                .collect();
+            let colours = random_colours(&c, &mut rng);
             let bg = [0.1, 0.5, 0.9];
             let (w, h) = (c.width, c.height);
             let mut want = vec![0.0f32; w * h * 3];
@@ -482,12 +487,7 @@ mod tests {
         let cam = front_camera(45, 38, 60.0, 3.0);
         let c = ViewCache::build(&scene, &cam).unwrap();
         let mut rng = crate::rng::Rng::new(5);
-        let colours: Vec<[f32; 3]> = (0..c.gaussians().len())
-            .map(|_| {
-                let x = rng.normals_f32(3);
-                [x[0].abs(), x[1].abs(), x[2].abs()]
-            })
-            .collect();
+        let colours = random_colours(&c, &mut rng);
         let bg = [0.2, 0.7, 0.4];
         let target: Vec<f32> = rng.normals_f32(45 * 38 * 3);
         let (want_loss, grad) = crate::optim::l2(&c.forward(&colours, bg), &target);

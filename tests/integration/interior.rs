@@ -103,18 +103,21 @@ fn interior_measures_match_an_independent_numpy_reference() {
     let style_npy = d.path().join("style.npy");
     fantasystyle_schemas::npy::write_npy(&style_npy, &[840, 600, 3], &style.data).unwrap();
     let out = d.path().join("ref.json");
-    let st = std::process::Command::new(&py)
-        .arg(repo_root().join("scripts/reference/interior_ref.py"))
-        .arg(d.path().join("source"))
-        .arg(d.path().join("stylized"))
-        .arg(&style_npy)
-        .arg("--out")
-        .arg(&out)
-        .status()
-        .unwrap();
-    assert!(st.success(), "interior_ref.py failed");
-    let want: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    // The numpy reference's JSON, the style taken at shorter side `side` px.
+    let reference = |side: usize| -> serde_json::Value {
+        let st = std::process::Command::new(&py)
+            .arg(repo_root().join("scripts/reference/interior_ref.py"))
+            .arg(d.path().join("source"))
+            .arg(d.path().join("stylized"))
+            .arg(&style_npy)
+            .args(["--style-side", &side.to_string(), "--out"])
+            .arg(&out)
+            .status()
+            .unwrap();
+        assert!(st.success(), "interior_ref.py --style-side {side} failed");
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap()
+    };
+    let want = reference(interior::STYLE_SHORTER_SIDE);
 
     let rel = |a: f64, b: f64| (a - b).abs() / b.abs().max(1e-12);
     let spread = want["style_spread"].as_f64().unwrap();
@@ -200,18 +203,7 @@ fn interior_measures_match_an_independent_numpy_reference() {
 
     // The style taken at the scale an end laid it at (`evaluate --style-size`): 96 px.
     let at96 = interior::interior(&src, &styl, &style, 96);
-    let st = std::process::Command::new(&py)
-        .arg(repo_root().join("scripts/reference/interior_ref.py"))
-        .arg(d.path().join("source"))
-        .arg(d.path().join("stylized"))
-        .arg(&style_npy)
-        .args(["--style-side", "96", "--out"])
-        .arg(&out)
-        .status()
-        .unwrap();
-    assert!(st.success(), "interior_ref.py --style-side 96 failed");
-    let want: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let want = reference(96);
     let spread96 = want["style_spread"].as_f64().unwrap();
     assert!(rel(at96.style_band_spread.unwrap(), spread96) < 1e-5);
     assert!(rel(spread96, spread) > 0.01, "{spread96} vs {spread}");
