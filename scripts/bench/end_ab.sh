@@ -7,7 +7,8 @@
 # Each REPO is a checkout with a release build (target/release); see evaluation_ab.sh
 # for an older commit as a worktree. Needs the keep benchmark's bob_100k source views
 # (benches/quality/keep.toml) and ../shared/data/scenes. Prints one line per run with
-# the end's balance, search and colour fit phases; compares the two scene.ply files.
+# the end's balance, search and colour fit phases and its CPU time (both cores' seconds:
+# steadier than the wall time on a shared host); compares the two scene.ply files.
 set -euo pipefail
 A=$(realpath "$1"); B=$(realpath "$2"); PAIRS=${3:-3}
 HERE=$(cd "$(dirname "$0")/../.." && pwd)
@@ -29,9 +30,9 @@ for r in $(seq "$PAIRS"); do
 import json, sys
 d = json.load(open(sys.argv[1]))
 ph = lambda k: d.get('phase:patch synthesis/' + k, 0.0)
-print('end %s run %s: %.2f s (balance %.2f, search %.2f, colour fit %.2f)' % (
+print('end %s run %s: %.2f s (balance %.2f, search %.2f, colour fit %.2f; CPU %.2f s)' % (
     sys.argv[2], sys.argv[3], float(sys.argv[5]) - float(sys.argv[4]),
-    ph('balance'), ph('search'), ph('colour fit')))
+    ph('balance'), ph('search'), ph('colour fit'), d.get('cpu:patch synthesis', 0.0)))
 PY
   done
 done

@@ -96,22 +96,45 @@ pub fn run(
             make_kernel(&mut kernel, scaled, per, &fh, &gh, &live);
             stats.kernels += 1;
         }
-        row_scalings(&kernel, per, &b, &mut a);
+        let (mut sums, mut tops) = scale_rows_sum_columns(&kernel, per, &b, &mut a);
         if a.iter().any(|&x| x > 0.0 && (x > hi || x < lo)) {
-            // Absorb the rows (and the columns with them) and make the kernel again
-            // before the column pass.
+            // Absorb the rows (and the columns with them), make the kernel again and
+            // redo the pass (its column sums were the old kernel's).
             absorb(&mut fh, &mut a, &mut gh, &g, &mut b);
             make_kernel(&mut kernel, scaled, per, &fh, &gh, &live);
             stats.kernels += 1;
-            row_scalings(&kernel, per, &b, &mut a);
+            (sums, tops) = scale_rows_sum_columns(&kernel, per, &b, &mut a);
         }
-        let (sums, tops) = column_sums(&kernel, per, &a);
+        // The columns below the floor take the log domain, on all cores (each column's
+        // sum in row order).
+        let floor: Vec<usize> = (0..per)
+            .filter(|&c| !(tops[c] >= COLUMN_FLOOR && sums[c] > 0.0))
+            .collect();
+        let mut lses = vec![0.0f64; per];
+        if !floor.is_empty() {
+            stats.log_columns += floor.len();
+            let f: Vec<f64> = fh
+                .par_iter()
+                .zip(&a)
+                .map(|(&fh, &a)| {
+                    if a > 0.0 {
+                        fh + a.ln()
+                    } else {
+                        f64::NEG_INFINITY
+                    }
+                })
+                .collect();
+            let l: Vec<f64> = floor
+                .par_iter()
+                .map(|&c| column_lse(scaled, per, c, &f))
+                .collect();
+            floor.iter().zip(l).for_each(|(&c, l)| lses[c] = l);
+        }
         for c in 0..per {
             let lse = if tops[c] >= COLUMN_FLOOR && sums[c] > 0.0 {
                 sums[c].ln() - gh[c]
             } else {
-                stats.log_columns += 1;
-                column_lse(scaled, per, c, &fh, &a)
+                lses[c]
             };
             g[c] = if lse.is_finite() {
                 rho as f64 * (target[c] as f64 - lse)
@@ -165,38 +188,43 @@ fn make_kernel(
         });
 }
 
-/// `a_q = 1 / sum_c K_qc b_c` (0 where the sum is 0: a row that takes no mass).
-fn row_scalings(kernel: &[f32], per: usize, b: &[f64], a: &mut [f64]) {
-    a.par_iter_mut()
-        .zip(kernel.par_chunks(per))
-        .for_each(|(a, k)| {
-            let mut acc = [0.0f64; 8];
-            let (k8, b8) = (k.chunks_exact(8), b.chunks_exact(8));
-            let (kt, bt) = (k8.remainder(), b8.remainder());
-            for (k, b) in k8.zip(b8) {
-                for j in 0..8 {
-                    acc[j] += k[j] as f64 * b[j];
-                }
-            }
-            for (j, (&k, &b)) in kt.iter().zip(bt).enumerate() {
-                acc[j] += k as f64 * b;
-            }
-            let s =
-                ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
-            *a = if s > 0.0 { 1.0 / s } else { 0.0 };
-        });
+/// `a_q = 1 / sum_c K_qc b_c` of a kernel row `k` (0 where the sum is 0: a row that
+/// takes no mass): the entries in eight interleaved f64 partial sums added pairwise.
+fn row_scaling(k: &[f32], b: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 8];
+    let (k8, b8) = (k.chunks_exact(8), b.chunks_exact(8));
+    let (kt, bt) = (k8.remainder(), b8.remainder());
+    for (k, b) in k8.zip(b8) {
+        for j in 0..8 {
+            acc[j] += k[j] as f64 * b[j];
+        }
+    }
+    for (j, (&k, &b)) in kt.iter().zip(bt).enumerate() {
+        acc[j] += k as f64 * b;
+    }
+    let s = ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+    if s > 0.0 { 1.0 / s } else { 0.0 }
 }
 
-/// Each column's `S_c = sum_q a_q K_qc` and its largest kernel entry.
-fn column_sums(kernel: &[f32], per: usize, a: &[f64]) -> (Vec<f64>, Vec<f32>) {
+/// A round's pass over the kernel: every row's scaling `a_q` ([`row_scaling`]), then
+/// each column's `S_c = sum_q a_q K_qc` and its largest kernel entry, `ROWS` rows at a
+/// time while they are in cache (one read of the kernel per round; the blocks' sums
+/// added in order).
+fn scale_rows_sum_columns(
+    kernel: &[f32],
+    per: usize,
+    b: &[f64],
+    a: &mut [f64],
+) -> (Vec<f64>, Vec<f32>) {
     let parts: Vec<(Vec<f64>, Vec<f32>)> = kernel
         .par_chunks(ROWS * per)
-        .zip(a.par_chunks(ROWS))
+        .zip(a.par_chunks_mut(ROWS))
         .map(|(k, a)| {
             let (mut sum, mut top) = (vec![0.0f64; per], vec![0.0f32; per]);
-            for (row, &aq) in k.chunks_exact(per).zip(a) {
+            for (row, aq) in k.chunks_exact(per).zip(a) {
+                *aq = row_scaling(row, b);
                 for ((s, t), &kv) in sum.iter_mut().zip(top.iter_mut()).zip(row) {
-                    *s += aq * kv as f64;
+                    *s += *aq * kv as f64;
                     *t = t.max(kv);
                 }
             }
@@ -212,16 +240,10 @@ fn column_sums(kernel: &[f32], per: usize, a: &[f64]) -> (Vec<f64>, Vec<f32>) {
 }
 
 /// Column `c`'s `lse_q(f_q - scaled_qc)` in the log domain (f64; -inf when no row
-/// reaches it), `f_q = fh_q + ln a_q`.
-fn column_lse(scaled: &[f32], per: usize, c: usize, fh: &[f64], a: &[f64]) -> f64 {
-    let term = |q: usize| {
-        if a[q] > 0.0 {
-            fh[q] + a[q].ln() - scaled[q * per + c] as f64
-        } else {
-            f64::NEG_INFINITY
-        }
-    };
-    let p = a.len();
+/// reaches it), `f` the rows' potentials `fh_q + ln a_q` (-inf for a row with `a_q` 0).
+fn column_lse(scaled: &[f32], per: usize, c: usize, f: &[f64]) -> f64 {
+    let term = |q: usize| f[q] - scaled[q * per + c] as f64;
+    let p = f.len();
     let top = (0..p).map(term).fold(f64::NEG_INFINITY, f64::max);
     if !top.is_finite() {
         return top;

@@ -543,6 +543,20 @@ impl<'a> ColourFit<'a> {
         }
     }
 
+    /// Camera `v`'s coverage `[H, W]` (`1 - T_final`), which colours do not change: the
+    /// cache's where the view is cached (bit for bit a render's alpha), a projection and
+    /// rasterization otherwise.
+    pub fn alpha_view(&self, v: usize) -> Vec<f32> {
+        match &self.states[v] {
+            ViewState::Cached { cache, .. } => cache.alpha(),
+            ViewState::Uncached => {
+                let frame = project(&self.scene, &self.cameras[v]);
+                let raw = raw_colours(&self.scene, &frame.splats.ids, self.cameras[v].center());
+                composite(&frame, &clamp_colours(&raw), self.params.background).alpha
+            }
+        }
+    }
+
     /// The optimizer's state (Adam moments and step counts), for checkpoints.
     pub fn optimizer_state(&self) -> OptimizerState {
         OptimizerState {

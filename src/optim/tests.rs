@@ -290,3 +290,42 @@ fn step_l2_is_the_hook_path_with_l2() {
     short[2].pop();
     assert!(fit.step_l2(&short).is_err());
 }
+
+/// A fit's views as the renderer makes them, bit for bit, in every cache mode: the
+/// colours ([`ColourFit::render_view`]) and the coverage ([`ColourFit::alpha_view`], the
+/// patch synthesis's set-up reads it instead of rendering again).
+#[test]
+fn a_fits_views_are_the_renders() {
+    let scene = random_scene(900, 2, 61);
+    let cams: Vec<Camera> = (0..3)
+        .map(|i| {
+            let mut c = front_camera(41, 29, 45.0, 3.0);
+            c.translation[1] = i as f32 * 0.2 - 0.2;
+            c
+        })
+        .collect();
+    let bg = [0.2, 0.4, 0.7];
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for cache in [CacheMode::On, CacheMode::Off, CacheMode::Budget(20_000)] {
+        let p = FitParams {
+            background: bg,
+            cache,
+            ..Default::default()
+        };
+        let fit = ColourFit::without_targets(&scene, &cams, &p).unwrap();
+        for (v, cam) in cams.iter().enumerate() {
+            let want = render(&scene, cam, &RenderOptions { background: bg }).unwrap();
+            assert!(want.alpha.iter().any(|&a| a > 0.5) && want.alpha.iter().any(|&a| a < 0.5));
+            assert_eq!(
+                bits(&fit.render_view(v)),
+                bits(&want.rgb),
+                "{cache:?} view {v}"
+            );
+            assert_eq!(
+                bits(&fit.alpha_view(v)),
+                bits(&want.alpha),
+                "{cache:?} view {v}"
+            );
+        }
+    }
+}

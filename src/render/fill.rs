@@ -96,10 +96,10 @@ pub fn push_pull(colour: &[f32], weight: &[f32], h: usize, w: usize) -> Vec<f32>
         let i1 = (i0 + 1).min(n2 - 1);
         (i0, i1, s - i0 as f32)
     };
+    let tx: Vec<(usize, usize, f32)> = (0..w).map(|x| tap(x, w2)).collect();
     for y in 0..h {
         let (y0, y1, fy) = tap(y, h2);
-        for x in 0..w {
-            let (x0, x1, fx) = tap(x, w2);
+        for (x, &(x0, x1, fx)) in tx.iter().enumerate() {
             let p = y * w + x;
             let a = weight[p].clamp(0.0, 1.0);
             for c in 0..3 {

@@ -37,7 +37,9 @@
 //! Timing ([`crate::timing`], `pipeline report`): [`synthesize`] is the phase `patch
 //! synthesis`, its parts summed over the levels and rounds: `setup` (the colour fit's
 //! views, the source renders, the channels' source images), `style bank` (every level's
-//! [`level::StyleLevel`], built at the start, the levels on all cores), `render`, `queries`, `search`, `balance`, `stats`, `votes`
+//! [`level::StyleLevel`], built at the start, the levels on all cores), `level views` (each
+//! view's frozen images at a level, [`view::ViewLevel`], once per level), `render`,
+//! `queries`, `search`, `balance`, `stats`, `votes`
 //! and `colour fit` (the Adam steps); a part's own work is under its name (`guide`,
 //! `negative`). Each level's wall time is in its log line.
 
@@ -66,7 +68,7 @@ use parts::{Channel, Hook, PartKind, Rematch};
 use rayon::prelude::*;
 use regions::RegionStyle;
 pub use settings::SynthesisParams;
-use view::{Query, ViewImage};
+use view::{Query, ViewImage, ViewLevel};
 
 /// The parts, in the order their channels join the search and their rematches apply.
 #[rustfmt::skip]
@@ -196,12 +198,13 @@ pub fn synthesize(
     for (&s, levels) in p.levels.iter().zip(banks) {
         let started = std::time::Instant::now();
         let mut last = RoundStats::default();
+        let frozen = crate::timing::phase("level views", || view_levels(&src, &sizes, s, p));
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
             let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
                 all.par_iter().map(|&v| fit.render_view(v)).collect()
             });
-            let (targets, stats) = e_step(&renders, &sizes, &levels, s, &src, p);
+            let (targets, stats) = e_step(&renders, &frozen, &levels, &src, p);
             let fit_phase = crate::timing::span("colour fit");
             for _ in 0..p.steps {
                 last.loss = fit.step_l2(&targets)?;
@@ -271,15 +274,25 @@ fn set_up<'a>(
         ColourFit::without_targets(scene, cameras, fp)
     })?;
     fit.set_weights(selection)?;
-    let (rgb, alpha): (Vec<Vec<f32>>, Vec<Vec<f32>>) = crate::timing::phase("render", || {
-        crate::render::render_all(scene, cameras, background)
-    })?
-    .into_iter()
-    .map(|r| (r.rgb, r.alpha))
-    .unzip();
+    // The views' coverage, and their colours when no source is given, from the fit's
+    // caches: bit for bit the renderer's.
+    let own = source.is_none();
+    let (alpha, rendered): (Vec<Vec<f32>>, Vec<Vec<f32>>) = crate::timing::phase("render", || {
+        (0..cameras.len())
+            .into_par_iter()
+            .map(|v| {
+                let rgb = if own { fit.render_view(v) } else { Vec::new() };
+                (fit.alpha_view(v), rgb)
+            })
+            .unzip()
+    });
     let rgb = match source {
         Some(src)
-            if src.len() == rgb.len() && src.iter().zip(&rgb).all(|(a, b)| a.len() == b.len()) =>
+            if src.len() == sizes.len()
+                && src
+                    .iter()
+                    .zip(sizes)
+                    .all(|(a, &(h, w))| a.len() == h * w * 3) =>
         {
             src.to_vec()
         }
@@ -288,7 +301,7 @@ fn set_up<'a>(
                 "synthesis: the source views do not match the cameras",
             ));
         }
-        None => rgb,
+        None => rendered,
     };
     let cover = crate::timing::phase("regions", || regions::cover(scene, cameras, regions))?;
     let src = Frozen::new(
@@ -387,11 +400,26 @@ pub fn synthesize_images(
             StyleLevel::new(styles, style_size / s, p, stride, &src.parts)
         })?;
         let levels = std::slice::from_ref(&level);
+        let frozen = view_levels(&src, sizes, s, p);
         for _ in 0..p.rounds {
-            out = e_step(&out, sizes, levels, s, &src, p).0;
+            out = e_step(&out, &frozen, levels, &src, p).0;
         }
     }
     Ok(out)
+}
+
+/// Every view's frozen images at level `s` ([`ViewLevel`]; `sizes` (H, W) per view),
+/// made once for the level's rounds.
+fn view_levels(
+    src: &Frozen,
+    sizes: &[(usize, usize)],
+    s: usize,
+    p: &SynthesisParams,
+) -> Vec<ViewLevel> {
+    (0..sizes.len())
+        .into_par_iter()
+        .map(|v| ViewLevel::new(src, v, sizes[v], s, p))
+        .collect()
 }
 
 /// What one round's matches were like.
@@ -476,16 +504,16 @@ impl Frozen {
     }
 }
 
-/// The E-step of one round at level `s`: every view's object patches matched together
+/// The E-step of one round at a level: every view's object patches matched together
 /// (one balanced coupling over all views), each view's target `[H, W, 3]`.
-/// `renders` `[H, W, 3]` per view, `sizes` (H, W) per view. Timed as the phases
+/// `renders` `[H, W, 3]` per view, `frozen` each view's images at the level
+/// ([`view_levels`]). Timed as the phases
 /// `queries` (the views pooled, their patches in search coordinates), `search`,
 /// `balance` and the rematches' ([`StyleLevel::match_all`]), `stats` and `votes`.
 fn e_step(
     renders: &[Vec<f32>],
-    sizes: &[(usize, usize)],
+    frozen: &[ViewLevel],
     levels: &[StyleLevel],
-    s: usize,
     src: &Frozen,
     p: &SynthesisParams,
 ) -> (Vec<Vec<f32>>, RoundStats) {
@@ -500,7 +528,7 @@ fn e_step(
     let ph = crate::timing::span("queries");
     let views: Vec<ViewImage> = (0..n)
         .into_par_iter()
-        .map(|v| ViewImage::new(&renders[v], src, v, sizes[v], s, p))
+        .map(|v| ViewImage::new(&renders[v], src, v, &frozen[v]))
         .collect();
     let queries: Vec<Query> = views.par_iter().map(|v| v.queries(p)).collect();
     // Each region's queries in its level's search coordinates (one region: all of them).
@@ -653,6 +681,7 @@ mod tests {
             ("setup/render", 1),
             ("setup/guide", 1),
             ("style bank", 1),
+            ("level views", 2),
             ("render", 4),
             ("queries", 4),
             ("queries/guide", 4),

@@ -7,7 +7,7 @@
 use super::level::StyleLevel;
 use super::{Frozen, OBJECT, SynthesisParams};
 use crate::prior::patch::bank::patches_at;
-use crate::prior::patch::latent::{pool, upsample};
+use crate::prior::patch::latent::{bilinear, upsample_taps};
 use crate::render::fill::fill_background;
 use ndarray::{Array2, Array3, Array4, Axis};
 
@@ -26,12 +26,10 @@ pub(super) struct Query {
 /// nearness to the centre keeps the strokes sharper).
 const VOTE_SIGMA: f32 = 0.25;
 
-/// One view at one level: its colour over a fill of itself, pooled, its coverage, (when
-/// a guidance scale is not 1) its source colour, each region's channels' images, and
-/// which region owns each pixel (several regions), pooled.
-pub(super) struct ViewImage {
-    /// `[1, 3, h, w]`.
-    colour: Array4<f32>,
+/// One view at one level, what no round changes: its coverage, (when a guidance scale
+/// is not 1) its source colour, each region's channels' images, and which region owns
+/// each pixel (several regions), pooled; made once per level ([`ViewLevel::new`]).
+pub(super) struct ViewLevel {
     /// `[h, w]`.
     alpha: Array2<f32>,
     /// The source branch's colour `[1, 3, h, w]`, when a region's guidance != 1.
@@ -47,17 +45,42 @@ pub(super) struct ViewImage {
     full: (usize, usize),
 }
 
-/// `[H, W, C]` values pooled over whole `s` x `s` blocks (the patch prior's pooling):
-/// `[1, C, H / s, W / s]`.
-fn pooled(x: &[f32], c: usize, (h, w): (usize, usize), s: usize) -> Array4<f32> {
-    let (hc, wc) = ((h / s) * s, (w / s) * s);
-    let img = Array4::from_shape_fn((1, c, hc, wc), |(_, ch, y, xx)| x[(y * w + xx) * c + ch]);
-    pool(img.view(), s)
+/// One view in one round: its current colour over a fill of itself, pooled, beside its
+/// level's frozen images.
+pub(super) struct ViewImage<'a> {
+    /// `[1, 3, h, w]`.
+    colour: Array4<f32>,
+    frozen: &'a ViewLevel,
 }
 
-impl ViewImage {
+/// `[H, W, C]` values pooled over whole `s` x `s` blocks (the patch prior's pooling,
+/// [`crate::prior::patch::latent::pool`]'s sums in its order): `[1, C, H / s, W / s]`.
+fn pooled(x: &[f32], c: usize, (h, w): (usize, usize), s: usize) -> Array4<f32> {
+    let (hl, wl) = (h / s, w / s);
+    let inv = 1.0 / (s * s) as f32;
+    let mut out = vec![0.0f32; c * hl * wl];
+    let mut acc = vec![0.0f32; c];
+    for y in 0..hl {
+        for xx in 0..wl {
+            // Every channel's block sum at once, each in the block's row-major order.
+            acc.fill(0.0);
+            for dy in 0..s {
+                let o = ((y * s + dy) * w + xx * s) * c;
+                for px in x[o..o + s * c].chunks_exact(c) {
+                    acc.iter_mut().zip(px).for_each(|(a, &v)| *a += v);
+                }
+            }
+            for (ch, &a) in acc.iter().enumerate() {
+                out[(ch * hl + y) * wl + xx] = a * inv;
+            }
+        }
+    }
+    Array4::from_shape_vec((1, c, hl, wl), out).expect("one value per pooled pixel")
+}
+
+impl ViewLevel {
+    /// View `v` (of full size `size`) of the frozen views `src` at level `s`.
     pub(super) fn new(
-        rgb: &[f32],
         src: &Frozen,
         v: usize,
         size: (usize, usize),
@@ -65,16 +88,14 @@ impl ViewImage {
         p: &SynthesisParams,
     ) -> Self {
         let (alpha, bg) = (&src.alpha[v][..], src.background);
-        let filled = |x: &[f32]| fill_background(x, alpha, bg, size.0, size.1);
-        let colour = pooled(&filled(rgb), 3, size, s);
         let a = pooled(alpha, 1, size, s)
             .index_axis_move(Axis(0), 0)
             .index_axis_move(Axis(0), 0);
         let guidance: Vec<f32> = src.regions.iter().map(|r| r.guidance).collect();
-        let source = guidance
-            .iter()
-            .any(|&g| g != 1.0)
-            .then(|| pooled(&filled(&src.rgb[v]), 3, size, s));
+        let source = guidance.iter().any(|&g| g != 1.0).then(|| {
+            let filled = fill_background(&src.rgb[v], alpha, bg, size.0, size.1);
+            pooled(&filled, 3, size, s)
+        });
         let channels = src
             .regions
             .iter()
@@ -102,8 +123,7 @@ impl ViewImage {
                 owner(shares.iter().map(|c| c[[0, 0, y, x]]))
             })
         });
-        ViewImage {
-            colour,
+        ViewLevel {
             alpha: a,
             source,
             channels,
@@ -111,6 +131,19 @@ impl ViewImage {
             guidance,
             s,
             full: size,
+        }
+    }
+}
+
+impl<'a> ViewImage<'a> {
+    /// The view's render `rgb` (`[H, W, 3]`, composited over `src`'s background with
+    /// view `v`'s coverage) at its level `frozen`.
+    pub(super) fn new(rgb: &[f32], src: &Frozen, v: usize, frozen: &'a ViewLevel) -> Self {
+        let size = frozen.full;
+        let filled = fill_background(rgb, &src.alpha[v], src.background, size.0, size.1);
+        ViewImage {
+            colour: pooled(&filled, 3, size, frozen.s),
+            frozen,
         }
     }
 
@@ -121,10 +154,11 @@ impl ViewImage {
         let pixels: Vec<[usize; 3]> = (0..hl)
             .step_by(step)
             .flat_map(|y| (0..wl).step_by(step).map(move |x| [0, y, x]))
-            .filter(|&[_, y, x]| self.alpha[[y, x]] > OBJECT)
+            .filter(|&[_, y, x]| self.frozen.alpha[[y, x]] > OBJECT)
             .collect();
         let colour = patches_at(self.colour.view(), p.patch, &pixels);
         let channels = self
+            .frozen
             .channels
             .iter()
             .map(|r| {
@@ -144,7 +178,7 @@ impl ViewImage {
 
     /// The region owning pooled pixel (y, x).
     fn owns(&self, y: usize, x: usize) -> u8 {
-        self.owner.as_ref().map_or(0, |o| o[[y, x]])
+        self.frozen.owner.as_ref().map_or(0, |o| o[[y, x]])
     }
 
     /// The view's full-resolution target (`[H, W, 3]`: the render plus its coverage times
@@ -164,16 +198,23 @@ impl ViewImage {
         }
         let (_, _, hl, wl) = self.colour.dim();
         let delta = self.vote(levels, q, m, p);
-        let (h, w) = (hl * self.s, wl * self.s);
-        let full_w = self.full.1;
-        let up = upsample(delta.view().insert_axis(Axis(0)), self.s);
+        // The change upsampled as [`crate::prior::patch::latent::upsample`] makes it, pixel
+        // by pixel.
+        let full_w = self.frozen.full.1;
+        let (ty, tx) = (
+            upsample_taps(hl, self.frozen.s),
+            upsample_taps(wl, self.frozen.s),
+        );
+        let delta = delta.as_slice().expect("a standard-layout vote");
         let mut t = rgb.to_vec();
-        for y in 0..h {
-            for x in 0..w {
+        for (y, &ty) in ty.iter().enumerate() {
+            for (x, &tx) in tx.iter().enumerate() {
                 let i = y * full_w + x;
                 let a = alpha[i];
                 for c in 0..3 {
-                    t[i * 3 + c] = rgb[i * 3 + c] + a * up[[0, c, y, x]];
+                    let d = &delta[c * hl * wl..(c + 1) * hl * wl];
+                    let up = bilinear(|yy, xx| d[yy * wl + xx], ty, tx);
+                    t[i * 3 + c] = rgb[i * 3 + c] + a * up;
                 }
             }
         }
@@ -229,10 +270,10 @@ impl ViewImage {
         // The guidance scale (the owning region's): from the source's colour toward the
         // style's vote (at 1 the vote itself, bit for bit).
         Array3::from_shape_fn((3, hl, wl), |(c, y, x)| {
-            let g = self.guidance[usize::from(self.owns(y, x))];
-            if wt[[y, x]] > 0.0 && self.alpha[[y, x]] > 0.0 {
+            let g = self.frozen.guidance[usize::from(self.owns(y, x))];
+            if wt[[y, x]] > 0.0 && self.frozen.alpha[[y, x]] > 0.0 {
                 let vote = (acc[[c, y, x]] / wt[[y, x]]).clamp(0.0, 1.0);
-                let to = match &self.source {
+                let to = match &self.frozen.source {
                     Some(src) => src[[0, c, y, x]] + g * (vote - src[[0, c, y, x]]),
                     None => vote,
                 };
@@ -257,7 +298,27 @@ fn owner(shares: impl Iterator<Item = f32>) -> u8 {
 
 #[cfg(test)]
 mod tests {
-    use super::owner;
+    use super::{owner, pooled};
+    use crate::prior::patch::latent::pool;
+    use ndarray::Array4;
+
+    /// The pooling straight from the `[H, W, C]` slice is the prior's `pool` of the
+    /// same image as an array, bit for bit (odd sizes: the last partial block dropped).
+    #[test]
+    fn pooled_is_the_priors_pool_bitwise() {
+        let mut rng = crate::rng::Rng::new(4);
+        for (c, h, w, s) in [(3, 37, 29, 1), (3, 37, 29, 4), (1, 16, 24, 8), (2, 9, 9, 2)] {
+            let x: Vec<f32> = rng.normals_f32(h * w * c);
+            let (hc, wc) = ((h / s) * s, (w / s) * s);
+            let a =
+                Array4::from_shape_fn((1, c, hc, wc), |(_, ch, y, xx)| x[(y * w + xx) * c + ch]);
+            let want = pool(a.view(), s);
+            let got = pooled(&x, c, (h, w), s);
+            assert_eq!(got.dim(), want.dim());
+            let bits = |a: &Array4<f32>| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&want), "c {c}, {h}x{w}, s {s}");
+        }
+    }
 
     #[test]
     fn a_pixel_belongs_to_the_region_with_the_largest_share() {

@@ -38,22 +38,37 @@ pub fn decode(latents: ArrayView4<'_, f32>, f: usize) -> Array4<f32> {
 pub fn upsample(x: ArrayView4<'_, f32>, f: usize) -> Array4<f32> {
     let (b, c, h, w) = x.dim();
     let (hh, ww) = (h * f, w * f);
-    // Source coordinate of output pixel i: (i + 0.5) / f - 0.5, clamped to the grid.
-    let taps = |i: usize, n: usize| -> (usize, usize, f32) {
-        let s = ((i as f32 + 0.5) / f as f32 - 0.5).clamp(0.0, (n - 1) as f32);
-        let i0 = s.floor() as usize;
-        let i1 = (i0 + 1).min(n - 1);
-        (i0, i1, s - i0 as f32)
-    };
-    let ty: Vec<_> = (0..hh).map(|i| taps(i, h)).collect();
-    let tx: Vec<_> = (0..ww).map(|i| taps(i, w)).collect();
+    let (ty, tx) = (upsample_taps(h, f), upsample_taps(w, f));
     Array4::from_shape_fn((b, c, hh, ww), |(n, ch, y, x0)| {
-        let ((y0, y1, fy), (x0, x1, fx)) = (ty[y], tx[x0]);
-        let z = |yy, xx| x[[n, ch, yy, xx]];
-        let top = z(y0, x0) * (1.0 - fx) + z(y0, x1) * fx;
-        let bottom = z(y1, x0) * (1.0 - fx) + z(y1, x1) * fx;
-        top * (1.0 - fy) + bottom * fy
+        bilinear(|yy, xx| x[[n, ch, yy, xx]], ty[y], tx[x0])
     })
+}
+
+/// [`upsample`]'s taps along an axis of `n` pixels upsampled by `f`: for each of the `n f`
+/// output pixels, the two source pixels and the second's weight (the source coordinate of
+/// output pixel i is (i + 0.5) / f - 0.5, clamped to the grid).
+pub fn upsample_taps(n: usize, f: usize) -> Vec<(usize, usize, f32)> {
+    (0..n * f)
+        .map(|i| {
+            let s = ((i as f32 + 0.5) / f as f32 - 0.5).clamp(0.0, (n - 1) as f32);
+            let i0 = s.floor() as usize;
+            let i1 = (i0 + 1).min(n - 1);
+            (i0, i1, s - i0 as f32)
+        })
+        .collect()
+}
+
+/// [`upsample`]'s value at one output pixel from its taps along y and x ([`upsample_taps`]),
+/// `z(y, x)` the source.
+#[inline(always)]
+pub fn bilinear(
+    z: impl Fn(usize, usize) -> f32,
+    (y0, y1, fy): (usize, usize, f32),
+    (x0, x1, fx): (usize, usize, f32),
+) -> f32 {
+    let top = z(y0, x0) * (1.0 - fx) + z(y0, x1) * fx;
+    let bottom = z(y1, x0) * (1.0 - fx) + z(y1, x1) * fx;
+    top * (1.0 - fy) + bottom * fy
 }
 
 /// f x f block means `[B, C, h, w]` -> `[B, C, h/f, w/f]` (h, w multiples of f).
