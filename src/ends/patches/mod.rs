@@ -52,6 +52,7 @@ pub mod motif;
 pub mod negative;
 pub mod parts;
 pub mod regions;
+pub mod scale;
 pub mod search;
 pub mod settings;
 #[cfg(test)]
@@ -340,18 +341,57 @@ pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Resu
             .collect(),
         None => vec![RegionStyle::one(inputs.style)],
     };
+    let style_size = motif_size(&p, texture.style_size, &regions, s);
     let (out, _) = synthesize(
         scene,
         inputs.cameras,
         &regions,
         s.background,
-        texture.style_size,
+        style_size,
         &p,
         inputs.selection,
         Some(&s.rgb),
         inputs.bands()?,
     )?;
     Ok(out)
+}
+
+/// The styles' size: `texture.style_size` (`given`), or with `synthesis.motifs_per_part`
+/// the size that fits that many motifs of the first region's heaviest style across the
+/// object's parts in the source views ([`scale`]), logged with what it came from.
+fn motif_size(
+    p: &SynthesisParams,
+    given: usize,
+    regions: &[RegionStyle<'_>],
+    s: &crate::render::source::SourceViews,
+) -> usize {
+    if p.motifs_per_part <= 0.0 {
+        return given;
+    }
+    let style = regions
+        .first()
+        .and_then(|r| r.styles.iter().max_by(|a, b| a.1.total_cmp(&b.1)))
+        .map(|x| x.0);
+    let sizes = vec![(s.height, s.width); s.alpha.len()];
+    match style.and_then(|st| scale::choose(st, &s.alpha, &sizes, p.motifs_per_part)) {
+        Some(m) => {
+            tracing::info!(
+                "motif scale: the style at {} px (its motif period {:.1} px at {} px; the object's parts {:.0} px wide on screen, {} motifs across; synthesis.motifs_per_part, 0 for texture.style_size)",
+                m.style_size,
+                m.period,
+                scale::REFERENCE_SIDE,
+                m.part,
+                p.motifs_per_part
+            );
+            m.style_size
+        }
+        None => {
+            tracing::warn!(
+                "motif scale: no period in the style or no object in the views; texture.style_size {given} px"
+            );
+            given
+        }
+    }
 }
 
 /// The same synthesis in 2D, view by view's images with nothing shared: the prior's own

@@ -77,6 +77,11 @@ pub struct SynthesisParams {
     /// seeds; read by that start only). See src/ends/layout.rs.
     #[arg(long, default_value_t = 6.0)]
     pub motifs_across: f32,
+    /// The motif scale from the object's size on screen: the style sized so that this
+    /// many of its motif periods fit across the object's typical part (0: the style at
+    /// `texture.style_size`). See src/ends/patches/scale.rs.
+    #[arg(long, default_value_t = 0.0)]
+    pub motifs_per_part: f32,
     /// The guidance scale at t -> 0: how far each patch moves from the scene's own
     /// (the source branch) toward its style patch (the style branch): 1 takes the style
     /// patch, 0 keeps the scene.
@@ -122,6 +127,11 @@ impl SynthesisParams {
         if !(self.motifs_across.is_finite() && (1.0..=1000.0).contains(&self.motifs_across)) {
             return Err(Error::param(
                 "synthesis.motifs_across must lie in [1, 1000]",
+            ));
+        }
+        if !(self.motifs_per_part.is_finite() && (0.0..=100.0).contains(&self.motifs_per_part)) {
+            return Err(Error::param(
+                "synthesis.motifs_per_part must lie in [0, 100]",
             ));
         }
         if !(self.guidance.is_finite() && (0.0..=2.0).contains(&self.guidance)) {
