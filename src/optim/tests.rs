@@ -4,6 +4,17 @@ use crate::render::{CacheMode, RenderOptions, render};
 use crate::rng::Rng;
 use crate::{Camera, Result, Scene};
 
+/// `n` copies of `cam` moved along `axis`: the i-th by `first + i step`.
+fn cameras_along(n: usize, cam: Camera, axis: usize, step: f32, first: f32) -> Vec<Camera> {
+    (0..n)
+        .map(|i| {
+            let mut c = cam.clone();
+            c.translation[axis] = i as f32 * step + first;
+            c
+        })
+        .collect()
+}
+
 fn image(rng: &mut Rng, n: usize) -> Vec<f32> {
     (0..n).map(|_| rng.uniform() as f32).collect()
 }
@@ -74,13 +85,7 @@ fn adam_minimises_a_quadratic() {
 #[test]
 fn cached_and_uncached_fits_agree() {
     let truth = random_scene(400, 2, 21);
-    let cams: Vec<Camera> = (0..3)
-        .map(|i| {
-            let mut c = front_camera(40, 32, 40.0, 3.0);
-            c.translation[0] = i as f32 * 0.3 - 0.3;
-            c
-        })
-        .collect();
+    let cams = cameras_along(3, front_camera(40, 32, 40.0, 3.0), 0, 0.3, -0.3);
     let opts = RenderOptions {
         background: [0.3; 3],
     };
@@ -238,13 +243,7 @@ fn fit_is_identical_for_any_thread_count() {
 #[test]
 fn step_l2_is_the_hook_path_with_l2() {
     let scene = random_scene(700, 1, 57);
-    let cams: Vec<Camera> = (0..5)
-        .map(|i| {
-            let mut c = front_camera(53, 37, 50.0, 3.0);
-            c.translation[0] = i as f32 * 0.15 - 0.3;
-            c
-        })
-        .collect();
+    let cams = cameras_along(5, front_camera(53, 37, 50.0, 3.0), 0, 0.15, -0.3);
     let mut rng = Rng::new(8);
     let targets: Vec<Vec<f32>> = cams.iter().map(|_| image(&mut rng, 53 * 37 * 3)).collect();
     let pool = |n: usize| {
@@ -297,13 +296,7 @@ fn step_l2_is_the_hook_path_with_l2() {
 #[test]
 fn a_fits_views_are_the_renders() {
     let scene = random_scene(900, 2, 61);
-    let cams: Vec<Camera> = (0..3)
-        .map(|i| {
-            let mut c = front_camera(41, 29, 45.0, 3.0);
-            c.translation[1] = i as f32 * 0.2 - 0.2;
-            c
-        })
-        .collect();
+    let cams = cameras_along(3, front_camera(41, 29, 45.0, 3.0), 1, 0.2, -0.2);
     let bg = [0.2, 0.4, 0.7];
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     for cache in [CacheMode::On, CacheMode::Off, CacheMode::Budget(20_000)] {

@@ -199,7 +199,7 @@ pub fn synthesize(
     for (&s, levels) in p.levels.iter().zip(banks) {
         let started = std::time::Instant::now();
         let mut last = RoundStats::default();
-        let frozen = crate::timing::phase("level views", || view_levels(&src, &sizes, s, p));
+        let frozen = crate::timing::phase("level views", || view::levels(&src, &sizes, s, p));
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
             let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
@@ -341,7 +341,7 @@ pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Resu
             .collect(),
         None => vec![RegionStyle::one(inputs.style)],
     };
-    let style_size = motif_size(&p, texture.style_size, &regions, s);
+    let style_size = scale::style_size(&p, texture.style_size, &regions, s);
     let (out, _) = synthesize(
         scene,
         inputs.cameras,
@@ -354,44 +354,6 @@ pub fn run(_: super::Role, scene: &Scene, inputs: &super::EndInputs<'_>) -> Resu
         inputs.bands()?,
     )?;
     Ok(out)
-}
-
-/// The styles' size: `texture.style_size` (`given`), or with `synthesis.motifs_per_part`
-/// the size that fits that many motifs of the first region's heaviest style across the
-/// object's parts in the source views ([`scale`]), logged with what it came from.
-fn motif_size(
-    p: &SynthesisParams,
-    given: usize,
-    regions: &[RegionStyle<'_>],
-    s: &crate::render::source::SourceViews,
-) -> usize {
-    if p.motifs_per_part <= 0.0 {
-        return given;
-    }
-    let style = regions
-        .first()
-        .and_then(|r| r.styles.iter().max_by(|a, b| a.1.total_cmp(&b.1)))
-        .map(|x| x.0);
-    let sizes = vec![(s.height, s.width); s.alpha.len()];
-    match style.and_then(|st| scale::choose(st, &s.alpha, &sizes, p.motifs_per_part)) {
-        Some(m) => {
-            tracing::info!(
-                "motif scale: the style at {} px (its motif period {:.1} px at {} px; the object's parts {:.0} px wide on screen, {} motifs across; synthesis.motifs_per_part, 0 for texture.style_size)",
-                m.style_size,
-                m.period,
-                scale::REFERENCE_SIDE,
-                m.part,
-                p.motifs_per_part
-            );
-            m.style_size
-        }
-        None => {
-            tracing::warn!(
-                "motif scale: no period in the style or no object in the views; texture.style_size {given} px"
-            );
-            given
-        }
-    }
 }
 
 /// The same synthesis in 2D, view by view's images with nothing shared: the prior's own
@@ -440,26 +402,12 @@ pub fn synthesize_images(
             StyleLevel::new(styles, style_size / s, p, stride, &src.parts)
         })?;
         let levels = std::slice::from_ref(&level);
-        let frozen = view_levels(&src, sizes, s, p);
+        let frozen = view::levels(&src, sizes, s, p);
         for _ in 0..p.rounds {
             out = e_step(&out, &frozen, levels, &src, p).0;
         }
     }
     Ok(out)
-}
-
-/// Every view's frozen images at level `s` ([`ViewLevel`]; `sizes` (H, W) per view),
-/// made once for the level's rounds.
-fn view_levels(
-    src: &Frozen,
-    sizes: &[(usize, usize)],
-    s: usize,
-    p: &SynthesisParams,
-) -> Vec<ViewLevel> {
-    (0..sizes.len())
-        .into_par_iter()
-        .map(|v| ViewLevel::new(src, v, sizes[v], s, p))
-        .collect()
 }
 
 /// What one round's matches were like.
@@ -547,7 +495,7 @@ impl Frozen {
 /// The E-step of one round at a level: every view's object patches matched together
 /// (one balanced coupling over all views), each view's target `[H, W, 3]`.
 /// `renders` `[H, W, 3]` per view, `frozen` each view's images at the level
-/// ([`view_levels`]). Timed as the phases
+/// ([`view::levels`]). Timed as the phases
 /// `queries` (the views pooled, their patches in search coordinates), `search`,
 /// `balance` and the rematches' ([`StyleLevel::match_all`]), `stats` and `votes`.
 fn e_step(

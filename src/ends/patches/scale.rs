@@ -129,6 +129,44 @@ pub fn choose(
     })
 }
 
+/// The styles' size: `texture.style_size` (`given`), or with `synthesis.motifs_per_part`
+/// the size that fits that many motifs of the first region's heaviest style across the
+/// object's parts in the source views (module docs), logged with what it came from.
+pub fn style_size(
+    p: &super::SynthesisParams,
+    given: usize,
+    regions: &[super::regions::RegionStyle<'_>],
+    s: &crate::render::source::SourceViews,
+) -> usize {
+    if p.motifs_per_part <= 0.0 {
+        return given;
+    }
+    let style = regions
+        .first()
+        .and_then(|r| r.styles.iter().max_by(|a, b| a.1.total_cmp(&b.1)))
+        .map(|x| x.0);
+    let sizes = vec![(s.height, s.width); s.alpha.len()];
+    match style.and_then(|st| choose(st, &s.alpha, &sizes, p.motifs_per_part)) {
+        Some(m) => {
+            tracing::info!(
+                "motif scale: the style at {} px (its motif period {:.1} px at {} px; the object's parts {:.0} px wide on screen, {} motifs across; synthesis.motifs_per_part, 0 for texture.style_size)",
+                m.style_size,
+                m.period,
+                REFERENCE_SIDE,
+                m.part,
+                p.motifs_per_part
+            );
+            m.style_size
+        }
+        None => {
+            tracing::warn!(
+                "motif scale: no period in the style or no object in the views; texture.style_size {given} px"
+            );
+            given
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -10,6 +10,7 @@ use crate::prior::patch::bank::patches_at;
 use crate::prior::patch::latent::{bilinear, upsample_taps};
 use crate::render::fill::fill_background;
 use ndarray::{Array2, Array3, Array4, Axis};
+use rayon::prelude::*;
 
 /// One view's queries at one level: the object's pixels on the grid, the region owning
 /// each ([`super::regions`]), their colour patches `[P, k k 3]` and their patches of each
@@ -133,6 +134,20 @@ impl ViewLevel {
             full: size,
         }
     }
+}
+
+/// Every view's frozen images at level `s` ([`ViewLevel`]; `sizes` (H, W) per view),
+/// made once for the level's rounds.
+pub(super) fn levels(
+    src: &Frozen,
+    sizes: &[(usize, usize)],
+    s: usize,
+    p: &SynthesisParams,
+) -> Vec<ViewLevel> {
+    (0..sizes.len())
+        .into_par_iter()
+        .map(|v| ViewLevel::new(src, v, sizes[v], s, p))
+        .collect()
 }
 
 impl<'a> ViewImage<'a> {
