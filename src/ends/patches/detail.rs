@@ -27,6 +27,16 @@
 //! matched to the style's. One gain per style for all views, so they agree. Measured in
 //! BENCHMARKS.md "Line weight".
 //!
+//! **Ink** (`synthesis.ink`). The line weight matches the layer's strongest tenth over
+//! the whole object, which on a smooth object is its outline's shading; the creases
+//! inside it (a duck's neck, a fish's eye and gills) stay fainter than a brick wall's
+//! mortar. So the interior's own strongest tenth (the object more than twice the layer's
+//! blur from its outline, where the outline's band-pass does not reach) is raised, with
+//! a pixel or two around it, until it is `ink` times the style's typical edge (the
+//! [`INK_STYLE_QUANTILE`] of its band-pass), never lowered: an illustrator inking the
+//! creases, and only them. One gain per style for all views. Measured in BENCHMARKS.md
+//! "Line weight".
+//!
 //! **Shading band** (`synthesis.shade_blur`, off by default): the layer can also hold the
 //! object's shading, `alpha (G_detail * g - G_shade * g)`, at the style's contrast and
 //! without the line weight's gain. With the guide weak (`control` 0.1, `detail` 10 so
@@ -80,20 +90,14 @@ pub fn source_detail(
         })
         .unzip();
     if p.line_weight > 1.0 {
-        let own: Vec<Vec<f32>>;
-        let at = if within.is_empty() {
-            alpha
-        } else {
-            own = alpha
-                .iter()
-                .zip(within)
-                .map(|(a, c)| a.iter().zip(c).map(|(a, c)| a * c).collect())
-                .collect();
-            &own[..]
-        };
-        let k = line_gain(&d, at, style, style_size, p);
+        let at = object_pixels(alpha, within);
+        let k = line_gain(&d, &at, style, style_size, p);
         tracing::debug!("detail layer: line weight gain {k:.3}");
         d.iter_mut().flatten().for_each(|v| *v *= k);
+    }
+    if p.ink > 0.0 {
+        let at = object_pixels(alpha, within);
+        ink(&mut d, &at, sizes, (style, style_size), p);
     }
     if p.shade_blur > 0.0 {
         (d.par_iter_mut().zip(bases).zip(alpha).zip(sizes)).for_each(|(((d, base), a), &size)| {
@@ -104,6 +108,118 @@ pub fn source_detail(
         });
     }
     d
+}
+
+/// Each view's coverage, times the region's share of each pixel when `within` is not
+/// empty: the pixels a region's line weight and ink are measured over.
+fn object_pixels<'a>(
+    alpha: &'a [Vec<f32>],
+    within: &[Vec<f32>],
+) -> std::borrow::Cow<'a, [Vec<f32>]> {
+    if within.is_empty() {
+        return std::borrow::Cow::Borrowed(alpha);
+    }
+    alpha
+        .iter()
+        .zip(within)
+        .map(|(a, c)| a.iter().zip(c).map(|(a, c)| a * c).collect())
+        .collect()
+}
+
+/// The quantile of the style's band-pass that the ink matches: its typical edge.
+pub const INK_STYLE_QUANTILE: f32 = 0.75;
+/// The ink's reach around an edge pixel: the standard deviation (render pixels) of the
+/// blur that softens the edges' mask ...
+const INK_SPREAD: f32 = 2.0;
+/// ... and the gain on that blur, so that the mask is 1 on and next to an edge.
+const INK_FILL: f32 = 4.0;
+
+/// The ink (module docs): the pixels where `|d|` is at least its [`LINE_QUANTILE`] over
+/// the object (`alpha` > 0.5, every view), softened by [`INK_SPREAD`], get the gain
+/// `max(1, synthesis.ink q_style / q_object)`, `q_style` the [`INK_STYLE_QUANTILE`] of the
+/// style's band-pass ([`style_band`]) and `q_object` that quantile of `|d|`; the rest of
+/// the layer is as it was. Returns the gain (1: nothing changed).
+fn ink(
+    d: &mut [Vec<f32>],
+    alpha: &[Vec<f32>],
+    sizes: &[(usize, usize)],
+    (style, style_size): (&Image, usize),
+    p: &SynthesisParams,
+) -> f32 {
+    let reach = (2.0 * p.detail_blur).ceil() as usize;
+    let inner: Vec<Vec<f32>> = (alpha.iter().zip(sizes))
+        .map(|(a, &size)| interior(a, size, reach))
+        .collect();
+    let (Some(s), Some(o)) = (
+        quantile(style_band(style, style_size, p), INK_STYLE_QUANTILE),
+        quantile(object_band(d, &inner), LINE_QUANTILE),
+    ) else {
+        return 1.0;
+    };
+    if !(o > 0.0 && s.is_finite()) {
+        return 1.0;
+    }
+    let f = (p.ink * s / o).max(1.0);
+    tracing::debug!("detail layer: ink gain {f:.3} (style {s:.4}, object's edges {o:.4})");
+    if f <= 1.0 {
+        return 1.0;
+    }
+    (d.par_iter_mut().zip(&inner).zip(sizes)).for_each(|((d, a), &size)| {
+        let edges: Vec<f32> = d
+            .iter()
+            .zip(a)
+            .map(|(v, &a)| f32::from(u8::from(a > 0.5 && v.abs() >= o)))
+            .collect();
+        let mask = blur(edges, size, INK_SPREAD);
+        for (v, m) in d.iter_mut().zip(mask) {
+            *v *= 1.0 + (f - 1.0) * (INK_FILL * m).min(1.0);
+        }
+    });
+    f
+}
+
+/// The pixels of coverage > 0.5 whose square of half-side `r` lies in the coverage and
+/// in the view (1, else 0): the object away from its outline, whose own band-pass
+/// reaches about twice the layer's blur inward.
+fn interior(alpha: &[f32], (h, w): (usize, usize), r: usize) -> Vec<f32> {
+    let inside: Vec<bool> = alpha.iter().map(|&a| a > 0.5).collect();
+    // A square erodes by rows, then by columns: a pixel stays when the 2r + 1 pixels
+    // along `step` centred on it (`at` its place along that axis of length `len`) stay.
+    let erode = |src: &[bool], step: usize, len: usize| -> Vec<bool> {
+        (0..h * w)
+            .map(|i| {
+                let at = (i / step) % len;
+                at >= r && at + r < len && (0..=2 * r).all(|k| src[i + k * step - r * step])
+            })
+            .collect()
+    };
+    let rows = erode(&inside, 1, w);
+    erode(&rows, w, h)
+        .into_iter()
+        .map(|b| f32::from(u8::from(b)))
+        .collect()
+}
+
+/// `|band-pass|` of the style's luma at `style_size` (its shorter side in render pixels):
+/// the luma minus that luma blurred by `synthesis.detail_blur`, as the views' detail is.
+fn style_band(style: &Image, style_size: usize, p: &SynthesisParams) -> Vec<f32> {
+    let st = style.with_shorter_side(style_size.max(1));
+    let l = super::motif::luma(&st.data);
+    let base = blur(l.clone(), (st.height, st.width), p.detail_blur);
+    l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect()
+}
+
+/// `|d|` over the pixels of coverage > 0.5 of every view.
+fn object_band(d: &[Vec<f32>], alpha: &[Vec<f32>]) -> Vec<f32> {
+    d.iter()
+        .zip(alpha)
+        .flat_map(|(d, a)| {
+            d.iter()
+                .zip(a)
+                .filter(|(_, a)| **a > 0.5)
+                .map(|(d, _)| d.abs())
+        })
+        .collect()
 }
 
 /// The blur that takes the layer's base (`G_detail_blur * g`) to `G_shade_blur * g`:
@@ -124,23 +240,9 @@ pub fn line_gain(
     style_size: usize,
     p: &SynthesisParams,
 ) -> f32 {
-    let st = style.with_shorter_side(style_size.max(1));
-    let l = super::motif::luma(&st.data);
-    let base = blur(l.clone(), (st.height, st.width), p.detail_blur);
-    let style_band: Vec<f32> = l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect();
-    let object_band: Vec<f32> = d
-        .iter()
-        .zip(alpha)
-        .flat_map(|(d, a)| {
-            d.iter()
-                .zip(a)
-                .filter(|(_, a)| **a > 0.5)
-                .map(|(d, _)| d.abs())
-        })
-        .collect();
     match (
-        quantile(style_band, LINE_QUANTILE),
-        quantile(object_band, LINE_QUANTILE),
+        quantile(style_band(style, style_size, p), LINE_QUANTILE),
+        quantile(object_band(d, alpha), LINE_QUANTILE),
     ) {
         (Some(s), Some(o)) if o > 0.0 && s.is_finite() => (s / o).clamp(1.0, p.line_weight),
         _ => 1.0,
@@ -498,5 +600,92 @@ mod tests {
             new.1 > 0.05 && new.1 > 1.5 * old.1,
             "the outlines stay on the flat part"
         );
+    }
+
+    /// A 40 px square object (from 4 to 44) in a 48 x 48 view, luma 0.5 with a 3 px
+    /// crease of 0.45 at x = 23..=25 and a darker band (0.3) at x < 6: its RGB and
+    /// coverage.
+    fn creased_square(h: usize, w: usize) -> (Vec<f32>, Vec<f32>) {
+        let inside = |i: usize| (4..44).contains(&(i / w)) && (4..44).contains(&(i % w));
+        let alpha = (0..h * w).map(|i| f32::from(u8::from(inside(i)))).collect();
+        let luma = |x: usize| match x {
+            23..=25 => 0.45,
+            0..6 => 0.3,
+            _ => 0.5,
+        };
+        let obj = (0..h * w).flat_map(|i| [luma(i % w); 3]).collect();
+        (obj, alpha)
+    }
+
+    /// The ink: under a striped style, a faint crease inside a flat object is raised by
+    /// `max(1, ink q75(style band) / q90(|d| over the interior))` (both quantiles by
+    /// sorting here), a darker band beside the outline (within twice the layer's blur of
+    /// it) is not an edge of the interior and stays as it was, and so does the object far
+    /// from the crease; a flat style has no edges to match and leaves the layer as it was.
+    #[test]
+    fn the_ink_raises_the_interior_edges_and_nothing_else() {
+        let (h, w) = (48, 48);
+        let (obj, alpha) = creased_square(h, w);
+        let detail = |style: &Image, ink: f32| {
+            let p = SynthesisParams {
+                ink,
+                line_weight: 1.0,
+                ..SynthesisParams::default()
+            };
+            source_detail(
+                std::slice::from_ref(&obj),
+                std::slice::from_ref(&alpha),
+                (&[(h, w)][..], 40),
+                [0.0; 3],
+                (style, &[]),
+                &p,
+            )
+        };
+        let stripes = stripes();
+        let (raw, inked) = (detail(&stripes, 0.0), detail(&stripes, 2.0));
+        let q = |mut v: Vec<f32>, q: f32| {
+            v.sort_by(f32::total_cmp);
+            v[((v.len() - 1) as f32 * q) as usize]
+        };
+        let p = SynthesisParams::default();
+        let reach = (2.0 * p.detail_blur).ceil() as usize;
+        let inner = |i: usize| {
+            let (y, x) = (i / w, i % w);
+            (4 + reach..44 - reach).contains(&y) && (4 + reach..44 - reach).contains(&x)
+        };
+        let l = super::super::motif::luma(&stripes.data);
+        let base = blur(l.clone(), (40, 40), p.detail_blur);
+        let s = q(
+            l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect(),
+            0.75,
+        );
+        let interior = (0..h * w).filter(|&i| inner(i));
+        let o = q(interior.map(|i| raw[0][i].abs()).collect(), 0.9);
+        let f = 2.0 * s / o;
+        assert!(f > 2.0, "the stripes' edges are the stronger: {f}");
+        // The crease (3 px wide) is all edge: its middle takes the whole gain.
+        let crease = 24 * w + 24;
+        let got = inked[0][crease] / raw[0][crease];
+        assert!((got - f).abs() < 1e-4 * f, "{got} of {f}");
+        // The dark band's edge 2 px inside the outline is stronger than the crease but
+        // not in the interior; the mask (6 px at most around an edge) does not reach it.
+        for (at, what) in [
+            (24 * w + 5, "beside the outline"),
+            (24 * w + 6, "beside the outline"),
+            (24 * w + 14, "far from the crease"),
+        ] {
+            assert!(
+                raw[0][at].abs() > 1e-3 || what != "beside the outline",
+                "a band there"
+            );
+            assert!(
+                (inked[0][at] - raw[0][at]).abs() <= 1e-6 * raw[0][at].abs().max(1e-3),
+                "{what}: {} vs {}",
+                inked[0][at],
+                raw[0][at]
+            );
+        }
+        let flat = Image::from_fn(40, 40, |_, _| [0.4; 3]);
+        assert_eq!(detail(&flat, 2.0), detail(&flat, 0.0));
     }
 }

@@ -66,6 +66,13 @@ pub struct SynthesisParams {
     /// detail at the style's global contrast). See `detail.rs`.
     #[arg(long, default_value_t = 1.0)]
     pub line_weight: f32,
+    /// The detail layer's ink: the object's strongest edges (the strongest tenth of its
+    /// fine detail, and a pixel or two around them) raised until they are this many times
+    /// the style's typical edge (the 75th percentile of its band-pass), never lowered, so
+    /// a busy style's texture does not drown the object's creases and contours (0: off).
+    /// See `detail.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub ink: f32,
     /// The detail layer's shading band: when above `detail_blur`, the layer also holds
     /// the source's shading between the two scales (its luma blurred by `detail_blur`
     /// minus that luma blurred by this many render pixels), at the style's contrast and
@@ -145,6 +152,9 @@ impl SynthesisParams {
         }
         if !(self.line_weight.is_finite() && (1.0..=10.0).contains(&self.line_weight)) {
             return Err(Error::param("synthesis.line_weight must lie in [1, 10]"));
+        }
+        if !(self.ink.is_finite() && (0.0..=10.0).contains(&self.ink)) {
+            return Err(Error::param("synthesis.ink must lie in [0, 10]"));
         }
         if !(self.detail_blur.is_finite() && (0.25..=64.0).contains(&self.detail_blur)) {
             return Err(Error::param("synthesis.detail_blur must lie in [0.25, 64]"));
