@@ -134,11 +134,12 @@ const INK_SPREAD: f32 = 2.0;
 /// ... and the gain on that blur, so that the mask is 1 on and next to an edge.
 const INK_FILL: f32 = 4.0;
 
-/// The ink (module docs): the pixels where `|d|` is at least its [`LINE_QUANTILE`] over
-/// the object (`alpha` > 0.5, every view), softened by [`INK_SPREAD`], get the gain
-/// `max(1, synthesis.ink q_style / q_object)`, `q_style` the [`INK_STYLE_QUANTILE`] of the
-/// style's band-pass ([`style_band`]) and `q_object` that quantile of `|d|`; the rest of
-/// the layer is as it was. Returns the gain (1: nothing changed).
+/// The ink (module docs): the pixels of the object's [`interior`] (`alpha` > 0.5 and
+/// more than twice `synthesis.detail_blur` from the outline, every view) where `|d|` is
+/// at least its [`LINE_QUANTILE`] there (`q_object`), softened by [`INK_SPREAD`], get the
+/// gain `max(1, synthesis.ink q_style / q_object)`, `q_style` the [`INK_STYLE_QUANTILE`]
+/// of the style's band-pass ([`style_band`]); the rest of the layer is as it was.
+/// Returns the gain (1: nothing changed).
 fn ink(
     d: &mut [Vec<f32>],
     alpha: &[Vec<f32>],
