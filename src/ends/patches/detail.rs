@@ -48,6 +48,7 @@
 use super::SynthesisParams;
 use super::guide::{blur, source_guides, style_moments};
 use crate::imageio::Image;
+use crate::metrics::interior::erode;
 use rayon::prelude::*;
 
 /// The detail layer's weight `k`: `synthesis.detail` times the structure's weight
@@ -89,14 +90,13 @@ pub fn source_detail(
             (d, base)
         })
         .unzip();
+    let at = object_pixels(alpha, within);
     if p.line_weight > 1.0 {
-        let at = object_pixels(alpha, within);
         let k = line_gain(&d, &at, style, style_size, p);
         tracing::debug!("detail layer: line weight gain {k:.3}");
         d.iter_mut().flatten().for_each(|v| *v *= k);
     }
     if p.ink > 0.0 {
-        let at = object_pixels(alpha, within);
         ink(&mut d, &at, sizes, (style, style_size), p);
     }
     if p.shade_blur > 0.0 {
@@ -180,22 +180,11 @@ fn ink(
 }
 
 /// The pixels of coverage > 0.5 whose square of half-side `r` lies in the coverage and
-/// in the view (1, else 0): the object away from its outline, whose own band-pass
-/// reaches about twice the layer's blur inward.
+/// in the view (1, else 0; the evaluation's [`erode`]): the object away from its
+/// outline, whose own band-pass reaches about twice the layer's blur inward.
 fn interior(alpha: &[f32], (h, w): (usize, usize), r: usize) -> Vec<f32> {
     let inside: Vec<bool> = alpha.iter().map(|&a| a > 0.5).collect();
-    // A square erodes by rows, then by columns: a pixel stays when the 2r + 1 pixels
-    // along `step` centred on it (`at` its place along that axis of length `len`) stay.
-    let erode = |src: &[bool], step: usize, len: usize| -> Vec<bool> {
-        (0..h * w)
-            .map(|i| {
-                let at = (i / step) % len;
-                at >= r && at + r < len && (0..=2 * r).all(|k| src[i + k * step - r * step])
-            })
-            .collect()
-    };
-    let rows = erode(&inside, 1, w);
-    erode(&rows, w, h)
+    erode(&inside, w, h, r)
         .into_iter()
         .map(|b| f32::from(u8::from(b)))
         .collect()
