@@ -154,10 +154,11 @@ pub struct ConfigArgs {
     /// Start from a preset: `default` (the sample DAG's: the patch prior's deterministic
     /// end guided by the scene's structure, `finish = "patches"`, `synthesis.control = 1`),
     /// `paper` (FantasyStyle alone: the CSD term, no start, no finish, no split: the
-    /// defaults) or `arf` (ARF's recipe on the loop: NNFM and a light Gram term, the
-    /// projected start, the colour finish, a 2 px split) or `motifs` (the default with the
-    /// style's motifs laid out at their scale first, for smooth objects). The files are
-    /// presets/NAME.toml.
+    /// defaults), `arf` (ARF's recipe on the loop: NNFM and a light Gram term, the
+    /// projected start, the colour finish, a 2 px split), `motifs` (the default with the
+    /// style's motifs laid out at their scale first, for smooth objects) or `shaded` (the
+    /// default nearly unguided, the style's own layout with the object's shading and fine
+    /// lines laid over it). The files are presets/NAME.toml.
     #[arg(long, value_name = "NAME")]
     pub preset: Option<String>,
     /// A configuration file (TOML, the keys listed below; a file may name its base with
@@ -414,5 +415,34 @@ pub fn parse_rgb(s: &str) -> std::result::Result<[f32; 3], String> {
         _ => Err(format!(
             "`{s}`: expected three values in [0, 1], e.g. 1,1,1"
         )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Args;
+
+    /// `--preset`'s help names every file of presets/ (a new preset is one file there, and
+    /// `distill --help` is where a user looks for it).
+    #[test]
+    fn the_preset_help_names_every_preset() {
+        let mut cmd = ConfigArgs::augment_args(clap::Command::new("distill"));
+        let help = cmd.render_long_help().to_string();
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("presets");
+        let mut names = Vec::new();
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "toml") {
+                names.push(p.file_stem().unwrap().to_string_lossy().into_owned());
+            }
+        }
+        assert!(names.len() >= 5, "{names:?}");
+        for n in names {
+            assert!(
+                help.contains(&format!("`{n}`")),
+                "`{n}` missing from:\n{help}"
+            );
+        }
     }
 }
