@@ -14,7 +14,7 @@ bar: at most 1/5). `--set` passes a configuration key to every run (a variant).
 
 Needs the release binaries (target/release) and the keep benchmark's source views
 (`pipeline run --dag benches/quality/keep.toml source`); numpy only (vendor/venv).
-Prints a Markdown table; the runs are left under a temporary directory that is removed.
+Prints a Markdown table; its runs go to a temporary directory, removed at the end.
 """
 import argparse
 import os
