@@ -18,38 +18,21 @@ Prints a Markdown table; its runs go to a temporary directory, removed at the en
 """
 import argparse
 import os
-import struct
 import subprocess
 import sys
 import tempfile
-import zlib
 
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+from make_styles import write_png  # noqa: E402  (scripts/make_styles.py: an 8-bit RGB PNG)
 ROOT = os.path.dirname(os.path.dirname(HERE))
 KEEP = os.path.join(ROOT, "benches", "quality")
 SCENES = os.path.join(ROOT, "..", "shared", "data", "scenes")
 BIN = os.path.join(ROOT, "target", "release")
 OWN_VIEW = 2
 MIN_SIDE = 128
-
-
-def write_png(path, rgb):
-    """An 8-bit RGB PNG of `rgb` ([h, w, 3] floats in [0, 1])."""
-    a = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    h, w, _ = a.shape
-    raw = b"".join(b"\x00" + a[y].tobytes() for y in range(h))
-
-    def chunk(kind, data):
-        c = struct.pack(">I", len(data)) + kind + data
-        return c + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    with open(path, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n")
-        f.write(chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)))
-        f.write(chunk(b"IDAT", zlib.compress(raw, 9)))
-        f.write(chunk(b"IEND", b""))
 
 
 def own_crop(source, view=OWN_VIEW):
@@ -101,7 +84,7 @@ def main():
                 if not os.path.exists(p):
                     sys.exit(f"{p}: missing (see the module docs)")
             own = os.path.join(tmp, name + "-own.png")
-            write_png(own, own_crop(source, args.view))
+            write_png(own, own_crop(source, args.view) * 255.0 + 0.5)
             styles = [own] + [os.path.join(KEEP, "styles", s + ".png") for s in ("mosaic", "painting")]
             c = [change(scene, source, s, os.path.join(tmp, f"{name}-{i}"), args.set)
                  for i, s in enumerate(styles)]
