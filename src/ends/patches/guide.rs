@@ -17,6 +17,23 @@
 //! The style's moments are its *motifs'* ([`super::motif`]): a style photographed on a
 //! plain background is not remapped to black.
 //!
+//! **At each level** the match compares both guides blurred at the motif scale
+//! (`synthesis.guide_blur` synthesis pixels): a blur that leaves a smooth object's
+//! shading mostly whole takes most of a textured style's spread away (at the coarsest
+//! of the default's levels a brick wall's luma keeps 6% of its spread and op-art's 12%,
+//! a smooth duck's 54% and a fish's 61%). Remapped with the full-resolution moments
+//! alone, the object would then ask the style's blurred patches for more contrast than
+//! any of them has, and get their extremes: the shading posterised into a few flat
+//! areas of the style's darkest and brightest cells (the duck under brick wore a
+//! scribbled net of joints; BENCHMARKS.md "The keep benchmark on the default"). So at each level the object's guide (over its pixels of every view)
+//! has its spread narrowed to the spread of the level's style patches' guide, as the
+//! match sees both, where it is wider ([`Moments::toward`]): Image Analogies' remap,
+//! made on the band that is compared. It is never widened (where the style has more
+//! contrast at a scale than the object, a photograph's large shapes, the object is not
+//! asked for it), and its mean stays the full-resolution remap's (a coarse level's
+//! patches reach into the style's border and its filled background, which pull their
+//! mean; a self-style test moved the bust's coarse guide 0.1 darker when it followed).
+//!
 //! It is a part of the synthesis of the [`Channel`] kind ([`super::PARTS`]'
 //! `guide`, on when `synthesis.control` > 0): one more channel of every patch, weighted
 //! by sqrt(3 control).
@@ -62,6 +79,33 @@ impl Moments {
     /// `v` moved from these moments onto `to`'s.
     pub fn remap(&self, v: f32, to: &Moments) -> f32 {
         (v - self.mean) / self.std * to.std + to.mean
+    }
+
+    /// The moments of a mixture: each part's moments with its weight (weights > 0).
+    pub fn blend(parts: impl Iterator<Item = (Moments, f32)>) -> Moments {
+        let (mut w, mut m, mut m2) = (0.0f64, 0.0f64, 0.0f64);
+        for (mo, wi) in parts {
+            let (mean, std, wi) = (mo.mean as f64, mo.std as f64, wi as f64);
+            w += wi;
+            m += wi * mean;
+            m2 += wi * (std * std + mean * mean);
+        }
+        if w <= 0.0 {
+            return Moments::of(std::iter::empty());
+        }
+        let mean = m / w;
+        Moments {
+            mean: mean as f32,
+            std: (m2 / w - mean * mean).max(0.0).sqrt().max(1e-3) as f32,
+        }
+    }
+
+    /// The map a level's guide takes (module docs, "At each level"): these moments (the
+    /// object's guide as the level's match sees it) keep their mean, their spread scaled
+    /// down to `style`'s where it is wider, never up.
+    pub fn toward(&self, style: &Moments) -> impl Fn(f32) -> f32 + use<> {
+        let (mean, gain) = (self.mean, (style.std / self.std).min(1.0));
+        move |v| (v - mean) * gain + mean
     }
 }
 
@@ -172,6 +216,10 @@ impl Channel for StructureGuide {
     fn weight(&self, p: &SynthesisParams) -> f32 {
         (3.0 * p.control).sqrt()
     }
+
+    fn matched_at_level(&self) -> bool {
+        true
+    }
 }
 
 #[cfg(test)]
@@ -202,5 +250,46 @@ mod tests {
         assert!((got.mean - 0.2).abs() < 1e-4 && (got.std - 0.05).abs() < 1e-4);
         // Monotone in the luma: brighter pixels stay brighter.
         assert!(g[0][15] > g[0][0]);
+    }
+
+    #[test]
+    fn a_blend_has_the_moments_of_its_mixture() {
+        // Two point masses, 0 (weight 3) and 1 (weight 1): mean 1/4, variance 3/16.
+        let zero = Moments {
+            mean: 0.0,
+            std: 0.0,
+        };
+        let one = Moments {
+            mean: 1.0,
+            std: 0.0,
+        };
+        let b = Moments::blend([(zero, 3.0), (one, 1.0)].into_iter());
+        assert!((b.mean - 0.25).abs() < 1e-6 && (b.std - 0.1875f32.sqrt()).abs() < 1e-6);
+        // Against the moments of the values themselves.
+        let v = [0.0f32, 0.0, 0.0, 1.0];
+        let direct = Moments::of(v.iter().map(|&x| (x, true)));
+        assert!((b.mean - direct.mean).abs() < 1e-6 && (b.std - direct.std).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_level_map_narrows_the_spread_and_never_widens_it() {
+        let object = Moments {
+            mean: 0.5,
+            std: 0.2,
+        };
+        let narrow = Moments {
+            mean: 0.4,
+            std: 0.05,
+        };
+        let f = object.toward(&narrow);
+        // The object's mean stays, a deviation of one std becomes the style's.
+        assert!((f(0.5) - 0.5).abs() < 1e-6 && (f(0.7) - 0.55).abs() < 1e-6);
+        let wide = Moments {
+            mean: 0.6,
+            std: 0.4,
+        };
+        let g = object.toward(&wide);
+        // A wider style leaves the guide as it is.
+        assert!((g(0.5) - 0.5).abs() < 1e-6 && (g(0.7) - 0.7).abs() < 1e-6);
     }
 }

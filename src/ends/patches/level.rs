@@ -10,6 +10,7 @@
 
 use super::coherence::Neighbour;
 use super::couple::couple;
+use super::guide::Moments;
 use super::motif::{fill_background, motif_mask};
 use super::parts::{Channel, Rematch};
 use super::search::{CellSearch, Path};
@@ -28,6 +29,10 @@ pub(super) struct StyleLevel {
     pub(super) share: Vec<f32>,
     /// The channels' parts of the search ([`super::parts::Channel`]), in order.
     channels: Vec<ChannelSpace>,
+    /// Each channel's moments over the bank's patches (each style's with its weight):
+    /// what the object's channel is moved onto at this level when its part asks
+    /// ([`super::parts::Channel::matched_at_level`]).
+    pub(super) channel_moments: Vec<Moments>,
     /// The bank's search coordinates (`[M, d]`: the colours' PCA beside each channel's)
     /// packed for the search.
     search: CellSearch,
@@ -65,6 +70,17 @@ fn split_mean(g: &Array2<f32>) -> (ndarray::Array1<f32>, Array2<f32>) {
     let mean = g.mean_axis(Axis(1)).expect("patches have pixels");
     let detail = g - &mean.view().insert_axis(Axis(1));
     (mean, detail)
+}
+
+/// The moments of a channel's patches over a blend's styles (`each_style[i]` style i's
+/// patches), each style's with its weight.
+fn blend_moments(each_style: &[Array2<f32>], styles: &[(&Image, f32)]) -> Moments {
+    Moments::blend(
+        each_style
+            .iter()
+            .zip(styles)
+            .map(|(g, &(_, w))| (Moments::of(g.iter().map(|&v| (v, true))), w)),
+    )
 }
 
 /// Fewest motif patches a level keeps its background out with.
@@ -134,16 +150,13 @@ impl StyleLevel {
             }
         }
         let mut spaces = Vec::with_capacity(channels.len());
+        let mut channel_moments = Vec::with_capacity(channels.len());
         let mut parts = vec![r.coords.clone()];
         for &(name, ch) in channels {
-            let gp = stack(
-                each.iter()
-                    .map(|e| e.channel(ch, p, stride))
-                    .collect::<Vec<_>>()
-                    .iter()
-                    .map(|g| g.view())
-                    .collect(),
-            );
+            let each_style: Vec<Array2<f32>> =
+                each.iter().map(|e| e.channel(ch, p, stride)).collect();
+            channel_moments.push(blend_moments(&each_style, styles));
+            let gp = stack(each_style.iter().map(|g| g.view()).collect());
             let (_, detail) = split_mean(&gp);
             let gpca = Pca::fit(detail.view(), GUIDE_DIMS.min(gp.ncols()), 12)?;
             let space = ChannelSpace {
@@ -167,6 +180,7 @@ impl StyleLevel {
             cell_of,
             share,
             channels: spaces,
+            channel_moments,
             search,
             pos,
         })
@@ -345,4 +359,60 @@ fn select_rows(x: Array2<f32>, keep: &[bool]) -> Array2<f32> {
     }
     let rows: Vec<usize> = (0..x.nrows()).filter(|&i| keep[i]).collect();
     x.select(Axis(0), &rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::guide::StructureGuide;
+    use super::super::motif::luma;
+    use super::*;
+
+    fn grey(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Image {
+        let data = (0..h * w).flat_map(|i| [f(i / w, i % w); 3]).collect();
+        Image {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    /// The guide's moments at a level are those of the bank's guide patches: for a style
+    /// of fine stripes the blur at the motif scale leaves a small part of its spread, for
+    /// a style of two halves nearly all of it (what the object's guide is narrowed to,
+    /// [`super::super::view`]).
+    #[test]
+    fn a_levels_guide_moments_are_its_blurred_patches() {
+        let p = SynthesisParams {
+            patch: 5,
+            pca_dims: 4,
+            control: 1.0,
+            guide_blur: 2.0,
+            ..SynthesisParams::default()
+        };
+        let guide: &[Named<dyn Channel>] = &[("guide", &StructureGuide)];
+        let stripes = grey(48, 48, |_, x| if x % 2 == 0 { 0.1 } else { 0.9 });
+        let halves = grey(48, 48, |_, x| if x < 24 { 0.1 } else { 0.9 });
+        let moments = |style: &Image| {
+            StyleLevel::new(&[(style, 1.0)], 48, &p, 1, guide)
+                .unwrap()
+                .channel_moments[0]
+        };
+        let (s, h) = (moments(&stripes), moments(&halves));
+        // Both images have luma spread 0.4 before the blur; the stripes keep little of it
+        // after (what they keep is at the image borders, where the blur repeats the edge).
+        let full = Moments::of(luma(&stripes.data).into_iter().map(|v| (v, true)));
+        assert!((full.std - 0.4).abs() < 1e-3, "{full:?}");
+        assert!(
+            s.std < 0.15 * full.std,
+            "stripes keep {s:?} (their borders)"
+        );
+        assert!(h.std > 0.8 * full.std, "halves keep {h:?}");
+        assert!((s.mean - 0.5).abs() < 0.02 && (h.mean - 0.5).abs() < 0.02);
+        // A blend of the two is their mixture's moments.
+        let b = StyleLevel::new(&[(&stripes, 0.5), (&halves, 0.5)], 48, &p, 1, guide)
+            .unwrap()
+            .channel_moments[0];
+        let want = Moments::blend([(s, 0.5), (h, 0.5)].into_iter());
+        assert!((b.mean - want.mean).abs() < 1e-5 && (b.std - want.std).abs() < 1e-5);
+    }
 }

@@ -199,7 +199,9 @@ pub fn synthesize(
     for (&s, levels) in p.levels.iter().zip(banks) {
         let started = std::time::Instant::now();
         let mut last = RoundStats::default();
-        let frozen = crate::timing::phase("level views", || view::levels(&src, &sizes, s, p));
+        let frozen = crate::timing::phase("level views", || {
+            view::levels(&src, &sizes, (s, &levels), p)
+        });
         for _ in 0..p.rounds {
             bar.set_message(format!("patch synthesis, level {s}"));
             let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
@@ -402,7 +404,7 @@ pub fn synthesize_images(
             StyleLevel::new(styles, style_size / s, p, stride, &src.parts)
         })?;
         let levels = std::slice::from_ref(&level);
-        let frozen = view::levels(&src, sizes, s, p);
+        let frozen = view::levels(&src, sizes, (s, levels), p);
         for _ in 0..p.rounds {
             out = e_step(&out, &frozen, levels, &src, p).0;
         }

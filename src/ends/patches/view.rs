@@ -4,6 +4,7 @@
 //! weights and a Gaussian fall-off, moved from the source branch toward the style branch
 //! by the guidance scale), and the full-resolution target it gives.
 
+use super::guide::Moments;
 use super::level::StyleLevel;
 use super::{Frozen, OBJECT, SynthesisParams};
 use crate::prior::patch::bank::patches_at;
@@ -137,17 +138,61 @@ impl ViewLevel {
 }
 
 /// Every view's frozen images at level `s` ([`ViewLevel`]; `sizes` (H, W) per view),
-/// made once for the level's rounds.
+/// made once for the level's rounds; `styles`: each region's style model at the level,
+/// whose channel moments the channels that ask it are moved onto ([`match_moments`]).
 pub(super) fn levels(
     src: &Frozen,
     sizes: &[(usize, usize)],
-    s: usize,
+    (s, styles): (usize, &[StyleLevel]),
     p: &SynthesisParams,
 ) -> Vec<ViewLevel> {
-    (0..sizes.len())
+    let mut views: Vec<ViewLevel> = (0..sizes.len())
         .into_par_iter()
         .map(|v| ViewLevel::new(src, v, sizes[v], s, p))
-        .collect()
+        .collect();
+    match_moments(&mut views, src, styles);
+    views
+}
+
+/// Each channel whose part asks it ([`super::parts::Channel::matched_at_level`]), for
+/// each region, its spread over the region's object pixels of every view (coverage
+/// above [`OBJECT`], the pixels that make queries) narrowed to the spread of the
+/// region's style patches' channel at the level where it is wider, its mean kept
+/// ([`super::guide::Moments::toward`]); one map for all the views, so they agree.
+fn match_moments(views: &mut [ViewLevel], src: &Frozen, styles: &[StyleLevel]) {
+    for (r, style) in styles.iter().enumerate() {
+        for (c, &(_, part)) in src.parts.iter().enumerate() {
+            if !part.matched_at_level() {
+                continue;
+            }
+            let object = Moments::of(views.iter().flat_map(|f| {
+                let owned: Vec<bool> = match &f.owner {
+                    None => vec![true; f.alpha.len()],
+                    Some(o) => o.iter().map(|&x| x as usize == r).collect(),
+                };
+                f.channels[r][c]
+                    .iter()
+                    .zip(f.alpha.iter())
+                    .zip(owned)
+                    .map(|((&v, &a), own)| (v, a > OBJECT && own))
+                    .collect::<Vec<_>>()
+            }));
+            let to = &style.channel_moments[c];
+            tracing::debug!(
+                "level {}: {} of region {r} from mean {:.3} spread {:.3} onto the style's {:.3} / {:.3}",
+                views.first().map_or(0, |f| f.s),
+                src.parts[c].0,
+                object.mean,
+                object.std,
+                to.mean,
+                to.std
+            );
+            let map = object.toward(to);
+            views
+                .par_iter_mut()
+                .for_each(|f| f.channels[r][c].mapv_inplace(&map));
+        }
+    }
 }
 
 impl<'a> ViewImage<'a> {
@@ -332,6 +377,87 @@ mod tests {
             assert_eq!(got.dim(), want.dim());
             let bits = |a: &Array4<f32>| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&got), bits(&want), "c {c}, {h}x{w}, s {s}");
+        }
+    }
+
+    /// At each level the object's guide takes the style's guide spread there where it is
+    /// wider: a disc shaded from dark to bright under a style of fine stripes, whose
+    /// blurred guide keeps little spread, is narrowed to the stripes' spread; under a
+    /// style of two flat halves (more spread at the level than the disc) it is left as
+    /// it was. Its mean stays in both.
+    #[test]
+    fn each_level_narrows_the_objects_guide_to_the_styles() {
+        use super::super::guide::Moments;
+        use super::super::level::StyleLevel;
+        use super::super::regions::RegionStyle;
+        use super::super::{Frozen, OBJECT, SynthesisParams, channels};
+        use super::levels;
+        use crate::imageio::Image;
+        let (h, w) = (32usize, 32usize);
+        let grey = |f: &dyn Fn(usize, usize) -> f32| Image {
+            width: 48,
+            height: 48,
+            data: (0..48 * 48).flat_map(|i| [f(i / 48, i % 48); 3]).collect(),
+        };
+        let stripes = grey(&|_, x| if x % 2 == 0 { 0.2 } else { 0.8 });
+        let halves = grey(&|_, x| if x < 24 { 0.05 } else { 0.95 });
+        let alpha: Vec<f32> = (0..h * w)
+            .map(|i| {
+                let (y, x) = ((i / w) as f32 - 15.5, (i % w) as f32 - 15.5);
+                if y * y + x * x < 144.0 { 1.0 } else { 0.0 }
+            })
+            .collect();
+        let rgb: Vec<f32> = (0..h * w)
+            .flat_map(|i| [0.1 + 0.8 * (i % w) as f32 / w as f32; 3])
+            .zip(alpha.iter().flat_map(|&a| [a; 3]))
+            .map(|(v, a)| v * a)
+            .collect();
+        let p = SynthesisParams {
+            patch: 5,
+            pca_dims: 4,
+            control: 1.0,
+            guide_blur: 2.0,
+            detail: 0.0,
+            ..SynthesisParams::default()
+        };
+        for (style, narrowed) in [(&stripes, true), (&halves, false)] {
+            let region = [RegionStyle::one(style)];
+            let src = Frozen::new(
+                vec![rgb.clone()],
+                vec![alpha.clone()],
+                (&[(h, w)], 48),
+                &region,
+                Vec::new(),
+                [0.0; 3],
+                &p,
+            );
+            let level = StyleLevel::new(&[(style, 1.0)], 24, &p, 1, &channels(&p)).unwrap();
+            let to = level.channel_moments[0];
+            let object = |views: &[super::ViewLevel]| {
+                let f = &views[0];
+                Moments::of(
+                    f.channels[0][0]
+                        .iter()
+                        .zip(f.alpha.iter())
+                        .map(|(&v, &a)| (v, a > OBJECT)),
+                )
+            };
+            // The level's views before the match: made without the style.
+            let before = object(&levels(&src, &[(h, w)], (2, &[]), &p));
+            let got = object(&levels(
+                &src,
+                &[(h, w)],
+                (2, std::slice::from_ref(&level)),
+                &p,
+            ));
+            assert!((got.mean - before.mean).abs() < 1e-4, "{got:?} {before:?}");
+            if narrowed {
+                assert!(before.std > to.std + 0.05, "{before:?} {to:?}");
+                assert!((got.std - to.std).abs() < 1e-4, "{got:?} {to:?}");
+            } else {
+                assert!(before.std < to.std, "{before:?} {to:?}");
+                assert!((got.std - before.std).abs() < 1e-6, "{got:?} {before:?}");
+            }
         }
     }
 
