@@ -252,17 +252,15 @@ mod tests {
         assert!(g[0][15] > g[0][0]);
     }
 
+    fn mo(mean: f32, std: f32) -> Moments {
+        Moments { mean, std }
+    }
+
     #[test]
     fn a_blend_has_the_moments_of_its_mixture() {
         // Two point masses, 0 (weight 3) and 1 (weight 1): mean 1/4, variance 3/16.
-        let zero = Moments {
-            mean: 0.0,
-            std: 0.0,
-        };
-        let one = Moments {
-            mean: 1.0,
-            std: 0.0,
-        };
+        let zero = mo(0.0, 0.0);
+        let one = mo(1.0, 0.0);
         let b = Moments::blend([(zero, 3.0), (one, 1.0)].into_iter());
         assert!((b.mean - 0.25).abs() < 1e-6 && (b.std - 0.1875f32.sqrt()).abs() < 1e-6);
         // Against the moments of the values themselves.
@@ -273,21 +271,12 @@ mod tests {
 
     #[test]
     fn the_level_map_narrows_the_spread_and_never_widens_it() {
-        let object = Moments {
-            mean: 0.5,
-            std: 0.2,
-        };
-        let narrow = Moments {
-            mean: 0.4,
-            std: 0.05,
-        };
+        let object = mo(0.5, 0.2);
+        let narrow = mo(0.4, 0.05);
         let f = object.toward(&narrow);
         // The object's mean stays, a deviation of one std becomes the style's.
         assert!((f(0.5) - 0.5).abs() < 1e-6 && (f(0.7) - 0.55).abs() < 1e-6);
-        let wide = Moments {
-            mean: 0.6,
-            std: 0.4,
-        };
+        let wide = mo(0.6, 0.4);
         let g = object.toward(&wide);
         // A wider style leaves the guide as it is.
         assert!((g(0.5) - 0.5).abs() < 1e-6 && (g(0.7) - 0.7).abs() < 1e-6);

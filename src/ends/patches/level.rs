@@ -30,7 +30,7 @@ pub(super) struct StyleLevel {
     /// The channels' parts of the search ([`super::parts::Channel`]), in order.
     channels: Vec<ChannelSpace>,
     /// Each channel's moments over the bank's patches (each style's with its weight):
-    /// what the object's channel is moved onto at this level when its part asks
+    /// the spread the object's channel is narrowed to at this level when its part asks
     /// ([`super::parts::Channel::matched_at_level`]).
     pub(super) channel_moments: Vec<Moments>,
     /// The bank's search coordinates (`[M, d]`: the colours' PCA beside each channel's)

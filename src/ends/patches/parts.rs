@@ -36,9 +36,10 @@ pub trait Channel: Sync {
     }
     /// Its weight in the search: a patch's channel distance counts `weight^2` times.
     fn weight(&self, p: &SynthesisParams) -> f32;
-    /// Whether, at each level, the object's channel (over its pixels of every view) is
-    /// moved onto the moments of the level's style patches' channel
-    /// ([`super::guide::Moments::toward`]; the structure guide's, [`super::guide`]).
+    /// Whether, at each level, the object's channel (over its pixels of every view) has
+    /// its spread narrowed to the spread of the level's style patches' channel where it
+    /// is wider ([`super::guide::Moments::toward`]; the structure guide's,
+    /// [`super::guide`]).
     fn matched_at_level(&self) -> bool {
         false
     }

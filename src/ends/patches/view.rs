@@ -139,7 +139,8 @@ impl ViewLevel {
 
 /// Every view's frozen images at level `s` ([`ViewLevel`]; `sizes` (H, W) per view),
 /// made once for the level's rounds; `styles`: each region's style model at the level,
-/// whose channel moments the channels that ask it are moved onto ([`match_moments`]).
+/// to whose channel spread the channels that ask it are narrowed ([`match_moments`];
+/// none: the channels as pooled).
 pub(super) fn levels(
     src: &Frozen,
     sizes: &[(usize, usize)],
