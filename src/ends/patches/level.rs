@@ -365,16 +365,8 @@ fn select_rows(x: Array2<f32>, keep: &[bool]) -> Array2<f32> {
 mod tests {
     use super::super::guide::StructureGuide;
     use super::super::motif::luma;
+    use super::super::motif::tests::image;
     use super::*;
-
-    fn grey(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Image {
-        let data = (0..h * w).flat_map(|i| [f(i / w, i % w); 3]).collect();
-        Image {
-            width: w,
-            height: h,
-            data,
-        }
-    }
 
     /// The guide's moments at a level are those of the bank's guide patches: for a style
     /// of fine stripes the blur at the motif scale leaves a small part of its spread, for
@@ -390,8 +382,8 @@ mod tests {
             ..SynthesisParams::default()
         };
         let guide: &[Named<dyn Channel>] = &[("guide", &StructureGuide)];
-        let stripes = grey(48, 48, |_, x| if x % 2 == 0 { 0.1 } else { 0.9 });
-        let halves = grey(48, 48, |_, x| if x < 24 { 0.1 } else { 0.9 });
+        let stripes = image(48, 48, |_, x| [if x % 2 == 0 { 0.1 } else { 0.9 }; 3]);
+        let halves = image(48, 48, |_, x| [if x < 24 { 0.1 } else { 0.9 }; 3]);
         let moments = |style: &Image| {
             StyleLevel::new(&[(style, 1.0)], 48, &p, 1, guide)
                 .unwrap()

@@ -390,18 +390,13 @@ mod tests {
     fn each_level_narrows_the_objects_guide_to_the_styles() {
         use super::super::guide::Moments;
         use super::super::level::StyleLevel;
+        use super::super::motif::tests::image;
         use super::super::regions::RegionStyle;
         use super::super::{Frozen, OBJECT, SynthesisParams, channels};
         use super::levels;
-        use crate::imageio::Image;
         let (h, w) = (32usize, 32usize);
-        let grey = |f: &dyn Fn(usize, usize) -> f32| Image {
-            width: 48,
-            height: 48,
-            data: (0..48 * 48).flat_map(|i| [f(i / 48, i % 48); 3]).collect(),
-        };
-        let stripes = grey(&|_, x| if x % 2 == 0 { 0.2 } else { 0.8 });
-        let halves = grey(&|_, x| if x < 24 { 0.05 } else { 0.95 });
+        let stripes = image(48, 48, |_, x| [if x % 2 == 0 { 0.2 } else { 0.8 }; 3]);
+        let halves = image(48, 48, |_, x| [if x < 24 { 0.05 } else { 0.95 }; 3]);
         let alpha: Vec<f32> = (0..h * w)
             .map(|i| {
                 let (y, x) = ((i / w) as f32 - 15.5, (i % w) as f32 - 15.5);
