@@ -20,7 +20,9 @@ prints Markdown (plain Python and numpy only):
   (<= 0.30, <= 0.60); the object KID's mean there (<= 0.23); long-range LPIPS <= 1.5 x
   the original's + 0.02 in how many cases (the failures listed), the same bound met by
   colour transfer (seam-free by construction: one colour map of the Gaussians) and the
-  default against 1.5 x colour transfer's own + 0.02; loop minus default,
+  default against 1.5 x colour transfer's own + 0.02; the long-range excess over the
+  warp's own loss (`long_range.excess_lpips_mean`) <= 1.5 x the original's excess + 0.02
+  for default, colour, unguided, motifs, shaded and preview; loop minus default,
   paired over the loop's cases, each measure's mean difference with a 95% interval
   (Student t);
 * issue 53's checks, of the default and of the `motifs` and `shaded` presets: edge
@@ -74,6 +76,8 @@ def measures(m):
         "lpips": m.get("lpips_content"),
         "long": lr.get("lpips_mean"),
         "long_orig": lr.get("original_lpips_mean"),
+        "excess": lr.get("excess_lpips_mean"),
+        "excess_orig": lr.get("original_excess_lpips_mean"),
         "interior": m.get("interior_structure"),
         "edge": m.get("edge_recall"),
         "motif": m.get("motif_contrast"),
@@ -206,6 +210,29 @@ def check_long_range_floor(res, cases):
     print(f"  - colour transfer against the same bound: {rows - len(colour_fails)} of {rows} cases "
           f"(a seam-free result; fails: {', '.join(colour_fails) or 'none'})")
     print(f"  - default <= 1.5 x colour transfer's + 0.02: {rows - len(fails)} of {rows} cases"
+          + (f"; fails: {', '.join(fails)}" if fails else ""))
+    for me in ("default", "colour", "unguided", "motifs", "shaded", "preview"):
+        check_long_range_excess(res, cases, me)
+
+
+def check_long_range_excess(res, cases, me):
+    """The long-range excess over the warp's own loss (`long_range.excess_lpips_mean`: the
+    pair's LPIPS minus a view's round trip through its partner; src/metrics/consistency.rs)
+    <= 1.5 x the original renders' own excess + 0.02, for method `me`."""
+    rows, fails, vals = 0, [], []
+    for c in cases:
+        r = res.get(c + (me,))
+        if r is None or r["excess"] is None or r["excess_orig"] is None:
+            continue
+        rows += 1
+        vals.append(r["excess"])
+        bound = 1.5 * r["excess_orig"] + 0.02
+        if r["excess"] > bound:
+            fails.append(f"{c[0]} x {c[1]} ({r['excess']:.4f} > {bound:.4f})")
+    if rows == 0:
+        return
+    print(f"- long-range excess LPIPS <= 1.5 x the original's excess + 0.02 ({me}): {rows - len(fails)} of "
+          f"{rows} cases ({verdict(not fails)}; mean {sum(vals) / rows:.4f}, max {max(vals):.4f})"
           + (f"; fails: {', '.join(fails)}" if fails else ""))
 
 

@@ -97,6 +97,12 @@ pub struct RangeConsistency {
     pub rmse_mean: Option<f64>,
     pub original_lpips_mean: Option<f64>,
     pub original_rmse_mean: Option<f64>,
+    /// The mean excess over the warp's own loss ([`consistency`]'s module doc): what the
+    /// other view adds (seams, view-dependent blends), stylized and original.
+    pub excess_lpips_mean: Option<f64>,
+    pub excess_rmse_mean: Option<f64>,
+    pub original_excess_lpips_mean: Option<f64>,
+    pub original_excess_rmse_mean: Option<f64>,
     pub stylized: Vec<PairScore>,
     pub original: Vec<PairScore>,
 }
@@ -239,12 +245,19 @@ impl RangeConsistency {
     /// The stylized pairs' scores `s` beside the original views' own `original`.
     fn new(offset: usize, s: Vec<PairScore>, original: &[PairScore]) -> RangeConsistency {
         let o = original;
+        let mean = |v: &[PairScore], f: fn(&PairScore) -> Option<f64>| {
+            consistency::mean_of(v.iter().map(f))
+        };
         RangeConsistency {
             offset,
-            lpips_mean: consistency::mean_of(s.iter().map(|p| p.lpips)),
-            rmse_mean: consistency::mean_of(s.iter().map(|p| p.rmse)),
-            original_lpips_mean: consistency::mean_of(o.iter().map(|p| p.lpips)),
-            original_rmse_mean: consistency::mean_of(o.iter().map(|p| p.rmse)),
+            lpips_mean: mean(&s, |p| p.lpips),
+            rmse_mean: mean(&s, |p| p.rmse),
+            original_lpips_mean: mean(o, |p| p.lpips),
+            original_rmse_mean: mean(o, |p| p.rmse),
+            excess_lpips_mean: mean(&s, |p| p.excess_lpips),
+            excess_rmse_mean: mean(&s, |p| p.excess_rmse),
+            original_excess_lpips_mean: mean(o, |p| p.excess_lpips),
+            original_excess_rmse_mean: mean(o, |p| p.excess_rmse),
             stylized: s,
             original: o.to_vec(),
         }

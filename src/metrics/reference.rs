@@ -330,6 +330,16 @@ impl Reference {
                 "the reference's parts do not match its settings (a damaged or hand-edited artifact)",
             ));
         }
+        let measured = |v: &[consistency::PairScore]| {
+            v.iter().any(|p| p.excess_lpips.is_some()) || v.iter().all(|p| p.lpips.is_none())
+        };
+        if !measured(&s.short_original) || !measured(&s.long_original) {
+            return Err(Error::input(
+                origin,
+                "this reference predates the consistency excess (its pairs have no round trip): \
+                 make it again with `evaluate --reference-only`",
+            ));
+        }
         Ok(())
     }
 }

@@ -5,6 +5,7 @@
 #![allow(clippy::too_many_lines)]
 mod baselines;
 mod chain;
+mod consistency;
 mod csd_golden;
 mod diffusion;
 mod distill;

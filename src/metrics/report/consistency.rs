@@ -74,6 +74,8 @@ fn pair_table(rc: &RangeConsistency) -> String {
                 fmt_opt(b.lpips, 4),
                 fmt_opt(a.rmse, 4),
                 fmt_opt(b.rmse, 4),
+                fmt_opt(a.excess_lpips, 4),
+                fmt_opt(b.excess_lpips, 4),
             ]
         })
         .collect();
@@ -85,6 +87,8 @@ fn pair_table(rc: &RangeConsistency) -> String {
             "LPIPS original",
             "RMSE stylized",
             "RMSE original",
+            "excess LPIPS stylized",
+            "excess LPIPS original",
         ],
         &rows,
     )

@@ -179,6 +179,15 @@ fn consistency_rows(m: &Metrics) -> Vec<Vec<String>> {
                 fmt_opt(m.long_range.original_rmse_mean, 4)
             ),
         ],
+        vec![
+            format!("long-range excess LPIPS ({net}) ↓"),
+            fmt_opt(m.long_range.excess_lpips_mean, 4),
+            format!(
+                "above the warp's own loss on the same content (a view warped there and back): \
+                 seams and view-dependent blends; original renders: {}",
+                fmt_opt(m.long_range.original_excess_lpips_mean, 4)
+            ),
+        ],
     ]
 }
 
