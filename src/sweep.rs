@@ -348,6 +348,7 @@ pub fn summary(metrics: &serde_json::Value) -> BTreeMap<String, Option<f64>> {
         ("lpips_content", get(&["lpips_content"])),
         ("short_lpips", get(&["short_range", "lpips_mean"])),
         ("long_lpips", get(&["long_range", "lpips_mean"])),
+        ("long_excess", get(&["long_range", "excess_lpips_mean"])),
         ("short_rmse", get(&["short_range", "rmse_mean"])),
         ("gram_style", get(&["gram_style"])),
         ("structure_kept", get(&["structure_kept"])),
