@@ -51,6 +51,7 @@ T95 = {1: 12.71, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 
 MEASURES = [("structure", "structure kept", 3), ("g1", "Gram relu1_2 (s/o)", 3),
             ("g2", "Gram relu2_2 (s/o)", 3), ("kid", "object KID", 4),
             ("lpips", "LPIPS content", 3), ("long", "long-range LPIPS", 4),
+            ("excess", "long-range excess", 4),
             ("interior", "interior structure", 3), ("edge", "edge recall", 3),
             ("motif", "motif contrast", 3), ("tex", "style texture", 3)]
 
@@ -122,14 +123,15 @@ def mean_ci(xs):
 def case_table(res, cases):
     print("## Per case")
     print()
-    print("| scene | style | method | " + " | ".join(c[1] for c in MEASURES) + " | original's long-range LPIPS |")
-    print("|---" * (4 + len(MEASURES)) + "|")
+    print("| scene | style | method | " + " | ".join(c[1] for c in MEASURES)
+          + " | original's long-range LPIPS | original's long-range excess |")
+    print("|---" * (5 + len(MEASURES)) + "|")
     for sc, sty in cases:
         for me in METHODS:
             r = res.get((sc, sty, me))
             if r is None:
                 continue
-            vals = [fmt(r[k], d) for k, _, d in MEASURES] + [fmt(r["long_orig"], 4)]
+            vals = [fmt(r[k], d) for k, _, d in MEASURES] + [fmt(r["long_orig"], 4), fmt(r["excess_orig"], 4)]
             print(f"| {sc} | {sty} | {me} | " + " | ".join(vals) + " |")
     print()
 

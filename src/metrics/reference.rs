@@ -404,9 +404,24 @@ mod tests {
         };
         let before = calls();
         let mut nets = Nets::load(&models, p.lpips_net, p.inception, p.threads).unwrap();
-        Reference::compute(&mut nets, &orig, &style, &p).unwrap();
+        let mut r = Reference::compute(&mut nets, &orig, &style, &p).unwrap();
         for ((name, after), b) in names.iter().zip(calls()).zip(before) {
             assert!(after > b, "phase `{name}` not timed");
         }
+        // A reference from before the consistency excess (its pairs without one) is
+        // refused with a way out.
+        let origin = std::path::Path::new("ref");
+        r.check(origin, &orig, &p).unwrap();
+        assert!(
+            r.scores
+                .short_original
+                .iter()
+                .any(|q| q.excess_lpips.is_some())
+        );
+        for q in &mut r.scores.short_original {
+            (q.excess_lpips, q.excess_rmse) = (None, None);
+        }
+        let e = r.check(origin, &orig, &p).unwrap_err().to_string();
+        assert!(e.contains("predates the consistency excess"), "{e}");
     }
 }
