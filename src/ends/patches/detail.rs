@@ -23,9 +23,13 @@
 //! raised until its strongest tenth (the [`LINE_QUANTILE`] of `|D|` over the object's
 //! pixels of every view) is as strong as the same quantile of the style's own band-pass
 //! (its luma minus that luma blurred alike, the style at the motif scale), by a gain
-//! `clamp(q_style / q_object, 1, synthesis.line_weight)`: an illustrator's line weight,
-//! matched to the style's. One gain per style for all views, so they agree. Measured in
-//! BENCHMARKS.md "Line weight".
+//! `clamp(q_style / q_object, 1 / synthesis.line_weight, synthesis.line_weight)`: an
+//! illustrator's line weight, matched to the style's. It works both ways: where the
+//! object's fine structure is stronger than anything in the style (a plant's dense
+//! leaf edges under a smooth photograph) the layer is lowered, at most to
+//! `1 / line_weight`, so the object's lines do not outweigh the style's texture; a
+//! style with no band-pass at all has nothing to match and leaves it at 1. One gain per
+//! style for all views, so they agree. Measured in BENCHMARKS.md "Line weight".
 //!
 //! **Ink** (`synthesis.ink`). The line weight matches the layer's strongest tenth over
 //! the whole object, which on a smooth object is its outline's shading; the creases
@@ -59,6 +63,8 @@ pub fn weight(p: &SynthesisParams) -> f32 {
 
 /// The quantile of `|detail|` that the line weight matches: the strongest tenth.
 pub const LINE_QUANTILE: f32 = 0.9;
+/// A style's band-pass quantile at most this is flat: no line weight to match (gain 1).
+pub const FLAT: f32 = 1e-6;
 
 /// The detail layer of every source view (`[H W]` each; module docs), from the frozen
 /// source views (`rgb` `[H, W, 3]`, `alpha` `[H, W]`, `sizes` (H, W), composited over
@@ -218,9 +224,9 @@ fn shade_sigma(p: &SynthesisParams) -> f32 {
     (p.shade_blur * p.shade_blur - p.detail_blur * p.detail_blur).sqrt()
 }
 
-/// The line weight's gain (module docs): `clamp(q_style / q_object, 1,
-/// synthesis.line_weight)`, `q` the [`LINE_QUANTILE`] of `|band-pass|` of the style's
-/// luma (at `style_size`, its shorter side in render pixels, blurred by
+/// The line weight's gain (module docs): `clamp(q_style / q_object, 1 / line_weight,
+/// line_weight)` (1 for a style whose quantile is at most [`FLAT`]), `q` the
+/// [`LINE_QUANTILE`] of `|band-pass|` of the style's luma (at `style_size`, its shorter side in render pixels, blurred by
 /// `synthesis.detail_blur` as the views are) and of the detail `d` over the pixels of
 /// coverage > 0.5 of every view; 1 where either is empty or the object has no detail.
 pub fn line_gain(
@@ -234,7 +240,9 @@ pub fn line_gain(
         quantile(style_band(style, style_size, p), LINE_QUANTILE),
         quantile(object_band(d, alpha), LINE_QUANTILE),
     ) {
-        (Some(s), Some(o)) if o > 0.0 && s.is_finite() => (s / o).clamp(1.0, p.line_weight),
+        (Some(s), Some(o)) if o > 0.0 && s > FLAT && s.is_finite() => {
+            (s / o).clamp(1.0 / p.line_weight, p.line_weight)
+        }
         _ => 1.0,
     }
 }
@@ -405,6 +413,22 @@ mod tests {
         );
         // A flat style has no edges to match: the gain stays 1.
         assert_eq!(detail(&flat, 4.0), detail(&flat, 1.0));
+        // Slow waves (a 64 px period: their spread is in the shading, little in the
+        // band-pass): the crease is now the stronger (both are remapped to the style's
+        // spread first), and the layer is lowered by the ratio, to 1 / line_weight at most.
+        let faint = Image::from_fn(40, 40, |x, _| {
+            [0.5 + 0.4 * (std::f32::consts::TAU * x as f32 / 64.0).sin(); 3]
+        });
+        let raw = detail(&faint, 1.0);
+        let l = super::super::motif::luma(&faint.data);
+        let base = blur(l.clone(), (40, 40), SynthesisParams::default().detail_blur);
+        let ratio = q(l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect())
+            / q(raw[0].iter().map(|v| v.abs()).collect());
+        assert!(ratio < 0.5, "the crease is the stronger: {ratio}");
+        let got = peak(&detail(&faint, 10.0)) / peak(&raw);
+        assert!((got - ratio.max(0.1)).abs() < 1e-3, "{got} vs {ratio}");
+        let floor = peak(&detail(&faint, 2.0)) / peak(&raw);
+        assert!((floor - 0.5).abs() < 1e-4, "{floor}");
     }
 
     /// The shading band: with the line weight off, the layer at `detail_blur` 4 plus the

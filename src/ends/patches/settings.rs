@@ -62,8 +62,9 @@ pub struct SynthesisParams {
     #[arg(long, default_value_t = 4.0)]
     pub detail_blur: f32,
     /// The detail layer's line weight: its most gain where the object's fine structure
-    /// is fainter than the style's own edges (the strongest tenth of each matched; 1: the
-    /// detail at the style's global contrast). See `detail.rs`.
+    /// is fainter than the style's own edges, and 1 / it the least where it is stronger
+    /// (the strongest tenth of each matched; 1: the detail at the style's global
+    /// contrast). See `detail.rs`.
     #[arg(long, default_value_t = 1.0)]
     pub line_weight: f32,
     /// The detail layer's ink: the object's strongest edges (the strongest tenth of its
