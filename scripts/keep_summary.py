@@ -176,16 +176,24 @@ def check_texture(res, cases):
           f"<= 0.23: {verdict(None if mu is None else mu <= 0.23)})")
 
 
-def check_long_range(res, cases):
-    rows, fails = 0, []
+def within_bound(res, cases, me, key, orig_key):
+    """Method `me`'s cases with `key` and `orig_key` measured: (rows, values, fails), a
+    case failing where `key` > 1.5 x `orig_key` + 0.02."""
+    rows, vals, fails = 0, [], []
     for c in cases:
-        r = res.get(c + ("default",))
-        if r is None or r["long"] is None or r["long_orig"] is None:
+        r = res.get(c + (me,))
+        if r is None or r[key] is None or r[orig_key] is None:
             continue
         rows += 1
-        bound = 1.5 * r["long_orig"] + 0.02
-        if r["long"] > bound:
-            fails.append(f"{c[0]} x {c[1]} ({r['long']:.4f} > {bound:.4f})")
+        vals.append(r[key])
+        bound = 1.5 * r[orig_key] + 0.02
+        if r[key] > bound:
+            fails.append(f"{c[0]} x {c[1]} ({r[key]:.4f} > {bound:.4f})")
+    return rows, vals, fails
+
+
+def check_long_range(res, cases):
+    rows, _, fails = within_bound(res, cases, "default", "long", "long_orig")
     print(f"- long-range LPIPS <= 1.5 x the original's + 0.02 (default): {rows - len(fails)} of {rows} cases "
           f"({verdict(None if rows == 0 else not fails)})" + (f"; fails: {', '.join(fails)}" if fails else ""))
     check_long_range_floor(res, cases)
@@ -221,16 +229,7 @@ def check_long_range_excess(res, cases, me):
     """The long-range excess over the warp's own loss (`long_range.excess_lpips_mean`: the
     pair's LPIPS minus a view's round trip through its partner; src/metrics/consistency.rs)
     <= 1.5 x the original renders' own excess + 0.02, for method `me`."""
-    rows, fails, vals = 0, [], []
-    for c in cases:
-        r = res.get(c + (me,))
-        if r is None or r["excess"] is None or r["excess_orig"] is None:
-            continue
-        rows += 1
-        vals.append(r["excess"])
-        bound = 1.5 * r["excess_orig"] + 0.02
-        if r["excess"] > bound:
-            fails.append(f"{c[0]} x {c[1]} ({r['excess']:.4f} > {bound:.4f})")
+    rows, vals, fails = within_bound(res, cases, me, "excess", "excess_orig")
     if rows == 0:
         return
     print(f"- long-range excess LPIPS <= 1.5 x the original's excess + 0.02 ({me}): {rows - len(fails)} of "

@@ -11,14 +11,12 @@
 
 use crate::evaluate::{cameras, ready, restyle, write_views};
 use crate::harness::{self, repo_root};
-use clap::Parser;
 use fantasystyle::artifacts::read_view_set;
 use fantasystyle::imageio::Image;
 use fantasystyle::metrics::consistency::{self, PairScore};
 use fantasystyle::metrics::nets::{LpipsModel, LpipsNet};
 use fantasystyle::metrics::views::ViewSet;
 use fantasystyle::models::models_dir;
-use fantasystyle::stages::render_views;
 
 fn lpips() -> LpipsModel {
     LpipsModel::load(&models_dir().unwrap(), LpipsNet::Alex, 2).unwrap()
@@ -44,11 +42,8 @@ fn flickered(src: &ViewSet, dir: &std::path::Path) -> ViewSet {
         })
         .collect();
     let cams = std::fs::read(src.dir.join("cameras.json")).unwrap();
-    let alpha: Vec<f32> = (0..src.n)
-        .flat_map(|i| src.geometry(i).1.to_vec())
-        .collect();
     let shape = [src.n, src.height, src.width];
-    harness::write_views(dir, shape, &rgb, &src.depth, &alpha, &cams);
+    harness::write_views(dir, shape, &rgb, &src.depth, &src.alpha, &cams);
     read_view_set(dir).unwrap()
 }
 
@@ -60,12 +55,7 @@ fn pair_round_trip_and_excess_match_an_independent_numpy_reference() {
     }
     let d = tempfile::tempdir().unwrap();
     let rendered = d.path().join("rendered");
-    let cmd = format!(
-        "rv --scene {} --cameras orbit:8 --width 96 --height 96 --out {}",
-        repo_root().join("data-sample/scene.ply").display(),
-        rendered.display()
-    );
-    render_views::run(render_views::Args::parse_from(cmd.split(' '))).unwrap();
+    harness::render_sample(&rendered, 8, 96);
     let src = read_view_set(&rendered).unwrap();
     let styl = flickered(&src, &d.path().join("flickered"));
     let mut lp = lpips();

@@ -155,3 +155,26 @@ pub fn ok(c: &mut std::process::Command) -> std::process::Output {
     );
     out
 }
+
+/// The sample scene rendered by `render-views` into a views artifact at `out`: `n` orbit
+/// cameras, `side` x `side` pixels.
+pub fn render_sample(out: &std::path::Path, n: usize, side: usize) {
+    use clap::Parser;
+    use fantasystyle::stages::render_views;
+    let scene = repo_root().join("data-sample/scene.ply");
+    let (cams, side) = (format!("orbit:{n}"), side.to_string());
+    render_views::run(render_views::Args::parse_from([
+        "rv".as_ref(),
+        "--scene".as_ref(),
+        scene.as_os_str(),
+        "--cameras".as_ref(),
+        cams.as_ref(),
+        "--width".as_ref(),
+        side.as_ref(),
+        "--height".as_ref(),
+        side.as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]))
+    .unwrap();
+}

@@ -13,12 +13,10 @@
 //! numpy fits beta by least squares, Rust by the ratio of sums).
 
 use crate::harness::{self, repo_root};
-use clap::Parser;
 use fantasystyle::artifacts::read_view_set;
 use fantasystyle::imageio::Image;
 use fantasystyle::metrics::interior::{self, CHANCE_RECALL};
 use fantasystyle::metrics::views::ViewSet;
-use fantasystyle::stages::render_views;
 use std::path::Path;
 
 /// The perturbations, one per view; the last view's source alpha is cut to a 20 px
@@ -74,12 +72,7 @@ fn interior_measures_match_an_independent_numpy_reference() {
     let Some(py) = harness::python() else { return };
     let d = tempfile::tempdir().unwrap();
     let rendered = d.path().join("rendered");
-    let cmd = format!(
-        "rv --scene {} --cameras orbit:7 --width 128 --height 128 --out {}",
-        repo_root().join("data-sample/scene.ply").display(),
-        rendered.display()
-    );
-    render_views::run(render_views::Args::parse_from(cmd.split(' '))).unwrap();
+    harness::render_sample(&rendered, 7, 128);
     let r = read_view_set(&rendered).unwrap();
     let (w, h) = (r.width, r.height);
     // The source: the last view's alpha cut to a 20 px square at the object's centre row.

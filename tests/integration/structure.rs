@@ -8,12 +8,10 @@
 //! differences are about 1e-15).
 
 use crate::harness::{self, repo_root};
-use clap::Parser;
 use fantasystyle::artifacts::read_view_set;
 use fantasystyle::imageio::Image;
 use fantasystyle::metrics::structure;
 use fantasystyle::metrics::views::ViewSet;
-use fantasystyle::stages::render_views;
 use std::path::Path;
 
 /// The perturbations, one per view.
@@ -58,12 +56,7 @@ fn structure_kept_matches_an_independent_numpy_reference() {
     let Some(py) = harness::python() else { return };
     let d = tempfile::tempdir().unwrap();
     let views = d.path().join("source");
-    let cmd = format!(
-        "rv --scene {} --cameras orbit:6 --width 96 --height 96 --out {}",
-        repo_root().join("data-sample/scene.ply").display(),
-        views.display()
-    );
-    render_views::run(render_views::Args::parse_from(cmd.split(' '))).unwrap();
+    harness::render_sample(&views, 6, 96);
     let src = read_view_set(&views).unwrap();
     let styl = write_perturbed(&src, &d.path().join("stylized"));
     let (mean, per_view) = structure::structure_kept(&src, &styl);

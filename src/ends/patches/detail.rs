@@ -226,9 +226,10 @@ fn shade_sigma(p: &SynthesisParams) -> f32 {
 
 /// The line weight's gain (module docs): `clamp(q_style / q_object, 1 / line_weight,
 /// line_weight)` (1 for a style whose quantile is at most [`FLAT`]), `q` the
-/// [`LINE_QUANTILE`] of `|band-pass|` of the style's luma (at `style_size`, its shorter side in render pixels, blurred by
-/// `synthesis.detail_blur` as the views are) and of the detail `d` over the pixels of
-/// coverage > 0.5 of every view; 1 where either is empty or the object has no detail.
+/// [`LINE_QUANTILE`] of `|band-pass|` of the style's luma (at `style_size`, its shorter
+/// side in render pixels, blurred by `synthesis.detail_blur` as the views are) and of the
+/// detail `d` over the pixels of coverage > 0.5 of every view; 1 where either is empty
+/// or the object has no detail.
 pub fn line_gain(
     d: &[Vec<f32>],
     alpha: &[Vec<f32>],

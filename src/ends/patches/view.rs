@@ -167,16 +167,18 @@ fn match_moments(views: &mut [ViewLevel], src: &Frozen, styles: &[StyleLevel]) {
                 continue;
             }
             let object = Moments::of(views.iter().flat_map(|f| {
-                let owned: Vec<bool> = match &f.owner {
-                    None => vec![true; f.alpha.len()],
-                    Some(o) => o.iter().map(|&x| x as usize == r).collect(),
-                };
+                // The region's pixels (every pixel without regions).
+                let owner = f.owner.as_ref().map(|o| o.iter());
+                let owned = owner
+                    .into_iter()
+                    .flatten()
+                    .map(move |&x| x as usize == r)
+                    .chain(std::iter::repeat(true));
                 f.channels[r][c]
                     .iter()
                     .zip(f.alpha.iter())
                     .zip(owned)
                     .map(|((&v, &a), own)| (v, a > OBJECT && own))
-                    .collect::<Vec<_>>()
             }));
             let to = &style.channel_moments[c];
             tracing::debug!(
