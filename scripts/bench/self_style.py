@@ -12,6 +12,16 @@ keep benchmark's mosaic and painting. Each result's RMS colour change over the o
 renders; the ratio is the own render's change over the two real styles' mean (issue 53's
 bar: at most 1/5). `--set` passes a configuration key to every run (a variant).
 
+One view is not the object's average look (an orbit's view 2 sees a darker side of every
+shared scene), and the end follows its style's brightness (Image Analogies' remap), so
+the own render's change is split: `brightness` is the mean luma change over the object
+(Rec. 601), `without` the RMS change left once each channel's mean change is taken away,
+and its ratio to the real styles' (their whole change). `--own grid` takes every view's
+object box instead, side by side with gutters of the background (the object's look from
+all sides, at the renders' scale before `texture.style_size`). `--own-scale render` runs
+the own style at the renders' scale (its `texture.style_size` set to its shorter side, less
+the crop's repetition) instead of the default 256.
+
 Needs the release binaries (target/release) and the keep benchmark's source views
 (`pipeline run --dag benches/quality/keep.toml source`); numpy only (vendor/venv).
 Prints a Markdown table; its runs go to a temporary directory, removed at the end.
@@ -33,16 +43,45 @@ SCENES = os.path.join(ROOT, "..", "shared", "data", "scenes")
 BIN = os.path.join(ROOT, "target", "release")
 OWN_VIEW = 2
 MIN_SIDE = 128
+LUMA = np.array([0.299, 0.587, 0.114])
 
 
-def own_crop(source, view=OWN_VIEW):
-    """View `view`'s object box, repeated until its shorter side is >= MIN_SIDE."""
+def object_box(source, view):
+    """View `view`'s render cropped to its object's box (alpha > 0.5)."""
     rgb = np.load(os.path.join(source, "rgb.npy"))[view]
     alpha = np.load(os.path.join(source, "alpha.npy"))[view]
     ys, xs = np.nonzero(alpha > 0.5)
-    crop = rgb[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+    return rgb[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+
+
+def own_crop(source, view=OWN_VIEW):
+    """View `view`'s object box, repeated until its shorter side is >= MIN_SIDE; and the
+    repetition factor."""
+    crop = object_box(source, view)
     k = -(-MIN_SIDE // min(crop.shape[:2]))
-    return np.repeat(np.repeat(crop, k, axis=0), k, axis=1)
+    return np.repeat(np.repeat(crop, k, axis=0), k, axis=1), k
+
+
+GUTTER = 4
+
+
+def own_grid(source):
+    """Every view's object box on a near-square grid, each centred in a cell of the
+    largest box's size, cells apart by GUTTER pixels of the background (black): the
+    background stays one region reaching the border, as the style's motif test wants."""
+    n = np.load(os.path.join(source, "rgb.npy"), mmap_mode="r").shape[0]
+    crops = [object_box(source, v) for v in range(n)]
+    cols = int(np.ceil(np.sqrt(n)))
+    rows = -(-n // cols)
+    ch = max(c.shape[0] for c in crops)
+    cw = max(c.shape[1] for c in crops)
+    img = np.zeros((rows * (ch + GUTTER) + GUTTER, cols * (cw + GUTTER) + GUTTER, 3), np.float32)
+    for i, c in enumerate(crops):
+        r, k = divmod(i, cols)
+        y = GUTTER + r * (ch + GUTTER) + (ch - c.shape[0]) // 2
+        x = GUTTER + k * (cw + GUTTER) + (cw - c.shape[1]) // 2
+        img[y : y + c.shape[0], x : x + c.shape[1]] = c
+    return img
 
 
 def run(cmd):
@@ -52,7 +91,8 @@ def run(cmd):
 
 
 def change(scene, source, style, out, sets):
-    """RMS colour change over the object of the default end with `style`."""
+    """RMS colour change over the object of the default end with `style`, its mean luma
+    change, and its RMS change less each channel's mean change."""
     cmd = [os.path.join(BIN, "distill"), "--scene", scene, "--source-views", source,
            "--model", os.path.join(ROOT, "priors", "patch"), "--style", style,
            "--preset", "default", "--set", "seed=0", "--iters", "0", "--threads", "0",
@@ -65,17 +105,25 @@ def change(scene, source, style, out, sets):
     a = np.load(os.path.join(source, "rgb.npy")).astype(np.float64)
     b = np.load(os.path.join(out + "-views", "rgb.npy")).astype(np.float64)
     m = np.load(os.path.join(source, "alpha.npy")) > 0.5
-    return float(np.sqrt(np.mean((a[m] - b[m]) ** 2)))
+    d = b[m] - a[m]
+    rms = float(np.sqrt(np.mean(d**2)))
+    brightness = float((d @ LUMA).mean())
+    without = float(np.sqrt(np.mean((d - d.mean(axis=0)) ** 2)))
+    return rms, brightness, without
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", default="plant,bob_100k,fish_10k,brucewick_100k")
     ap.add_argument("--view", type=int, default=OWN_VIEW, help="the view cropped for the own style")
+    ap.add_argument("--own", choices=("view", "grid"), default="view",
+                    help="the own style: one view's object box (--view), or every view's on a grid")
+    ap.add_argument("--own-scale", choices=("default", "render"), default="default",
+                    help="the own style at texture.style_size's default, or at the renders' scale")
     ap.add_argument("--set", action="append", default=[], help="KEY=VALUE for every run")
     args = ap.parse_args()
-    print("| capture | own render | mosaic | painting | ratio |")
-    print("|---|---|---|---|---|")
+    print("| capture | own render | mosaic | painting | ratio | own: brightness | own: without | ratio without |")
+    print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes.split(","):
             source = os.path.join(KEEP, "runs-keep", name, "source")
@@ -84,12 +132,18 @@ def main():
                 if not os.path.exists(p):
                     sys.exit(f"{p}: missing (see the module docs)")
             own = os.path.join(tmp, name + "-own.png")
-            write_png(own, own_crop(source, args.view) * 255.0 + 0.5)
+            img, k = own_crop(source, args.view) if args.own == "view" else (own_grid(source), 1)
+            write_png(own, img * 255.0 + 0.5)
+            own_sets = list(args.set)
+            if args.own_scale == "render":
+                own_sets.append(f"texture.style_size={min(img.shape[:2]) // k}")
             styles = [own] + [os.path.join(KEEP, "styles", s + ".png") for s in ("mosaic", "painting")]
-            c = [change(scene, source, s, os.path.join(tmp, f"{name}-{i}"), args.set)
+            c = [change(scene, source, s, os.path.join(tmp, f"{name}-{i}"), own_sets if i == 0 else args.set)
                  for i, s in enumerate(styles)]
-            ratio = c[0] / (0.5 * (c[1] + c[2]))
-            print(f"| {name} | {c[0]:.3f} | {c[1]:.3f} | {c[2]:.3f} | {ratio:.3f} |", flush=True)
+            real = 0.5 * (c[1][0] + c[2][0])
+            (own_rms, bright, without), ratio = c[0], c[0][0] / real
+            print(f"| {name} | {own_rms:.3f} | {c[1][0]:.3f} | {c[2][0]:.3f} | {ratio:.3f} "
+                  f"| {bright:+.3f} | {without:.3f} | {without / real:.3f} |", flush=True)
 
 
 if __name__ == "__main__":
