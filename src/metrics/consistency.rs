@@ -164,8 +164,15 @@ fn excess(
     }
     let _ph = crate::timing::span("lpips");
     let m = &rt.mask;
-    let lp = masked_lpips(model, &images[i], &wp.image, m)?
-        - masked_lpips(model, &images[i], &rt.image, m)?;
+    // View i's masked features once, for both distances.
+    let f = model.features(&[
+        &masked(&images[i], m),
+        &masked(&wp.image, m),
+        &masked(&rt.image, m),
+    ])?;
+    let size = Some((&m[..], images[i].width, images[i].height));
+    let lp = lpips::distance(&f[0], &f[1], &model.lin, size)
+        - lpips::distance(&f[0], &f[2], &model.lin, size);
     let rm = masked_rmse(&images[i], &wp.image, m) - masked_rmse(&images[i], &rt.image, m);
     Ok((Some(lp), Some(rm)))
 }
