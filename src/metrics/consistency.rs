@@ -139,15 +139,24 @@ pub fn round_trip(geom: &ViewSet, images: &[Image], i: usize, j: usize) -> Warpe
     )
 }
 
-/// LPIPS of `a` and `b` on `mask` (both set to mid-grey outside it).
-fn masked_lpips(model: &mut LpipsModel, a: &Image, b: &Image, mask: &[f32]) -> Result<f64> {
-    let f = model.features(&[&masked(a, mask), &masked(b, mask)])?;
-    Ok(lpips::distance(
-        &f[0],
-        &f[1],
-        &model.lin,
-        Some((mask, a.width, a.height)),
-    ))
+/// LPIPS of `a` to each of `others` on `mask` (every image set to mid-grey outside it),
+/// `a`'s features computed once: one batch of `1 + others.len()` images.
+fn masked_lpips(
+    model: &mut LpipsModel,
+    a: &Image,
+    others: &[&Image],
+    mask: &[f32],
+) -> Result<Vec<f64>> {
+    let images: Vec<Image> = std::iter::once(a)
+        .chain(others.iter().copied())
+        .map(|im| masked(im, mask))
+        .collect();
+    let f = model.features(&images.iter().collect::<Vec<_>>())?;
+    let size = Some((mask, a.width, a.height));
+    Ok(f[1..]
+        .iter()
+        .map(|fb| lpips::distance(&f[0], fb, &model.lin, size))
+        .collect())
 }
 
 /// The excess of pair `(i, j)` whose warp is `wp` (module doc): LPIPS and RMSE.
@@ -164,15 +173,8 @@ fn excess(
     }
     let _ph = crate::timing::span("lpips");
     let m = &rt.mask;
-    // View i's masked features once, for both distances.
-    let f = model.features(&[
-        &masked(&images[i], m),
-        &masked(&wp.image, m),
-        &masked(&rt.image, m),
-    ])?;
-    let size = Some((&m[..], images[i].width, images[i].height));
-    let lp = lpips::distance(&f[0], &f[1], &model.lin, size)
-        - lpips::distance(&f[0], &f[2], &model.lin, size);
+    let d = masked_lpips(model, &images[i], &[&wp.image, &rt.image], m)?;
+    let lp = d[0] - d[1];
     let rm = masked_rmse(&images[i], &wp.image, m) - masked_rmse(&images[i], &rt.image, m);
     Ok((Some(lp), Some(rm)))
 }
@@ -195,7 +197,7 @@ pub fn score_pairs(
         } else {
             let d = {
                 let _ph = crate::timing::span("lpips");
-                masked_lpips(model, &images[i], &wp.image, &wp.mask)?
+                masked_lpips(model, &images[i], &[&wp.image], &wp.mask)?[0]
             };
             let pair = (Some(d), Some(masked_rmse(&images[i], &wp.image, &wp.mask)));
             (pair, excess(model, geom, images, (i, j), &wp)?)
