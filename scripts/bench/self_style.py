@@ -46,18 +46,32 @@ MIN_SIDE = 128
 LUMA = np.array([0.299, 0.587, 0.114])
 
 
-def object_box(source, view):
+def load_source(source):
+    """The source views' rgb [N, H, W, 3] (float64) and alpha [N, H, W]."""
+    rgb = np.load(os.path.join(source, "rgb.npy")).astype(np.float64)
+    alpha = np.load(os.path.join(source, "alpha.npy"))
+    return rgb, alpha
+
+
+def object_box(src, view):
     """View `view`'s render cropped to its object's box (alpha > 0.5)."""
-    rgb = np.load(os.path.join(source, "rgb.npy"))[view]
-    alpha = np.load(os.path.join(source, "alpha.npy"))[view]
-    ys, xs = np.nonzero(alpha > 0.5)
-    return rgb[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+    rgb, alpha = src
+    ys, xs = np.nonzero(alpha[view] > 0.5)
+    return rgb[view][ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
 
 
-def own_crop(source, view=OWN_VIEW):
+def object_luma(rgb, alpha, views):
+    """Mean un-premultiplied luma over the object pixels (alpha > 0.5) of `views`
+    (the renders are over black)."""
+    a = alpha[views]
+    m = a > 0.5
+    return float(((rgb[views][m] / a[m][:, None]) @ LUMA).mean())
+
+
+def own_crop(src, view=OWN_VIEW):
     """View `view`'s object box, repeated until its shorter side is >= MIN_SIDE; and the
     repetition factor."""
-    crop = object_box(source, view)
+    crop = object_box(src, view)
     k = -(-MIN_SIDE // min(crop.shape[:2]))
     return np.repeat(np.repeat(crop, k, axis=0), k, axis=1), k
 
@@ -65,12 +79,12 @@ def own_crop(source, view=OWN_VIEW):
 GUTTER = 4
 
 
-def own_grid(source):
+def own_grid(src):
     """Every view's object box on a near-square grid, each centred in a cell of the
     largest box's size, cells apart by GUTTER pixels of the background (black): the
     background stays one region reaching the border, as the style's motif test wants."""
-    n = np.load(os.path.join(source, "rgb.npy"), mmap_mode="r").shape[0]
-    crops = [object_box(source, v) for v in range(n)]
+    n = src[0].shape[0]
+    crops = [object_box(src, v) for v in range(n)]
     cols = int(np.ceil(np.sqrt(n)))
     rows = -(-n // cols)
     ch = max(c.shape[0] for c in crops)
@@ -90,9 +104,10 @@ def run(cmd):
         sys.exit(f"{cmd[0]} failed ({r.returncode}):\n{r.stderr[-2000:]}")
 
 
-def change(scene, source, style, out, sets):
-    """RMS colour change over the object of the default end with `style`, its mean luma
-    change, and its RMS change less each channel's mean change."""
+def change(scene, source, src, style, out, sets):
+    """RMS colour change over the object of the default end with `style` (`src`: the
+    source views, [`load_source`]), its mean luma change, its RMS change less each
+    channel's mean change, and the result's object luma over every view."""
     cmd = [os.path.join(BIN, "distill"), "--scene", scene, "--source-views", source,
            "--model", os.path.join(ROOT, "priors", "patch"), "--style", style,
            "--preset", "default", "--set", "seed=0", "--iters", "0", "--threads", "0",
@@ -102,14 +117,14 @@ def change(scene, source, style, out, sets):
     run(cmd)
     run([os.path.join(BIN, "render-views"), "--scene", out, "--cameras", source,
          "--width", "256", "--height", "256", "--threads", "0", "--out", out + "-views"])
-    a = np.load(os.path.join(source, "rgb.npy")).astype(np.float64)
+    a, alpha = src
     b = np.load(os.path.join(out + "-views", "rgb.npy")).astype(np.float64)
-    m = np.load(os.path.join(source, "alpha.npy")) > 0.5
+    m = alpha > 0.5
     d = b[m] - a[m]
     rms = float(np.sqrt(np.mean(d**2)))
     brightness = float((d @ LUMA).mean())
     without = float(np.sqrt(np.mean((d - d.mean(axis=0)) ** 2)))
-    return rms, brightness, without
+    return rms, brightness, without, object_luma(b, alpha, slice(None))
 
 
 def main():
@@ -122,8 +137,9 @@ def main():
                     help="the own style at texture.style_size's default, or at the renders' scale")
     ap.add_argument("--set", action="append", default=[], help="KEY=VALUE for every run")
     args = ap.parse_args()
-    print("| capture | own render | mosaic | painting | ratio | own: brightness | own: without | ratio without |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| capture | own render | mosaic | painting | ratio | own: brightness | own: without "
+          "| ratio without | object luma: own style's views / all views / result |")
+    print("|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes.split(","):
             source = os.path.join(KEEP, "runs-keep", name, "source")
@@ -132,18 +148,23 @@ def main():
                 if not os.path.exists(p):
                     sys.exit(f"{p}: missing (see the module docs)")
             own = os.path.join(tmp, name + "-own.png")
-            img, k = own_crop(source, args.view) if args.own == "view" else (own_grid(source), 1)
+            src = load_source(source)
+            img, k = own_crop(src, args.view) if args.own == "view" else (own_grid(src), 1)
+            own_views = [args.view] if args.own == "view" else slice(None)
             write_png(own, img * 255.0 + 0.5)
             own_sets = list(args.set)
             if args.own_scale == "render":
                 own_sets.append(f"texture.style_size={min(img.shape[:2]) // k}")
             styles = [own] + [os.path.join(KEEP, "styles", s + ".png") for s in ("mosaic", "painting")]
-            c = [change(scene, source, s, os.path.join(tmp, f"{name}-{i}"), own_sets if i == 0 else args.set)
+            c = [change(scene, source, src, s, os.path.join(tmp, f"{name}-{i}"),
+                        own_sets if i == 0 else args.set)
                  for i, s in enumerate(styles)]
+            own_rms, bright, without, result_luma = c[0]
             real = 0.5 * (c[1][0] + c[2][0])
-            (own_rms, bright, without), ratio = c[0], c[0][0] / real
-            print(f"| {name} | {own_rms:.3f} | {c[1][0]:.3f} | {c[2][0]:.3f} | {ratio:.3f} "
-                  f"| {bright:+.3f} | {without:.3f} | {without / real:.3f} |", flush=True)
+            lumas = (object_luma(*src, own_views), object_luma(*src, slice(None)), result_luma)
+            print(f"| {name} | {own_rms:.3f} | {c[1][0]:.3f} | {c[2][0]:.3f} | {own_rms / real:.3f} "
+                  f"| {bright:+.3f} | {without:.3f} | {without / real:.3f} "
+                  f"| {lumas[0]:.3f} / {lumas[1]:.3f} / {lumas[2]:.3f} |", flush=True)
 
 
 if __name__ == "__main__":
