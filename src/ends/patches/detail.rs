@@ -46,8 +46,8 @@
 //! without the line weight's gain. With the guide weak (`control` 0.1, `detail` 10 so
 //! `k` stays 1) the synthesis then lays the style out as if unguided (op-art's bands, a
 //! wall's rows across a smooth object) and the layer shades it, where the guide would
-//! have posterised the shading into areas of the style's colours (BENCHMARKS.md "Why the
-//! op-art bands come out as blobs").
+//! have posterised the shading into areas of the style's colours (docs/patch-prior.md "Why
+//! the op-art bands come out as blobs").
 
 use super::SynthesisParams;
 use super::guide::{blur, source_guides, style_moments};

@@ -39,11 +39,12 @@
 //! views, the source renders, the channels' source images), `style bank` (every level's
 //! [`level::StyleLevel`], built at the start, the levels on all cores), `level views` (each
 //! view's frozen images at a level, [`view::ViewLevel`], once per level), `render`,
-//! `queries`, `search`, `balance`, `stats`, `votes`
-//! and `colour fit` (the Adam steps); a part's own work is under its name (`guide`,
+//! `queries`, `search`, `balance`, `stats`, `votes`, `consensus` (with
+//! `synthesis.consensus`, [`consensus`]) and `colour fit` (the Adam steps); a part's own work is under its name (`guide`,
 //! `negative`). Each level's wall time is in its log line.
 
 pub mod coherence;
+pub mod consensus;
 pub mod couple;
 pub mod detail;
 pub mod guide;
@@ -307,7 +308,7 @@ fn set_up<'a>(
         None => rendered,
     };
     let cover = crate::timing::phase("regions", || regions::cover(scene, cameras, regions))?;
-    let src = Frozen::new(
+    let mut src = Frozen::new(
         rgb,
         alpha,
         (sizes, style_size),
@@ -316,6 +317,18 @@ fn set_up<'a>(
         background,
         p,
     );
+    if p.consensus > 0.0 {
+        // The frozen geometry's depth (the colours do not change it).
+        let depth: Vec<Vec<f32>> = crate::timing::phase("render", || {
+            crate::render::render_all(scene, cameras, background)
+        })?
+        .into_iter()
+        .map(|r| r.depth)
+        .collect();
+        src.consensus = Some(crate::timing::phase("consensus", || {
+            consensus::Consensus::new(cameras, &depth, &src.alpha, p.consensus)
+        }));
+    }
     Ok((fit, src))
 }
 
@@ -436,6 +449,8 @@ struct Frozen {
     regions: Vec<FrozenRegion>,
     /// The detail layer of every view ([`detail`]; empty when `synthesis.detail` is 0).
     detail: Vec<Vec<f32>>,
+    /// The views' consensus ([`consensus`]; with `synthesis.consensus` > 0 in 3D).
+    consensus: Option<consensus::Consensus>,
 }
 
 /// A region's frozen images: `channels[c][view]`, `cover[view]` (empty with one region).
@@ -490,6 +505,7 @@ impl Frozen {
             background,
             parts,
             rematches: rematches(p),
+            consensus: None,
         }
     }
 }
@@ -578,6 +594,10 @@ fn e_step(
             views[v].target(levels, q, mv, p, &renders[v], &src.alpha[v])
         })
         .collect();
+    drop(_ph);
+    if let Some(c) = &src.consensus {
+        targets = crate::timing::phase("consensus", || c.apply(&targets));
+    }
     if !src.detail.is_empty() {
         detail::lay(&mut targets, &src.detail, detail::weight(p));
     }

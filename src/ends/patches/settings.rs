@@ -81,6 +81,13 @@ pub struct SynthesisParams {
     /// and still show the object's volume (0: none). See `detail.rs`.
     #[arg(long, default_value_t = 0.0)]
     pub shade_blur: f32,
+    /// The views' consensus: each round, each view's texture target at a surface point
+    /// becomes the mix of every view's target there, weighted by how face-on each view
+    /// sees it to this power (0: off, each view its own; 8: mostly the most face-on views),
+    /// so the views agree before the fit instead of being averaged by it. See
+    /// `consensus.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub consensus: f32,
     /// The `layout` start's cells across the object's largest extent (the motif scale it
     /// seeds; read by that start only). See src/ends/layout.rs.
     #[arg(long, default_value_t = 6.0)]
@@ -144,6 +151,9 @@ impl SynthesisParams {
         }
         if !(self.guidance.is_finite() && (0.0..=2.0).contains(&self.guidance)) {
             return Err(Error::param("synthesis.guidance must lie in [0, 2]"));
+        }
+        if !(self.consensus.is_finite() && (0.0..=64.0).contains(&self.consensus)) {
+            return Err(Error::param("synthesis.consensus must lie in [0, 64]"));
         }
         if !(self.guide_blur.is_finite() && (0.0..=64.0).contains(&self.guide_blur)) {
             return Err(Error::param("synthesis.guide_blur must lie in [0, 64]"));

@@ -1,0 +1,246 @@
+//! The views' consensus (`synthesis.consensus`; issue 53, seams): every round, each
+//! view's texture target is reconciled with the other views' before the colour fit.
+//!
+//! The E-step synthesises each view on its own, so two views that see the same surface
+//! point ask for different colours there, and the fit's least-squares compromise between
+//! them shows as seams: a thin fin painted one way from its face and another from its
+//! edge, outlines of two views averaged into grey. Texture mapping from photographs
+//! meets the same problem and answers it by view selection: each surface point takes its
+//! colour from the view that sees it best, the most face-on (Waechter, Moehrle and Goesele,
+//! "Let there be color!", ECCV 2014). Here the selection is soft: view `d`'s target at a
+//! surface pixel becomes
+//!
+//! `t'_d(x) = sum_s f_s(x)^k t_s(x) / sum_s f_s(x)^k`,
+//!
+//! over the views `s` that see the same point (`s = d` included; the others through the
+//! depth warp of [`crate::maths::warp`], whose 3% occlusion test drops what `s` sees in
+//! front of it), `f_s = |n . r|` the facing of the surface to view `s`'s ray (normals from
+//! the rendered depth's neighbouring pixels; the geometry is frozen) and `k = synthesis.consensus`: at 8 a view 30
+//! degrees from the normal counts a third of a face-on one, at 60 degrees 1/256. Pixels
+//! no other view sees keep their own target; pixels without a surface (coverage <= 0.5)
+//! are left.
+//!
+//! It acts on the texture the patches voted (the targets before the detail layer, which
+//! comes from the frozen source renders and already agrees between views), so each view's
+//! lines stay its own. The geometry is frozen: the surface depths and facings are
+//! computed once, and each round costs `N (N - 1)` warps. Measured in BENCHMARKS.md
+//! "The views' consensus".
+
+use crate::Camera;
+use crate::imageio::Image;
+use crate::maths::warp::{surface_depth, warp_into};
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// The views' frozen geometry for the consensus: cameras, surface depths and facings.
+#[derive(Debug, Clone)]
+pub struct Consensus {
+    cameras: Vec<Camera>,
+    /// Surface depth per view ([`surface_depth`]: NaN where there is none).
+    depth: Vec<Vec<f32>>,
+    /// `f^k` per view, in all three channels (an image, so it warps like one).
+    weight: Vec<Image>,
+}
+
+impl Consensus {
+    /// The consensus of the views of `cameras` (one size each), from their expected
+    /// depth and coverage (`[H W]` each, the renderer's) and the power `k`.
+    pub fn new(cameras: &[Camera], depth: &[Vec<f32>], alpha: &[Vec<f32>], k: f32) -> Consensus {
+        let depth: Vec<Vec<f32>> = (depth.iter().zip(alpha))
+            .map(|(d, a)| surface_depth(d, a))
+            .collect();
+        let weight = (cameras.par_iter().zip(&depth))
+            .map(|(c, z)| {
+                let mut f = facing(c, z);
+                f.data.iter_mut().for_each(|v| *v = v.powf(k));
+                f
+            })
+            .collect();
+        Consensus {
+            cameras: cameras.to_vec(),
+            depth,
+            weight,
+        }
+    }
+
+    /// `targets` (`[H, W, 3]` per view, the views of [`Consensus::new`]) reconciled
+    /// (module docs).
+    pub fn apply(&self, targets: &[Vec<f32>]) -> Vec<Vec<f32>> {
+        let images: Vec<Image> = (targets.iter().zip(&self.cameras))
+            .map(|(t, c)| Image {
+                width: c.width as usize,
+                height: c.height as usize,
+                data: t.clone(),
+            })
+            .collect();
+        (0..targets.len())
+            .into_par_iter()
+            .map(|d| self.one(d, &images))
+            .collect()
+    }
+
+    /// View `d`'s reconciled target.
+    fn one(&self, d: usize, images: &[Image]) -> Vec<f32> {
+        let (cam, z) = (&self.cameras[d], &self.depth[d]);
+        let mut sum = vec![0.0f64; images[d].data.len()];
+        let mut total = vec![0.0f64; z.len()];
+        let mut add = |img: &Image, weight: &Image, mask: Option<&[f32]>| {
+            for (i, t) in total.iter_mut().enumerate() {
+                if !z[i].is_finite() || mask.is_some_and(|m| m[i] <= 0.0) {
+                    continue;
+                }
+                let w = f64::from(weight.data[i * 3]);
+                *t += w;
+                for c in 0..3 {
+                    sum[i * 3 + c] += w * f64::from(img.data[i * 3 + c]);
+                }
+            }
+        };
+        add(&images[d], &self.weight[d], None);
+        for s in (0..images.len()).filter(|&s| s != d) {
+            let (cs, zs) = (&self.cameras[s], &self.depth[s]);
+            let target = warp_into(cam, z, cs, zs, &images[s]);
+            if target.valid == 0 {
+                continue;
+            }
+            let weight = warp_into(cam, z, cs, zs, &self.weight[s]);
+            add(&target.image, &weight.image, Some(&target.mask));
+        }
+        let mut out = images[d].data.clone();
+        for (i, &t) in total.iter().enumerate() {
+            if t > 0.0 {
+                for c in 0..3 {
+                    out[i * 3 + c] = (sum[i * 3 + c] / t) as f32;
+                }
+            }
+        }
+        out
+    }
+}
+
+/// `|n . r|` per pixel of `cam`'s view (in all three channels; 0 where the surface depth
+/// `z` or both neighbours along an axis are missing): `n` the normal of the surface
+/// through the pixel's unprojected centre and its right (else left) and lower (else
+/// upper) neighbours', `r` the unit ray from the camera's centre.
+pub fn facing(cam: &Camera, z: &[f32]) -> Image {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let unproject = cam.unprojector();
+    let (r, t) = cam.w2c();
+    let eye = -(r.transpose() * t);
+    let point = |x: usize, y: usize| -> Option<DVec3> {
+        let d = z[y * w + x];
+        d.is_finite()
+            .then(|| unproject(x as f64 + 0.5, y as f64 + 0.5, f64::from(d)))
+    };
+    // The step to the next point along an axis, or from the previous one.
+    let step = |p: DVec3, next: Option<DVec3>, prev: Option<DVec3>| {
+        next.map(|q| q - p).or_else(|| prev.map(|q| p - q))
+    };
+    let mut out = Image::filled(w, h, [0.0; 3]);
+    for y in 0..h {
+        for x in 0..w {
+            let Some(p) = point(x, y) else { continue };
+            let right = (x + 1 < w).then(|| point(x + 1, y)).flatten();
+            let left = (x > 0).then(|| point(x - 1, y)).flatten();
+            let down = (y + 1 < h).then(|| point(x, y + 1)).flatten();
+            let up = (y > 0).then(|| point(x, y - 1)).flatten();
+            let (Some(dx), Some(dy)) = (step(p, right, left), step(p, down, up)) else {
+                continue;
+            };
+            let n = dx.cross(dy).normalize_or_zero();
+            let f = n.dot((p - eye).normalize_or_zero()).abs() as f32;
+            let i = (y * w + x) * 3;
+            out.data[i..i + 3].copy_from_slice(&[f; 3]);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::maths::warp::{look_at, synthetic};
+
+    /// A camera looking straight down at the ground plane and one at 60 degrees from
+    /// its normal, both at the same distance from the point they look at.
+    fn cameras() -> Vec<Camera> {
+        let t = 60f64.to_radians();
+        vec![
+            look_at("top", [0.0, 0.0, 6.0], [0.0; 3], 48, 48, 40.0),
+            look_at(
+                "side",
+                [6.0 * t.sin(), 0.0, 6.0 * t.cos()],
+                [0.0; 3],
+                48,
+                48,
+                40.0,
+            ),
+        ]
+    }
+
+    fn geometry(cams: &[Camera]) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
+        cams.iter()
+            .map(|c| {
+                let (_, d, a) = synthetic::render(c, None);
+                (d, a)
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn facing_is_the_cosine_of_the_view_ray_to_the_normal() {
+        let cams = cameras();
+        let (depth, alpha) = geometry(&cams);
+        for (v, want) in [1.0f64, 0.5].into_iter().enumerate() {
+            let f = facing(&cams[v], &surface_depth(&depth[v], &alpha[v]));
+            // The pixel at the image centre looks along the camera's axis.
+            let i = (24 * 48 + 24) * 3;
+            assert!(
+                (f64::from(f.data[i]) - want).abs() < 0.03,
+                "view {v}: {}",
+                f.data[i]
+            );
+        }
+    }
+
+    #[test]
+    fn a_grazing_view_takes_the_face_on_views_colour_and_keeps_its_own_elsewhere() {
+        let cams = cameras();
+        let (depth, alpha) = geometry(&cams);
+        let n = 48 * 48 * 3;
+        // The face-on view asks for white, the grazing one for black.
+        let targets = vec![vec![1.0f32; n], vec![0.0f32; n]];
+        let k = 8.0f32;
+        let out = Consensus::new(&cams, &depth, &alpha, k).apply(&targets);
+        // At the grazing view's centre (facing 0.5 against the top view's about 1), the
+        // weights are 0.5^8 and about 1: the mix is about 1 / (1 + 0.5^8).
+        let centre = (24 * 48 + 24) * 3;
+        let want = 1.0 / (1.0 + 0.5f32.powf(k));
+        assert!(
+            (out[1][centre] - want).abs() < 0.02,
+            "{} vs {want}",
+            out[1][centre]
+        );
+        assert!(
+            out[0][centre] > 0.99,
+            "the face-on view keeps its own: {}",
+            out[0][centre]
+        );
+        // Where the top view does not see the ground the side view sees (the far part of
+        // its image), its own target stays.
+        let top_z = surface_depth(&depth[0], &alpha[0]);
+        let seen = warp_into(
+            &cams[1],
+            &surface_depth(&depth[1], &alpha[1]),
+            &cams[0],
+            &top_z,
+            &Image::filled(48, 48, [1.0; 3]),
+        );
+        let unseen = (0..48 * 48).find(|&i| seen.mask[i] == 0.0 && alpha[1][i] > 0.5);
+        let i = unseen.expect("the side view sees ground the top view does not");
+        assert_eq!(out[1][i * 3], 0.0);
+        // k = 0: a plain mean of the views that see the point.
+        let mean = Consensus::new(&cams, &depth, &alpha, 0.0).apply(&targets);
+        assert!((mean[1][centre] - 0.5).abs() < 1e-5, "{}", mean[1][centre]);
+    }
+}
