@@ -174,18 +174,33 @@ impl DepthView<'_> {
         }
         let (x, y) = (u as usize, v as usize);
         let centre = self.point(x, y)?;
-        let tol = SEEN_TOL * centre.z;
-        if (centre.z - z as f64).abs() > tol {
+        if (centre.z - z as f64).abs() > SEEN_TOL * centre.z {
             return None;
         }
+        let (n, cos) = self.pixel_normal(x, y)?;
+        // Camera to world: the transpose of the world-to-camera rotation.
+        Some((c.w2c().0.transpose() * n, cos))
+    }
+
+    /// The surface normal at pixel `(x, y)` (camera coordinates, unit, toward the camera)
+    /// and the cosine between it and the pixel's viewing ray: the cross product of the
+    /// back-projected depth map's central differences; `None` on the frame's border, off
+    /// the surface, or where a neighbour's depth is more than [`SEEN_TOL`] from the
+    /// centre's (a depth edge).
+    pub fn pixel_normal(&self, x: usize, y: usize) -> Option<(DVec3, f64)> {
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        if !(x >= 1 && y >= 1 && x + 1 < w && y + 1 < h) {
+            return None;
+        }
+        let centre = self.point(x, y)?;
+        let tol = SEEN_TOL * centre.z;
         let near = |q: DVec3| ((q.z - centre.z).abs() <= tol).then_some(q);
         let dx = near(self.point(x + 1, y)?)? - near(self.point(x - 1, y)?)?;
         let dy = near(self.point(x, y + 1)?)? - near(self.point(x, y - 1)?)?;
         let n = dx.cross(dy).try_normalize()?;
         let ray = centre.normalize();
         let n = if n.dot(ray) > 0.0 { -n } else { n };
-        // Camera to world: the transpose of the world-to-camera rotation.
-        Some((c.w2c().0.transpose() * n, -n.dot(ray)))
+        Some((n, -n.dot(ray)))
     }
 }
 

@@ -15,7 +15,8 @@
 //! over the views `s` that see the same point (`s = d` included; the others through the
 //! depth warp of [`crate::maths::warp`], whose 3% occlusion test drops what `s` sees in
 //! front of it), `f_s = |n . r|` the facing of the surface to view `s`'s ray (normals from
-//! the rendered depth's neighbouring pixels; the geometry is frozen) and `k = synthesis.consensus`: at 8 a view 30
+//! the rendered depth's central differences, as the style projection takes them; the
+//! geometry is frozen) and `k = synthesis.consensus`: at 8 a view 30
 //! degrees from the normal counts a third of a face-on one, at 60 degrees 1/256. Pixels
 //! no other view sees keep their own target; pixels without a surface (coverage <= 0.5)
 //! are left.
@@ -23,13 +24,14 @@
 //! It acts on the texture the patches voted (the targets before the detail layer, which
 //! comes from the frozen source renders and already agrees between views), so each view's
 //! lines stay its own. The geometry is frozen: the surface depths and facings are
-//! computed once, and each round costs `N (N - 1)` warps. Measured in BENCHMARKS.md
+//! computed once with the weights' warps, and each round costs `N (N - 1)` warps of the
+//! targets. Measured in BENCHMARKS.md
 //! "The views' consensus".
 
 use crate::Camera;
 use crate::imageio::Image;
 use crate::maths::warp::{surface_depth, warp_into};
-use glam::DVec3;
+use crate::transfer::projection::DepthView;
 use rayon::prelude::*;
 
 /// The views' frozen geometry for the consensus: cameras, surface depths and facings.
@@ -40,7 +42,14 @@ pub struct Consensus {
     depth: Vec<Vec<f32>>,
     /// `f^k` per view, in all three channels (an image, so it warps like one).
     weight: Vec<Image>,
+    /// Per view `d`: each other view `s` that sees some of it, with the pixels of `d`
+    /// it sees (the warp's mask, ascending) and `s`'s weight warped there. Frozen like
+    /// the geometry, so each round warps only the targets.
+    seen: Vec<Seen>,
 }
+
+/// The other views that see some of a view: `(s, [(pixel, weight of s there)])`.
+type Seen = Vec<(usize, Vec<(u32, f32)>)>;
 
 impl Consensus {
     /// The consensus of the views of `cameras` (one size each), from their expected
@@ -55,11 +64,29 @@ impl Consensus {
                 f.data.iter_mut().for_each(|v| *v = v.powf(k));
                 f
             })
+            .collect::<Vec<Image>>();
+        let seen = (0..cameras.len())
+            .into_par_iter()
+            .map(|d| {
+                let (cam, z) = (&cameras[d], &depth[d]);
+                (0..cameras.len())
+                    .filter(|&s| s != d)
+                    .filter_map(|s| {
+                        let w = warp_into(cam, z, &cameras[s], &depth[s], &weight[s]);
+                        let px: Vec<(u32, f32)> = (w.mask.iter().enumerate())
+                            .filter(|&(i, m)| *m > 0.0 && z[i].is_finite())
+                            .map(|(i, _)| (i as u32, w.image.data[i * 3]))
+                            .collect();
+                        (!px.is_empty()).then_some((s, px))
+                    })
+                    .collect()
+            })
             .collect();
         Consensus {
             cameras: cameras.to_vec(),
             depth,
             weight,
+            seen,
         }
     }
 
@@ -84,27 +111,26 @@ impl Consensus {
         let (cam, z) = (&self.cameras[d], &self.depth[d]);
         let mut sum = vec![0.0f64; images[d].data.len()];
         let mut total = vec![0.0f64; z.len()];
-        let mut add = |img: &Image, weight: &Image, mask: Option<&[f32]>| {
-            for (i, t) in total.iter_mut().enumerate() {
-                if !z[i].is_finite() || mask.is_some_and(|m| m[i] <= 0.0) {
-                    continue;
-                }
-                let w = f64::from(weight.data[i * 3]);
-                *t += w;
-                for c in 0..3 {
-                    sum[i * 3 + c] += w * f64::from(img.data[i * 3 + c]);
-                }
+        let mut add = |i: usize, w: f32, px: &[f32]| {
+            let w = f64::from(w);
+            total[i] += w;
+            for c in 0..3 {
+                sum[i * 3 + c] += w * f64::from(px[c]);
             }
         };
-        add(&images[d], &self.weight[d], None);
-        for s in (0..images.len()).filter(|&s| s != d) {
-            let (cs, zs) = (&self.cameras[s], &self.depth[s]);
-            let target = warp_into(cam, z, cs, zs, &images[s]);
-            if target.valid == 0 {
-                continue;
+        for i in (0..z.len()).filter(|&i| z[i].is_finite()) {
+            add(
+                i,
+                self.weight[d].data[i * 3],
+                &images[d].data[i * 3..i * 3 + 3],
+            );
+        }
+        for (s, pixels) in &self.seen[d] {
+            let target = warp_into(cam, z, &self.cameras[*s], &self.depth[*s], &images[*s]);
+            for &(i, w) in pixels {
+                let i = i as usize;
+                add(i, w, &target.image.data[i * 3..i * 3 + 3]);
             }
-            let weight = warp_into(cam, z, cs, zs, &self.weight[s]);
-            add(&target.image, &weight.image, Some(&target.mask));
         }
         let mut out = images[d].data.clone();
         for (i, &t) in total.iter().enumerate() {
@@ -118,39 +144,23 @@ impl Consensus {
     }
 }
 
-/// `|n . r|` per pixel of `cam`'s view (in all three channels; 0 where the surface depth
-/// `z` or both neighbours along an axis are missing): `n` the normal of the surface
-/// through the pixel's unprojected centre and its right (else left) and lower (else
-/// upper) neighbours', `r` the unit ray from the camera's centre.
+/// `|n . r|` per pixel of `cam`'s view (in all three channels): the cosine between the
+/// surface normal and the pixel's ray from the rendered surface depth `z`
+/// ([`DepthView::pixel_normal`], the style projection's normals); 0 on the frame's
+/// border, off the surface and at depth edges.
 pub fn facing(cam: &Camera, z: &[f32]) -> Image {
     let (w, h) = (cam.width as usize, cam.height as usize);
-    let unproject = cam.unprojector();
-    let (r, t) = cam.w2c();
-    let eye = -(r.transpose() * t);
-    let point = |x: usize, y: usize| -> Option<DVec3> {
-        let d = z[y * w + x];
-        d.is_finite()
-            .then(|| unproject(x as f64 + 0.5, y as f64 + 0.5, f64::from(d)))
-    };
-    // The step to the next point along an axis, or from the previous one.
-    let step = |p: DVec3, next: Option<DVec3>, prev: Option<DVec3>| {
-        next.map(|q| q - p).or_else(|| prev.map(|q| p - q))
+    let view = DepthView {
+        camera: cam,
+        surface: z,
     };
     let mut out = Image::filled(w, h, [0.0; 3]);
     for y in 0..h {
         for x in 0..w {
-            let Some(p) = point(x, y) else { continue };
-            let right = (x + 1 < w).then(|| point(x + 1, y)).flatten();
-            let left = (x > 0).then(|| point(x - 1, y)).flatten();
-            let down = (y + 1 < h).then(|| point(x, y + 1)).flatten();
-            let up = (y > 0).then(|| point(x, y - 1)).flatten();
-            let (Some(dx), Some(dy)) = (step(p, right, left), step(p, down, up)) else {
-                continue;
-            };
-            let n = dx.cross(dy).normalize_or_zero();
-            let f = n.dot((p - eye).normalize_or_zero()).abs() as f32;
-            let i = (y * w + x) * 3;
-            out.data[i..i + 3].copy_from_slice(&[f; 3]);
+            if let Some((_, cos)) = view.pixel_normal(x, y) {
+                let i = (y * w + x) * 3;
+                out.data[i..i + 3].copy_from_slice(&[cos.abs() as f32; 3]);
+            }
         }
     }
     out
@@ -162,18 +172,20 @@ mod tests {
     use crate::maths::warp::{look_at, synthetic};
 
     /// A camera looking straight down at the ground plane and one at 60 degrees from
-    /// its normal, both at the same distance from the point they look at.
+    /// its normal, both at the same distance from the point they look at; a long focal
+    /// length, so that the side view's neighbouring depths stay within the normals'
+    /// depth-edge tolerance (`SEEN_TOL`).
     fn cameras() -> Vec<Camera> {
         let t = 60f64.to_radians();
         vec![
-            look_at("top", [0.0, 0.0, 6.0], [0.0; 3], 48, 48, 40.0),
+            look_at("top", [0.0, 0.0, 6.0], [0.0; 3], 48, 48, 160.0),
             look_at(
                 "side",
                 [6.0 * t.sin(), 0.0, 6.0 * t.cos()],
                 [0.0; 3],
                 48,
                 48,
-                40.0,
+                160.0,
             ),
         ]
     }
