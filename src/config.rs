@@ -477,7 +477,7 @@ mod tests {
         assert_eq!(d.synthesis.control, 1.0);
         assert_eq!((d.synthesis.guide_blur, d.synthesis.detail), (2.0, 1.0));
         assert_eq!((d.synthesis.lr, d.synthesis.line_weight), (0.1, 2.0));
-        assert_eq!(d.synthesis.ink, 2.0);
+        assert_eq!((d.synthesis.ink, d.synthesis.consensus), (2.0, 8.0));
         let mut unguided = d.clone();
         unguided.finish = Finish::NONE;
         unguided.synthesis.control = paper.synthesis.control;
@@ -486,6 +486,7 @@ mod tests {
         unguided.synthesis.lr = paper.synthesis.lr;
         unguided.synthesis.line_weight = paper.synthesis.line_weight;
         unguided.synthesis.ink = paper.synthesis.ink;
+        unguided.synthesis.consensus = paper.synthesis.consensus;
         assert_eq!(unguided, paper);
         let c = Config::layered(&[
             Source::Preset("default".into()),

@@ -197,8 +197,10 @@ pub fn synthesize(
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let banks = crate::timing::phase("style bank", || style_banks(regions, style_size, p, &src))?;
-    for (&s, levels) in p.levels.iter().zip(banks) {
+    for (at, (&s, levels)) in p.levels.iter().zip(banks).enumerate() {
         let started = std::time::Instant::now();
+        // The views' consensus reconciles the finest level's targets only ([`consensus`]).
+        let consensus = src.consensus.as_ref().filter(|_| at + 1 == p.levels.len());
         let mut last = RoundStats::default();
         let frozen = crate::timing::phase("level views", || {
             view::levels(&src, &sizes, (s, &levels), p)
@@ -208,7 +210,7 @@ pub fn synthesize(
             let renders: Vec<Vec<f32>> = crate::timing::phase("render", || {
                 all.par_iter().map(|&v| fit.render_view(v)).collect()
             });
-            let (targets, stats) = e_step(&renders, &frozen, &levels, &src, p);
+            let (targets, stats) = e_step(&renders, &frozen, &levels, (&src, consensus), p);
             let fit_phase = crate::timing::span("colour fit");
             for _ in 0..p.steps {
                 last.loss = fit.step_l2(&targets)?;
@@ -326,7 +328,7 @@ fn set_up<'a>(
         .map(|r| r.depth)
         .collect();
         src.consensus = Some(crate::timing::phase("consensus", || {
-            consensus::Consensus::new(cameras, &depth, &src.alpha, p.consensus)
+            consensus::Consensus::new(cameras, (&depth, &src.alpha), p.consensus, p.detail_blur)
         }));
     }
     Ok((fit, src))
@@ -419,7 +421,7 @@ pub fn synthesize_images(
         let levels = std::slice::from_ref(&level);
         let frozen = view::levels(&src, sizes, (s, levels), p);
         for _ in 0..p.rounds {
-            out = e_step(&out, &frozen, levels, &src, p).0;
+            out = e_step(&out, &frozen, levels, (&src, None), p).0;
         }
     }
     Ok(out)
@@ -513,14 +515,15 @@ impl Frozen {
 /// The E-step of one round at a level: every view's object patches matched together
 /// (one balanced coupling over all views), each view's target `[H, W, 3]`.
 /// `renders` `[H, W, 3]` per view, `frozen` each view's images at the level
-/// ([`view::levels`]). Timed as the phases
+/// ([`view::levels`]), `consensus` the views' consensus that reconciles the targets
+/// (3D, the finest level; [`consensus`]). Timed as the phases
 /// `queries` (the views pooled, their patches in search coordinates), `search`,
 /// `balance` and the rematches' ([`StyleLevel::match_all`]), `stats` and `votes`.
 fn e_step(
     renders: &[Vec<f32>],
     frozen: &[ViewLevel],
     levels: &[StyleLevel],
-    src: &Frozen,
+    (src, consensus): (&Frozen, Option<&consensus::Consensus>),
     p: &SynthesisParams,
 ) -> (Vec<Vec<f32>>, RoundStats) {
     let n = src.alpha.len();
@@ -595,7 +598,7 @@ fn e_step(
         })
         .collect();
     drop(_ph);
-    if let Some(c) = &src.consensus {
+    if let Some(c) = consensus {
         targets = crate::timing::phase("consensus", || c.apply(&targets));
     }
     if !src.detail.is_empty() {

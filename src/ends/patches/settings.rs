@@ -58,7 +58,8 @@ pub struct SynthesisParams {
     #[arg(long, default_value_t = 0.0)]
     pub detail: f32,
     /// The detail layer's scale: the standard deviation (render pixels) of the blur whose
-    /// residue is the detail.
+    /// residue is the detail; also the scale below which the views' consensus leaves each
+    /// view its own texture (`consensus`).
     #[arg(long, default_value_t = 4.0)]
     pub detail_blur: f32,
     /// The detail layer's line weight: its most gain where the object's fine structure
@@ -81,11 +82,12 @@ pub struct SynthesisParams {
     /// and still show the object's volume (0: none). See `detail.rs`.
     #[arg(long, default_value_t = 0.0)]
     pub shade_blur: f32,
-    /// The views' consensus: each round, each view's texture target at a surface point
-    /// becomes the mix of every view's target there, weighted by how face-on each view
-    /// sees it to this power (0: off, each view its own; 8: mostly the most face-on views),
-    /// so the views agree before the fit instead of being averaged by it. See
-    /// `consensus.rs`.
+    /// The views' consensus: each round of the finest level, each view's texture target
+    /// at a surface point becomes the mix of every view's target there, weighted by how
+    /// face-on each view sees it to this power (0: off, each view its own; 8, the
+    /// default preset's: mostly the most face-on views), so the views agree before the
+    /// fit instead of being averaged by it; each view keeps its own band finer than
+    /// `detail_blur`. See `consensus.rs`.
     #[arg(long, default_value_t = 0.0)]
     pub consensus: f32,
     /// The `layout` start's cells across the object's largest extent (the motif scale it
