@@ -324,7 +324,7 @@ mod tests {
         for (i, v) in stripes.iter_mut().enumerate() {
             *v = if (i / 3) % 2 == 0 { 0.3 } else { 0.1 };
         }
-        let targets = vec![vec![0.8f32; 48 * 48 * 3], stripes.clone()];
+        let targets = vec![vec![0.8f32; 48 * 48 * 3], stripes];
         let k = 8.0f32;
         let plain = Consensus::new(&cams, (&depth, &alpha), k, 0.0).apply(&targets);
         let kept = Consensus::new(&cams, (&depth, &alpha), k, 2.0).apply(&targets);
