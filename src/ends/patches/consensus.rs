@@ -36,7 +36,7 @@
 //! finer than that (a brick wall's joints, a mosaic's leading) and the views agree on
 //! the colours and layout above it (a fin red from every side). The whole mix averaged
 //! the joints of views that drew them a few pixels apart into grey (style texture on the
-//! four brick cases 0.50-0.54 against 0.59-0.65 without the consensus; with the band
+//! four brick cases 0.47-0.54 against 0.60-0.65 without the consensus; with the band
 //! kept 0.59-0.62).
 //!
 //! It acts on the texture the patches voted (the targets before the detail layer, which
@@ -68,6 +68,9 @@ pub struct Consensus {
     /// The scale in render pixels below which each view keeps its own target (the
     /// detail layer's, `synthesis.detail_blur`; 0: the whole mix).
     blur: f32,
+    /// Per view, with `blur` > 0: its surface pixels (1, else 0) and their blur, the
+    /// normaliser of [`keep_own_band`]; frozen like the geometry.
+    surface: Vec<(Vec<f32>, Vec<f32>)>,
 }
 
 /// The other views that see some of a view: `(s, [(pixel, weight of s there)])`.
@@ -110,26 +113,42 @@ impl Consensus {
                     .collect()
             })
             .collect();
+        let surface = if blur > 0.0 {
+            (cameras.iter().zip(&depth))
+                .map(|(c, z)| {
+                    let on: Vec<f32> = z
+                        .iter()
+                        .map(|v| f32::from(u8::from(v.is_finite())))
+                        .collect();
+                    let sum =
+                        super::guide::blur(on.clone(), (c.height as usize, c.width as usize), blur);
+                    (on, sum)
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         Consensus {
             cameras: cameras.to_vec(),
             depth,
             weight,
             seen,
             blur,
+            surface,
         }
     }
 
     /// `targets` (`[H, W, 3]` per view, the views of [`Consensus::new`]) reconciled
     /// (module docs).
-    pub fn apply(&self, targets: &[Vec<f32>]) -> Vec<Vec<f32>> {
-        let images: Vec<Image> = (targets.iter().zip(&self.cameras))
-            .map(|(t, c)| Image {
+    pub fn apply(&self, targets: Vec<Vec<f32>>) -> Vec<Vec<f32>> {
+        let images: Vec<Image> = (targets.into_iter().zip(&self.cameras))
+            .map(|(data, c)| Image {
                 width: c.width as usize,
                 height: c.height as usize,
-                data: t.clone(),
+                data,
             })
             .collect();
-        (0..targets.len())
+        (0..images.len())
             .into_par_iter()
             .map(|d| self.one(d, &images))
             .collect()
@@ -169,11 +188,11 @@ impl Consensus {
                 }
             }
         }
-        if self.blur > 0.0 {
+        if let Some(surface) = self.surface.get(d) {
             keep_own_band(
                 &mut out,
                 &images[d].data,
-                z,
+                surface,
                 (cam.height as usize, cam.width as usize),
                 self.blur,
             );
@@ -183,14 +202,16 @@ impl Consensus {
 }
 
 /// `out` (the mix, `[H, W, 3]`) made `own` plus the mix's change blurred by a Gaussian
-/// of `sigma` px, normalised over the surface pixels (`z` finite): the views' agreement
-/// on the layout and colours, each view's own band finer than `sigma` kept.
-fn keep_own_band(out: &mut [f32], own: &[f32], z: &[f32], (h, w): (usize, usize), sigma: f32) {
-    let on: Vec<f32> = z
-        .iter()
-        .map(|v| f32::from(u8::from(v.is_finite())))
-        .collect();
-    let weight = blur(on.clone(), (h, w), sigma);
+/// of `sigma` px, normalised over the surface pixels (`on` 1 there, 0 elsewhere, and
+/// `weight` its blur): the views' agreement on the layout and colours, each view's own
+/// band finer than `sigma` kept.
+fn keep_own_band(
+    out: &mut [f32],
+    own: &[f32],
+    (on, weight): &(Vec<f32>, Vec<f32>),
+    (h, w): (usize, usize),
+    sigma: f32,
+) {
     for c in 0..3 {
         let change: Vec<f32> = (0..w * h)
             .map(|i| (out[i * 3 + c] - own[i * 3 + c]) * on[i])
@@ -281,7 +302,7 @@ mod tests {
         // The face-on view asks for white, the grazing one for black.
         let targets = vec![vec![1.0f32; n], vec![0.0f32; n]];
         let k = 8.0f32;
-        let out = Consensus::new(&cams, (&depth, &alpha), k, 0.0).apply(&targets);
+        let out = Consensus::new(&cams, (&depth, &alpha), k, 0.0).apply(targets.clone());
         // At the grazing view's centre (facing 0.5 against the top view's about 1), the
         // weights are 0.5^8 and about 1: the mix is about 1 / (1 + 0.5^8).
         let centre = (24 * 48 + 24) * 3;
@@ -310,7 +331,7 @@ mod tests {
         let i = unseen.expect("the side view sees ground the top view does not");
         assert_eq!(out[1][i * 3], 0.0);
         // k = 0: a plain mean of the views that see the point.
-        let mean = Consensus::new(&cams, (&depth, &alpha), 0.0, 0.0).apply(&targets);
+        let mean = Consensus::new(&cams, (&depth, &alpha), 0.0, 0.0).apply(targets.clone());
         assert!((mean[1][centre] - 0.5).abs() < 1e-5, "{}", mean[1][centre]);
     }
 
@@ -326,8 +347,8 @@ mod tests {
         }
         let targets = vec![vec![0.8f32; 48 * 48 * 3], stripes];
         let k = 8.0f32;
-        let plain = Consensus::new(&cams, (&depth, &alpha), k, 0.0).apply(&targets);
-        let kept = Consensus::new(&cams, (&depth, &alpha), k, 2.0).apply(&targets);
+        let plain = Consensus::new(&cams, (&depth, &alpha), k, 0.0).apply(targets.clone());
+        let kept = Consensus::new(&cams, (&depth, &alpha), k, 2.0).apply(targets.clone());
         let at = |img: &[f32], x: usize| img[(24 * 48 + x) * 3];
         // The plain mix is nearly the face-on view's flat 0.8: the stripes are gone.
         let plain_band = (at(&plain[1], 24) - at(&plain[1], 25)).abs();

@@ -599,7 +599,7 @@ fn e_step(
         .collect();
     drop(_ph);
     if let Some(c) = consensus {
-        targets = crate::timing::phase("consensus", || c.apply(&targets));
+        targets = crate::timing::phase("consensus", || c.apply(targets));
     }
     if !src.detail.is_empty() {
         detail::lay(&mut targets, &src.detail, detail::weight(p));
