@@ -4,7 +4,7 @@
 //! motifs drawn at random.
 //!
 //! Why: from the object's own smooth colours the patch end's balance settles into a few
-//! large regions of one cell colour each, whatever the style's scale (BENCHMARKS.md
+//! large regions of one cell colour each, whatever the style's scale (docs/structure-guide-history.md
 //! "Motifs and the object", the motif-scale table): nothing in a smooth render varies at
 //! the motif scale. A diffusion model takes its layout from the noise it starts from;
 //! this is that noise for the deterministic end, in 3D so that every view sees the same
