@@ -215,36 +215,24 @@ impl Image {
         Image::from_fn(w, h, |x, y| self.px(x0 + x, y0 + y))
     }
 
-    /// Separable Gaussian blur with standard deviation `sigma` pixels (clamped border).
+    /// Separable Gaussian blur with standard deviation `sigma` pixels, each channel, the
+    /// edge pixel repeated outside ([`crate::maths::blur`]).
     pub fn blurred(&self, sigma: f32) -> Image {
+        use crate::maths::blur::{Border, gaussian};
         if sigma <= 0.0 {
             return self.clone();
         }
-        let r = (3.0 * sigma).ceil() as i64;
-        let k: Vec<f32> = (-r..=r)
-            .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
-            .collect();
-        let ks: f32 = k.iter().sum();
-        let (w, h) = (self.width as i64, self.height as i64);
-        let pass = |img: &Image, horizontal: bool| {
-            Image::from_fn(img.width, img.height, |x, y| {
-                let mut o = [0.0; 3];
-                for (t, kv) in k.iter().enumerate() {
-                    let d = t as i64 - r;
-                    let (sx, sy) = if horizontal {
-                        ((x as i64 + d).clamp(0, w - 1), y as i64)
-                    } else {
-                        (x as i64, (y as i64 + d).clamp(0, h - 1))
-                    };
-                    let p = img.px(sx as usize, sy as usize);
-                    for c in 0..3 {
-                        o[c] += kv * p[c] / ks;
-                    }
-                }
-                o
+        let (w, h) = (self.width, self.height);
+        let planes: Vec<Vec<f32>> = (0..3)
+            .map(|c| {
+                let plane: Vec<f32> = self.data.iter().skip(c).step_by(3).copied().collect();
+                gaussian(&plane, (h, w), sigma, Border::Clamp)
             })
-        };
-        pass(&pass(self, true), false)
+            .collect();
+        Image::from_fn(w, h, |x, y| {
+            let p = y * w + x;
+            [planes[0][p], planes[1][p], planes[2][p]]
+        })
     }
 
     /// Add Gaussian noise of standard deviation `std` (deterministic in `seed`), clamped.

@@ -3,6 +3,7 @@
 //!
 //! | module | what |
 //! |---|---|
+//! | [`blur`] | the separable Gaussian blur of a plane (clamp, mirror or zero outside), f32 or f64 |
 //! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64), PSD square roots, small dense products |
 //! | [`expf`] | `f32::exp` of many values at once, bit for bit the platform's `expf` (glibc's FMA build's operations on four lanes) |
 //! | [`gram`] | the Gram matrix of a feature map (Gatys et al. 2016, Eq. 3) |
@@ -11,6 +12,7 @@
 //! | [`kid`] | KID's polynomial kernel and unbiased MMD² estimate (Bińkowski et al. 2018) |
 //! | [`warp`] | depth reprojection of one rendered view into another, with an occlusion test |
 
+pub mod blur;
 pub mod expf;
 pub mod gram;
 pub mod kid;

@@ -108,6 +108,7 @@
 use super::html::{esc, fmt_opt, table};
 use super::views::ViewSet;
 use crate::imageio::Image;
+use crate::maths::blur::{Border, separable, taps};
 use crate::maths::linalg::sym_eig;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -158,46 +159,14 @@ pub const NOTE: &str = "content leakage: per view, the stylized object's large-s
      change is a colour map of the scene or fine texture, 1 = as much as pasting the style image; mean over \
      views with a 95% Student-t interval";
 
-/// The normalised Gaussian taps, radius `ceil(3 sigma)`.
+/// The normalised Gaussian taps, radius `ceil(3 sigma)` ([`crate::maths::blur::taps`]).
 pub fn gaussian_taps(sigma: f64) -> Vec<f64> {
-    let r = (3.0 * sigma).ceil() as i64;
-    let k: Vec<f64> = (-r..=r)
-        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let s: f64 = k.iter().sum();
-    k.into_iter().map(|v| v / s).collect()
+    taps(sigma)
 }
 
 /// Separable convolution of a row-major `h x w` plane with symmetric `taps`, zero outside.
 pub fn blur(x: &[f64], w: usize, h: usize, taps: &[f64]) -> Vec<f64> {
-    assert_eq!(x.len(), w * h, "blur: size");
-    let r = (taps.len() / 2) as i64;
-    let mut tmp = vec![0.0; w * h];
-    for y in 0..h {
-        let row = &x[y * w..(y + 1) * w];
-        for xx in 0..w {
-            let lo = (xx as i64 - r).max(0) as usize;
-            let hi = (xx as i64 + r).min(w as i64 - 1) as usize;
-            let mut s = 0.0;
-            for (i, v) in row.iter().enumerate().take(hi + 1).skip(lo) {
-                s += taps[(i as i64 - xx as i64 + r) as usize] * v;
-            }
-            tmp[y * w + xx] = s;
-        }
-    }
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        let lo = (y as i64 - r).max(0) as usize;
-        let hi = (y as i64 + r).min(h as i64 - 1) as usize;
-        for yy in lo..=hi {
-            let t = taps[(yy as i64 - y as i64 + r) as usize];
-            let src = &tmp[yy * w..(yy + 1) * w];
-            for (o, v) in out[y * w..(y + 1) * w].iter_mut().zip(src) {
-                *o += t * v;
-            }
-        }
-    }
-    out
+    separable(x, (h, w), taps, Border::Zero)
 }
 
 /// The normalised low-pass `G * (m x) / G * m` of `img`'s channels (divided by `alpha`

@@ -26,6 +26,7 @@
 
 use super::views::ViewSet;
 use crate::imageio::Image;
+use crate::maths::blur::{Border, gaussian};
 
 /// Object pixels: source alpha above this.
 pub const ALPHA_MIN: f32 = 0.5;
@@ -54,43 +55,9 @@ pub fn luma(img: &Image) -> Vec<f64> {
         .collect()
 }
 
-/// The normalised Gaussian taps of standard deviation `sigma`, radius `ceil(3 sigma)`.
-fn taps(sigma: f64) -> Vec<f64> {
-    let r = (3.0 * sigma).ceil() as i64;
-    let k: Vec<f64> = (-r..=r)
-        .map(|i| (-((i * i) as f64) / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let s: f64 = k.iter().sum();
-    k.into_iter().map(|v| v / s).collect()
-}
-
 /// Separable Gaussian blur of a row-major `w x h` plane, edge pixels repeated outside.
 fn blur_clamped(x: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
-    let k = taps(sigma);
-    let r = (k.len() / 2) as i64;
-    let at = |i: i64, n: usize| i.clamp(0, n as i64 - 1) as usize;
-    let mut tmp = vec![0.0; w * h];
-    for y in 0..h {
-        let row = &x[y * w..(y + 1) * w];
-        for (xx, o) in tmp[y * w..(y + 1) * w].iter_mut().enumerate() {
-            *o = k
-                .iter()
-                .enumerate()
-                .map(|(t, kv)| kv * row[at(xx as i64 + t as i64 - r, w)])
-                .sum();
-        }
-    }
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        for (t, kv) in k.iter().enumerate() {
-            let src = at(y as i64 + t as i64 - r, h);
-            let src = &tmp[src * w..(src + 1) * w];
-            for (o, v) in out[y * w..(y + 1) * w].iter_mut().zip(src) {
-                *o += kv * v;
-            }
-        }
-    }
-    out
+    gaussian(x, (h, w), sigma, Border::Clamp)
 }
 
 /// The band-passed luminance `G_1 * Y - G_4 * Y` of an image (row-major).
@@ -264,9 +231,6 @@ mod tests {
         for v in blur_clamped(&x, 9, 5, SIGMA_COARSE) {
             assert!((v - 0.25).abs() < 1e-15, "{v}");
         }
-        let t = taps(SIGMA_COARSE);
-        assert_eq!(t.len(), 25);
-        assert!((t.iter().sum::<f64>() - 1.0).abs() < 1e-15);
         // A step is blurred symmetrically about its edge (odd symmetry of the blur).
         let step: Vec<f64> = (0..40).map(|i| f64::from(u8::from(i >= 20))).collect();
         let b = blur_clamped(&step, 40, 1, SIGMA_FINE);

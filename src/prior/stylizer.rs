@@ -472,16 +472,7 @@ fn stylize_at(
 
 /// Mirror index (reflect without repeating the edge, periodic for any overshoot).
 fn mirror(i: usize, n: usize) -> usize {
-    mirror_signed(i as isize, n)
-}
-
-fn mirror_signed(i: isize, n: usize) -> usize {
-    if n == 1 {
-        return 0;
-    }
-    let p = 2 * (n as isize - 1);
-    let k = i.rem_euclid(p);
-    (if k < n as isize { k } else { p - k }) as usize
+    crate::maths::blur::mirror(i as i64, n)
 }
 
 fn to_nhwc(x: ArrayView3<'_, f32>) -> Vec<f32> {
@@ -497,60 +488,20 @@ fn resize(img: ArrayView3<'_, f32>, h: usize, w: usize) -> Array3<f32> {
 }
 
 /// Separable Gaussian blur of `[C, H, W]` with pixel std `sigma`, mirrored borders
-/// (the mirror index tables are built once; channels in parallel).
+/// ([`crate::maths::blur`]; channels in parallel); `x` itself below 0.1 px.
 pub fn gaussian_blur(x: ArrayView3<'_, f32>, sigma: f32) -> Array3<f32> {
+    use crate::maths::blur::{Border, gaussian};
     use rayon::prelude::*;
     if sigma < 0.1 {
         return x.to_owned();
     }
-    let r = (3.0 * sigma).ceil() as usize;
-    let mut k: Vec<f32> = (0..=2 * r)
-        .map(|i| {
-            let d = i as f32 - r as f32;
-            (-d * d / (2.0 * sigma * sigma)).exp()
-        })
-        .collect();
-    let s: f32 = k.iter().sum();
-    k.iter_mut().for_each(|v| *v /= s);
     let (c, h, w) = (x.shape()[0], x.shape()[1], x.shape()[2]);
-    // Source index of padded position p (= output position + tap - r).
-    let table = |n: usize| -> Vec<usize> {
-        (0..n + 2 * r)
-            .map(|p| mirror_signed(p as isize - r as isize, n))
-            .collect()
-    };
-    let (tx, ty) = (table(w), table(h));
     let x = x.as_standard_layout();
     let src = x.as_slice().expect("standard layout");
-    let mut out = vec![0.0f32; c * h * w];
-    out.par_chunks_mut(h * w)
-        .zip(src.par_chunks(h * w))
-        .for_each(|(o, img)| {
-            let mut tmp = vec![0.0f32; h * w];
-            let mut padded = vec![0.0f32; w + 2 * r];
-            for y in 0..h {
-                let row = &img[y * w..(y + 1) * w];
-                for (p, &ix) in padded.iter_mut().zip(&tx) {
-                    *p = row[ix];
-                }
-                for (xx, t) in tmp[y * w..(y + 1) * w].iter_mut().enumerate() {
-                    *t = padded[xx..xx + 2 * r + 1]
-                        .iter()
-                        .zip(&k)
-                        .map(|(a, b)| a * b)
-                        .sum();
-                }
-            }
-            for y in 0..h {
-                let orow = &mut o[y * w..(y + 1) * w];
-                for (i, kv) in k.iter().enumerate() {
-                    let sy = ty[y + i];
-                    for (ov, tv) in orow.iter_mut().zip(&tmp[sy * w..(sy + 1) * w]) {
-                        *ov += kv * tv;
-                    }
-                }
-            }
-        });
+    let out: Vec<f32> = src
+        .par_chunks(h * w)
+        .flat_map_iter(|plane| gaussian(plane, (h, w), sigma, Border::Mirror))
+        .collect();
     Array3::from_shape_vec((c, h, w), out).expect("shape")
 }
 

@@ -42,6 +42,7 @@ use super::SynthesisParams;
 use super::motif::{luma, motif_mask};
 use super::parts::Channel;
 use crate::imageio::Image;
+use crate::maths::blur::{Border, gaussian};
 use crate::render::fill::{push_pull, unpremultiply};
 
 /// Mean and standard deviation of a set of values.
@@ -153,39 +154,13 @@ pub fn source_guides(
         .collect()
 }
 
-/// `x` (`[h w]`) blurred by a separable Gaussian of standard deviation `sigma` pixels,
-/// taps `exp(-i^2 / (2 sigma^2))` for `|i| <= ceil(3 sigma)` over their sum, the edge
-/// pixel repeated outside; `x` itself when `sigma` is 0.
+/// `x` (`[h w]`) blurred by a Gaussian of standard deviation `sigma` pixels, the edge
+/// pixel repeated outside ([`crate::maths::blur`]); `x` itself when `sigma` is 0.
 pub fn blur(x: Vec<f32>, (h, w): (usize, usize), sigma: f32) -> Vec<f32> {
     if sigma <= 0.0 {
         return x;
     }
-    let r = (3.0 * sigma).ceil() as isize;
-    let taps: Vec<f32> = (-r..=r)
-        .map(|i| (-((i * i) as f32) / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let sum: f32 = taps.iter().sum();
-    let taps: Vec<f32> = taps.iter().map(|t| t / sum).collect();
-    let pass = |src: &[f32], along_x: bool| -> Vec<f32> {
-        let mut out = vec![0.0f32; h * w];
-        for y in 0..h {
-            for xx in 0..w {
-                let mut acc = 0.0f32;
-                for (t, &k) in taps.iter().enumerate() {
-                    let d = t as isize - r;
-                    let (sy, sx) = if along_x {
-                        (y, (xx as isize + d).clamp(0, w as isize - 1) as usize)
-                    } else {
-                        ((y as isize + d).clamp(0, h as isize - 1) as usize, xx)
-                    };
-                    acc += k * src[sy * w + sx];
-                }
-                out[y * w + xx] = acc;
-            }
-        }
-        out
-    };
-    pass(&pass(&x, true), false)
+    gaussian(&x, (h, w), sigma, Border::Clamp)
 }
 
 /// The structure guide as a part of the synthesis ([`super::PARTS`]).
