@@ -19,6 +19,8 @@
 //! window over zero-padded planes whose operator is applied to the loss's gradients too,
 //! with scratch buffers kept between calls.
 
+use ndarray::{Array3, ArrayView3};
+use rayon::prelude::*;
 use std::iter::Sum;
 use std::ops::{Add, Div, Mul, Neg};
 
@@ -147,6 +149,23 @@ pub fn separable<T: Real>(x: &[T], (h, w): (usize, usize), taps: &[T], border: B
 /// [`separable`] with the taps of `sigma` ([`taps`]).
 pub fn gaussian<T: Real>(x: &[T], size: (usize, usize), sigma: T, border: Border) -> Vec<T> {
     separable(x, size, &taps(sigma), border)
+}
+
+/// Every plane of `[C, H, W]` blurred by [`gaussian`] with pixel std `sigma`, mirrored
+/// borders (the stylizer prior's clean estimate and the metrics' high pass), the planes
+/// in parallel; `x` itself below 0.1 px (its side taps would be below 1e-21).
+pub fn gaussian_chw(x: ArrayView3<'_, f32>, sigma: f32) -> Array3<f32> {
+    if sigma < 0.1 {
+        return x.to_owned();
+    }
+    let (c, h, w) = x.dim();
+    let x = x.as_standard_layout();
+    let src = x.as_slice().expect("standard layout");
+    let out: Vec<f32> = src
+        .par_chunks(h * w)
+        .flat_map_iter(|plane| gaussian(plane, (h, w), sigma, Border::Mirror))
+        .collect();
+    Array3::from_shape_vec((c, h, w), out).expect("shape")
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`blur`] | the separable Gaussian blur of a plane (clamp, mirror or zero outside), f32 or f64 |
+//! | [`blur`] | the separable Gaussian blur of a plane (clamp, mirror or zero outside; f32 or f64) and of every plane of `[C, H, W]` |
 //! | [`linalg`] | symmetric eigendecomposition (cyclic Jacobi, f64), PSD square roots, small dense products |
 //! | [`expf`] | `f32::exp` of many values at once, bit for bit the platform's `expf` (glibc's FMA build's operations on four lanes) |
 //! | [`gram`] | the Gram matrix of a feature map (Gatys et al. 2016, Eq. 3) |

@@ -28,8 +28,8 @@
 
 use crate::Camera;
 use crate::imageio::Image;
+use crate::maths::blur::gaussian_chw;
 use crate::maths::warp::{ALPHA_MIN, surface_depth, warp_into};
-use crate::prior::stylizer::gaussian_blur;
 use ndarray::{Array3, ArrayView3, ArrayView4, Axis, s};
 
 /// Pixel std of the blur whose residual is the "high-frequency" change.
@@ -102,7 +102,7 @@ pub fn high_pass(d: ArrayView3<'_, f32>, mask: &[f32], sigma: f32) -> Array3<f32
             x[[c, y, xx]] = mask[y * w + xx];
         }
     }
-    let b = gaussian_blur(x.view(), sigma);
+    let b = gaussian_chw(x.view(), sigma);
     Array3::from_shape_fn((c, h, w), |(k, y, xx)| {
         let m = mask[y * w + xx];
         let wsum = b[[c, y, xx]];

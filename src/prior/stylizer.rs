@@ -62,6 +62,7 @@ use super::manifest::TimestepRange;
 use super::session::{Graph, Kind, LazyGraph};
 use super::{Cond, ControlKind, Prior, PriorInfo};
 use crate::imageio::{Filter, Image};
+use crate::maths::blur::gaussian_chw;
 use crate::runtime::{Device, SessionConfig};
 use crate::scheduler::{Schedule, SchedulerConfig};
 use crate::{Error, Result};
@@ -366,7 +367,7 @@ fn clean_estimate(schedule: &Schedule, z_t: ArrayView3<'_, f32>, t: usize) -> Re
     let sigma = (r / (2.0 * std::f64::consts::PI.sqrt() * 0.05)).min(8.0);
     let inv = (1.0 / ab.sqrt()) as f32;
     let x = z_t.mapv(|v| v * inv);
-    let mut b = gaussian_blur(x.view(), sigma as f32);
+    let mut b = gaussian_chw(x.view(), sigma as f32);
     b.mapv_inplace(|v| v.clamp(0.0, 1.0));
     Ok(b)
 }
@@ -487,24 +488,6 @@ fn resize(img: ArrayView3<'_, f32>, h: usize, w: usize) -> Array3<f32> {
         .to_chw()
 }
 
-/// Separable Gaussian blur of `[C, H, W]` with pixel std `sigma`, mirrored borders
-/// ([`crate::maths::blur`]; channels in parallel); `x` itself below 0.1 px.
-pub fn gaussian_blur(x: ArrayView3<'_, f32>, sigma: f32) -> Array3<f32> {
-    use crate::maths::blur::{Border, gaussian};
-    use rayon::prelude::*;
-    if sigma < 0.1 {
-        return x.to_owned();
-    }
-    let (c, h, w) = (x.shape()[0], x.shape()[1], x.shape()[2]);
-    let x = x.as_standard_layout();
-    let src = x.as_slice().expect("standard layout");
-    let out: Vec<f32> = src
-        .par_chunks(h * w)
-        .flat_map_iter(|plane| gaussian(plane, (h, w), sigma, Border::Mirror))
-        .collect();
-    Array3::from_shape_vec((c, h, w), out).expect("shape")
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -519,11 +502,11 @@ mod tests {
     #[test]
     fn blur_preserves_constants_and_reduces_noise() {
         let c = Array3::from_elem((1, 9, 7), 0.3f32);
-        let b = gaussian_blur(c.view(), 4.0);
+        let b = gaussian_chw(c.view(), 4.0);
         assert!(b.iter().all(|v| (v - 0.3).abs() < 1e-5));
         let n = crate::rng::Rng::new(1).normals_f32(64 * 64);
         let x = Array3::from_shape_vec((1, 64, 64), n).unwrap();
-        let b = gaussian_blur(x.view(), 2.0);
+        let b = gaussian_chw(x.view(), 2.0);
         let sd = (b.iter().map(|v| v * v).sum::<f32>() / b.len() as f32).sqrt();
         // theory: 1 / (2 sqrt(pi) 2) = 0.141
         assert!((sd - 0.141).abs() < 0.03, "{sd}");
