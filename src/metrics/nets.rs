@@ -264,18 +264,21 @@ pub(crate) mod tests {
     use fantasystyle_schemas::read_npy;
 
     /// The models dir and reference dir, or `None` (test prints SKIPPED) if set-up or
-    /// onnxruntime is missing.
+    /// onnxruntime is missing; under CI (`CI` set, not `""`, `0` or `false`) set-up has
+    /// installed both, so a missing one fails the test instead of passing it as green.
     pub(crate) fn setup() -> Option<PathBuf> {
+        let skip = |what: &str| {
+            let ci = std::env::var("CI").is_ok_and(|v| !matches!(v.trim(), "" | "0" | "false"));
+            assert!(!ci, "missing under CI: {what} (scripts/setup.sh)");
+            eprintln!("SKIPPED: {what} (scripts/setup.sh)");
+            None
+        };
         if crate::runtime::library_path().is_err() {
-            eprintln!("SKIPPED: onnxruntime not installed (scripts/setup.sh)");
-            return None;
+            return skip("onnxruntime not installed");
         }
         match crate::models::models_dir() {
             Ok(m) if m.join("metrics/ref/ref.json").is_file() => Some(m),
-            _ => {
-                eprintln!("SKIPPED: metric networks/reference not set up (scripts/setup.sh)");
-                None
-            }
+            _ => skip("metric networks/reference not set up"),
         }
     }
 
