@@ -20,7 +20,10 @@ and its ratio to the real styles' (their whole change). `--own grid` takes every
 object box instead, side by side with gutters of the background (the object's look from
 all sides, at the renders' scale before `texture.style_size`). `--own-scale render` runs
 the own style at the renders' scale (its `texture.style_size` set to its shorter side, less
-the crop's repetition) instead of the default 256.
+the crop's repetition) instead of the default 256. `--own-colours object` takes the crop's
+colours un-premultiplied (divided by the coverage where it is above 0.02): the renders are
+over black, so the object's anti-aliased rim is a dark blend in the default crop, which the
+style's background test keeps as motif.
 
 Needs the release binaries (target/release) and the keep benchmark's source views
 (`pipeline run --dag benches/quality/keep.toml source`); numpy only (vendor/venv).
@@ -53,11 +56,21 @@ def load_source(source):
     return rgb, alpha
 
 
-def object_box(src, view):
-    """View `view`'s render cropped to its object's box (alpha > 0.5)."""
+UNPREMULTIPLIED_ALPHA = 0.02
+
+
+def object_box(src, view, colours="render"):
+    """View `view`'s render cropped to its object's box (alpha > 0.5); with `colours`
+    "object", un-premultiplied where the coverage is above UNPREMULTIPLIED_ALPHA (black
+    elsewhere)."""
     rgb, alpha = src
     ys, xs = np.nonzero(alpha[view] > 0.5)
-    return rgb[view][ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+    box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+    crop = rgb[view][box]
+    if colours == "object":
+        a = alpha[view][box][..., None]
+        crop = np.where(a > UNPREMULTIPLIED_ALPHA, np.clip(crop / np.maximum(a, 1e-6), 0.0, 1.0), 0.0)
+    return crop
 
 
 def object_luma(rgb, alpha, views):
@@ -68,10 +81,10 @@ def object_luma(rgb, alpha, views):
     return float(((rgb[views][m] / a[m][:, None]) @ LUMA).mean())
 
 
-def own_crop(src, view=OWN_VIEW):
-    """View `view`'s object box, repeated until its shorter side is >= MIN_SIDE; and the
-    repetition factor."""
-    crop = object_box(src, view)
+def own_crop(src, view=OWN_VIEW, colours="render"):
+    """View `view`'s object box ([`object_box`]), repeated until its shorter side is
+    >= MIN_SIDE; and the repetition factor."""
+    crop = object_box(src, view, colours)
     k = -(-MIN_SIDE // min(crop.shape[:2]))
     return np.repeat(np.repeat(crop, k, axis=0), k, axis=1), k
 
@@ -79,12 +92,12 @@ def own_crop(src, view=OWN_VIEW):
 GUTTER = 4
 
 
-def own_grid(src):
+def own_grid(src, colours="render"):
     """Every view's object box on a near-square grid, each centred in a cell of the
     largest box's size, cells apart by GUTTER pixels of the background (black): the
     background stays one region reaching the border, as the style's motif test wants."""
     n = src[0].shape[0]
-    crops = [object_box(src, v) for v in range(n)]
+    crops = [object_box(src, v, colours) for v in range(n)]
     cols = int(np.ceil(np.sqrt(n)))
     rows = -(-n // cols)
     ch = max(c.shape[0] for c in crops)
@@ -135,6 +148,8 @@ def main():
                     help="the own style: one view's object box (--view), or every view's on a grid")
     ap.add_argument("--own-scale", choices=("default", "render"), default="default",
                     help="the own style at texture.style_size's default, or at the renders' scale")
+    ap.add_argument("--own-colours", choices=("render", "object"), default="render",
+                    help="the crop as rendered over black, or its colours un-premultiplied")
     ap.add_argument("--set", action="append", default=[], help="KEY=VALUE for every run")
     args = ap.parse_args()
     print("| capture | own render | mosaic | painting | ratio | own: brightness | own: without "
@@ -149,7 +164,10 @@ def main():
                     sys.exit(f"{p}: missing (see the module docs)")
             own = os.path.join(tmp, name + "-own.png")
             src = load_source(source)
-            img, k = own_crop(src, args.view) if args.own == "view" else (own_grid(src), 1)
+            if args.own == "view":
+                img, k = own_crop(src, args.view, args.own_colours)
+            else:
+                img, k = own_grid(src, args.own_colours), 1
             own_views = [args.view] if args.own == "view" else slice(None)
             write_png(own, img * 255.0 + 0.5)
             own_sets = list(args.set)
