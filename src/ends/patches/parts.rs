@@ -13,6 +13,7 @@
 use super::SynthesisParams;
 use super::coherence::Neighbour;
 use crate::imageio::Image;
+use ndarray::ArrayView3;
 
 /// One more channel of every patch (module docs).
 pub trait Channel: Sync {
@@ -42,6 +43,19 @@ pub trait Channel: Sync {
     /// [`super::guide`]).
     fn matched_at_level(&self) -> bool {
         false
+    }
+    /// A query view's channel at one level given its colours as the match sees them
+    /// (`current` `[3, h, w]`): for a part that asks something only where the object has
+    /// something to say and leaves the current texture free elsewhere (the edge guide,
+    /// [`super::edges`]); `frozen` is the view's channel at the level ([`Channel::at_level`]),
+    /// `alpha` its coverage (`[h w]` each). `None` (the default): `frozen` as it is.
+    fn with_current(
+        &self,
+        _frozen: &[f32],
+        _current: ArrayView3<'_, f32>,
+        _alpha: &[f32],
+    ) -> Option<Vec<f32>> {
+        None
     }
 }
 

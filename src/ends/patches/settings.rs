@@ -82,6 +82,13 @@ pub struct SynthesisParams {
     /// and still show the object's volume (0: none). See `detail.rs`.
     #[arg(long, default_value_t = 0.0)]
     pub shade_blur: f32,
+    /// The edge guide's weight: at the object's strongest edges its band pass (its
+    /// remapped luma less its blur of 2 synthesis pixels, raised to the style's edge
+    /// strength) is matched beside the colours against the style's own band pass, so the
+    /// style's own edges are chosen there; elsewhere the texture stays free (0: off; with
+    /// it, a lighter detail layer, e.g. `detail = 0.5`). See `edges.rs`.
+    #[arg(long, default_value_t = 0.0)]
+    pub edges: f32,
     /// The views' consensus: each round of the finest level, each view's texture target
     /// at a surface point becomes the mix of every view's target there, weighted by how
     /// face-on each view sees it to this power (0: off, each view its own; 8, the
@@ -165,6 +172,9 @@ impl SynthesisParams {
         }
         if !(self.line_weight.is_finite() && (1.0..=10.0).contains(&self.line_weight)) {
             return Err(Error::param("synthesis.line_weight must lie in [1, 10]"));
+        }
+        if !(self.edges.is_finite() && (0.0..=100.0).contains(&self.edges)) {
+            return Err(Error::param("synthesis.edges must lie in [0, 100]"));
         }
         if !(self.ink.is_finite() && (0.0..=10.0).contains(&self.ink)) {
             return Err(Error::param("synthesis.ink must lie in [0, 10]"));

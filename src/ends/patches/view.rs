@@ -53,6 +53,9 @@ pub(super) struct ViewImage<'a> {
     /// `[1, 3, h, w]`.
     colour: Array4<f32>,
     frozen: &'a ViewLevel,
+    /// Per region, each channel's image where its part follows the current colours
+    /// ([`super::parts::Channel::with_current`]; `None`: the frozen one).
+    current: Vec<Vec<Option<Array4<f32>>>>,
 }
 
 /// `[H, W, C]` values pooled over whole `s` x `s` blocks (the patch prior's pooling,
@@ -204,9 +207,30 @@ impl<'a> ViewImage<'a> {
     pub(super) fn new(rgb: &[f32], src: &Frozen, v: usize, frozen: &'a ViewLevel) -> Self {
         let size = frozen.full;
         let filled = fill_background(rgb, &src.alpha[v], src.background, size.0, size.1);
+        let colour = pooled(&filled, 3, size, frozen.s);
+        let alpha = frozen.alpha.as_slice().expect("standard layout");
+        let current = frozen
+            .channels
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .zip(&src.parts)
+                    .map(|(g, &(_, part))| {
+                        let (_, _, h, w) = g.dim();
+                        let own = g.as_slice().expect("standard layout");
+                        part.with_current(own, colour.index_axis(Axis(0), 0), alpha)
+                            .map(|c| {
+                                Array4::from_shape_vec((1, 1, h, w), c)
+                                    .expect("one value per pixel")
+                            })
+                    })
+                    .collect()
+            })
+            .collect();
         ViewImage {
-            colour: pooled(&filled, 3, size, frozen.s),
+            colour,
             frozen,
+            current,
         }
     }
 
@@ -220,13 +244,10 @@ impl<'a> ViewImage<'a> {
             .filter(|&[_, y, x]| self.frozen.alpha[[y, x]] > OBJECT)
             .collect();
         let colour = patches_at(self.colour.view(), p.patch, &pixels);
-        let channels = self
-            .frozen
-            .channels
-            .iter()
-            .map(|r| {
-                r.iter()
-                    .map(|g| patches_at(g.view(), p.patch, &pixels))
+        let channels = (self.frozen.channels.iter().zip(&self.current))
+            .map(|(r, now)| {
+                (r.iter().zip(now))
+                    .map(|(g, now)| patches_at(now.as_ref().unwrap_or(g).view(), p.patch, &pixels))
                     .collect()
             })
             .collect();
