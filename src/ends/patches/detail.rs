@@ -249,7 +249,7 @@ pub fn line_gain(
 }
 
 /// The `q` quantile of `v` (the value at rank `floor((n - 1) q)`); `None` when empty.
-fn quantile(mut v: Vec<f32>, q: f32) -> Option<f32> {
+pub(super) fn quantile(mut v: Vec<f32>, q: f32) -> Option<f32> {
     if v.is_empty() {
         return None;
     }

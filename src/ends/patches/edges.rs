@@ -21,6 +21,7 @@
 //! its *current* colours ([`super::parts::Channel::with_current`]), which the style patch
 //! that matches those colours matches too: the texture is free there.
 
+use super::detail::quantile;
 use super::guide::{blur, source_guides, style_moments};
 use super::motif::{LUMA, luma};
 use super::parts::Channel;
@@ -42,15 +43,6 @@ pub const IMPOSED_QUANTILE: f32 = 0.8;
 fn band(x: &[f32], size: (usize, usize), sigma: f32) -> Vec<f32> {
     let base = blur(x.to_vec(), size, sigma);
     x.iter().zip(&base).map(|(a, b)| a - b).collect()
-}
-
-/// The `q` quantile of `v` (the value at rank `floor((n - 1) q)`); `None` when empty.
-fn quantile(mut v: Vec<f32>, q: f32) -> Option<f32> {
-    if v.is_empty() {
-        return None;
-    }
-    let k = ((v.len() - 1) as f32 * q) as usize;
-    Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
 }
 
 /// The gain that brings the object's band pass (`object`: its magnitudes over the
