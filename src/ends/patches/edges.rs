@@ -5,6 +5,9 @@
 //! and StyLit (Fiser et al. 2016) as a cost, where the detail layer ([`super::detail`])
 //! lays the object's own lines over the texture.
 //!
+//! **The weight** is `sqrt(3 edges control)`: like the detail layer's, it follows
+//! `synthesis.control`, so `control = 0` is still the unguided end.
+//!
 //! **The channel.** At every level a band pass in synthesis pixels, a luma less its blur
 //! of [`EDGE_SIGMA`] synthesis pixels. The style's is its own luma's. The object's is its
 //! structure guide's (its luma remapped to the style's, [`super::guide::source_guides`])
@@ -99,7 +102,7 @@ impl Channel for EdgeGuide {
     }
 
     fn weight(&self, p: &SynthesisParams) -> f32 {
-        (3.0 * p.edges).sqrt()
+        (3.0 * p.edges * p.control).sqrt()
     }
 
     fn with_current(
@@ -197,6 +200,30 @@ mod tests {
         // A flat style or object: no gain.
         assert_eq!(gain(faint, vec![0.0; 100]), 1.0);
         assert_eq!(gain(vec![0.0; 10], vec![0.1; 10]), 1.0);
+    }
+
+    #[test]
+    fn the_edge_guide_follows_the_control_so_control_zero_is_unguided() {
+        let names = |edges: f32, control: f32| -> Vec<&str> {
+            let p = SynthesisParams {
+                edges,
+                control,
+                ..SynthesisParams::default()
+            };
+            super::super::active_parts(&p)
+                .iter()
+                .map(|k| k.name)
+                .collect()
+        };
+        assert!(names(1.0, 1.0).contains(&"edges"));
+        assert!(!names(1.0, 0.0).contains(&"edges"));
+        assert!(!names(0.0, 1.0).contains(&"edges"));
+        let p = SynthesisParams {
+            edges: 2.0,
+            control: 0.5,
+            ..SynthesisParams::default()
+        };
+        assert!((EdgeGuide.weight(&p) - 3.0f32.sqrt()).abs() < 1e-6);
     }
 
     #[test]

@@ -86,7 +86,8 @@ pub struct SynthesisParams {
     /// remapped luma less its blur of 2 synthesis pixels, raised to the style's edge
     /// strength) is matched beside the colours against the style's own band pass, so the
     /// style's own edges are chosen there; elsewhere the texture stays free (0: off; with
-    /// it, a lighter detail layer, e.g. `detail = 0.5`). See `edges.rs`.
+    /// it, a lighter detail layer, e.g. `detail = 0.75`). Its weight follows `control`
+    /// (`sqrt(3 edges control)`). See `edges.rs`.
     #[arg(long, default_value_t = 0.0)]
     pub edges: f32,
     /// The views' consensus: each round of the finest level, each view's texture target
