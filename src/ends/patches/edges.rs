@@ -21,7 +21,7 @@
 //! So the object imposes its band pass only at its own strongest edges, the pixels of
 //! each view whose `|band|` is at least its [`IMPOSED_QUANTILE`] over the object,
 //! widened by a blur of one pixel; everywhere else a query's channel is the band pass of
-//! its *current* colours ([`super::parts::Channel::with_current`]), which the style patch
+//! its *current* colours ([`super::parts::Channel::imposed`], made once per level), which the style patch
 //! that matches those colours matches too: the texture is free there.
 
 use super::detail::quantile;
@@ -105,20 +105,7 @@ impl Channel for EdgeGuide {
         (3.0 * p.edges * p.control).sqrt()
     }
 
-    fn with_current(
-        &self,
-        frozen: &[f32],
-        current: ArrayView3<'_, f32>,
-        alpha: &[f32],
-    ) -> Option<Vec<f32>> {
-        let (_, h, w) = current.dim();
-        let l: Vec<f32> = (0..h * w)
-            .map(|i| {
-                let (y, x) = (i / w, i % w);
-                (0..3).map(|c| LUMA[c] * current[[c, y, x]]).sum()
-            })
-            .collect();
-        let own = band(&l, (h, w), EDGE_SIGMA);
+    fn imposed(&self, frozen: &[f32], alpha: &[f32], size: (usize, usize)) -> Option<Vec<f32>> {
         let mags: Vec<f32> = (frozen.iter().zip(alpha))
             .filter(|(_, a)| **a > OBJECT)
             .map(|(v, _)| v.abs())
@@ -128,21 +115,30 @@ impl Channel for EdgeGuide {
             .iter()
             .map(|v| if v.abs() >= t { 1.0 } else { 0.0 })
             .collect();
-        let m = blur(strong, (h, w), 1.0);
         Some(
-            (0..h * w)
-                .map(|i| {
-                    let m = (2.0 * m[i]).min(1.0);
-                    m * frozen[i] + (1.0 - m) * own[i]
-                })
+            blur(strong, size, 1.0)
+                .into_iter()
+                .map(|m| (2.0 * m).min(1.0))
                 .collect(),
         )
+    }
+
+    fn of_current(&self, current: ArrayView3<'_, f32>) -> Vec<f32> {
+        let (_, h, w) = current.dim();
+        let l: Vec<f32> = (0..h * w)
+            .map(|i| {
+                let (y, x) = (i / w, i % w);
+                (0..3).map(|c| LUMA[c] * current[[c, y, x]]).sum()
+            })
+            .collect();
+        band(&l, (h, w), EDGE_SIGMA)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ends::patches::parts::follow;
     use ndarray::Array3;
 
     /// A view `[3, h, w]` of one grey level per pixel.
@@ -161,9 +157,8 @@ mod tests {
         let frozen = band(&step, (h, w), EDGE_SIGMA);
         let current = grey(h, w, |y, _| if (y / 2) % 2 == 0 { 0.3 } else { 0.7 });
         let alpha = vec![1.0; h * w];
-        let got = EdgeGuide
-            .with_current(&frozen, current.view(), &alpha)
-            .unwrap();
+        let share = EdgeGuide.imposed(&frozen, &alpha, (h, w)).unwrap();
+        let got = follow(&frozen, &share, &EdgeGuide.of_current(current.view()));
         let own = band(
             &current
                 .index_axis(ndarray::Axis(0), 0)

@@ -44,19 +44,29 @@ pub trait Channel: Sync {
     fn matched_at_level(&self) -> bool {
         false
     }
-    /// A query view's channel at one level given its colours as the match sees them
-    /// (`current` `[3, h, w]`): for a part that asks something only where the object has
-    /// something to say and leaves the current texture free elsewhere (the edge guide,
-    /// [`super::edges`]); `frozen` is the view's channel at the level ([`Channel::at_level`]),
-    /// `alpha` its coverage (`[h w]` each). `None` (the default): `frozen` as it is.
-    fn with_current(
-        &self,
-        _frozen: &[f32],
-        _current: ArrayView3<'_, f32>,
-        _alpha: &[f32],
-    ) -> Option<Vec<f32>> {
+    /// Where a query's channel is the object's: a share per pixel in [0, 1] (`[h w]`),
+    /// from the view's channel at the level (`frozen`, [`Channel::at_level`]) and its
+    /// coverage `alpha`, made once per level; the rest is the channel of the query's
+    /// current colours ([`Channel::of_current`], [`follow`]). For a part that asks
+    /// something only where the object has something to say and leaves the current
+    /// texture free elsewhere (the edge guide, [`super::edges`]). `None` (the default):
+    /// the object's everywhere.
+    fn imposed(&self, _frozen: &[f32], _alpha: &[f32], _size: (usize, usize)) -> Option<Vec<f32>> {
         None
     }
+    /// The channel of a query's current colours (`current` `[3, h, w]`, as the match
+    /// sees them), read only where [`Channel::imposed`] leaves room (the default: zero).
+    fn of_current(&self, current: ArrayView3<'_, f32>) -> Vec<f32> {
+        vec![0.0; current.len() / 3]
+    }
+}
+
+/// A query's channel: `share` of the object's (`frozen`) and the rest of its current
+/// colours' (`current`), pixel by pixel ([`Channel::imposed`]).
+pub fn follow(frozen: &[f32], share: &[f32], current: &[f32]) -> Vec<f32> {
+    (frozen.iter().zip(share).zip(current))
+        .map(|((&f, &m), &c)| m * f + (1.0 - m) * c)
+        .collect()
 }
 
 /// A second coupling with changed distances (module docs).

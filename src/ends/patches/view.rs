@@ -45,6 +45,9 @@ pub(super) struct ViewLevel {
     s: usize,
     /// The full-resolution size (H, W).
     full: (usize, usize),
+    /// Per region, each channel's share imposed on its queries
+    /// ([`super::parts::Channel::imposed`]; `None`: the whole channel).
+    imposed: Vec<Vec<Option<Vec<f32>>>>,
 }
 
 /// One view in one round: its current colour over a fill of itself, pooled, beside its
@@ -54,7 +57,7 @@ pub(super) struct ViewImage<'a> {
     colour: Array4<f32>,
     frozen: &'a ViewLevel,
     /// Per region, each channel's image where its part follows the current colours
-    /// ([`super::parts::Channel::with_current`]; `None`: the frozen one).
+    /// ([`super::parts::Channel::imposed`]; `None`: the frozen one).
     current: Vec<Vec<Option<Array4<f32>>>>,
 }
 
@@ -101,7 +104,7 @@ impl ViewLevel {
             let filled = fill_background(&src.rgb[v], alpha, bg, size.0, size.1);
             pooled(&filled, 3, size, s)
         });
-        let channels = src
+        let channels: Vec<Vec<Array4<f32>>> = src
             .regions
             .iter()
             .map(|r| {
@@ -128,6 +131,21 @@ impl ViewLevel {
                 owner(shares.iter().map(|c| c[[0, 0, y, x]]))
             })
         });
+        let imposed = (channels.iter())
+            .map(|r| {
+                (r.iter().zip(&src.parts))
+                    .map(|(g, &(_, part))| {
+                        let (_, _, hl, wl) = g.dim();
+                        let (g, a) = (g.as_slice(), a.as_slice());
+                        part.imposed(
+                            g.expect("standard layout"),
+                            a.expect("standard layout"),
+                            (hl, wl),
+                        )
+                    })
+                    .collect()
+            })
+            .collect();
         ViewLevel {
             alpha: a,
             source,
@@ -136,6 +154,7 @@ impl ViewLevel {
             guidance,
             s,
             full: size,
+            imposed,
         }
     }
 }
@@ -208,21 +227,15 @@ impl<'a> ViewImage<'a> {
         let size = frozen.full;
         let filled = fill_background(rgb, &src.alpha[v], src.background, size.0, size.1);
         let colour = pooled(&filled, 3, size, frozen.s);
-        let alpha = frozen.alpha.as_slice().expect("standard layout");
-        let current = frozen
-            .channels
-            .iter()
-            .map(|r| {
-                r.iter()
-                    .zip(&src.parts)
-                    .map(|(g, &(_, part))| {
-                        let (_, _, h, w) = g.dim();
-                        let own = g.as_slice().expect("standard layout");
-                        part.with_current(own, colour.index_axis(Axis(0), 0), alpha)
-                            .map(|c| {
-                                Array4::from_shape_vec((1, 1, h, w), c)
-                                    .expect("one value per pixel")
-                            })
+        let current = (frozen.channels.iter().zip(&frozen.imposed))
+            .map(|(r, imposed)| {
+                (r.iter().zip(imposed).zip(&src.parts))
+                    .map(|((g, share), &(_, part))| {
+                        let share = share.as_ref()?;
+                        let own = part.of_current(colour.index_axis(Axis(0), 0));
+                        let g4 = g.as_slice().expect("standard layout");
+                        let c = super::parts::follow(g4, share, &own);
+                        Some(Array4::from_shape_vec(g.dim(), c).expect("one value per pixel"))
                     })
                     .collect()
             })
