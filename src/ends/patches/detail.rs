@@ -50,7 +50,7 @@
 //! the op-art bands come out as blobs").
 
 use super::SynthesisParams;
-use super::guide::{blur, source_guides, style_moments};
+use super::guide::{band, blur, source_guides, style_moments};
 use crate::imageio::Image;
 use crate::metrics::interior::erode;
 use rayon::prelude::*;
@@ -201,8 +201,10 @@ fn interior(alpha: &[f32], (h, w): (usize, usize), r: usize) -> Vec<f32> {
 fn style_band(style: &Image, style_size: usize, p: &SynthesisParams) -> Vec<f32> {
     let st = style.with_shorter_side(style_size.max(1));
     let l = super::motif::luma(&st.data);
-    let base = blur(l.clone(), (st.height, st.width), p.detail_blur);
-    l.iter().zip(&base).map(|(a, b)| (a - b).abs()).collect()
+    band(&l, (st.height, st.width), p.detail_blur)
+        .into_iter()
+        .map(f32::abs)
+        .collect()
 }
 
 /// `|d|` over the pixels of coverage > 0.5 of every view.

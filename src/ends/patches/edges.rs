@@ -25,7 +25,7 @@
 //! that matches those colours matches too: the texture is free there.
 
 use super::detail::quantile;
-use super::guide::{blur, source_guides, style_moments};
+use super::guide::{band, blur, source_guides, style_moments};
 use super::motif::{LUMA, luma};
 use super::parts::Channel;
 use super::{OBJECT, SynthesisParams};
@@ -41,12 +41,6 @@ const MAX_GAIN: f32 = 4.0;
 /// The object imposes its band pass where its `|band|` is at least this quantile over
 /// the view's object pixels (its strongest fifth).
 pub const IMPOSED_QUANTILE: f32 = 0.8;
-
-/// `x` (`[h w]`) less its blur of `sigma` pixels (clamped borders).
-fn band(x: &[f32], size: (usize, usize), sigma: f32) -> Vec<f32> {
-    let base = blur(x.to_vec(), size, sigma);
-    x.iter().zip(&base).map(|(a, b)| a - b).collect()
-}
 
 /// The gain that brings the object's band pass (`object`: its magnitudes over the
 /// object's pixels) to the style's (`style`: its magnitudes), module docs.

@@ -163,6 +163,12 @@ pub fn blur(x: Vec<f32>, (h, w): (usize, usize), sigma: f32) -> Vec<f32> {
     gaussian(&x, (h, w), sigma, Border::Clamp)
 }
 
+/// `x` (`[h w]`) less its [`blur`] of `sigma` pixels: its band pass finer than `sigma`.
+pub fn band(x: &[f32], size: (usize, usize), sigma: f32) -> Vec<f32> {
+    let base = blur(x.to_vec(), size, sigma);
+    x.iter().zip(&base).map(|(a, b)| a - b).collect()
+}
+
 /// The structure guide as a part of the synthesis ([`super::PARTS`]).
 #[derive(Debug, Clone, Copy)]
 pub struct StructureGuide;
