@@ -451,7 +451,7 @@ mod tests {
         );
         assert_eq!((m.finish, m.synthesis.guide_blur), (default.finish, 2.0));
         // `shaded` is the default's end with the guide nearly off and the shading in the
-        // layer, whose weight detail x control stays the default's.
+        // layer, whose weight detail x control stays 1 (the default's before its edge guide).
         let s = Config::layered(&[Source::Preset("shaded".into())]).unwrap();
         assert_eq!((s.start, s.finish), (default.start, default.finish));
         assert_eq!(
@@ -464,6 +464,8 @@ mod tests {
         );
         assert!((s.synthesis.detail * s.synthesis.control - 1.0).abs() < 1e-6);
         assert_eq!(default.synthesis.shade_blur, 0.0);
+        // Both were measured without the default's edge guide, and keep it off.
+        assert_eq!((m.synthesis.edges, s.synthesis.edges), (0.0, 0.0));
         // What a file holds is what it reads back.
         let back: Config = toml::from_str(&d.to_toml()).unwrap();
         assert_eq!(back, d);
@@ -475,9 +477,10 @@ mod tests {
         let paper = Config::default().checked().unwrap();
         assert_eq!(d.finish, End::finish("patches").unwrap());
         assert_eq!(d.synthesis.control, 1.0);
-        assert_eq!((d.synthesis.guide_blur, d.synthesis.detail), (2.0, 1.0));
+        assert_eq!((d.synthesis.guide_blur, d.synthesis.detail), (2.0, 0.75));
         assert_eq!((d.synthesis.lr, d.synthesis.line_weight), (0.1, 2.0));
         assert_eq!((d.synthesis.ink, d.synthesis.consensus), (2.0, 8.0));
+        assert_eq!(d.synthesis.edges, 2.0);
         let mut unguided = d.clone();
         unguided.finish = Finish::NONE;
         unguided.synthesis.control = paper.synthesis.control;
@@ -487,6 +490,7 @@ mod tests {
         unguided.synthesis.line_weight = paper.synthesis.line_weight;
         unguided.synthesis.ink = paper.synthesis.ink;
         unguided.synthesis.consensus = paper.synthesis.consensus;
+        unguided.synthesis.edges = paper.synthesis.edges;
         assert_eq!(unguided, paper);
         let c = Config::layered(&[
             Source::Preset("default".into()),

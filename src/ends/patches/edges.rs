@@ -1,4 +1,4 @@
-//! The edge guide (`synthesis.edges`, off in the default preset): the object's fine
+//! The edge guide (`synthesis.edges`, 2 in the default preset): the object's fine
 //! structure as one more channel of the match, so that the style's *own* edges (a
 //! mosaic's leading, a wall's joints, a stroke's border) are chosen where the object has
 //! its edges, with their polarity. It is the edge guide of EbSynth (Jamriska et al. 2019)

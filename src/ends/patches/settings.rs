@@ -85,9 +85,9 @@ pub struct SynthesisParams {
     /// The edge guide's weight: at the object's strongest edges its band pass (its
     /// remapped luma less its blur of 2 synthesis pixels, raised to the style's edge
     /// strength) is matched beside the colours against the style's own band pass, so the
-    /// style's own edges are chosen there; elsewhere the texture stays free (0: off; with
-    /// it, a lighter detail layer, e.g. `detail = 0.75`). Its weight follows `control`
-    /// (`sqrt(3 edges control)`). See `edges.rs`.
+    /// style's own edges are chosen there; elsewhere the texture stays free (0: off; the
+    /// default preset's 2 goes with a lighter detail layer, `detail = 0.75`). Its weight
+    /// follows `control` (`sqrt(3 edges control)`). See `edges.rs`.
     #[arg(long, default_value_t = 0.0)]
     pub edges: f32,
     /// The views' consensus: each round of the finest level, each view's texture target
