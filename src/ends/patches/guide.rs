@@ -36,7 +36,9 @@
 //!
 //! It is a part of the synthesis of the [`Channel`] kind ([`super::PARTS`]'
 //! `guide`, on when `synthesis.control` > 0): one more channel of every patch, weighted
-//! by sqrt(3 control).
+//! by sqrt(3 guide_weight control) (`synthesis.guide_weight`, 1 unless set: below it the
+//! object's shading asks less of the style's layout, while the edge guide and the detail
+//! layer, which follow `control` alone, keep its lines).
 
 use super::SynthesisParams;
 use super::motif::{luma, motif_mask};
@@ -195,7 +197,7 @@ impl Channel for StructureGuide {
     }
 
     fn weight(&self, p: &SynthesisParams) -> f32 {
-        (3.0 * p.control).sqrt()
+        (3.0 * p.guide_weight * p.control).sqrt()
     }
 
     fn matched_at_level(&self) -> bool {
@@ -206,6 +208,28 @@ impl Channel for StructureGuide {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn guide_weight_scales_the_structure_guide_alone() {
+        let p = |guide_weight: f32, control: f32| SynthesisParams {
+            guide_weight,
+            control,
+            edges: 2.0,
+            detail: 0.75,
+            ..SynthesisParams::default()
+        };
+        // The guide's weight is sqrt(3 guide_weight control); 1 leaves it at the control's.
+        assert_eq!(StructureGuide.weight(&p(1.0, 0.5)), 1.5f32.sqrt());
+        assert_eq!(StructureGuide.weight(&p(0.25, 1.0)), 0.75f32.sqrt());
+        assert_eq!(StructureGuide.weight(&p(0.0, 1.0)), 0.0);
+        // The edge guide and the detail layer follow the control alone.
+        let edges = super::super::edges::EdgeGuide;
+        assert_eq!(edges.weight(&p(0.25, 1.0)), edges.weight(&p(1.0, 1.0)));
+        assert_eq!(
+            super::super::detail::weight(&p(0.25, 1.0)),
+            super::super::detail::weight(&p(1.0, 1.0))
+        );
+    }
 
     #[test]
     fn the_styles_moments_are_its_motifs() {

@@ -45,6 +45,13 @@ pub struct SynthesisParams {
     /// colour channels). See `guide.rs`.
     #[arg(long, default_value_t = 0.0)]
     pub control: f32,
+    /// The structure guide's share of the control: its weight in the match is `sqrt(3
+    /// guide_weight control)`, where the edge guide and the detail layer follow `control`
+    /// alone; below 1 the object's shading asks less of the style's layout while the edge
+    /// guide and the layer keep its lines (1: the guide at the control's weight). See
+    /// `guide.rs`.
+    #[arg(long, default_value_t = 1.0)]
+    pub guide_weight: f32,
     /// The structure guide's scale: its luma blurred with this standard deviation (in
     /// synthesis pixels, at every level, the style's and the object's alike) before the
     /// match, so that it asks for the object's shading at the motif's scale and leaves the
@@ -148,6 +155,9 @@ impl SynthesisParams {
         }
         if !(self.control.is_finite() && (0.0..=100.0).contains(&self.control)) {
             return Err(Error::param("synthesis.control must lie in [0, 100]"));
+        }
+        if !(self.guide_weight.is_finite() && (0.0..=100.0).contains(&self.guide_weight)) {
+            return Err(Error::param("synthesis.guide_weight must lie in [0, 100]"));
         }
         if !(self.motifs_across.is_finite() && (1.0..=1000.0).contains(&self.motifs_across)) {
             return Err(Error::param(
