@@ -6,6 +6,15 @@
 //! leaves); its patches leave the bank and its pixels the style's moments
 //! ([`super::guide`]), so its share of the style is not forced onto the object. Every level
 //! of the synthesis uses it, guided or not.
+//!
+//! **The rim.** Where the motif meets the background its edge pixels are partly covered
+//! (anti-aliasing, a soft focus, a render over black): blends of the motif's colour and
+//! the background's, a dark halo that is neither. Kept as motif, the halo is a motif
+//! the balance hands its share of the object (a bust styled with its own render over
+//! black came out darker than the render, its outline's halo laid over it). So the
+//! motif's pixels near the background whose colour lies between the background's and
+//! the motif's own colour further in are background too ([`drop_rim`]); a real outline
+//! of another colour is off that line and stays.
 
 use crate::imageio::Image;
 use crate::render::fill::push_pull;
@@ -39,6 +48,12 @@ const BACKGROUND_INNER_SHARE: f32 = 0.1;
 const OBJECT_MIN_SHARE: f32 = 0.01;
 /// Pixels of the background's colour it grows by beside the motif.
 const BACKGROUND_RING: usize = 3;
+/// The motif's rim tested as a blend with the background, px ([`drop_rim`]).
+const RIM_PX: usize = 3;
+/// A rim pixel is a blend when its share of the motif's colour is below this ...
+const RIM_BLEND_MAX: f32 = 0.9;
+/// ... and its colour off the line from the background's to the motif's by at most this.
+const RIM_RESIDUAL: f32 = 0.1;
 
 /// The style's motif pixels (`[h w]`, row-major): every pixel except a flat background, the
 /// connected region of pixels near the border's dominant colour with no local texture that
@@ -112,7 +127,65 @@ pub fn motif_mask(img: &Image) -> Vec<bool> {
             motif[i] = false;
         }
     }
+    drop_rim(img, &mut motif, bg);
     motif
+}
+
+/// The motif's anti-aliased rim (module docs): the motif pixels at most [`RIM_PX`]
+/// 8-neighbour steps from the background whose colour lies on the line from the
+/// background's colour `bg` to the motif's own colour there (the motif's pixels further
+/// in, extended outward by push-pull), short of it (a share below [`RIM_BLEND_MAX`]) and
+/// off it by at most [`RIM_RESIDUAL`]: a blend of the two, a partly covered pixel, is
+/// background. Nothing changes where the motif's colour there is near the background's
+/// (nothing to tell a blend by) or no motif pixel lies further in.
+fn drop_rim(img: &Image, motif: &mut [bool], bg: [f32; 3]) {
+    let (h, w) = (img.height, img.width);
+    // Steps from the background (RIM_PX + 1: further).
+    let mut steps = vec![RIM_PX + 1; h * w];
+    let mut front: Vec<usize> = (0..h * w).filter(|&i| !motif[i]).collect();
+    for &i in &front {
+        steps[i] = 0;
+    }
+    for d in 1..=RIM_PX {
+        let mut next = Vec::new();
+        for i in front {
+            let (y, x) = (i / w, i % w);
+            let rows = y.saturating_sub(1)..(y + 2).min(h);
+            let around = rows
+                .flat_map(|yy| (x.saturating_sub(1)..(x + 2).min(w)).map(move |xx| yy * w + xx));
+            for j in around {
+                if steps[j] > d {
+                    steps[j] = d;
+                    next.push(j);
+                }
+            }
+        }
+        front = next;
+    }
+    let inner: Vec<f32> = steps
+        .iter()
+        .map(|&s| f32::from(u8::from(s > RIM_PX)))
+        .collect();
+    if inner.iter().all(|&v| v == 0.0) {
+        return;
+    }
+    let own = push_pull(&img.data, &inner, h, w);
+    for i in (0..h * w).filter(|&i| (1..=RIM_PX).contains(&steps[i])) {
+        let v: [f32; 3] = std::array::from_fn(|c| own[i * 3 + c] - bg[c]);
+        let u: [f32; 3] = std::array::from_fn(|c| img.data[i * 3 + c] - bg[c]);
+        let vv: f32 = v.iter().map(|x| x * x).sum();
+        if vv.sqrt() < BACKGROUND_TOLERANCE {
+            continue;
+        }
+        let a = (0..3).map(|c| u[c] * v[c]).sum::<f32>() / vv;
+        let off: f32 = (0..3)
+            .map(|c| (u[c] - a * v[c]).powi(2))
+            .sum::<f32>()
+            .sqrt();
+        if a < RIM_BLEND_MAX && off <= RIM_RESIDUAL {
+            motif[i] = false;
+        }
+    }
 }
 
 /// `img` with its background (`motif` false) replaced by its motif's colours extended
@@ -298,6 +371,43 @@ pub(super) mod tests {
         });
         assert!(flat_border_share(&rings, 0.02) >= BACKGROUND_TIGHT_SHARE);
         assert!(motif_mask(&rings).iter().all(|&v| v));
+    }
+
+    /// A flat disc of radius 20 on black, 64 x 64, its colour `c`, with a 3 px band inside
+    /// its edge of colour `edge(c, coverage)` (coverage falling linearly to the edge).
+    fn disc_with_edge(c: [f32; 3], edge: impl Fn([f32; 3], f32) -> [f32; 3]) -> Image {
+        image(64, 64, |y, x| {
+            let r = ((y as f32 - 32.0).powi(2) + (x as f32 - 32.0).powi(2)).sqrt();
+            if r < 17.0 {
+                c
+            } else if r < 20.0 {
+                edge(c, (20.0 - r) / 3.0)
+            } else {
+                [0.0; 3]
+            }
+        })
+    }
+
+    #[test]
+    fn the_motifs_anti_aliased_rim_is_background_and_an_outline_is_not() {
+        // The pixels of the band's middle (radius 17.5 to 19.5), and how many are motif.
+        let band: Vec<usize> = (0..64 * 64)
+            .filter(|&i| {
+                let (y, x) = ((i / 64) as f32 - 32.0, (i % 64) as f32 - 32.0);
+                (17.5..19.5).contains(&(y * y + x * x).sqrt())
+            })
+            .collect();
+        let kept = |m: &[bool]| band.iter().filter(|&&i| m[i]).count();
+        // Blends of the disc's colour and black (a partly covered edge): background.
+        let soft = motif_mask(&disc_with_edge([0.7, 0.5, 0.3], |c, a| c.map(|v| v * a)));
+        assert!(
+            soft[32 * 64 + 32] && soft[32 * 64 + 48],
+            "the disc inside its rim"
+        );
+        assert_eq!(kept(&soft), 0, "the blend is background");
+        // A red outline (off the line from black to the disc's colour): motif.
+        let outlined = motif_mask(&disc_with_edge([0.2, 0.5, 0.3], |_, _| [0.8, 0.1, 0.1]));
+        assert_eq!(kept(&outlined), band.len(), "the outline is motif");
     }
 
     /// A textured disc of radius 24 on black with a black hole of radius `hole` at its
