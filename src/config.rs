@@ -464,8 +464,13 @@ mod tests {
         );
         assert!((s.synthesis.detail * s.synthesis.control - 1.0).abs() < 1e-6);
         assert_eq!(default.synthesis.shade_blur, 0.0);
-        // Both were measured without the default's edge guide, and keep it off.
+        // Both were measured without the default's edge guide and at the guide's full
+        // share, and keep them so.
         assert_eq!((m.synthesis.edges, s.synthesis.edges), (0.0, 0.0));
+        assert_eq!(
+            (m.synthesis.guide_weight, s.synthesis.guide_weight),
+            (1.0, 1.0)
+        );
         // What a file holds is what it reads back.
         let back: Config = toml::from_str(&d.to_toml()).unwrap();
         assert_eq!(back, d);
@@ -480,7 +485,7 @@ mod tests {
         assert_eq!((d.synthesis.guide_blur, d.synthesis.detail), (2.0, 0.75));
         assert_eq!((d.synthesis.lr, d.synthesis.line_weight), (0.1, 2.0));
         assert_eq!((d.synthesis.ink, d.synthesis.consensus), (2.0, 8.0));
-        assert_eq!(d.synthesis.edges, 2.0);
+        assert_eq!((d.synthesis.edges, d.synthesis.guide_weight), (2.0, 0.25));
         let mut unguided = d.clone();
         unguided.finish = Finish::NONE;
         unguided.synthesis.control = paper.synthesis.control;
@@ -491,6 +496,7 @@ mod tests {
         unguided.synthesis.ink = paper.synthesis.ink;
         unguided.synthesis.consensus = paper.synthesis.consensus;
         unguided.synthesis.edges = paper.synthesis.edges;
+        unguided.synthesis.guide_weight = paper.synthesis.guide_weight;
         assert_eq!(unguided, paper);
         let c = Config::layered(&[
             Source::Preset("default".into()),

@@ -36,9 +36,9 @@
 //!
 //! It is a part of the synthesis of the [`Channel`] kind ([`super::PARTS`]'
 //! `guide`, on when `synthesis.control` > 0): one more channel of every patch, weighted
-//! by sqrt(3 guide_weight control) (`synthesis.guide_weight`, 1 unless set: below it the
-//! object's shading asks less of the style's layout, while the edge guide and the detail
-//! layer, which follow `control` alone, keep its lines).
+//! by sqrt(3 guide_weight control) (`synthesis.guide_weight`, 1 unless set, 0.25 in the
+//! default preset: below 1 the object's shading asks less of the style's layout, while the
+//! edge guide and the detail layer, which follow `control` alone, keep its lines).
 
 use super::SynthesisParams;
 use super::motif::{luma, motif_mask};

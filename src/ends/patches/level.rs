@@ -11,7 +11,7 @@
 use super::coherence::Neighbour;
 use super::couple::couple;
 use super::guide::Moments;
-use super::motif::{fill_background, motif_mask};
+use super::motif::{fill_background, motif_mask_at};
 use super::parts::{Channel, Rematch};
 use super::search::{CellSearch, Path};
 use super::{BALANCE_EPS, CELLS, Named, SynthesisParams};
@@ -286,7 +286,7 @@ struct Sized {
 impl Sized {
     fn new(style: &Image, side: usize, p: &SynthesisParams, stride: usize, i: usize) -> Sized {
         let sized = style.with_shorter_side(side);
-        let motif = motif_mask(&sized);
+        let motif = motif_mask_at(style, (sized.width, sized.height));
         let keep = motif_rows(&motif, &sized, p.patch, stride);
         let image = if keep.is_empty() {
             sized

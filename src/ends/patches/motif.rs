@@ -5,7 +5,8 @@
 //! inside the object when they are few beside it (the background seen between a plant's
 //! leaves); its patches leave the bank and its pixels the style's moments
 //! ([`super::guide`]), so its share of the style is not forced onto the object. Every level
-//! of the synthesis uses it, guided or not.
+//! of the synthesis uses it, guided or not: found once on the style as given and carried
+//! to each level's size ([`motif_mask_at`]).
 //!
 //! **The rim.** Where the motif meets the background its edge pixels are partly covered
 //! (anti-aliasing, a soft focus, a render over black): blends of the motif's colour and
@@ -186,6 +187,33 @@ fn drop_rim(img: &Image, motif: &mut [bool], bg: [f32; 3]) {
             motif[i] = false;
         }
     }
+}
+
+/// The style's motif pixels ([`motif_mask`] of `style` as given) at a level's size
+/// `(width, height)`: the mask resized as the image is ([`Image::with_shorter_side`]'s
+/// filter), a level's pixel motif only where everything it takes from the style is. So
+/// the background is one decision for every level (a tight crop on black whose small
+/// levels' borders are mostly the object's would otherwise have no background there, its
+/// black a motif), and no level's pixel is a blend of the motif and the background.
+pub fn motif_mask_at(style: &Image, (width, height): (usize, usize)) -> Vec<bool> {
+    let motif = motif_mask(style);
+    if motif.iter().all(|&m| m) {
+        return vec![true; width * height];
+    }
+    let share = Image {
+        width: style.width,
+        height: style.height,
+        data: motif
+            .iter()
+            .flat_map(|&m| [f32::from(u8::from(m)); 3])
+            .collect(),
+    };
+    share
+        .resized(width, height, crate::imageio::Filter::Bilinear)
+        .data
+        .chunks_exact(3)
+        .map(|c| c[0] >= 1.0 - 1e-6)
+        .collect()
 }
 
 /// `img` with its background (`motif` false) replaced by its motif's colours extended
@@ -408,6 +436,43 @@ pub(super) mod tests {
         // A red outline (off the line from black to the disc's colour): motif.
         let outlined = motif_mask(&disc_with_edge([0.2, 0.5, 0.3], |_, _| [0.8, 0.1, 0.1]));
         assert_eq!(kept(&outlined), band.len(), "the outline is motif");
+    }
+
+    #[test]
+    fn a_level_takes_the_styles_background_at_its_size() {
+        // A tight crop on black (its border between 1/2 and 3/4 black at 64 px): at 16 px
+        // the flatness test finds too little flat black on the border and, tested there,
+        // the black would be a motif; carried from the style, the corners are background.
+        let tight = image(64, 64, |y, x| {
+            let (dy, dx) = (y as f32 - 31.5, x as f32 - 31.5);
+            if dy * dy + dx * dx < 32.5 * 32.5 {
+                [if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.3 }, 0.6, 0.4]
+            } else {
+                [0.02; 3]
+            }
+        });
+        let small = tight.with_shorter_side(16);
+        assert!(
+            motif_mask(&small).iter().all(|&m| m),
+            "tested at 16 px: no background"
+        );
+        let m = motif_mask_at(&tight, (16, 16));
+        assert!(
+            !m[0] && !m[15] && !m[16 * 15] && !m[16 * 16 - 1],
+            "the corners"
+        );
+        assert!(m[8 * 16 + 8] && m[8 * 16] && m[8], "the disc, to its sides");
+        // A pixel of the level that takes any background is background: none is a blend.
+        let full = motif_mask(&tight);
+        let at = motif_mask_at(&tight, (32, 32));
+        for (i, &v) in at.iter().enumerate() {
+            let (y, x) = (2 * (i / 32), 2 * (i % 32));
+            let all = [0, 1, 64, 65].iter().all(|&d| full[y * 64 + x + d]);
+            assert_eq!(v, all, "pixel {i}");
+        }
+        // A style without a background keeps every pixel at every size.
+        let stripes = image(64, 64, |_, x| [f32::from(u8::from((x / 8) % 2 == 0)); 3]);
+        assert!(motif_mask_at(&stripes, (20, 20)).iter().all(|&m| m));
     }
 
     /// A textured disc of radius 24 on black with a black hole of radius `hole` at its
