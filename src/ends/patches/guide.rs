@@ -229,6 +229,27 @@ mod tests {
             super::super::detail::weight(&p(0.25, 1.0)),
             super::super::detail::weight(&p(1.0, 1.0))
         );
+        // At no share the guide is off (no channel to carry), the edge guide still on.
+        let on = |p: &SynthesisParams| -> Vec<&str> {
+            super::super::active_parts(p)
+                .iter()
+                .map(|k| k.name)
+                .collect()
+        };
+        let none = SynthesisParams {
+            control: 1.0,
+            guide_weight: 0.0,
+            edges: 2.0,
+            ..SynthesisParams::default()
+        };
+        assert!(!on(&none).contains(&"guide") && on(&none).contains(&"edges"));
+        assert!(
+            on(&SynthesisParams {
+                guide_weight: 0.25,
+                ..none
+            })
+            .contains(&"guide")
+        );
     }
 
     #[test]

@@ -77,7 +77,7 @@ use view::{Query, ViewImage, ViewLevel};
 /// The parts, in the order their channels join the search and their rematches apply.
 #[rustfmt::skip]
 pub const PARTS: &[PartKind] = &[
-    PartKind { name: "guide", key: "synthesis.control", help: "the structure guide: the source render's luma, remapped to the style's, matched beside the colours (ControlNet's role)", on: |p| p.control > 0.0, hook: Hook::Channel(&guide::StructureGuide) },
+    PartKind { name: "guide", key: "synthesis.control", help: "the structure guide: the source render's luma, remapped to the style's, matched beside the colours (ControlNet's role)", on: |p| p.control > 0.0 && p.guide_weight > 0.0, hook: Hook::Channel(&guide::StructureGuide) },
     PartKind { name: "edges", key: "synthesis.edges", help: "the edge guide: the style's own edges chosen at the object's strongest edges (EbSynth's edge guide as a cost), the texture free elsewhere", on: |p| p.edges > 0.0 && p.control > 0.0, hook: Hook::Channel(&edges::EdgeGuide) },
     PartKind { name: "negative", key: "synthesis.negative", help: "CSD's negative branch at t -> 0: a style patch continuing a neighbour's piece pays a cost", on: |p| p.negative > 0.0, hook: Hook::Rematch(&negative::Negative) },
     #[cfg(test)]

@@ -49,7 +49,8 @@ pub struct SynthesisParams {
     /// guide_weight control)`, where the edge guide and the detail layer follow `control`
     /// alone; below 1 the object's shading asks less of the style's layout while the edge
     /// guide and the layer keep its lines (1: the guide at the control's weight; the
-    /// default preset sets 0.25). See `guide.rs`.
+    /// default preset sets 0.25; 0: the guide off, the edge guide and the layer alone).
+    /// See `guide.rs`.
     #[arg(long, default_value_t = 1.0)]
     pub guide_weight: f32,
     /// The structure guide's scale: its luma blurred with this standard deviation (in
