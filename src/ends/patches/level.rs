@@ -11,7 +11,7 @@
 use super::coherence::Neighbour;
 use super::couple::couple;
 use super::guide::Moments;
-use super::motif::{fill_background, motif_mask_at};
+use super::motif::{fill_background, motif_at};
 use super::parts::{Channel, Rematch};
 use super::search::{CellSearch, Path};
 use super::{BALANCE_EPS, CELLS, Named, SynthesisParams};
@@ -101,6 +101,7 @@ impl StyleLevel {
     /// M_i its patches), so the balance uses each style in proportion to its weight.
     pub(super) fn new(
         styles: &[(&Image, f32)],
+        motifs: &[Vec<bool>],
         side: usize,
         p: &SynthesisParams,
         stride: usize,
@@ -109,7 +110,9 @@ impl StyleLevel {
         let each: Vec<Sized> = styles
             .iter()
             .enumerate()
-            .map(|(i, &(style, _))| Sized::new(style, side.max(p.patch), p, stride, i))
+            .map(|(i, &(style, _))| {
+                Sized::new((style, &motifs[i]), side.max(p.patch), p, stride, i)
+            })
             .collect();
         let pos: Vec<[i32; 2]> = each.iter().flat_map(|e| e.pos.iter().copied()).collect();
         let counts: Vec<usize> = each.iter().map(|e| e.pts.nrows()).collect();
@@ -284,9 +287,15 @@ struct Sized {
 }
 
 impl Sized {
-    fn new(style: &Image, side: usize, p: &SynthesisParams, stride: usize, i: usize) -> Sized {
+    fn new(
+        (style, motif): (&Image, &[bool]),
+        side: usize,
+        p: &SynthesisParams,
+        stride: usize,
+        i: usize,
+    ) -> Sized {
         let sized = style.with_shorter_side(side);
-        let motif = motif_mask_at(style, (sized.width, sized.height));
+        let motif = motif_at(style, motif, (sized.width, sized.height));
         let keep = motif_rows(&motif, &sized, p.patch, stride);
         let image = if keep.is_empty() {
             sized
@@ -365,6 +374,7 @@ fn select_rows(x: Array2<f32>, keep: &[bool]) -> Array2<f32> {
 mod tests {
     use super::super::guide::StructureGuide;
     use super::super::motif::luma;
+    use super::super::motif::masks;
     use super::super::motif::tests::image;
     use super::*;
 
@@ -385,7 +395,7 @@ mod tests {
         let stripes = image(48, 48, |_, x| [if x % 2 == 0 { 0.1 } else { 0.9 }; 3]);
         let halves = image(48, 48, |_, x| [if x < 24 { 0.1 } else { 0.9 }; 3]);
         let moments = |style: &Image| {
-            StyleLevel::new(&[(style, 1.0)], 48, &p, 1, guide)
+            StyleLevel::new(&[(style, 1.0)], &masks(&[(style, 1.0)]), 48, &p, 1, guide)
                 .unwrap()
                 .channel_moments[0]
         };
@@ -401,7 +411,8 @@ mod tests {
         assert!(h.std > 0.8 * full.std, "halves keep {h:?}");
         assert!((s.mean - 0.5).abs() < 0.02 && (h.mean - 0.5).abs() < 0.02);
         // A blend of the two is their mixture's moments.
-        let b = StyleLevel::new(&[(&stripes, 0.5), (&halves, 0.5)], 48, &p, 1, guide)
+        let blend = [(&stripes, 0.5), (&halves, 0.5)];
+        let b = StyleLevel::new(&blend, &masks(&blend), 48, &p, 1, guide)
             .unwrap()
             .channel_moments[0];
         let want = Moments::blend([(s, 0.5), (h, 0.5)].into_iter());

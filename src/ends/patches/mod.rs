@@ -255,13 +255,13 @@ fn style_banks(
     p: &SynthesisParams,
     src: &Frozen,
 ) -> Result<Vec<Vec<StyleLevel>>> {
+    let motifs: Vec<_> = regions.iter().map(|r| motif::masks(&r.styles)).collect();
     p.levels
         .par_iter()
         .map(|&s| {
             let stride = if s == 1 { p.style_stride } else { 1 };
-            regions
-                .iter()
-                .map(|r| StyleLevel::new(&r.styles, style_size / s, p, stride, &src.parts))
+            (regions.iter().zip(&motifs))
+                .map(|(r, m)| StyleLevel::new(&r.styles, m, style_size / s, p, stride, &src.parts))
                 .collect::<Result<Vec<_>>>()
         })
         .collect()
@@ -416,10 +416,11 @@ pub fn synthesize_images(
         p,
     );
     let mut out = images.to_vec();
+    let motifs = motif::masks(styles);
     for &s in &p.levels {
         let stride = if s == 1 { p.style_stride } else { 1 };
         let level = crate::timing::phase("style bank", || {
-            StyleLevel::new(styles, style_size / s, p, stride, &src.parts)
+            StyleLevel::new(styles, &motifs, style_size / s, p, stride, &src.parts)
         })?;
         let levels = std::slice::from_ref(&level);
         let frozen = view::levels(&src, sizes, (s, levels), p);
@@ -658,7 +659,8 @@ mod tests {
             pca_dims: 4,
             ..SynthesisParams::default()
         };
-        let level = StyleLevel::new(&[(&style, 1.0)], 32, &p, 1, &[]).unwrap();
+        let one = [(&style, 1.0)];
+        let level = StyleLevel::new(&one, &motif::masks(&one), 32, &p, 1, &[]).unwrap();
         let red = Array2::from_shape_fn((1, 27), |(_, i)| [0.85, 0.15, 0.1][i % 3]);
         let blue = Array2::from_shape_fn((1, 27), |(_, i)| [0.1, 0.15, 0.85][i % 3]);
         for (q, want) in [(red, 0.9f32), (blue, 0.1)] {

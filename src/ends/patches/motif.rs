@@ -6,7 +6,7 @@
 //! leaves); its patches leave the bank and its pixels the style's moments
 //! ([`super::guide`]), so its share of the style is not forced onto the object. Every level
 //! of the synthesis uses it, guided or not: found once on the style as given and carried
-//! to each level's size ([`motif_mask_at`]).
+//! to each level's size ([`masks`], [`motif_at`]).
 //!
 //! **The rim.** Where the motif meets the background its edge pixels are partly covered
 //! (anti-aliasing, a soft focus, a render over black): blends of the motif's colour and
@@ -189,14 +189,19 @@ fn drop_rim(img: &Image, motif: &mut [bool], bg: [f32; 3]) {
     }
 }
 
-/// The style's motif pixels ([`motif_mask`] of `style` as given) at a level's size
+/// Each style's motif pixels ([`motif_mask`] of each image as given), found once for
+/// all the levels ([`motif_at`]).
+pub fn masks(styles: &[(&Image, f32)]) -> Vec<Vec<bool>> {
+    styles.iter().map(|(style, _)| motif_mask(style)).collect()
+}
+
+/// A style's motif pixels `motif` ([`motif_mask`] of `style` as given) at a level's size
 /// `(width, height)`: the mask resized as the image is ([`Image::with_shorter_side`]'s
 /// filter), a level's pixel motif only where everything it takes from the style is. So
 /// the background is one decision for every level (a tight crop on black whose small
 /// levels' borders are mostly the object's would otherwise have no background there, its
 /// black a motif), and no level's pixel is a blend of the motif and the background.
-pub fn motif_mask_at(style: &Image, (width, height): (usize, usize)) -> Vec<bool> {
-    let motif = motif_mask(style);
+pub fn motif_at(style: &Image, motif: &[bool], (width, height): (usize, usize)) -> Vec<bool> {
     if motif.iter().all(|&m| m) {
         return vec![true; width * height];
     }
@@ -361,18 +366,23 @@ pub(super) mod tests {
         border.iter().filter(|&&i| on(i)).count() as f32 / border.len() as f32
     }
 
-    #[test]
-    fn a_tight_crop_on_black_has_a_background_and_rings_have_none() {
-        // A textured disc cropped to its box, touching all four sides: the black corners
-        // make less than 3/4 of the border, and they are the background.
-        let tight = image(64, 64, |y, x| {
+    /// A textured disc on black cropped to its box, 64 x 64, touching all four sides.
+    fn tight_disc() -> Image {
+        image(64, 64, |y, x| {
             let (dy, dx) = (y as f32 - 31.5, x as f32 - 31.5);
             if dy * dy + dx * dx < 32.5 * 32.5 {
                 [if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.3 }, 0.6, 0.4]
             } else {
                 [0.02; 3]
             }
-        });
+        })
+    }
+
+    #[test]
+    fn a_tight_crop_on_black_has_a_background_and_rings_have_none() {
+        // A textured disc cropped to its box, touching all four sides: the black corners
+        // make less than 3/4 of the border, and they are the background.
+        let tight = tight_disc();
         let share = flat_border_share(&tight, 0.02);
         assert!(
             (BACKGROUND_TIGHT_SHARE..BACKGROUND_BORDER_SHARE).contains(&share),
@@ -443,20 +453,13 @@ pub(super) mod tests {
         // A tight crop on black (its border between 1/2 and 3/4 black at 64 px): at 16 px
         // the flatness test finds too little flat black on the border and, tested there,
         // the black would be a motif; carried from the style, the corners are background.
-        let tight = image(64, 64, |y, x| {
-            let (dy, dx) = (y as f32 - 31.5, x as f32 - 31.5);
-            if dy * dy + dx * dx < 32.5 * 32.5 {
-                [if (x / 3 + y / 3) % 2 == 0 { 0.9 } else { 0.3 }, 0.6, 0.4]
-            } else {
-                [0.02; 3]
-            }
-        });
+        let tight = tight_disc();
         let small = tight.with_shorter_side(16);
         assert!(
             motif_mask(&small).iter().all(|&m| m),
             "tested at 16 px: no background"
         );
-        let m = motif_mask_at(&tight, (16, 16));
+        let m = motif_at(&tight, &motif_mask(&tight), (16, 16));
         assert!(
             !m[0] && !m[15] && !m[16 * 15] && !m[16 * 16 - 1],
             "the corners"
@@ -464,7 +467,7 @@ pub(super) mod tests {
         assert!(m[8 * 16 + 8] && m[8 * 16] && m[8], "the disc, to its sides");
         // A pixel of the level that takes any background is background: none is a blend.
         let full = motif_mask(&tight);
-        let at = motif_mask_at(&tight, (32, 32));
+        let at = motif_at(&tight, &full, (32, 32));
         for (i, &v) in at.iter().enumerate() {
             let (y, x) = (2 * (i / 32), 2 * (i % 32));
             let all = [0, 1, 64, 65].iter().all(|&d| full[y * 64 + x + d]);
@@ -472,7 +475,11 @@ pub(super) mod tests {
         }
         // A style without a background keeps every pixel at every size.
         let stripes = image(64, 64, |_, x| [f32::from(u8::from((x / 8) % 2 == 0)); 3]);
-        assert!(motif_mask_at(&stripes, (20, 20)).iter().all(|&m| m));
+        assert!(
+            motif_at(&stripes, &motif_mask(&stripes), (20, 20))
+                .iter()
+                .all(|&m| m)
+        );
     }
 
     /// A textured disc of radius 24 on black with a black hole of radius `hole` at its

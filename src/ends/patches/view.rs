@@ -463,7 +463,16 @@ mod tests {
                 [0.0; 3],
                 &p,
             );
-            let level = StyleLevel::new(&[(style, 1.0)], 24, &p, 1, &channels(&p)).unwrap();
+            let one = [(style, 1.0)];
+            let level = StyleLevel::new(
+                &one,
+                &super::super::motif::masks(&one),
+                24,
+                &p,
+                1,
+                &channels(&p),
+            )
+            .unwrap();
             let to = level.channel_moments[0];
             let object = |views: &[super::ViewLevel]| {
                 let f = &views[0];
